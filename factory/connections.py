@@ -1,0 +1,149 @@
+"""Where a part connects: studs from its stud primitives, sockets from its geometry.
+
+Studs are read off the reference tree (`stud.dat` and its kin, wherever they sit). Sockets (places a
+stud of another part can enter) are found by probing the underside with rays, so they work for parts
+nobody listed: a socket is a spot on a stud-aligned grid, at a downward-facing rim, where a stud-sized
+column (radius 6, height 4 LDU) is free of material, nothing lies below, and walls, bars or a tube
+touch the stud from at least three sides. A socket ringed on all sides is a tube centre (`tube`),
+others are anti-stud positions (`stud`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+STUD_RADIUS = 6.0
+STUD_HEIGHT = 4.0
+GRID = 10.0
+"""Sockets sit on a half-stud grid (stud pitch 20 LDU): stud positions and tube centres both."""
+
+UP = np.array([0.0, -1.0, 0.0])
+"""LDraw's up: studs point this way, and a socket receives a stud moving this way."""
+
+
+@dataclass(frozen=True)
+class Connector:
+    """A connection point in the part's frame: studs point out of the part along `axis`; a socket's
+    `axis` is the direction a stud moves to enter it, so a mated stud and socket share pos and axis."""
+
+    pos: tuple[float, float, float]
+    axis: tuple[float, float, float]
+    kind: str
+    """'stud' for a stud; for a socket, 'stud' (anti-stud between walls) or 'tube' (tube centre)."""
+
+    def to_json(self, with_kind: bool) -> dict:
+        out = {"pos": [_r(v) for v in self.pos], "axis": [_r(v) for v in self.axis]}
+        if with_kind:
+            out["kind"] = self.kind
+        return out
+
+
+def _r(v: float) -> float:
+    r = round(float(v), 4)
+    return 0.0 if r == 0 else r
+
+
+def studs_from_flat(studs: np.ndarray) -> tuple[Connector, ...]:
+    """Connectors from the (k, 2, 3) stud records of a flattened part, in a stable order."""
+    rows = sorted((tuple(np.round(s[0], 4)), tuple(np.round(s[1], 6))) for s in studs)
+    return tuple(Connector(pos, axis, "stud") for pos, axis in rows)
+
+
+def first_hits(tris: np.ndarray, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Distance along each ray to the first triangle it meets (inf where none); Moller-Trumbore.
+
+    Both faces count: LDraw meshes are not always closed, and a probe must see every surface.
+    """
+    if len(tris) == 0 or len(origins) == 0:
+        return np.full(len(origins), np.inf)
+    v0 = tris[:, 0]
+    e1 = tris[:, 1] - v0
+    e2 = tris[:, 2] - v0
+    o = origins[:, None, :]
+    d = dirs[:, None, :]
+    p = np.cross(d, e2[None])
+    det = np.einsum("rtk,tk->rt", p, e1)
+    ok = np.abs(det) > 1e-12
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    s = o - v0[None]
+    u = np.einsum("rtk,rtk->rt", s, p) * inv
+    q = np.cross(s, e1[None])
+    v = np.einsum("rtk,rtk->rt", np.broadcast_to(d, q.shape), q) * inv
+    t = np.einsum("rtk,tk->rt", q, e2) * inv
+    eps = 1e-7
+    hit = ok & (u >= -eps) & (v >= -eps) & (u + v <= 1 + eps) & (t > 1e-6)
+    t = np.where(hit, t, np.inf)
+    return t.min(axis=1)
+
+
+def _disc(radius: float) -> np.ndarray:
+    ang = np.arange(8) * (np.pi / 4) + np.pi / 8
+    ring = np.stack([np.cos(ang), np.sin(ang)], 1)
+    return np.concatenate([[[0.0, 0.0]], ring * radius, ring * radius * 0.55])
+
+
+_DISC = _disc(STUD_RADIUS - 0.5)
+_DIRS8 = np.array(
+    [[np.cos(a), 0.0, np.sin(a)] for a in np.arange(8) * (np.pi / 4)], dtype=np.float64
+)
+
+
+def find_sockets(tris: np.ndarray) -> tuple[Connector, ...]:
+    """Sockets on the underside of a part, from its triangles (n, 3, 3) in LDU."""
+    if len(tris) == 0:
+        return ()
+    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    flat_y = np.ptp(tris[:, :, 1], axis=1) < 1e-6
+    facing = flat_y & (np.abs(n[:, 1]) > 1e-9)
+    levels = np.unique(np.round(tris[facing, 0, 1], 3))
+    lo = tris.min(axis=(0, 1))
+    hi = tris.max(axis=(0, 1))
+    centres = tris.mean(axis=1)
+    reach = np.linalg.norm(tris - centres[:, None], axis=2).max(axis=1)
+    xs = np.arange(np.ceil((lo[0] + STUD_RADIUS) / GRID), np.floor((hi[0] - STUD_RADIUS) / GRID) + 1) * GRID
+    zs = np.arange(np.ceil((lo[2] + STUD_RADIUS) / GRID), np.floor((hi[2] - STUD_RADIUS) / GRID) + 1) * GRID
+    found: list[Connector] = []
+    rim = tris[facing]
+    rim_y = np.round(rim[:, 0, 1], 3)
+    for y0 in levels:
+        at_level = rim[rim_y == y0]
+        if len(at_level) == 0:
+            continue
+        for x in xs:
+            for z in zs:
+                kind = _probe(tris, centres, reach, at_level, np.array([x, y0, z]))
+                if kind:
+                    found.append(Connector((_r(x), _r(y0), _r(z)), tuple(UP.tolist()), kind))
+    return tuple(sorted(found, key=lambda c: (c.pos[1], c.pos[0], c.pos[2])))
+
+
+def _probe(tris, centres, reach, rim, c) -> str | None:
+    # A rim face must be near: the opening is bounded at this level.
+    rim_d = np.hypot(rim[:, :, 0] - c[0], rim[:, :, 2] - c[2]).min()
+    if rim_d > STUD_RADIUS + 4.5:
+        return None
+    near = np.hypot(centres[:, 0] - c[0], centres[:, 2] - c[2]) <= reach + STUD_RADIUS + 3.0
+    local = tris[near]
+    pts = np.stack([c[0] + _DISC[:, 0], np.full(len(_DISC), c[1]), c[2] + _DISC[:, 1]], 1)
+    # Nothing below the opening (a stud's part comes from there) ...
+    down = first_hits(local, pts - [0, 0.05, 0], np.tile([0.0, 1.0, 0.0], (len(pts), 1)))
+    if np.isfinite(down).any():
+        return None
+    # ... the stud's column is free ...
+    up = first_hits(local, pts + [0, 0.05, 0], np.tile(UP, (len(pts), 1)))
+    if (up < STUD_HEIGHT - 0.45).any():
+        return None
+    # ... and it is roofed over by the part (not open sky beside it).
+    if not np.isfinite(up[0]):
+        return None
+    # Walls, bars or a tube hold it: count directions with a surface at the stud's radius.
+    mid = c + UP * (STUD_HEIGHT / 2)
+    side = first_hits(local, np.tile(mid, (8, 1)), _DIRS8)
+    touching = side <= STUD_RADIUS + 0.6
+    if touching.all():
+        return "tube"
+    if touching.sum() >= 3:
+        return "stud"
+    return None

@@ -1,0 +1,45 @@
+"""Command line: `python -m factory.ldraw steps MODEL` and `python -m factory.ldraw part NAME`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from factory.errors import LDrawError
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m factory.ldraw", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    steps = sub.add_parser("steps", help="print a model's build steps, one JSON object per step")
+    steps.add_argument("model", help="an .ldr, .mpd or .dat model file")
+    part = sub.add_parser("part", help="print a part's geometry, connection points and symmetry")
+    part.add_argument("name", help="a part name such as 3001 or 3001.dat")
+    for p in (steps, part):
+        p.add_argument("--ldraw", help="LDraw library folder (default: $LDRAWDIR, else the embedded library)")
+        p.add_argument("--json", action="store_true", help="print JSON (the only format)")
+    args = parser.parse_args(argv)
+
+    from factory.ldraw import get_reader, read_steps
+    from factory.parts import load_part
+
+    try:
+        if args.command == "steps":
+            for step in read_steps(args.model, args.ldraw):
+                print(json.dumps(step.to_json()))
+        else:
+            print(json.dumps(load_part(get_reader(args.ldraw), args.name).to_json()))
+    except LDrawError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except RecursionError:
+        print("error: input nests too deeply to read", file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        return 0
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,206 @@
+"""Where LDraw files come from: a library folder, the embedded default library, a model's folder.
+
+Lookups are case-insensitive and accept `\\` or `/`. A reference can never leave the place it is
+looked up in: `..` components, absolute paths and symbolic links that point outside are refused.
+"""
+
+from __future__ import annotations
+
+import difflib
+import os
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Callable, Protocol
+
+from factory.errors import LDrawError, LDrawReadError, LDrawUnsafePathError
+from factory.ldraw.parse import normalize_name
+
+LIBRARY_SEARCH = ("parts/", "p/", "parts/s/", "p/48/", "p/8/")
+"""LDraw's search order inside a library, after the model's MPD blocks and the model's folder."""
+
+
+@dataclass(frozen=True)
+class Located:
+    """A file found by a lookup: `key` identifies it for caching, `display` names it in messages."""
+
+    key: str
+    display: str
+    read: Callable[[], bytes]
+    origin: str
+    """'library' for the part library, 'model' for a model's folder."""
+
+
+class Source(Protocol):
+    """A tree of files that can be looked up by a safe, normalised relative path."""
+
+    label: str
+
+    def lookup(self, relpath: str) -> Located | None: ...
+
+    def names(self) -> list[str]: ...
+
+
+def check_reference(name: str, file: str | None = None, line: int | None = None) -> str:
+    """Normalise a reference name and refuse ones that could leave the library or model folder."""
+    norm = normalize_name(name)
+    parts = norm.split("/")
+    if not norm or norm.startswith("/") or (len(parts[0]) == 2 and parts[0][1] == ":"):
+        raise LDrawUnsafePathError(
+            f"reference {name!r} is an absolute path; references must be relative to the library "
+            "or the model's folder",
+            file,
+            line,
+        )
+    if any(p in ("..", ".") for p in parts) or "" in parts:
+        raise LDrawUnsafePathError(
+            f"reference {name!r} contains '..', '.' or an empty component; references must stay "
+            "inside the library or the model's folder",
+            file,
+            line,
+        )
+    return norm
+
+
+class DirSource:
+    """Files under a folder on disk, looked up case-insensitively, confined to that folder."""
+
+    def __init__(self, root: Path, label: str, origin: str):
+        self.root = Path(root)
+        self.real_root = os.path.realpath(self.root)
+        self.label = label
+        self.origin = origin
+        self._listings: dict[str, dict[str, str]] = {}
+
+    def _listing(self, folder: str) -> dict[str, str]:
+        if folder not in self._listings:
+            try:
+                with os.scandir(folder) as it:
+                    self._listings[folder] = {e.name.lower(): e.name for e in it}
+            except OSError:
+                self._listings[folder] = {}
+        return self._listings[folder]
+
+    def lookup(self, relpath: str) -> Located | None:
+        folder = str(self.root)
+        for part in relpath.split("/"):
+            real = self._listing(folder).get(part)
+            if real is None:
+                return None
+            folder = os.path.join(folder, real)
+        real_path = os.path.realpath(folder)
+        if os.path.commonpath([real_path, self.real_root]) != self.real_root:
+            raise LDrawUnsafePathError(
+                f"{folder} is a link to {real_path}, outside {self.root}; refusing to read it"
+            )
+        if not os.path.isfile(real_path):
+            return None
+        return Located(
+            key=f"file:{real_path}",
+            display=folder,
+            read=lambda p=folder: _read_file(p),
+            origin=self.origin,
+        )
+
+    def names(self) -> list[str]:
+        out = []
+        for sub in ("", *LIBRARY_SEARCH):
+            out.extend(self._listing(os.path.join(self.root, sub)).keys())
+        return out
+
+
+def _read_file(path: str) -> bytes:
+    from factory.ldraw.parse import MAX_FILE_BYTES
+
+    try:
+        size = os.path.getsize(path)
+        if size > MAX_FILE_BYTES:
+            raise LDrawReadError(
+                f"file is {size:,} bytes; LDraw files over {MAX_FILE_BYTES:,} bytes are refused", path
+            )
+        with open(path, "rb") as fh:
+            return fh.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise LDrawReadError(f"cannot read file: {exc.strerror or exc}", path) from None
+
+
+class MemorySource:
+    """Files held in memory (the embedded default library), keyed by normalised relative path."""
+
+    def __init__(self, files: dict[str, str], label: str):
+        self.files = {normalize_name(k): v for k, v in files.items()}
+        self.label = label
+
+    def lookup(self, relpath: str) -> Located | None:
+        text = self.files.get(relpath)
+        if text is None:
+            return None
+        return Located(
+            key=f"{self.label}:{relpath}",
+            display=f"<{self.label}>/{relpath}",
+            read=lambda t=text: t.encode("utf-8"),
+            origin="library",
+        )
+
+    def names(self) -> list[str]:
+        return [k.rsplit("/", 1)[-1] for k in self.files]
+
+
+class Library:
+    """An LDraw parts library: a folder on disk (`--ldraw`, `LDRAWDIR`) or the embedded default."""
+
+    def __init__(self, source: Source, description: str):
+        self.source = source
+        self.description = description
+
+    @classmethod
+    def from_dir(cls, path: str | os.PathLike) -> "Library":
+        root = Path(path).expanduser()
+        if not root.is_dir():
+            raise LDrawError(f"LDraw library folder {root} does not exist or is not a folder")
+        listing = {p.name.lower() for p in root.iterdir()}
+        if "parts" not in listing or "p" not in listing:
+            raise LDrawError(
+                f"{root} is not an LDraw library: expected folders 'parts' and 'p' in it, "
+                f"found {sorted(listing)[:10]}"
+            )
+        return cls(DirSource(root, label=str(root), origin="library"), f"LDraw library at {root}")
+
+    @classmethod
+    def embedded(cls) -> "Library":
+        from factory.embedded import generate_library
+
+        return cls(MemorySource(generate_library(), label="embedded"), "embedded default library")
+
+    @classmethod
+    def resolve(cls, ldraw: str | os.PathLike | None = None) -> "Library":
+        """The library to use: `ldraw` if given, else `$LDRAWDIR`, else the embedded default."""
+        if ldraw:
+            return cls.from_dir(ldraw)
+        env = os.environ.get("LDRAWDIR")
+        if env:
+            return cls.from_dir(env)
+        return cls.embedded()
+
+    def lookup(self, name: str) -> Located | None:
+        """Find a normalised reference in the library, in LDraw's search order."""
+        for prefix in LIBRARY_SEARCH:
+            if prefix == "parts/s/" and name.startswith("s/"):
+                continue
+            found = self.source.lookup(prefix + name)
+            if found is not None:
+                return found
+        return None
+
+    def config(self) -> Located | None:
+        """The library's `LDConfig.ldr`, if it has one."""
+        return self.source.lookup("ldconfig.ldr")
+
+    @cached_property
+    def _all_names(self) -> list[str]:
+        return sorted(set(self.source.names()))
+
+    def suggest(self, name: str, extra: list[str] = ()) -> list[str]:
+        """Up to three existing names close to `name`, for 'did you mean' messages."""
+        base = name.rsplit("/", 1)[-1]
+        return difflib.get_close_matches(base, list(extra) + self._all_names, n=3, cutoff=0.6)

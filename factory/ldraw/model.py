@@ -1,0 +1,139 @@
+"""A model file into its ordered build steps, with submodels expanded in place.
+
+Where a parent step places a submodel, the submodel's own steps come first, in order, with its parts
+at their final poses in the model frame and tagged with the sub-assembly instance they build
+(`main/wing.ldr#1`); the parent's step follows with the parts it places itself. Every part of the
+flattened model is placed exactly once.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+
+from factory.errors import LDrawLimitError
+from factory.ldraw.parse import LDrawFile, Ref, Step
+from factory.ldraw.reader import MAX_DEPTH, Model, Reader, Resolved
+from factory.pose import Pose
+
+MAX_MODEL_PARTS = 200_000
+"""Most part placements a model may expand to; the largest real sets have about 10,000."""
+
+MAIN_ASSEMBLY = "main"
+
+
+@dataclass(frozen=True)
+class PlacedPart:
+    """One part placed by a step: its file name, colour and pose in the model frame."""
+
+    part: str
+    colour: int
+    pose: Pose
+    source: str
+    """`file:line` of the type 1 line that placed it."""
+
+
+@dataclass(frozen=True)
+class BuildStep:
+    index: int
+    assembly: str
+    """The sub-assembly instance the step builds: `main`, `main/wing.ldr#1`, ..."""
+    parts: tuple[PlacedPart, ...]
+
+    def to_json(self) -> dict:
+        return {
+            "step": self.index,
+            "assembly": self.assembly,
+            "parts": [
+                {
+                    "part": p.part,
+                    "color": p.colour,
+                    "R": p.pose.R.tolist(),
+                    "T": p.pose.t.tolist(),
+                }
+                for p in self.parts
+            ],
+        }
+
+
+def is_submodel(res: Resolved) -> bool:
+    """A reference to a model (expanded into steps) rather than to a part (placed whole)."""
+    if res.origin == "library":
+        return False
+    f = res.file
+    if f.is_part:
+        return False
+    has_faces = any(getattr(it, "kind", 0) in (3, 4) for it in f.items)
+    return not (f.name.lower().endswith(".dat") and has_faces)
+
+
+def build_steps(reader: Reader, model: Model) -> list[BuildStep]:
+    """The model's build steps in order; steps that place no part are dropped."""
+    main = Resolved(model.main, f"{model.path}#<main>", "mpd", model)
+    _count_parts(reader, main, (), {})
+    steps: list[BuildStep] = []
+    _expand(reader, main, Pose.identity(), 16, MAIN_ASSEMBLY, steps, ())
+    return steps
+
+
+def _count_parts(reader: Reader, res: Resolved, stack: tuple[str, ...], memo: dict[str, int]) -> int:
+    if res.key in memo:
+        return memo[res.key]
+    reader._check_stack(res, stack)
+    total = 0
+    for ref in res.file.refs:
+        child = reader.resolve(ref, res.file, res.model)
+        total += _count_parts(reader, child, stack + (res.key,), memo) if is_submodel(child) else 1
+        if total > MAX_MODEL_PARTS:
+            raise LDrawLimitError(
+                f"model expands to more than {MAX_MODEL_PARTS:,} parts; refusing it",
+                res.file.path,
+                ref.line,
+            )
+    memo[res.key] = total
+    return total
+
+
+def _expand(
+    reader: Reader,
+    res: Resolved,
+    pose: Pose,
+    colour: int,
+    assembly: str,
+    out: list[BuildStep],
+    stack: tuple[str, ...],
+) -> None:
+    if len(stack) > MAX_DEPTH:
+        raise LDrawLimitError(f"submodels nest more than {MAX_DEPTH} levels deep", res.file.path)
+    current: list[PlacedPart] = []
+    instances: dict[str, int] = defaultdict(int)
+
+    def close_step() -> None:
+        if current:
+            out.append(BuildStep(len(out), assembly, tuple(current)))
+            current.clear()
+
+    for item in res.file.items:
+        if isinstance(item, Step):
+            close_step()
+            continue
+        if not isinstance(item, Ref):
+            continue
+        child = reader.resolve(item, res.file, res.model)
+        child_pose = pose @ Pose(item.matrix, item.pos)
+        child_colour = colour if item.colour == 16 else item.colour
+        if is_submodel(child):
+            label = _label(child.file, item)
+            instances[label.lower()] += 1
+            sub = f"{assembly}/{label}#{instances[label.lower()]}"
+            _expand(reader, child, child_pose, child_colour, sub, out, stack + (res.key,))
+        else:
+            current.append(
+                PlacedPart(item.name, child_colour, child_pose, f"{res.file.path}:{item.line}")
+            )
+    close_step()
+
+
+def _label(f: LDrawFile, ref: Ref) -> str:
+    name = f.name if f.name else ref.name
+    return name.replace("\\", "/")

@@ -1,0 +1,259 @@
+"""Resolve references and flatten LDraw files into triangle meshes with their stud primitives.
+
+A `Reader` holds one library and caches every parsed file and every flattened mesh, so a part is
+resolved once per process however many models use it.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from factory.errors import (
+    LDrawCycleError,
+    LDrawLimitError,
+    LDrawMissingFileError,
+    LDrawReadError,
+)
+from factory.ldraw.library import LIBRARY_SEARCH, DirSource, Library, Located, check_reference
+from factory.ldraw.parse import LDrawFile, Poly, Ref, decode, parse_lines, split_mpd
+
+MAX_DEPTH = 64
+"""Deepest reference nesting accepted; real parts nest under 10 levels."""
+
+MAX_TRIANGLES = 2_000_000
+"""Most triangles a flattened file may expand to; a 48x48 baseplate has about 250,000."""
+
+_STUD = re.compile(r"^(?:.*/)?stud(|2|2a|6|6a|10|13|15|16|17a|18a|20|22a|p\d+[a-z]?)(-logo\d*)?\.dat$")
+"""Stud primitives (and logo variants). Not stud3*/stud4*: those are underside bars and tubes."""
+
+
+def is_stud_primitive(name: str) -> bool:
+    return _STUD.match(name) is not None
+
+
+@dataclass
+class Model:
+    """A model file opened for reading: its MPD blocks (the first is the main model) and folder."""
+
+    path: str
+    blocks: dict[str, LDrawFile]
+    main: LDrawFile
+    folder: DirSource
+
+
+@dataclass(frozen=True)
+class Resolved:
+    """A reference resolved to a parsed file, with the model context its own references use."""
+
+    file: LDrawFile
+    key: str
+    origin: str
+    """'library', 'model' (the model's folder) or 'mpd' (a block of the model's MPD file)."""
+    model: Model | None
+
+
+@dataclass(frozen=True)
+class Flat:
+    """A file flattened into its own frame: CCW triangles, edges and the studs it contains."""
+
+    triangles: np.ndarray
+    """(n, 3, 3) float64 vertices in LDU, counter-clockwise seen from outside where certified."""
+    colours: np.ndarray
+    """(n,) int64 colour codes; 16 means the colour the part is placed with."""
+    edges: np.ndarray
+    """(m, 2, 3) float64 type 2 edge lines, for outlines in renders."""
+    studs: np.ndarray
+    """(k, 2, 3) float64: each stud's base centre and unit axis (pointing out of the part)."""
+    certified: bool
+    """Whether every triangle came from a BFC-certified file (winding known)."""
+
+
+@dataclass
+class Reader:
+    """Reads models and parts from one library, caching parsed files and flattened meshes."""
+
+    library: Library
+    _parsed: dict[str, LDrawFile] = field(default_factory=dict)
+    _flat: dict[str, Flat] = field(default_factory=dict)
+    _counts: dict[str, int] = field(default_factory=dict)
+    parts: dict[str, object] = field(default_factory=dict)
+    """`factory.parts.Part` objects by resolved key, filled by `load_part`."""
+
+    # -- reading -----------------------------------------------------------------------------
+    def parse_located(self, loc: Located) -> LDrawFile:
+        """Parse a file found by a lookup (its first block, if it happens to be an MPD file)."""
+        if loc.key not in self._parsed:
+            text = decode(loc.read(), loc.display)
+            blocks = split_mpd(text)
+            block = blocks[0]
+            name = os.path.basename(loc.display).lower()
+            self._parsed[loc.key] = parse_lines(block.lines, loc.display, name, block.first_line)
+        return self._parsed[loc.key]
+
+    def open_model(self, path: str | os.PathLike) -> Model:
+        """Open a model (.ldr, .mpd or a .dat) from disk."""
+        path = Path(path)
+        if not path.exists():
+            raise LDrawMissingFileError(f"model file {path} does not exist")
+        if not path.is_file():
+            raise LDrawReadError("not a regular file", str(path))
+        folder = DirSource(path.parent, label=str(path.parent), origin="model")
+        from factory.ldraw.library import _read_file
+
+        text = decode(_read_file(str(path)), str(path))
+        blocks = split_mpd(text)
+        parsed: dict[str, LDrawFile] = {}
+        main: LDrawFile | None = None
+        for block in blocks:
+            if block.name.startswith("!data:"):
+                continue
+            display = str(path) if not block.name else f"{path}#{block.name}"
+            name = block.name or path.name
+            f = parse_lines(block.lines, display, name.lower(), block.first_line)
+            f.name = name  # keep the author's spelling for sub-assembly tags
+            parsed.setdefault(name.replace("\\", "/").lower(), f)
+            if main is None:
+                main = f
+        if main is None:
+            raise LDrawReadError("file has no model in it (no lines outside 0 !DATA blocks)", str(path))
+        return Model(str(path), parsed, main, folder)
+
+    def resolve(self, ref: Ref, parent: LDrawFile, model: Model | None) -> Resolved:
+        """Find what `ref` names: MPD blocks, then the model's folder, then the library."""
+        name = check_reference(ref.name, parent.path, ref.line)
+        if model is not None:
+            block = model.blocks.get(name)
+            if block is not None:
+                return Resolved(block, f"{model.path}#{name}", "mpd", model)
+            loc = model.folder.lookup(name)
+            if loc is not None:
+                return Resolved(self.parse_located(loc), f"{model.path}|{loc.key}", "model", model)
+        loc = self.library.lookup(name)
+        if loc is not None:
+            return Resolved(self.parse_located(loc), loc.key, "library", None)
+        looked = []
+        if model is not None:
+            looked += ["the model's MPD blocks", f"the model's folder {model.folder.root}"]
+        looked.append(f"{self.library.description} ({', '.join(LIBRARY_SEARCH)})")
+        close = self.library.suggest(name, list(model.blocks) if model else [])
+        hint = f"; did you mean {', '.join(close)}?" if close else ""
+        raise LDrawMissingFileError(
+            f"cannot find {ref.name!r} (looked in {'; '.join(looked)}){hint}", parent.path, ref.line
+        )
+
+    def part(self, name: str) -> Resolved:
+        """A part of the library by name (`3001`, `3001.dat`, `s/3001s01.dat`)."""
+        norm = name if name.lower().endswith((".dat", ".ldr")) else name + ".dat"
+        fake = Ref(0, 16, np.eye(3), np.zeros(3), norm.replace("\\", "/").lower())
+        holder = LDrawFile(path="<command line>", name="")
+        return self.resolve(fake, holder, None)
+
+    # -- flattening --------------------------------------------------------------------------
+    def triangle_count(self, res: Resolved, stack: tuple[str, ...] = ()) -> int:
+        """Triangles `res` expands to, computed without expanding (guards against blow-ups)."""
+        if res.key in self._counts:
+            return self._counts[res.key]
+        self._check_stack(res, stack)
+        total = sum(1 if it.kind == 3 else 2 for it in res.file.items if isinstance(it, Poly) and it.kind in (3, 4))
+        for ref in res.file.refs:
+            total += self.triangle_count(self.resolve(ref, res.file, res.model), stack + (res.key,))
+            if total > MAX_TRIANGLES:
+                raise LDrawLimitError(
+                    f"expands to more than {MAX_TRIANGLES:,} triangles; refusing to flatten it",
+                    res.file.path,
+                    ref.line,
+                )
+        self._counts[res.key] = total
+        return total
+
+    def flatten(self, res: Resolved) -> Flat:
+        """The file's geometry in its own frame, with every reference expanded (cached)."""
+        self.triangle_count(res)
+        return self._flatten(res, ())
+
+    def _check_stack(self, res: Resolved, stack: tuple[str, ...]) -> None:
+        if res.key in stack:
+            names = [k.rsplit("/", 1)[-1].rsplit("#", 1)[-1] for k in stack[stack.index(res.key):]]
+            chain = " -> ".join(names + [names[0]])
+            raise LDrawCycleError(f"reference cycle: {chain}", res.file.path)
+        if len(stack) >= MAX_DEPTH:
+            raise LDrawLimitError(
+                f"references nest more than {MAX_DEPTH} levels deep", res.file.path
+            )
+
+    def _flatten(self, res: Resolved, stack: tuple[str, ...]) -> Flat:
+        cached = self._flat.get(res.key)
+        if cached is not None:
+            return cached
+        self._check_stack(res, stack)
+        tris, cols, edges, studs = [], [], [], []
+        certified = res.file.certified
+        for it in res.file.items:
+            if isinstance(it, Poly):
+                if it.kind == 3:
+                    tris.append(it.points[None])
+                    cols.append([it.colour])
+                elif it.kind == 4:
+                    p = it.points
+                    tris.append(np.stack([p[[0, 1, 2]], p[[0, 2, 3]]]))
+                    cols.append([it.colour, it.colour])
+                elif it.kind == 2:
+                    edges.append(it.points[None])
+            elif isinstance(it, Ref):
+                child_res = self.resolve(it, res.file, res.model)
+                child = self._flatten(child_res, stack + (res.key,))
+                t, c, e, s = _place(child, it)
+                tris.append(t)
+                cols.append(c)
+                edges.append(e)
+                studs.append(s)
+                certified = certified and child.certified
+                if is_stud_primitive(it.name):
+                    axis = it.matrix @ np.array([0.0, -1.0, 0.0])
+                    n = np.linalg.norm(axis)
+                    if n > 1e-9:
+                        studs.append(np.stack([it.pos, axis / n])[None])
+        flat = Flat(
+            triangles=np.concatenate(tris) if tris else np.zeros((0, 3, 3)),
+            colours=np.concatenate([np.asarray(c, dtype=np.int64) for c in cols]) if cols else np.zeros(0, np.int64),
+            edges=np.concatenate(edges) if edges else np.zeros((0, 2, 3)),
+            studs=_unique_studs(np.concatenate(studs)) if studs else np.zeros((0, 2, 3)),
+            certified=certified,
+        )
+        for arr in (flat.triangles, flat.colours, flat.edges, flat.studs):
+            arr.setflags(write=False)
+        self._flat[res.key] = flat
+        return flat
+
+
+def _place(child: Flat, ref: Ref) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Transform a flattened child by a type 1 line: p' = M p + t, winding fixed for mirrors."""
+    m, t = ref.matrix, ref.pos
+    tris = child.triangles @ m.T + t
+    if (np.linalg.det(m) < 0) != ref.invert:
+        tris = tris[:, ::-1, :]
+    cols = child.colours.copy()
+    if ref.colour != 16:
+        cols[cols == 16] = ref.colour
+    edges = child.edges @ m.T + t
+    studs = child.studs.copy()
+    if len(studs):
+        studs[:, 0] = studs[:, 0] @ m.T + t
+        axes = studs[:, 1] @ m.T
+        studs[:, 1] = axes / np.maximum(np.linalg.norm(axes, axis=1, keepdims=True), 1e-12)
+    return tris, cols, edges, studs
+
+
+def _unique_studs(studs: np.ndarray) -> np.ndarray:
+    """Drop studs that sit at the same place (a stud drawn twice, e.g. with a logo overlay)."""
+    if len(studs) == 0:
+        return studs
+    keys = np.round(studs.reshape(len(studs), 6), 3)
+    _, idx = np.unique(keys, axis=0, return_index=True)
+    return studs[np.sort(idx)]
+
