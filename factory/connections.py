@@ -47,7 +47,9 @@ def _r(v: float) -> float:
 
 def studs_from_flat(studs: np.ndarray) -> tuple[Connector, ...]:
     """Connectors from the (k, 2, 3) stud records of a flattened part, in a stable order."""
-    rows = sorted((tuple(np.round(s[0], 4)), tuple(np.round(s[1], 6))) for s in studs)
+    rows = sorted(
+        (tuple(_r(v) for v in s[0]), tuple(round(float(v), 6) + 0.0 for v in s[1])) for s in studs
+    )
     return tuple(Connector(pos, axis, "stud") for pos, axis in rows)
 
 

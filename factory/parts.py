@@ -57,8 +57,8 @@ class Part:
         if len(t) == 0:
             return 0.0
         signed = np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6.0
-        # LDraw's axes are left-handed on screen (y down): CCW-from-outside winding gives a
-        # negative determinant sum, so the volume is its magnitude.
+        # Certified parts come out positive (their winding is outward); the magnitude also serves
+        # uncertified parts wound inward throughout.
         return float(abs(signed))
 
     @property

@@ -69,7 +69,7 @@ def is_submodel(res: Resolved) -> bool:
 
 def build_steps(reader: Reader, model: Model) -> list[BuildStep]:
     """The model's build steps in order; steps that place no part are dropped."""
-    main = Resolved(model.main, f"{model.path}#<main>", "mpd", model)
+    main = Resolved(model.main, f"{model.path}#{model.main.name.lower()}", "mpd", model)
     _count_parts(reader, main, (), {})
     steps: list[BuildStep] = []
     _expand(reader, main, Pose.identity(), 16, MAIN_ASSEMBLY, steps, ())

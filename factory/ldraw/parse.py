@@ -179,7 +179,8 @@ def parse_lines(lines: list[str], path: str, name: str, first_line: int = 1) -> 
                     out.description = text[1:].strip()
                     moved = re.match(r"~moved\s+to\s+(\S.*)$", out.description, re.IGNORECASE)
                     if moved:
-                        out.moved_to = normalize_name(moved.group(1))
+                        target = normalize_name(moved.group(1))
+                        out.moved_to = target if "." in target else target + ".dat"
             if not body:
                 continue
             head = body[0].upper()
@@ -189,6 +190,15 @@ def parse_lines(lines: list[str], path: str, name: str, first_line: int = 1) -> 
                 out.ldraw_org = " ".join(body[1:])
             elif head == "BFC":
                 words = [w.upper() for w in body[1:]]
+                known = {"CERTIFY", "NOCERTIFY", "CW", "CCW", "CLIP", "NOCLIP", "INVERTNEXT"}
+                unknown = [w for w in words if w not in known]
+                if unknown:
+                    raise LDrawSyntaxError(
+                        f"unknown BFC option {unknown[0]!r}; expected one of "
+                        "CERTIFY, NOCERTIFY, CW, CCW, CLIP, NOCLIP, INVERTNEXT",
+                        path,
+                        lineno,
+                    )
                 if "CERTIFY" in words:
                     if seen_geometry:
                         raise LDrawSyntaxError(
@@ -200,21 +210,9 @@ def parse_lines(lines: list[str], path: str, name: str, first_line: int = 1) -> 
                     out.certified = False
                     winding = None
                 else:
-                    if "INVERTNEXT" in words:
-                        invert_next = True
-                    if "CW" in words and out.certified:
-                        winding = "CW"
-                    elif "CCW" in words and out.certified:
-                        winding = "CCW"
-                    known = {"CW", "CCW", "CLIP", "NOCLIP", "INVERTNEXT"}
-                    unknown = [w for w in words if w not in known]
-                    if unknown:
-                        raise LDrawSyntaxError(
-                            f"unknown BFC option {unknown[0]!r}; expected one of "
-                            "CERTIFY, NOCERTIFY, CW, CCW, CLIP, NOCLIP, INVERTNEXT",
-                            path,
-                            lineno,
-                        )
+                    invert_next = invert_next or "INVERTNEXT" in words
+                    if out.certified and ("CW" in words or "CCW" in words):
+                        winding = "CW" if "CW" in words else "CCW"
             continue
         if kind == "1":
             if len(tokens) < 15:

@@ -1,0 +1,87 @@
+"""Shared fixtures: the real LDraw subset beside the checkout, and builders of small files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from factory.ldraw import Library, Reader
+
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+LDRAW = SHARED / "ldraw"
+MODELS = SHARED / "ldraw_models"
+
+needs_ldraw = pytest.mark.skipif(
+    not (LDRAW / "parts").is_dir(),
+    reason=f"the real LDraw subset is not at {LDRAW} (CI has it; a user's clone may not)",
+)
+
+
+@pytest.fixture(scope="session")
+def real_reader() -> Reader:
+    if not (LDRAW / "parts").is_dir():
+        pytest.skip(f"the real LDraw subset is not at {LDRAW}")
+    return Reader(Library.from_dir(LDRAW))
+
+
+@pytest.fixture(scope="session")
+def embedded_reader() -> Reader:
+    return Reader(Library.embedded())
+
+
+@pytest.fixture
+def write(tmp_path):
+    """Write a file under tmp_path (text as given, or bytes) and return its path."""
+
+    def _write(name: str, content: str | bytes) -> Path:
+        path = tmp_path / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if isinstance(content, bytes):
+            path.write_bytes(content)
+        else:
+            path.write_text(content, newline="")
+        return path
+
+    return _write
+
+
+@pytest.fixture
+def mini_library(tmp_path) -> Path:
+    """A tiny LDraw library on disk: a closed unit cube primitive and a 'brick' using it."""
+    root = tmp_path / "lib"
+    (root / "parts" / "s").mkdir(parents=True)
+    (root / "p" / "48").mkdir(parents=True)
+    (root / "p" / "box.dat").write_text(BOX)
+    (root / "parts" / "Cube.dat").write_text(
+        "0 Test Cube\n0 Name: cube.dat\n0 !LDRAW_ORG Part\n0 BFC CERTIFY CCW\n"
+        "1 16 0 0 0 10 0 0 0 10 0 0 0 10 box.dat\n"
+    )
+    (root / "parts" / "s" / "cubes01.dat").write_text("0 Subpart\n0 BFC CERTIFY CCW\n1 16 0 0 0 1 0 0 0 1 0 0 0 1 box.dat\n")
+    (root / "LDConfig.ldr").write_text(
+        "0 !COLOUR Black CODE 0 VALUE #1B2A34 EDGE #808080\n"
+        "0 !COLOUR Red CODE 4 VALUE #B40000 EDGE #333333\n"
+        "0 !COLOUR Trans_Clear CODE 47 VALUE #FCFCFC EDGE #C9C9C9 ALPHA 128\n"
+    )
+    return root
+
+
+def _box_text() -> str:
+    """A closed cube [-1, 1]^3 wound counter-clockwise seen from outside (LDraw axes)."""
+    # Faces as (normal axis, sign); corners ordered so that (b - a) x (c - a) points outward in a
+    # right-handed x, y, z frame.
+    lines = ["0 Box", "0 BFC CERTIFY CCW"]
+    faces = [
+        [(1, -1, -1), (1, 1, -1), (1, 1, 1), (1, -1, 1)],
+        [(-1, -1, -1), (-1, -1, 1), (-1, 1, 1), (-1, 1, -1)],
+        [(-1, 1, -1), (-1, 1, 1), (1, 1, 1), (1, 1, -1)],
+        [(-1, -1, -1), (1, -1, -1), (1, -1, 1), (-1, -1, 1)],
+        [(-1, -1, 1), (1, -1, 1), (1, 1, 1), (-1, 1, 1)],
+        [(-1, -1, -1), (-1, 1, -1), (1, 1, -1), (1, -1, -1)],
+    ]
+    for f in faces:
+        lines.append("4 16 " + " ".join(f"{c}" for p in f for c in p))
+    return "\n".join(lines) + "\n"
+
+
+BOX = _box_text()

@@ -1,0 +1,83 @@
+"""The command line the acceptance checks call: JSON out, one-line errors, non-zero exit."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import LDRAW, MODELS, needs_ldraw
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(*args, env_extra=None):
+    env = {k: v for k, v in os.environ.items() if k != "LDRAWDIR"}
+    env.update(env_extra or {})
+    return subprocess.run(
+        [sys.executable, "-m", "factory.ldraw", *args], cwd=ROOT, capture_output=True, text=True, env=env, timeout=120
+    )
+
+
+@needs_ldraw
+def test_steps_json_lines():
+    out = run("steps", str(MODELS / "car.ldr"), "--ldraw", str(LDRAW), "--json")
+    assert out.returncode == 0, out.stderr
+    rows = [json.loads(line) for line in out.stdout.splitlines()]
+    assert [r["step"] for r in rows] == list(range(len(rows)))
+    assert set(rows[0]) == {"step", "assembly", "parts"}
+    assert set(rows[0]["parts"][0]) == {"part", "color", "R", "T"}
+
+
+@needs_ldraw
+def test_part_json_from_ldrawdir():
+    out = run("part", "3001", "--json", env_extra={"LDRAWDIR": str(LDRAW)})
+    assert out.returncode == 0, out.stderr
+    part = json.loads(out.stdout)
+    assert {"part", "bbox_ldu", "volume_ldu3", "mass_g", "studs", "sockets", "symmetry"} <= set(part)
+    assert part["part"] == "3001.dat" and len(part["studs"]) == 8 and len(part["sockets"]) == 11
+    assert part["symmetry"] == {"order": 2, "continuous_axis": None}
+
+
+def test_embedded_library_is_used_without_ldraw():
+    out = run("part", "3001.dat", "--json")
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)["bbox_ldu"] == [[-40, -4, -20], [40, 24, 20]]
+
+
+@pytest.mark.parametrize(
+    "content, expected",
+    [
+        ("1 4 0 0 0 1 0 0 0 1 0 0 0 1 nosuchpart.dat\n", "bad.ldr:2: cannot find 'nosuchpart.dat'"),
+        ("1 4 0 0 0 1 0 0 0 1 0 0\n", "bad.ldr:2: type 1 (reference) needs"),
+        ("1 4 0 0 0 1 0 0 0 1 0 0 0 1 ../../etc/passwd\n", "bad.ldr:2: reference '../../etc/passwd'"),
+        (b"\x00\x01\x02binary", "binary data"),
+    ],
+)
+def test_bad_input_is_one_line_error_and_nonzero_exit(tmp_path, content, expected):
+    bad = tmp_path / "bad.ldr"
+    if isinstance(content, bytes):
+        bad.write_bytes(content)
+    else:
+        bad.write_text("0 Bad model\n" + content)
+    out = run("steps", str(bad), "--json")
+    assert out.returncode != 0
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and expected in lines[0]
+    assert "Traceback" not in out.stderr
+
+
+def test_missing_model_and_unknown_part(tmp_path):
+    out = run("steps", str(tmp_path / "none.ldr"))
+    assert out.returncode != 0 and "does not exist" in out.stderr
+    out = run("part", "30011")
+    assert out.returncode != 0 and "cannot find '30011.dat'" in out.stderr and "did you mean" in out.stderr
+
+
+def test_bad_library_folder(tmp_path):
+    out = run("part", "3001", "--ldraw", str(tmp_path))
+    assert out.returncode != 0 and "is not an LDraw library" in out.stderr

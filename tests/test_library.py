@@ -1,0 +1,113 @@
+"""Library resolution: search order, case and separators, confinement, clear misses."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from factory.errors import LDrawError, LDrawMissingFileError, LDrawUnsafePathError
+from factory.ldraw import Library, Reader, build_steps, get_reader
+from factory.ldraw.library import check_reference
+
+from conftest import BOX, LDRAW, needs_ldraw
+
+
+def model(write, text, name="m.ldr"):
+    return write(name, "0 Model\n" + text)
+
+
+def test_lookup_is_case_insensitive_with_either_separator(mini_library, write):
+    reader = Reader(Library.from_dir(mini_library))
+    m = model(write, "1 4 0 0 0 1 0 0 0 1 0 0 0 1 CUBE.DAT\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 S\\CubeS01.dat\n")
+    steps = build_steps(reader, reader.open_model(m))
+    assert [p.part for p in steps[0].parts] == ["cube.dat", "s/cubes01.dat"]
+
+
+def test_search_order_mpd_block_then_model_folder_then_library(mini_library, write):
+    reader = Reader(Library.from_dir(mini_library))
+    # A model-folder cube.dat shadows the library's: LDraw searches the model's folder first.
+    write("cube.dat", "0 Local cube\n0 !LDRAW_ORG Unofficial_Part\n0 BFC CERTIFY CCW\n1 16 0 0 0 2 0 0 0 2 0 0 0 2 box.dat\n")
+    m = model(write, "1 4 0 0 0 1 0 0 0 1 0 0 0 1 cube.dat\n")
+    res = reader.resolve(reader.open_model(m).main.refs[0], reader.open_model(m).main, reader.open_model(m))
+    assert res.origin == "model" and res.file.description == "Local cube"
+    # An MPD block of the same name wins over both.
+    mpd = write(
+        "m.mpd",
+        "0 FILE main.ldr\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 cube.dat\n0 FILE cube.dat\n0 Block cube\n"
+        "0 !LDRAW_ORG Unofficial_Part\n1 16 0 0 0 3 0 0 0 3 0 0 0 3 box.dat\n",
+    )
+    mm = reader.open_model(mpd)
+    res = reader.resolve(mm.main.refs[0], mm.main, mm)
+    assert res.origin == "mpd" and res.file.description == "Block cube"
+
+
+def test_primitive_resolves_from_p_and_hires_from_p48(mini_library, write):
+    (mini_library / "p" / "48" / "hires.dat").write_text(BOX)
+    reader = Reader(Library.from_dir(mini_library))
+    assert reader.part("box.dat").file.description == "Box"
+    assert reader.part("48\\hires.dat").origin == "library"
+
+
+@pytest.mark.parametrize("name", ["../secret.dat", "/etc/passwd", "C:\\ldraw\\x.dat", "parts/./a.dat", "a//b.dat"])
+def test_references_that_escape_are_refused(name):
+    with pytest.raises(LDrawUnsafePathError):
+        check_reference(name, "m.ldr", 3)
+
+
+def test_escaping_reference_in_a_model_names_file_and_line(mini_library, write, tmp_path):
+    (tmp_path / "outside.dat").write_text(BOX)
+    reader = Reader(Library.from_dir(mini_library))
+    m = model(write, "1 4 0 0 0 1 0 0 0 1 0 0 0 1 ..\\outside.dat\n", name="sub/m.ldr")
+    with pytest.raises(LDrawUnsafePathError) as err:
+        build_steps(reader, reader.open_model(m))
+    assert str(err.value).startswith(f"{m}:2: ")
+
+
+def test_symlink_out_of_the_library_is_refused(mini_library, tmp_path):
+    (tmp_path / "elsewhere.dat").write_text(BOX)
+    os.symlink(tmp_path / "elsewhere.dat", mini_library / "parts" / "link.dat")
+    reader = Reader(Library.from_dir(mini_library))
+    with pytest.raises(LDrawUnsafePathError, match="outside"):
+        reader.part("link.dat")
+
+
+def test_missing_file_names_referencing_line_and_suggests(mini_library, write):
+    reader = Reader(Library.from_dir(mini_library))
+    m = model(write, "\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 cueb.dat\n")
+    with pytest.raises(LDrawMissingFileError) as err:
+        build_steps(reader, reader.open_model(m))
+    msg = str(err.value)
+    assert msg.startswith(f"{m}:3: cannot find 'cueb.dat'")
+    assert "did you mean cube.dat" in msg
+
+
+def test_library_folder_must_look_like_one(tmp_path):
+    with pytest.raises(LDrawError, match="expected folders 'parts' and 'p'"):
+        Library.from_dir(tmp_path)
+    with pytest.raises(LDrawError, match="does not exist"):
+        Library.from_dir(tmp_path / "nope")
+
+
+def test_ldrawdir_is_used_when_no_folder_is_given(mini_library, monkeypatch):
+    monkeypatch.setenv("LDRAWDIR", str(mini_library))
+    assert str(mini_library) in get_reader().library.description
+    monkeypatch.delenv("LDRAWDIR")
+    assert get_reader().library.description == "embedded default library"
+
+
+def test_reader_is_shared_per_library(mini_library):
+    assert get_reader(mini_library) is get_reader(str(mini_library) + "/")
+
+
+@needs_ldraw
+def test_colours_from_ldconfig_including_direct_colours():
+    from factory.ldraw import ColourTable
+
+    table = ColourTable.parse((LDRAW / "LDConfig.ldr").read_text())
+    red = table.get(4)
+    assert red.name == "Red" and red.rgba[:3] == pytest.approx((0xB4 / 255, 0, 0))
+    assert table.get(47).rgba[3] == pytest.approx(128 / 255)
+    direct = table.get(0x2FF8000)
+    assert direct.rgba == pytest.approx((1.0, 128 / 255, 0.0, 1.0))
+    assert 0x2FF8000 in table and 12345 not in table
