@@ -1,0 +1,54 @@
+"""Brick Factory: physics-verified synthetic data for LEGO-style assembly, from real LDraw parts.
+
+The public API is the names below; modules not listed here are internal.
+"""
+
+from factory.connections import Connector
+from factory.errors import (
+    LDrawCycleError,
+    LDrawError,
+    LDrawLimitError,
+    LDrawMissingFileError,
+    LDrawReadError,
+    LDrawSyntaxError,
+    LDrawUnsafePathError,
+)
+from factory.ldraw import (
+    BuildStep,
+    Colour,
+    ColourTable,
+    Library,
+    PlacedPart,
+    Reader,
+    build_steps,
+    get_reader,
+    read_steps,
+)
+from factory.parts import Part, load_part
+from factory.pose import LDU_M, Pose
+from factory.symmetry import Symmetry
+
+__all__ = [
+    "LDU_M",
+    "BuildStep",
+    "Colour",
+    "ColourTable",
+    "Connector",
+    "LDrawCycleError",
+    "LDrawError",
+    "LDrawLimitError",
+    "LDrawMissingFileError",
+    "LDrawReadError",
+    "LDrawSyntaxError",
+    "LDrawUnsafePathError",
+    "Library",
+    "Part",
+    "PlacedPart",
+    "Pose",
+    "Reader",
+    "Symmetry",
+    "build_steps",
+    "get_reader",
+    "load_part",
+    "read_steps",
+]

@@ -87,9 +87,23 @@ def _disc(radius: float) -> np.ndarray:
 
 
 _DISC = _disc(STUD_RADIUS - 0.5)
+_CELL = np.array(
+    [[x, 0.05, z] for x in (-9.5, 0.0, 9.5) for z in (-9.5, 0.0, 9.5) if x or z], dtype=np.float64
+)
 _DIRS8 = np.array(
     [[np.cos(a), 0.0, np.sin(a)] for a in np.arange(8) * (np.pi / 4)], dtype=np.float64
 )
+
+
+def _distance_2d(tris: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Distance from point p (2,) to each triangle (n, 3, 2) in the plane; 0 inside."""
+    a, b = tris, np.roll(tris, -1, axis=1)
+    ab = b - a
+    t = np.clip(np.einsum("nkj,nkj->nk", p - a, ab) / np.maximum(np.einsum("nkj,nkj->nk", ab, ab), 1e-12), 0, 1)
+    edge = np.linalg.norm(a + t[..., None] * ab - p, axis=2).min(axis=1)
+    cross = ab[..., 0] * (p - a)[..., 1] - ab[..., 1] * (p - a)[..., 0]
+    inside = np.all(cross >= -1e-9, axis=1) | np.all(cross <= 1e-9, axis=1)
+    return np.where(inside, 0.0, edge)
 
 
 def find_sockets(tris: np.ndarray) -> tuple[Connector, ...]:
@@ -122,23 +136,27 @@ def find_sockets(tris: np.ndarray) -> tuple[Connector, ...]:
 
 
 def _probe(tris, centres, reach, rim, c) -> str | None:
-    # A rim face must be near: the opening is bounded at this level.
-    rim_d = np.hypot(rim[:, :, 0] - c[0], rim[:, :, 2] - c[2]).min()
-    if rim_d > STUD_RADIUS + 4.5:
+    # A rim face at this level must touch the stud: the opening is the end of the material
+    # around it (a ledge further from the stud, such as a rib inside a cavity, is not).
+    rim_d = _distance_2d(rim[:, :, [0, 2]], c[[0, 2]]).min()
+    if rim_d > STUD_RADIUS + 1.0:
         return None
-    near = np.hypot(centres[:, 0] - c[0], centres[:, 2] - c[2]) <= reach + STUD_RADIUS + 3.0
+    near = np.hypot(centres[:, 0] - c[0], centres[:, 2] - c[2]) <= reach + 14.0
     local = tris[near]
     pts = np.stack([c[0] + _DISC[:, 0], np.full(len(_DISC), c[1]), c[2] + _DISC[:, 1]], 1)
-    # Nothing below the opening (a stud's part comes from there) ...
-    down = first_hits(local, pts - [0, 0.05, 0], np.tile([0.0, 1.0, 0.0], (len(pts), 1)))
+    # Nothing below the opening, nor below the rim anywhere in the stud's 20x20 cell: the part
+    # the stud belongs to fills that space (this rejects ledges inside a cavity) ...
+    below = np.concatenate([pts - [0, 0.05, 0], c + _CELL])
+    down = first_hits(local, below, np.tile([0.0, 1.0, 0.0], (len(below), 1)))
     if np.isfinite(down).any():
         return None
     # ... the stud's column is free ...
     up = first_hits(local, pts + [0, 0.05, 0], np.tile(UP, (len(pts), 1)))
     if (up < STUD_HEIGHT - 0.45).any():
         return None
-    # ... and it is roofed over by the part (not open sky beside it).
-    if not np.isfinite(up[0]):
+    # ... and it is roofed over by the part (not open sky beside it; a hollow stud above may
+    # leave the centre open).
+    if not np.isfinite(up).any():
         return None
     # Walls, bars or a tube hold it: count directions with a surface at the stud's radius.
     mid = c + UP * (STUD_HEIGHT / 2)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from factory.errors import LDrawCycleError, LDrawLimitError
-from factory.ldraw import Library, Reader, build_steps
+from factory.ldraw import Reader, build_steps
 from factory.ldraw.model import is_submodel
 from factory.ldraw.reader import Resolved
 from factory.pose import Pose

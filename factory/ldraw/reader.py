@@ -214,10 +214,14 @@ class Reader:
                 studs.append(s)
                 certified = certified and child.certified
                 if is_stud_primitive(it.name):
-                    axis = it.matrix @ np.array([0.0, -1.0, 0.0])
-                    n = np.linalg.norm(axis)
+                    # The connection point is 4 LDU (a stud's height) below the stud's top, on its
+                    # axis: a stud primitive drawn taller and sunk into the part (as some slopes do)
+                    # connects where a plain stud on the top face would.
+                    reach = it.matrix @ np.array([0.0, -4.0, 0.0])
+                    n = np.linalg.norm(reach)
                     if n > 1e-9:
-                        studs.append(np.stack([it.pos, axis / n])[None])
+                        axis = reach / n
+                        studs.append(np.stack([it.pos + reach - 4.0 * axis, axis])[None])
         flat = Flat(
             triangles=np.concatenate(tris) if tris else np.zeros((0, 3, 3)),
             colours=np.concatenate([np.asarray(c, dtype=np.int64) for c in cols]) if cols else np.zeros(0, np.int64),

@@ -1,0 +1,60 @@
+"""The parts of the embedded default library: real LDraw part numbers with their real sizes.
+
+Sizes are in studs. `nx` runs along x and `nz` along z, following the real library's orientation:
+rectangular parts are long in x; slopes are `nx` studs wide in x and 2 studs deep in z, sloping
+down toward -z.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+BRICK = "brick"
+PLATE = "plate"
+TILE = "tile"
+SLOPE = "slope"
+INVERTED_SLOPE = "inverted_slope"
+
+
+@dataclass(frozen=True)
+class PartSpec:
+    number: str
+    description: str
+    kind: str
+    nx: int
+    nz: int
+    bars: bool = True
+    """Whether a 1 x N part has bars under it (the real 1 x 2 tile has none)."""
+
+    @property
+    def filename(self) -> str:
+        return f"{self.number}.dat"
+
+
+def _rect(kind: str, name: str, rows: list[tuple[str, int, int]]) -> list[PartSpec]:
+    return [PartSpec(n, f"{name} {a} x {b}", kind, b, a) for n, a, b in rows]
+
+
+PARTS: tuple[PartSpec, ...] = (
+    *_rect(BRICK, "Brick", [
+        ("3005", 1, 1), ("3004", 1, 2), ("3622", 1, 3), ("3010", 1, 4), ("3009", 1, 6),
+        ("3008", 1, 8), ("3003", 2, 2), ("3002", 2, 3), ("3001", 2, 4), ("2456", 2, 6),
+        ("3007", 2, 8), ("3006", 2, 10),
+    ]),
+    *_rect(PLATE, "Plate", [
+        ("3024", 1, 1), ("3023", 1, 2), ("3623", 1, 3), ("3710", 1, 4), ("3666", 1, 6),
+        ("3460", 1, 8), ("3022", 2, 2), ("3021", 2, 3), ("3020", 2, 4), ("3795", 2, 6),
+        ("3034", 2, 8), ("3832", 2, 10), ("3031", 4, 4), ("3958", 6, 6), ("3035", 4, 8),
+        ("3036", 6, 8), ("3030", 4, 10),
+    ]),
+    *_rect(TILE, "Tile", [("3070b", 1, 1), ("63864", 1, 3), ("2431", 1, 4), ("3068b", 2, 2)]),
+    PartSpec("3069b", "Tile 1 x 2", TILE, 2, 1, bars=False),
+    PartSpec("3040b", "Slope Brick 45 2 x 1", SLOPE, 1, 2),
+    PartSpec("3039", "Slope Brick 45 2 x 2", SLOPE, 2, 2),
+    PartSpec("3038", "Slope Brick 45 2 x 3", SLOPE, 3, 2),
+    PartSpec("3037", "Slope Brick 45 2 x 4", SLOPE, 4, 2),
+    PartSpec("3665", "Slope Brick 45 2 x 1 Inverted", INVERTED_SLOPE, 1, 2),
+    PartSpec("3660", "Slope Brick 45 2 x 2 Inverted", INVERTED_SLOPE, 2, 2),
+)
+
+BY_NUMBER: dict[str, PartSpec] = {p.number: p for p in PARTS}
