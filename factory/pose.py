@@ -104,6 +104,11 @@ class Pose:
         return f"Pose(R={self.R.round(6).tolist()}, t={self.t.round(6).tolist()})"
 
 
+def points_to_mujoco(points) -> np.ndarray:
+    """Points (..., 3) in LDU with LDraw axes to metres with MuJoCo's axes (mesh vertices)."""
+    return np.asarray(points, dtype=np.float64) @ LDRAW_TO_MUJOCO.T * LDU_M
+
+
 def _fmt(v: float) -> str:
     r = round(v, 6)
     if r == int(r):

@@ -97,3 +97,11 @@ def test_pose_is_immutable():
 def test_bad_type1_line_is_refused():
     with pytest.raises(ValueError, match="type 1 line"):
         Pose.from_ldraw_line("3 16 0 0 0 1 0 0 0 1 0")
+
+
+@given(poses, st.lists(st.floats(-100, 100), min_size=3, max_size=3))
+def test_points_to_mujoco_agrees_with_pose_conversion(p, point):
+    from factory.pose import points_to_mujoco
+
+    pos, rot = p.to_mujoco()
+    assert np.allclose(points_to_mujoco(p.apply(point)), rot @ points_to_mujoco(point) + pos, atol=1e-9)
