@@ -1,0 +1,109 @@
+"""Reference answers: the oracle, chance, and a simple non-learned heuristic, in the answer formats.
+
+The formatters are the single writer of both answer formats: the oracle uses them, and the
+dataset builder reuses them for the training answers, so what we train on is exactly what
+`eval.parse` reads back (round-trip tested). Numbers are rounded to 6 decimals (1e-6 LDU and
+1e-6 in a matrix entry are far below every threshold) and printed shortest, with ``.0`` on whole
+numbers as in the brief's example; -0.0 prints as 0.0.
+
+Baselines give a scale to read model numbers against:
+
+- `oracle`: the ground truth; scores 1.0 selection and step success in both modes.
+- `random_baseline`: chance. A uniformly random cell of the ``n_rows x n_cols`` grid, a translation
+  on the 20-LDU grid within +-200 LDU per axis, one of the 24 axis-aligned rotations.
+- `heuristic`: uses only what a model also sees. Selection: a cell of the catalog's most common
+  (part, colour), when the catalog is given (the most plentiful brick is the likeliest next one),
+  else the top-left cell. Pose: stack on the last brick placed: its position 24 LDU higher (one
+  brick height; y points down, so y - 24) with the identity rotation; at the first step, the
+  origin. The previous step is what the "before" views show, so this is fair.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+
+from eval.metrics import StepTarget, match_cells
+from eval.parse import normalise_part
+from factory.symmetry import axis_rotations
+
+BRICK_HEIGHT_LDU = 24.0
+GRID_LDU = 20
+RANDOM_RANGE_LDU = 200
+
+
+def _num(v: float, decimals: int = 6) -> str:
+    r = round(float(v), decimals) + 0.0  # + 0.0 turns -0.0 into 0.0
+    return repr(r)
+
+
+def format_selection(selections) -> str:
+    """Lines ``3023.dat, row 6, col 3`` from `Selection`s or (part, row, col) tuples."""
+    lines = []
+    for s in selections:
+        part, row, col = (s.part, s.row, s.col) if hasattr(s, "row") else s
+        lines.append(f"{normalise_part(str(part))}, row {int(row)}, col {int(col)}")
+    return "\n".join(lines)
+
+
+def format_pose(poses, decimals: int = 6) -> str:
+    """``Brick N:`` blocks from (t, R) pairs or objects with ``.t`` and ``.R`` (Pose, PoseAnswer)."""
+    blocks = []
+    for n, p in enumerate(poses, start=1):
+        t, r = (p.t, p.R) if hasattr(p, "R") else p
+        t = np.asarray(t, dtype=np.float64).reshape(3)
+        r = np.asarray(r, dtype=np.float64).reshape(3, 3)
+        lines = [f"Brick {n}:", "Translation:", ", ".join(f"{a}={_num(v, decimals)}" for a, v in zip("xyz", t))]
+        lines.append("Rotation:")
+        lines += ["[" + ", ".join(_num(v, decimals) for v in row) + "]" for row in r]
+        blocks.append("\n".join(lines))
+    return "\n\n".join(blocks)
+
+
+def oracle(step: StepTarget) -> dict[str, str]:
+    """The ground-truth answers; identical bricks get distinct cells (one cell holds one brick)."""
+    targets = [b.cells for b in step.bricks]
+    cells = sorted({c for b in step.bricks for c in b.cells})
+    match = match_cells(targets, cells)
+    picks = []
+    for b, ci in zip(step.bricks, match):
+        row, col = cells[ci] if ci is not None else min(b.cells, default=(1, 1))
+        picks.append((b.part, row, col))
+    return {"selection": format_selection(picks), "pose": format_pose([(b.t, b.R) for b in step.bricks])}
+
+
+_ROTATIONS = axis_rotations()
+
+
+def random_baseline(step: StepTarget, rng: np.random.Generator, n_rows: int, n_cols: int = 6) -> dict[str, str]:
+    """Chance answers for every brick of the step (see the module docstring)."""
+    picks, poses = [], []
+    k = RANDOM_RANGE_LDU // GRID_LDU
+    for b in step.bricks:
+        picks.append((b.part, int(rng.integers(1, n_rows + 1)), int(rng.integers(1, n_cols + 1))))
+        t = rng.integers(-k, k + 1, size=3) * GRID_LDU
+        poses.append((t, _ROTATIONS[int(rng.integers(len(_ROTATIONS)))]))
+    return {"selection": format_selection(picks), "pose": format_pose(poses)}
+
+
+def heuristic(step: StepTarget, previous: StepTarget | None = None, catalog: dict | None = None) -> dict[str, str]:
+    """Most common catalog brick, stacked on the last placed brick (see the module docstring).
+
+    `catalog` maps (row, col) to (part, colour) for the bricks still to place. Without it the
+    line's part label is the target's (labels are not scored; the cell is).
+    """
+    picks, poses = [], []
+    if catalog:
+        common = Counter(catalog.values()).most_common(1)[0][0]
+        cells = sorted(c for c, v in catalog.items() if v == common)
+        part = common[0]
+    else:
+        cells, part = [(1, 1)], None
+    base = previous.bricks[-1].t if previous is not None and previous.bricks else np.zeros(3)
+    for i, b in enumerate(step.bricks):
+        row, col = cells[min(i, len(cells) - 1)]
+        picks.append((part or b.part, row, col))
+        poses.append((base + np.array([0.0, -BRICK_HEIGHT_LDU * (i + 1), 0.0]), np.eye(3)))
+    return {"selection": format_selection(picks), "pose": format_pose(poses)}
+
