@@ -71,6 +71,8 @@ class Flat:
     """(k, 2, 3) float64: each stud's base centre and unit axis (pointing out of the part)."""
     certified: bool
     """Whether every triangle came from a BFC-certified file (winding known)."""
+    in_stud: np.ndarray
+    """(n,) bool: the triangle belongs to a stud primitive (studs collide only where unconnected)."""
 
 
 @dataclass
@@ -191,17 +193,19 @@ class Reader:
         if cached is not None:
             return cached
         self._check_stack(res, stack)
-        tris, cols, edges, studs = [], [], [], []
+        tris, cols, edges, studs, in_stud = [], [], [], [], []
         certified = res.file.certified
         for it in res.file.items:
             if isinstance(it, Poly):
                 if it.kind == 3:
                     tris.append(it.points[None])
                     cols.append([it.colour])
+                    in_stud.append(np.zeros(1, bool))
                 elif it.kind == 4:
                     p = it.points
                     tris.append(np.stack([p[[0, 1, 2]], p[[0, 2, 3]]]))
                     cols.append([it.colour, it.colour])
+                    in_stud.append(np.zeros(2, bool))
                 elif it.kind == 2:
                     edges.append(it.points[None])
             elif isinstance(it, Ref):
@@ -213,7 +217,9 @@ class Reader:
                 edges.append(e)
                 studs.append(s)
                 certified = certified and child.certified
-                if is_stud_primitive(it.name):
+                stud_ref = is_stud_primitive(it.name)
+                in_stud.append(np.ones(len(t), bool) if stud_ref else child.in_stud)
+                if stud_ref:
                     # The connection point is 4 LDU (a stud's height) below the stud's top, on its
                     # axis: a stud primitive drawn taller and sunk into the part (as some slopes do)
                     # connects where a plain stud on the top face would.
@@ -228,8 +234,9 @@ class Reader:
             edges=np.concatenate(edges) if edges else np.zeros((0, 2, 3)),
             studs=_unique_studs(np.concatenate(studs)) if studs else np.zeros((0, 2, 3)),
             certified=certified,
+            in_stud=np.concatenate(in_stud) if in_stud else np.zeros(0, bool),
         )
-        for arr in (flat.triangles, flat.colours, flat.edges, flat.studs):
+        for arr in (flat.triangles, flat.colours, flat.edges, flat.studs, flat.in_stud):
             arr.setflags(write=False)
         self._flat[res.key] = flat
         return flat

@@ -1,0 +1,258 @@
+"""Stability: does the structure with the new part stand, and does the new connection hold?
+
+The model (constants in `StabilityConfig`, reasons in docs/physics.md):
+- **Standing**: the verified structure and the stud-connected new part are one rigid body (the
+  structure was verified when each of its parts was added). It stands on the ground on its
+  support points and is simulated for `duration_s` under gravity; it is stable when no corner of
+  its bounding box (nor its centre of mass) moves more than `max_move_ldu`. This is the rollout
+  that MJX batches: the scene has a fixed number of support points, so it compiles once.
+- **Clutch**: the new part's connection must carry its weight. A part hanging under the structure
+  pulls on its studs with its weight; a part sitting with its centre of mass beyond its
+  connections tips about the nearest edge and the studs behind that edge resist with their clutch
+  force times their lever arm. Each stud holds `clutch_n` newtons (StableLego and BrickGPT use
+  about 1 N).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import mujoco
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError
+
+from factory.connections import STUD_RADIUS
+from factory.parts import Part
+from factory.physics.geometry import collision_shape
+from factory.physics.structure import Placed
+from factory.pose import LDRAW_TO_MUJOCO, LDU_M, points_to_mujoco
+
+TEMPLATES = Path(__file__).resolve().parents[2] / "mjcf_templates"
+GRAVITY = 9.81
+
+
+@dataclass(frozen=True)
+class StabilityConfig:
+    """Constants of the stability model."""
+
+    duration_s: float = 0.5
+    """Simulated time."""
+    timestep: float = 0.001
+    """Integration step; MJX needs soft contacts at this step (timeconst >= 8 steps)."""
+    solref_timeconst: float = 0.008
+    """Contact stiffness time constant (s)."""
+    max_move_ldu: float = 2.0
+    """Largest movement of any bounding-box corner that still counts as standing."""
+    clutch_n: float = 1.0
+    """Pull-out force one stud connection holds (N)."""
+    n_feet: int = 16
+    """Support points in the fixed-capacity scene (the support polygon's hull, subsampled)."""
+    foot_radius_m: float = 0.0002
+
+    @property
+    def steps(self) -> int:
+        return int(round(self.duration_s / self.timestep))
+
+
+@lru_cache(maxsize=None)
+def part_mass_properties(part: Part) -> tuple[float, np.ndarray, np.ndarray]:
+    """(mass kg, centre of mass in LDU part frame, inertia about the COM in kg m^2, LDraw axes).
+
+    From the convex collision pieces (closed, unlike LDraw meshes), scaled to the part's mass.
+    """
+    import trimesh
+
+    shape = collision_shape(part)
+    mass = part.mass_g / 1000.0
+    vols, coms, inertias = [], [], []
+    for verts in shape.body + shape.studs:
+        hull = trimesh.convex.convex_hull(verts)
+        if hull.volume <= 0:
+            continue
+        vols.append(hull.volume)
+        coms.append(hull.center_mass)
+        inertias.append(hull.moment_inertia / hull.volume)  # per unit density, about piece COM
+    if not vols:
+        centre = part.bbox.mean(axis=0)
+        return mass, centre, np.eye(3) * 1e-9
+    vols = np.array(vols)
+    coms = np.array(coms)
+    com = (vols[:, None] * coms).sum(0) / vols.sum()
+    density = mass / vols.sum()
+    inertia = np.zeros((3, 3))
+    for v, c, i in zip(vols, coms, inertias):
+        d = c - com
+        inertia += density * (i * v + v * (d @ d * np.eye(3) - np.outer(d, d)))
+    return mass, com, inertia * LDU_M**2
+
+
+@dataclass(frozen=True)
+class RigidObject:
+    """A set of placed parts as one rigid body, in MuJoCo's frame (metres, Z up)."""
+
+    mass: float
+    com: np.ndarray
+    inertia: np.ndarray
+    """Principal moments (3,)."""
+    iquat: np.ndarray
+    """Principal axes as a quaternion (w x y z)."""
+    feet: np.ndarray
+    """(n_feet, 3) support points relative to the COM (unused ones at the COM)."""
+    corners: np.ndarray
+    """(8, 3) bounding-box corners relative to the COM."""
+
+
+def rigid_object(placed: list[Placed], floor_y: float, cfg: StabilityConfig) -> RigidObject:
+    """Merge placed parts into one rigid body standing on the ground at LDraw height floor_y."""
+    masses, coms, inertias, support, points = [], [], [], [], []
+    for p in placed:
+        m, c, i = part_mass_properties(p.part)
+        r = LDRAW_TO_MUJOCO @ p.pose.R @ LDRAW_TO_MUJOCO.T
+        masses.append(m)
+        coms.append(points_to_mujoco(p.pose.apply(c)))
+        inertias.append(r @ (LDRAW_TO_MUJOCO @ i @ LDRAW_TO_MUJOCO.T) @ r.T)
+        shape = collision_shape(p.part)
+        for verts in shape.body + shape.studs:
+            world = p.pose.apply(verts)
+            points.append(world)
+            support.append(world[world[:, 1] >= floor_y - 0.5])
+    masses = np.array(masses)
+    coms = np.array(coms)
+    total = masses.sum()
+    com = (masses[:, None] * coms).sum(0) / total
+    inertia = np.zeros((3, 3))
+    for m, c, i in zip(masses, coms, inertias):
+        d = c - com
+        inertia += i + m * (d @ d * np.eye(3) - np.outer(d, d))
+    moments, axes = np.linalg.eigh(inertia)
+    if np.linalg.det(axes) < 0:
+        axes[:, 0] = -axes[:, 0]
+    pts = points_to_mujoco(np.concatenate(points))
+    lo, hi = pts.min(0), pts.max(0)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    feet = _support_points(points_to_mujoco(np.concatenate(support)) if support else np.zeros((0, 3)), cfg.n_feet)
+    # The scene's ground plane is z = 0: lift everything by the ground's height.
+    com = com + [0.0, 0.0, floor_y * LDU_M]
+    feet_rel = np.zeros((cfg.n_feet, 3))
+    if len(feet):
+        feet[:, 2] = cfg.foot_radius_m
+        feet_rel[: len(feet)] = feet - com
+    corners = corners + [0.0, 0.0, floor_y * LDU_M]
+    return RigidObject(total, com, np.maximum(moments, 1e-12), _quat(axes), feet_rel, corners - com)
+
+
+def _support_points(pts: np.ndarray, n: int) -> np.ndarray:
+    """At most n points of the support polygon's hull (x, y in MuJoCo's ground plane)."""
+    if len(pts) == 0:
+        return pts
+    xy = np.unique(np.round(pts[:, :2], 6), axis=0)
+    if len(xy) >= 3:
+        try:
+            xy = xy[ConvexHull(xy).vertices]
+        except QhullError:
+            pass
+    if len(xy) > n:
+        xy = xy[np.linspace(0, len(xy), n, endpoint=False).astype(int)]
+    return np.column_stack([xy, np.zeros(len(xy))])
+
+
+def _quat(m: np.ndarray) -> np.ndarray:
+    q = np.zeros(4)
+    mujoco.mju_mat2Quat(q, np.ascontiguousarray(m).ravel())
+    return q
+
+
+def stability_xml(cfg: StabilityConfig) -> str:
+    # A foot compiled at the body's origin would be flagged as sharing the body frame, and MuJoCo
+    # would then ignore the positions written per object: give each a distinct offset.
+    feet = "".join(
+        f'<geom name="foot{i}" type="sphere" size="{cfg.foot_radius_m}" pos="{0.001 * (i + 1)} 0 0" '
+        'contype="1" conaffinity="0"/>'
+        for i in range(cfg.n_feet)
+    )
+    return (TEMPLATES / "stability.xml").read_text().format(
+        n_feet=cfg.n_feet, timestep=cfg.timestep, solref=cfg.solref_timeconst, feet=feet
+    )
+
+
+@lru_cache(maxsize=4)
+def stability_model(cfg: StabilityConfig) -> mujoco.MjModel:
+    return mujoco.MjModel.from_xml_string(stability_xml(cfg))
+
+
+def load_object(model: mujoco.MjModel, data: mujoco.MjData, obj: RigidObject) -> None:
+    """Write a rigid object's fields into the fixed-capacity model and reset the state."""
+    body = 1
+    model.body_mass[body] = obj.mass
+    model.body_inertia[body] = obj.inertia
+    model.body_iquat[body] = obj.iquat
+    model.body_ipos[body] = 0.0
+    model.geom_pos[1 : 1 + len(obj.feet)] = obj.feet
+    mujoco.mj_resetData(model, data)
+    data.qpos[:3] = obj.com
+    data.qpos[3:7] = [1.0, 0.0, 0.0, 0.0]
+
+
+def movement_ldu(obj: RigidObject, qpos: np.ndarray) -> float:
+    """Largest displacement (LDU) of the COM or a bounding-box corner, from the start pose."""
+    pos = qpos[:3]
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, np.asarray(qpos[3:7], dtype=np.float64))
+    rot = rot.reshape(3, 3)
+    moved = obj.corners @ rot.T + pos - (obj.corners + obj.com)
+    return float(max(np.linalg.norm(pos - obj.com), np.linalg.norm(moved, axis=1).max()) / LDU_M)
+
+
+def rollout_cpu(objs: list[RigidObject], cfg: StabilityConfig) -> np.ndarray:
+    """Movement (LDU) of each object after `cfg.duration_s`, with MuJoCo's C engine."""
+    model = stability_model(cfg)
+    data = mujoco.MjData(model)
+    out = np.empty(len(objs))
+    for k, obj in enumerate(objs):
+        load_object(model, data, obj)
+        for _ in range(cfg.steps):
+            mujoco.mj_step(model, data)
+        q = data.qpos.copy()
+        out[k] = movement_ldu(obj, q) if np.all(np.isfinite(q)) else np.inf
+    return out
+
+
+def clutch_ok(part_mass_kg: float, part_com_ldu: np.ndarray, stud_points: np.ndarray, hanging: bool,
+              cfg: StabilityConfig) -> bool:
+    """Whether the new connection (stud positions in LDU, world) holds the new part.
+
+    `hanging`: every connection is a stud of the new part pushed up into the structure, so the
+    weight pulls the studs out. Otherwise the part sits on its studs and only tips when its COM
+    lies beyond them: the tipping moment about the nearest edge must not exceed the studs' clutch
+    times their lever arms (a stud's own radius counts as a lever, so a 1-stud part holds a moment).
+    """
+    weight = part_mass_kg * GRAVITY
+    n = len(stud_points)
+    if n == 0:
+        return False
+    if hanging:
+        return weight <= n * cfg.clutch_n
+    xz = stud_points[:, [0, 2]]
+    c = np.asarray(part_com_ldu)[[0, 2]]
+    dist, direction = _outside(xz, c)
+    if dist <= 0:
+        return True
+    moment = weight * dist * LDU_M
+    edge = (xz @ direction).max() + STUD_RADIUS  # the part tips about this line
+    levers = edge - xz @ direction  # each stud's distance behind it (>= a stud radius)
+    capacity = cfg.clutch_n * levers.sum() * LDU_M
+    return moment <= capacity
+
+
+def _outside(points: np.ndarray, c: np.ndarray) -> tuple[float, np.ndarray]:
+    """How far c lies outside the points' footprint (grown by a stud radius), and the direction."""
+    centre = points.mean(0)
+    d = c - centre
+    norm = np.linalg.norm(d)
+    if norm < 1e-9:
+        return 0.0, np.array([1.0, 0.0])
+    u = d / norm
+    reach = (points - centre) @ u
+    return float(norm - (reach.max() + STUD_RADIUS)), u

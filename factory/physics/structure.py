@@ -1,0 +1,178 @@
+"""A structure of placed parts, its connection points in the world, and feasible attachments.
+
+World = the model's LDraw frame (LDU, y down). A stud and a socket are connected when they sit at
+the same place with the same axis; a connection point that is connected is occupied.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from factory.parts import Part
+from factory.pose import Pose
+from factory.symmetry import rotation_about
+
+MATCH_LDU = 0.1
+"""How close a stud and a socket must be (LDU) to count as connected."""
+
+
+@dataclass(frozen=True, eq=False)
+class Placed:
+    """A part placed in the world."""
+
+    part: Part
+    colour: int
+    pose: Pose
+
+
+def connectors(part: Part, pose: Pose, which: str) -> tuple[np.ndarray, np.ndarray]:
+    """World positions and axes (k, 3) of a placed part's 'studs' or 'sockets'."""
+    items = part.studs if which == "studs" else part.sockets
+    if not items:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    pos = np.array([c.pos for c in items]) @ pose.R.T + pose.t
+    axis = np.array([c.axis for c in items]) @ pose.R.T
+    return pos, axis
+
+
+def match(pos_a, axis_a, pos_b, axis_b, tol: float = MATCH_LDU) -> list[tuple[int, int]]:
+    """Index pairs (i, j) where connector i of a and j of b coincide with the same axis."""
+    if len(pos_a) == 0 or len(pos_b) == 0:
+        return []
+    tree = cKDTree(pos_b)
+    out = []
+    for i, js in enumerate(tree.query_ball_point(pos_a, tol)):
+        for j in js:
+            if axis_a[i] @ axis_b[j] > 0.999:
+                out.append((i, j))
+    return out
+
+
+@dataclass
+class Structure:
+    """Parts placed so far, with their world connection points and which are occupied."""
+
+    placed: list[Placed] = field(default_factory=list)
+
+    def __post_init__(self):
+        parts, self.placed = self.placed, []
+        self._stud_pos = np.zeros((0, 3))
+        self._stud_axis = np.zeros((0, 3))
+        self._stud_owner = np.zeros(0, np.int64)
+        self._sock_pos = np.zeros((0, 3))
+        self._sock_axis = np.zeros((0, 3))
+        self._sock_owner = np.zeros(0, np.int64)
+        for p in parts:
+            self.add(p)
+
+    def add(self, placed: Placed) -> None:
+        idx = len(self.placed)
+        self.placed.append(placed)
+        sp, sa = connectors(placed.part, placed.pose, "studs")
+        kp, ka = connectors(placed.part, placed.pose, "sockets")
+        self._stud_pos = np.concatenate([self._stud_pos, sp])
+        self._stud_axis = np.concatenate([self._stud_axis, sa])
+        self._stud_owner = np.concatenate([self._stud_owner, np.full(len(sp), idx)])
+        self._sock_pos = np.concatenate([self._sock_pos, kp])
+        self._sock_axis = np.concatenate([self._sock_axis, ka])
+        self._sock_owner = np.concatenate([self._sock_owner, np.full(len(kp), idx)])
+
+    def __len__(self) -> int:
+        return len(self.placed)
+
+    @property
+    def studs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self._stud_pos, self._stud_axis, self._stud_owner
+
+    @property
+    def sockets(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self._sock_pos, self._sock_axis, self._sock_owner
+
+    def occupied(self) -> tuple[np.ndarray, np.ndarray]:
+        """Boolean masks over studs and sockets: connected to another part of the structure."""
+        studs = np.zeros(len(self._stud_pos), bool)
+        socks = np.zeros(len(self._sock_pos), bool)
+        for i, j in match(self._stud_pos, self._stud_axis, self._sock_pos, self._sock_axis):
+            if self._stud_owner[i] != self._sock_owner[j]:
+                studs[i] = socks[j] = True
+        return studs, socks
+
+    def connections_with(self, part: Part, pose: Pose) -> list[tuple[int, str]]:
+        """(structure part index, 'stud'|'socket') for each connection a placed part would make.
+
+        'stud' means a structure stud enters the new part's socket; 'socket' means a stud of the
+        new part enters a structure socket.
+        """
+        out = []
+        kp, ka = connectors(part, pose, "sockets")
+        for i, _ in match(self._stud_pos, self._stud_axis, kp, ka):
+            out.append((int(self._stud_owner[i]), "stud"))
+        sp, sa = connectors(part, pose, "studs")
+        for _, j in match(sp, sa, self._sock_pos, self._sock_axis):
+            out.append((int(self._sock_owner[j]), "socket"))
+        return out
+
+    def floor_y(self) -> float:
+        """The ground plane's height: the lowest point of the structure (LDraw y grows down)."""
+        if not self.placed:
+            return 0.0
+        return max(float(p.pose.apply(_corners(p.part.bbox))[:, 1].max()) for p in self.placed)
+
+
+def _corners(bbox: np.ndarray) -> np.ndarray:
+    lo, hi = bbox
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+
+
+def align(b: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """A rotation taking unit vector b onto unit vector a (a fixed choice when they are opposite)."""
+    v = np.cross(b, a)
+    c = float(b @ a)
+    if np.linalg.norm(v) < 1e-9:
+        if c > 0:
+            return np.eye(3)
+        perp = np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 0, 1.0])
+        return rotation_about(np.cross(a, perp), 180.0)
+    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + k + k @ k * (1 / (1 + c))
+
+
+def canonical_key(part: Part, pose: Pose) -> tuple:
+    """A key equal for poses that place the part's geometry identically (symmetry-aware)."""
+    keys = []
+    for s in part.symmetry.rotations:
+        r = pose.R @ s
+        keys.append(tuple(np.round(r, 4).ravel().tolist()))
+    return (min(keys), tuple(np.round(pose.t, 3).tolist()))
+
+
+def feasible_poses(structure: Structure, part: Part) -> list[Pose]:
+    """Every pose that puts one of the part's sockets on a free stud of the structure, or one of
+    its studs into a free socket, at each of the 4 turns about the stud axis; duplicates (equal by
+    the part's symmetry) dropped. Deterministic order."""
+    stud_busy, sock_busy = structure.occupied()
+    sp, sa, _ = structure.studs
+    kp, ka, _ = structure.sockets
+    plans = []
+    for c in part.sockets:  # part socket onto a free structure stud
+        plans.append((np.array(c.pos), np.array(c.axis), sp[~stud_busy], sa[~stud_busy]))
+    for c in part.studs:  # part stud into a free structure socket
+        plans.append((np.array(c.pos), np.array(c.axis), kp[~sock_busy], ka[~sock_busy]))
+    seen: set = set()
+    out: list[Pose] = []
+    turns = [rotation_about((0.0, 1.0, 0.0), 90.0 * k) for k in range(4)]
+    for q, b, targets, axes in plans:
+        for p, a in zip(targets, axes):
+            base = align(b, a)
+            for k in range(4):
+                twist = turns[k] if np.allclose(a, [0, -1, 0]) or np.allclose(a, [0, 1, 0]) else rotation_about(a, 90.0 * k)
+                r = np.round(twist @ base, 12)
+                pose = Pose(r, p - r @ q)
+                key = canonical_key(part, pose)
+                if key not in seen:
+                    seen.add(key)
+                    out.append(pose)
+    return out
