@@ -1,0 +1,55 @@
+"""Renders for vision-language models: six orthographic views, isometric, part, catalog, feedback.
+
+Importing this package chooses the headless OpenGL backend (`factory.render.gl`) before MuJoCo's GL
+modules load. See docs/render.md.
+"""
+
+from factory.render import gl as _gl
+
+_gl.configure()  # before anything imports mujoco's GL modules
+
+from factory.render.cameras import (
+    ALL_VIEWS,
+    ISOMETRIC,
+    ORTHO_VIEWS,
+    VIEWS,
+    Framing,
+    View,
+    project,
+)
+from factory.render.gl import RenderUnavailableError
+from factory.render.images import (
+    StepRender,
+    bounds_of,
+    framing_for,
+    render_axes,
+    render_catalog,
+    render_feedback,
+    render_part,
+    render_step,
+    render_step_full,
+    render_views,
+    six_view_composite,
+)
+
+__all__ = [
+    "ALL_VIEWS",
+    "ISOMETRIC",
+    "ORTHO_VIEWS",
+    "VIEWS",
+    "Framing",
+    "RenderUnavailableError",
+    "StepRender",
+    "View",
+    "bounds_of",
+    "framing_for",
+    "project",
+    "render_axes",
+    "render_catalog",
+    "render_feedback",
+    "render_part",
+    "render_step",
+    "render_step_full",
+    "render_views",
+    "six_view_composite",
+]

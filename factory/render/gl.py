@@ -1,0 +1,119 @@
+"""Headless OpenGL for MuJoCo's renderer: pick a backend, make one context per process, free it at exit.
+
+Backends, in order: `MUJOCO_GL` if it names `egl` or `osmesa` (the user's choice, no fallback); else EGL
+when `libEGL` is installed (Mesa llvmpipe on a CPU machine, the NVIDIA driver on a GPU); else OSMesa
+when `libOSMesa` is installed. `configure()` sets `MUJOCO_GL` and `PYOPENGL_PLATFORM` so that a later
+`import mujoco` picks the same backend; it runs when `factory.render` is imported.
+
+EGL on this project's CPU machine works with the stock environment (`MUJOCO_GL=egl`); the `EGLError`
+seen in quick tries comes from MuJoCo's `Renderer.__del__` at interpreter exit, after `eglTerminate`.
+Here every context is freed explicitly by an exit hook registered after the EGL display exists, so it
+runs before MuJoCo's own `eglTerminate` hook.
+"""
+
+from __future__ import annotations
+
+import atexit
+import ctypes.util
+import os
+import sys
+import weakref
+
+_INSTALL_HINT = (
+    "install Mesa's EGL (Debian/Ubuntu: apt-get install libegl1 libgl1-mesa-dri) for MUJOCO_GL=egl, "
+    "or OSMesa (apt-get install libosmesa6) and set MUJOCO_GL=osmesa"
+)
+
+
+class RenderUnavailableError(RuntimeError):
+    """No headless OpenGL backend could be started; the message says what to install."""
+
+
+def _choose_backend() -> str:
+    env = os.environ.get("MUJOCO_GL", "").strip().lower()
+    if env == "osmesa" and not ctypes.util.find_library("OSMesa"):
+        raise RenderUnavailableError(
+            "MUJOCO_GL=osmesa but libOSMesa is not installed (apt-get install libosmesa6); or unset MUJOCO_GL to use EGL"
+        )
+    if env == "egl" and not ctypes.util.find_library("EGL"):
+        raise RenderUnavailableError(f"MUJOCO_GL=egl but libEGL is not installed; {_INSTALL_HINT}")
+    if env in ("egl", "osmesa"):
+        return env
+    if ctypes.util.find_library("EGL"):
+        return "egl"
+    if ctypes.util.find_library("OSMesa"):
+        return "osmesa"
+    raise RenderUnavailableError(f"no headless OpenGL library found (neither libEGL nor libOSMesa); {_INSTALL_HINT}")
+
+
+BACKEND: str | None = None
+
+
+def configure() -> str:
+    """Choose the backend and export it to the environment (before mujoco's GL modules load)."""
+    global BACKEND
+    if BACKEND is None:
+        BACKEND = _choose_backend()
+        if "mujoco" not in sys.modules:
+            os.environ["MUJOCO_GL"] = BACKEND
+        platform = os.environ.get("PYOPENGL_PLATFORM")
+        if platform and platform.lower() != BACKEND and "OpenGL" not in sys.modules:
+            raise RenderUnavailableError(
+                f"PYOPENGL_PLATFORM={platform} conflicts with the {BACKEND} backend; unset it or set it to {BACKEND}"
+            )
+        if not platform and "OpenGL" not in sys.modules:
+            os.environ["PYOPENGL_PLATFORM"] = BACKEND
+    return BACKEND
+
+
+class Context:
+    """The process's one GL context, made current, with the MuJoCo render contexts living in it."""
+
+    def __init__(self):
+        backend = configure()
+        try:
+            if backend == "egl":
+                from mujoco.egl import GLContext
+            else:
+                from mujoco.osmesa import GLContext
+            self._gl = GLContext(64, 64)
+            self._gl.make_current()
+        except Exception as exc:
+            raise RenderUnavailableError(
+                f"cannot start a headless OpenGL context with {backend} ({type(exc).__name__}: {exc}); {_INSTALL_HINT}"
+            ) from exc
+        self.backend = backend
+        self._owners: weakref.WeakSet = weakref.WeakSet()
+        # Registered after the backend's own hooks (EGL registers eglTerminate on first use), so it
+        # runs before them: free everything while the display is still alive.
+        atexit.register(self.close)
+
+    def make_current(self) -> None:
+        self._gl.make_current()
+
+    def adopt(self, owner) -> None:
+        """Track an object with a `free()` method that holds GL resources (freed before the context)."""
+        self._owners.add(owner)
+
+    def close(self) -> None:
+        if self._gl is None:
+            return
+        try:
+            self._gl.make_current()
+            for owner in list(self._owners):
+                owner.free()
+        finally:
+            self._gl.free()
+            self._gl = None
+
+
+_CONTEXT: Context | None = None
+
+
+def context() -> Context:
+    """The process-wide GL context, created on first use and made current."""
+    global _CONTEXT
+    if _CONTEXT is None or _CONTEXT._gl is None:
+        _CONTEXT = Context()
+    _CONTEXT.make_current()
+    return _CONTEXT

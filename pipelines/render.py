@@ -1,0 +1,212 @@
+"""Render one build step's BC-Bench image set: `python -m pipelines.render MODEL --step K --out DIR`.
+
+Writes into DIR: `before.png`, `after.png` (six labelled orthographic views; new parts boxed in red
+in `after`), `isometric.png`, `part_1.png`.. (each new part in its own LDraw frame with axes),
+`axes.png` (7 views of the assembly before the step, LDU ticks), `catalog.png` (the parts still to
+place: this step's and every later step's, sorted by part name and colour), `feedback.png` (the
+step's first part at a predicted pose, in red) and `step.json` (the step's parts, their catalog
+cells, the red boxes and the framing).
+
+K is the 0-based step index that `python -m factory.ldraw steps MODEL` prints. Every step of a model
+is framed on the whole model's bounds, so views of different steps line up.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from factory.errors import LDrawError
+
+
+def _predicted(args, part):
+    from factory.ldraw import PlacedPart
+    from factory.pose import Pose
+
+    if args.predict:
+        try:
+            values = [float(v) for v in args.predict.replace(",", " ").split()]
+            pose = Pose.from_ldraw(values)
+        except ValueError:
+            raise SystemExit("error: --predict needs 12 numbers: x y z a b c d e f g h i") from None
+    else:
+        # A typical wrong answer: one stud off along X and turned 90 degrees about the part's Y axis.
+        turn = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
+        pose = Pose(part.pose.R @ turn, part.pose.t + np.array([20.0, 0.0, 0.0]))
+    return PlacedPart(part.part, part.colour, pose, "predicted")
+
+
+def _json(meta: dict) -> str:
+    """JSON with one entry per line at the top two levels and short lists kept on one line."""
+    lines = ["{"]
+    items = list(meta.items())
+    for i, (k, v) in enumerate(items):
+        comma = "," if i < len(items) - 1 else ""
+        if isinstance(v, list) and v and isinstance(v[0], dict):
+            inner = ",\n".join("  " + json.dumps(x) for x in v)
+            lines.append(f" {json.dumps(k)}: [\n{inner}\n ]{comma}")
+        else:
+            lines.append(f" {json.dumps(k)}: {json.dumps(v)}{comma}")
+    lines.append("}")
+    return "\n".join(lines)
+
+
+def _bench(args) -> int:
+    """Views per second of the whole model (RGB with outlines and multisampling; segmentation)."""
+    from factory.ldraw import get_reader, read_steps
+    from factory.parts import load_part
+    from factory.render import ALL_VIEWS, Framing, bounds_of, render_step_full
+    from factory.render.images import EDGE_PX
+    from factory.render.scene import Item, colour_table, scene_for
+    from factory.render.views import render_rgb, render_seg
+
+    try:
+        sizes = [int(s) for s in args.bench.split(",")]
+        reader = get_reader(args.ldraw)
+        steps = read_steps(args.model, args.ldraw)
+    except (ValueError, LDrawError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    every = [p for s in steps for p in s.parts]
+    items = [Item(load_part(reader, p.part), p.colour, p.pose) for p in every]
+    colours = colour_table(reader)
+    framing = Framing.from_bounds(bounds_of(every, reader))
+    print(f"{args.model}: {len(steps)} steps, {len(every)} parts")
+    for size in sizes:
+        t = time.perf_counter()
+        scene = scene_for([it.part for it in items], EDGE_PX * framing.height / size)
+        render_rgb(scene, items, colours, "Front", framing, size)
+        render_seg(scene, items, colours, "Front", framing, size)
+        setup = time.perf_counter() - t
+        tris = sum(int(scene.model.mesh_facenum[scene.model.geom_dataid[g]]) for g in range(scene.model.ngeom))
+        line = [f"{size}px: scene + contexts {setup:.2f} s, {tris} triangles"]
+        for kind, fn in (("rgb", render_rgb), ("seg", render_seg)):
+            rates = []
+            for _ in range(3):
+                t = time.perf_counter()
+                for v in ALL_VIEWS:
+                    fn(scene, items, colours, v, framing, size)
+                rates.append(len(ALL_VIEWS) / (time.perf_counter() - t))
+            line.append(f"{kind} {max(rates):.1f} views/s (median {sorted(rates)[1]:.1f})")
+        k = len(steps) // 2
+        before = [p for s in steps[:k] for p in s.parts]
+        t = time.perf_counter()
+        render_step_full(before, list(steps[k].parts), size, reader=reader, bounds=bounds_of(every, reader),
+                         scene_parts=every)
+        line.append(f"render_step {time.perf_counter() - t:.2f} s")
+        print(", ".join(line))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m pipelines.render", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("model", help="an .ldr, .mpd or .dat model file")
+    parser.add_argument("--step", type=int, help="0-based build step index")
+    parser.add_argument("--out", help="output folder (created)")
+    parser.add_argument("--ldraw", help="LDraw library folder (default: $LDRAWDIR, else the embedded library)")
+    parser.add_argument("--size", type=int, default=256, help="pixels per view (default 256)")
+    parser.add_argument("--tile", type=int, default=128, help="pixels per catalog tile (default 128)")
+    parser.add_argument("--predict", help="predicted pose of the step's first part for feedback.png: "
+                                          "'x y z a b c d e f g h i' (default: one stud off, turned 90 degrees)")
+    parser.add_argument("--bench", metavar="SIZES",
+                        help="instead of writing images, time views per second at these sizes, e.g. 256,512")
+    args = parser.parse_args(argv)
+    if args.bench:
+        return _bench(args)
+    if args.step is None or args.out is None:
+        print("error: --step and --out are required (or --bench SIZES)", file=sys.stderr)
+        return 2
+    if not 32 <= args.size <= 2048 or not 32 <= args.tile <= 1024:
+        print("error: --size must be in 32..2048 and --tile in 32..1024", file=sys.stderr)
+        return 2
+
+    try:
+        from factory.ldraw import get_reader, read_steps
+        from factory.render import (
+            RenderUnavailableError,
+            bounds_of,
+            render_catalog,
+            render_feedback,
+            render_step_full,
+        )
+    except Exception as exc:  # noqa: BLE001 - e.g. no GL library: one line, not a traceback
+        print(f"error: {exc}", file=sys.stderr)
+        return 3
+
+    t0 = time.perf_counter()
+    try:
+        reader = get_reader(args.ldraw)
+        steps = read_steps(args.model, args.ldraw)
+        if not steps:
+            print(f"error: {args.model} places no parts", file=sys.stderr)
+            return 2
+        if not 0 <= args.step < len(steps):
+            print(f"error: --step {args.step} is out of range: {args.model} has steps 0..{len(steps) - 1}",
+                  file=sys.stderr)
+            return 2
+        every = [p for s in steps for p in s.parts]
+        before = [p for s in steps[: args.step] for p in s.parts]
+        new = list(steps[args.step].parts)
+        bounds = bounds_of(every, reader)
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+
+        res = render_step_full(before, new, args.size, reader=reader, bounds=bounds, scene_parts=every)
+        remaining = [p for s in steps[args.step:] for p in s.parts]
+        order = sorted(range(len(remaining)),
+                       key=lambda i: (remaining[i].part.lower(), remaining[i].colour, i))
+        candidates = [remaining[i] for i in order]
+        catalog, cells = render_catalog(candidates, tile=args.tile, reader=reader)
+        feedback = render_feedback(before, [_predicted(args, new[0])], args.size, reader=reader,
+                                   bounds=bounds, scene_parts=every)
+
+        images = dict(res.images, catalog=catalog, feedback=feedback)
+        for name, img in images.items():
+            img.save(out / f"{name}.png", optimize=False)
+        # The step's parts are the first len(new) entries of `remaining`.
+        where = {order[k]: cells[k] for k in range(len(order))}
+        meta = {
+            "model": str(args.model),
+            "step": args.step,
+            "size": args.size,
+            "parts": [
+                {
+                    "part": p.part,
+                    "colour": p.colour,
+                    "R": p.pose.R.tolist(),
+                    "T": p.pose.t.tolist(),
+                    "catalog_cell": list(where[j]),
+                    "boxes": {v: (list(b[j]) if b[j] is not None else None) for v, b in res.boxes.items()},
+                }
+                for j, p in enumerate(new)
+            ],
+            "catalog": [{"part": c.part, "colour": c.colour, "cell": list(cell)} for c, cell in zip(candidates, cells)],
+            "framing": {"center": list(res.framing.center), "height": res.framing.height,
+                        "iso_height": res.framing.iso_height},
+            "images": sorted(f"{n}.png" for n in images),
+        }
+        (out / "step.json").write_text(_json(meta) + "\n")
+    except LDrawError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except RenderUnavailableError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 3
+    except RecursionError:
+        print("error: input nests too deeply to read", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {len(images)} images and step.json to {out} in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

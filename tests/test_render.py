@@ -1,0 +1,397 @@
+"""Renders: view table, pixel mapping, red boxes, ticks, catalog cells, outlines, determinism, CLI.
+
+Small scenes built inline from the embedded library, at 128-256 px, so the file runs in well under a
+minute on a 2-core CPU with Mesa's llvmpipe.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from factory import Pose
+from factory.ldraw import PlacedPart
+
+try:
+    from factory import render
+except Exception as exc:  # only a missing GL library skips; anything else is a failure
+    if type(exc).__name__ != "RenderUnavailableError":
+        raise
+    pytest.skip(str(exc), allow_module_level=True)
+
+from factory.render import (
+    ALL_VIEWS,
+    ORTHO_VIEWS,
+    VIEWS,
+    Framing,
+    RenderUnavailableError,
+    compose,
+    gl,
+    project,
+    render_catalog,
+    render_feedback,
+    render_part,
+    render_step,
+    render_step_full,
+)
+from factory.render.cameras import box_corners
+from factory.render.images import _axes_margins, bounds_of
+from factory.render.scene import Item, colour_table, scene_for
+from factory.render.views import render_rgb, render_seg
+
+ROOT = Path(__file__).resolve().parents[1]
+TOWER = ROOT / "factory" / "data" / "examples" / "tower.mpd"
+GAP = 2  # compose.grid's default gap
+
+
+def placed(part: str, colour: int, t, R=None) -> PlacedPart:
+    return PlacedPart(part, colour, Pose(np.eye(3) if R is None else R, np.asarray(t, float)), "test")
+
+
+@pytest.fixture(scope="module")
+def reader(embedded_reader):
+    try:
+        gl.context()
+    except RenderUnavailableError as exc:  # pragma: no cover - machines without GL
+        pytest.skip(str(exc))
+    return embedded_reader
+
+
+def six_tile(img, index: int, size: int) -> np.ndarray:
+    """The render (without its label strip) of view `index` in a six-view composite."""
+    arr = np.asarray(img)
+    strip = compose.label_strip_height(size)
+    r, c = divmod(index, 3)
+    y0 = r * (size + strip + GAP) + strip
+    x0 = c * (size + GAP)
+    return arr[y0 : y0 + size, x0 : x0 + size]
+
+
+# -- the view table ----------------------------------------------------------------------------
+def test_views_have_fixed_names_order_and_ldraw_directions():
+    assert ORTHO_VIEWS == ("Top", "Front", "Right", "Bottom", "Back", "Left")
+    assert ALL_VIEWS == (*ORTHO_VIEWS, "Isometric")
+    # Front is LDraw's standard view: camera on the -Z side, +X right, -Y (up) at the top.
+    assert VIEWS["Front"].eye == (0, 0, -1) and VIEWS["Front"].right == (1, 0, 0) and VIEWS["Front"].up == (0, -1, 0)
+    assert VIEWS["Top"].eye == (0, -1, 0)  # above: LDraw -Y is up
+    assert VIEWS["Right"].eye == (1, 0, 0) and VIEWS["Left"].eye == (-1, 0, 0)
+    for v in VIEWS.values():
+        m = np.stack([v.right, v.up, v.eye], 1).astype(float)
+        assert np.allclose(m.T @ m, np.eye(3)) and np.linalg.det(m) > 0
+    with pytest.raises(ValueError):
+        project("Sideways", (0, 0, 0), Framing((0, 0, 0), 100, 100))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.sampled_from(ORTHO_VIEWS),
+    st.tuples(*[st.floats(-500, 500)] * 3),
+    st.floats(30, 2000),
+    st.tuples(*[st.floats(-300, 300)] * 3),
+)
+def test_projection_round_trips_through_the_tick_mapping(view, center, height, point):
+    f = Framing(center, height, height)
+    px, py = project(view, point, f, 256)
+    (hi, _), (vi, _) = VIEWS[view].axes()
+    assert f.coordinate_at(view, px, "h", 256) == pytest.approx(point[hi], abs=1e-6)
+    assert f.coordinate_at(view, py, "v", 256) == pytest.approx(point[vi], abs=1e-6)
+    assert project(view, f.center, f, 256) == pytest.approx((128, 128))
+
+
+# -- pixel mapping: a marker lands where project() says --------------------------------------------
+def test_marker_lands_at_the_projected_pixels_in_every_view(reader):
+    size = 128
+    t = np.array([37.0, -23.0, 51.0])  # off-centre on all three axes, so a flipped sign shows
+    part = render.images.load_part(reader, "3024")  # 1 x 1 plate: a small marker
+    framing = Framing.from_bounds(np.array([[-100.0] * 3, [100.0] * 3]))
+    scene = scene_for([part], render.images.EDGE_PX * framing.height / size)
+    item = Item(part, 14, Pose(np.eye(3), t))
+    corners = box_corners(np.asarray(part.bbox) + t)
+    for view in ORTHO_VIEWS:
+        seg = render_seg(scene, [item], colour_table(reader), view, framing, size)
+        ys, xs = np.nonzero(seg == 0)
+        proj = framing.project(view, corners, size)
+        # Pixel (i, j) is covered when its centre is: the mask spans floor(min+.5) .. ceil(max-.5).
+        assert abs(xs.min() - proj[:, 0].min()) <= 1.0, view
+        assert abs(xs.max() + 1 - proj[:, 0].max()) <= 1.0, view
+        assert abs(ys.min() - proj[:, 1].min()) <= 1.0, view
+        assert abs(ys.max() + 1 - proj[:, 1].max()) <= 1.0, view
+        rgb = render_rgb(scene, [item], colour_table(reader), view, framing, size)
+        cy, cx = np.argwhere((rgb != 255).any(-1)).mean(0)
+        px, py = project(view, (corners.min(0) + corners.max(0)) / 2, framing, size)
+        assert abs(cx + 0.5 - px) <= 1.5 and abs(cy + 0.5 - py) <= 1.5, view
+
+
+# -- a step: red boxes, segmentation ---------------------------------------------------------------
+@pytest.fixture(scope="module")
+def step(reader):
+    before = [placed("3001", 71, (0, 0, 0))]  # grey 2 x 4 brick, top at y=0
+    new = [placed("3003", 1, (10, -24, 0))]  # blue 2 x 2 brick on top of it, off-centre
+    return before, new, render_step_full(before, new, 256, reader=reader)
+
+
+def test_red_box_contains_the_new_part_and_is_tight(step, reader):
+    _, new, res = step
+    part = render.images.load_part(reader, "3003")
+    corners = box_corners(np.asarray(part.bbox) + new[0].pose.t)
+    seen = 0
+    for k, view in enumerate(ORTHO_VIEWS):
+        box = res.boxes[view][0]
+        if view == "Bottom":  # hidden under the 2 x 4 brick
+            assert box is None
+            continue
+        seen += 1
+        proj = res.framing.project(view, corners, 256)
+        lo, hi = proj.min(0), proj.max(0)
+        x0, y0, x1, y1 = box
+        assert x0 <= lo[0] and y0 <= lo[1] and x1 + 1 >= hi[0] and y1 + 1 >= hi[1], (view, box, lo, hi)
+        assert lo[0] - x0 <= 4 and lo[1] - y0 <= 4 and x1 + 1 - hi[0] <= 4 and y1 + 1 - hi[1] <= 4, view
+        # The box is drawn: the red pixels of the tile span exactly the box.
+        tile = six_tile(res.images["after"], k, 256)
+        red = (tile == np.array(compose.RED, np.uint8)).all(-1)
+        ys, xs = np.nonzero(red)
+        assert (xs.min(), ys.min(), xs.max(), ys.max()) == (x0, y0, x1, y1), view
+        # ... and dashed: the top side has gaps.
+        top = red[y0, x0 : x1 + 1]
+        assert 0.3 < top.mean() < 0.9
+    assert seen == 5
+    before_tile = six_tile(res.images["before"], 1, 256)
+    assert not (before_tile == np.array(compose.RED, np.uint8)).all(-1).any()
+
+
+def test_segmentation_ids_are_in_range(step):
+    before, new, res = step
+    n = len(before) + len(new)
+    for view, seg in res.segmentation.items():
+        assert seg.dtype == np.int32 and seg.min() >= -1 and seg.max() < n, view
+        assert (seg == -1).any()
+    assert set(np.unique(res.segmentation["Front"])) == {-1, 0, 1}
+
+
+def test_step_images_and_sizes(step):
+    _, _, res = step
+    strip = compose.label_strip_height(256)
+    assert set(res.images) == {"before", "after", "isometric", "part_1", "axes"}
+    assert res.images["before"].size == (3 * 256 + 2 * GAP, 2 * (256 + strip) + GAP)
+    assert res.images["after"].size == res.images["before"].size
+
+
+def test_same_framing_before_and_after(reader):
+    before = [placed("3001", 71, (0, 0, 0))]
+    new = [placed("3001", 4, (0, -24, 0))]
+    res = render_step_full(before, new, 128, reader=reader, parts=False)
+    assert res.framing == Framing.from_bounds(bounds_of(before + new, reader))
+    # The grey brick sits at the same pixels before and after the step.
+    for k, view in enumerate(ORTHO_VIEWS):
+        if view == "Top":  # covered by the new brick
+            continue
+        b = six_tile(res.images["before"], k, 128)
+        ys, xs = np.nonzero((b != 255).any(-1))
+        ya, xa = np.nonzero(res.segmentation[view] == 0)
+        # (the RGB silhouette also holds the outline, up to 2 px outside the faces)
+        assert abs(xs.min() - xa.min()) <= 2 and abs(xs.max() - xa.max()) <= 2, view
+        assert abs(ys.max() - ya.max()) <= 2, view
+
+
+# -- ticks -----------------------------------------------------------------------------------------
+def test_tick_labels_agree_with_the_pixel_mapping(step):
+    _, _, res = step
+    f, size = res.framing, 256
+    img = np.asarray(res.images["axes"])
+    ml, mb = _axes_margins(size)
+    strip = compose.label_strip_height(size)
+    tile_w, tile_h = size + ml, size + strip + mb
+    for k, view in enumerate(ORTHO_VIEWS):
+        ticks = f.ticks(view, size)
+        assert len(ticks["h"]) >= 3 and len(ticks["v"]) >= 3
+        (hi, _), (vi, _) = VIEWS[view].axes()
+        r, c = divmod(k, 4)
+        ox, oy = c * (tile_w + GAP), r * (tile_h + GAP)
+        for value, x in ticks["h"]:
+            p = np.asarray(f.center, float)
+            p[hi] = value
+            assert project(view, p, f, size)[0] == pytest.approx(x)
+            assert value % 1 == 0 or value * 2 % 1 == 0  # round LDU values
+            # A dark tick mark hangs below the render at that column.
+            xi = ox + ml + min(size - 1, int(np.floor(x)))
+            assert tuple(img[oy + strip + size + 2, xi]) == compose.INK, (view, value)
+        for value, y in ticks["v"]:
+            p = np.asarray(f.center, float)
+            p[vi] = value
+            assert project(view, p, f, size)[1] == pytest.approx(y)
+            yi = oy + strip + min(size - 1, int(np.floor(y)))
+            assert tuple(img[yi, ox + ml - 3]) == compose.INK, (view, value)
+        # Values grow in the direction the view's axis points.
+        (_, hs), _ = VIEWS[view].axes()
+        xs = [x for _, x in ticks["h"]]
+        vals = [v for v, _ in ticks["h"]]
+        assert np.all(np.diff(vals) * hs * np.sign(np.diff(xs)) > 0)
+
+
+# -- outlines --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("colour", [4, 14, 72])  # red, yellow, dark bluish grey
+def test_adjacent_same_colour_bricks_are_distinguishable(reader, colour):
+    size = 192
+    side = [placed("3001", colour, (-40, 0, 0)), placed("3001", colour, (40, 0, 0))]  # touching at x = 0
+    stack = [placed("3001", colour, (0, 0, 0)), placed("3001", colour, (0, -24, 0))]  # touching at y = 0
+    for parts, axis in ((side, 0), (stack, 1)):
+        f = Framing.from_bounds(bounds_of(parts, reader))
+        items = [Item(render.images.load_part(reader, p.part), p.colour, p.pose) for p in parts]
+        scene = scene_for([it.part for it in items], render.images.EDGE_PX * f.height / size)
+        img = render_rgb(scene, items, colour_table(reader), "Front", f, size).astype(float)
+        lum = img @ np.array([0.299, 0.587, 0.114])
+        sx, sy = project("Front", (0.0, 12.0 if axis == 0 else 0.0, -20.0), f, size)
+        if axis == 0:  # vertical seam at x = 0, sampled down the face's middle rows
+            rows = slice(int(sy) - 5, int(sy) + 5)
+            seam_lum = lum[rows, int(sx) - 1 : int(sx) + 1].min(1).mean()
+            face = lum[rows, int(sx) + 15]
+        else:  # horizontal seam at y = 0
+            cols = slice(int(sx) - 30, int(sx) + 30)
+            seam_lum = lum[int(sy) - 1 : int(sy) + 1, cols].min(0).mean()
+            face = lum[int(sy) + 12, cols]
+        assert seam_lum < 0.6 * face.mean(), (axis, seam_lum, face.mean())
+
+
+# -- catalog ---------------------------------------------------------------------------------------
+def test_catalog_cells_are_where_the_grid_says(reader):
+    parts = [("3001", 71)] * 3 + [("3024", 71), ("3003", 71), ("3001", 4), ("3023", 71), ("3024", 71)]
+    img, cells = render_catalog(parts, tile=96, reader=reader)
+    assert cells == [(1, 1), (1, 2), (1, 3), (1, 4), (1, 5), (1, 6), (2, 1), (2, 2)]
+    strip = compose.label_strip_height(96)
+    th = 96 + strip
+    assert img.size == (6 * 96 + 5 * GAP, 2 * th + GAP)
+    arr = np.asarray(img).astype(int)
+
+    def tile(row, col):
+        y0, x0 = (row - 1) * (th + GAP), (col - 1) * (96 + GAP)
+        return arr[y0 : y0 + th, x0 : x0 + 96]
+
+    def reddish(t):
+        return ((t[..., 0] > 150) & (t[..., 1] < 60) & (t[..., 2] < 60)).sum()
+
+    r, c = cells[5]  # the one red brick
+    assert reddish(tile(r, c)) > 200
+    assert all(reddish(tile(*cells[i])) == 0 for i in range(len(parts)) if i != 5)
+    # Identical bricks get separate, identical tiles; a common scale makes the 1 x 1 plate smaller.
+    assert np.array_equal(tile(*cells[0]), tile(*cells[1]))
+    assert np.array_equal(tile(*cells[3]), tile(*cells[7]))
+
+    def area(t):
+        return (t[strip:] != 255).any(-1).sum()
+
+    assert area(tile(*cells[3])) < 0.3 * area(tile(*cells[0]))
+    with pytest.raises(ValueError):
+        render_catalog([], reader=reader)
+
+
+# -- part and feedback renders -------------------------------------------------------------------
+def test_part_render_draws_labelled_axes_from_the_origin(reader):
+    img = np.asarray(render_part("3001", 71, size=192, reader=reader)).astype(int)
+    strip = compose.label_strip_height(192)
+    body = img[strip:]
+    for name in "XYZ":
+        rgb = np.array(compose.AXIS_RGB[name])
+        assert (np.abs(body - rgb).sum(-1) < 10).sum() > 50, name
+    # Red +X points right of green +Y, which points down.
+    xs = np.argwhere(np.abs(body - compose.AXIS_RGB["X"]).sum(-1) < 10)
+    ys = np.argwhere(np.abs(body - compose.AXIS_RGB["Y"]).sum(-1) < 10)
+    assert xs[:, 1].max() > ys[:, 1].max() + 20
+    assert ys[:, 0].max() > xs[:, 0].max()
+
+
+def test_feedback_draws_the_prediction_in_red(reader):
+    before = [placed("3001", 1, (0, 0, 0))]
+    wrong = [placed("3003", 14, (60, -24, 0), R=np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]]))]
+    img = np.asarray(render_feedback(before, wrong, 128, reader=reader)).astype(int)
+    strip = compose.label_strip_height(128)
+    top = img[strip : strip + 128, 0:128]  # the Top view
+    red = (top[..., 0] > 180) & (top[..., 1] < 60) & (top[..., 2] < 60)
+    assert red.sum() > 100
+    f = Framing.from_bounds(bounds_of(before + wrong, reader))
+    cx, _ = project("Top", (60, -24, 0), f, 128)
+    assert abs(np.argwhere(red)[:, 1].mean() - cx) < 4
+
+
+# -- determinism ------------------------------------------------------------------------------------
+def _png(img) -> bytes:
+    buf = io.BytesIO()
+    img.save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def test_same_input_gives_identical_png_bytes(reader):
+    before = [placed("3001", 4, (0, 0, 0)), placed("3001", 4, (0, 0, 40))]
+    new = [placed("3039", 14, (0, -24, 10))]
+    a = render_step(before, new, 128, reader=reader)
+    render.scene.clear_cache()  # freshly compiled scenes and new GL contexts
+    b = render_step(before, new, 128, reader=reader)
+    assert a.keys() == b.keys()
+    for k in a:
+        assert _png(a[k]) == _png(b[k]), k
+
+
+# -- backend errors and the command line ----------------------------------------------------------
+def test_no_gl_library_names_what_to_install(monkeypatch):
+    monkeypatch.delenv("MUJOCO_GL", raising=False)
+    monkeypatch.setattr(gl.ctypes.util, "find_library", lambda name: None)
+    with pytest.raises(RenderUnavailableError, match="libosmesa6"):
+        gl._choose_backend()
+    monkeypatch.setenv("MUJOCO_GL", "osmesa")
+    with pytest.raises(RenderUnavailableError, match="apt-get install libosmesa6"):
+        gl._choose_backend()
+
+
+def _cli(*args, env=None):
+    return subprocess.run(
+        [sys.executable, "-m", "pipelines.render", *map(str, args)],
+        check=False, capture_output=True, text=True, cwd=ROOT, timeout=120,
+        env={**os.environ, "PYTHONPATH": str(ROOT), **(env or {})},
+    )
+
+
+def test_cli_writes_the_image_set_deterministically(tmp_path, reader):
+    outs = []
+    for run in ("a", "b"):
+        res = _cli(TOWER, "--step", 3, "--out", tmp_path / run, "--size", 128, "--tile", 64)
+        assert res.returncode == 0, res.stderr
+        outs.append(tmp_path / run)
+    names = sorted(p.name for p in outs[0].iterdir())
+    assert names == ["after.png", "axes.png", "before.png", "catalog.png", "feedback.png", "isometric.png",
+                     "part_1.png", "part_2.png", "step.json"]
+    for n in names:
+        assert (outs[0] / n).read_bytes() == (outs[1] / n).read_bytes(), n
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (("--step", 99), "out of range"),
+        (("--step", 0, "--size", 5), "--size"),
+        (("--step", 0, "--predict", "1 2 3"), "12 numbers"),
+    ],
+)
+def test_cli_bad_input_is_one_line_and_nonzero(tmp_path, args, message):
+    res = _cli(TOWER, "--out", tmp_path / "o", *args)
+    assert res.returncode != 0
+    assert message in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr
+
+
+def test_cli_missing_model_and_bad_ldraw(tmp_path):
+    res = _cli(tmp_path / "nope.ldr", "--step", 0, "--out", tmp_path / "o")
+    assert res.returncode == 2 and res.stderr.startswith("error:") and len(res.stderr.strip().splitlines()) == 1
+    res = _cli(TOWER, "--step", 0, "--out", tmp_path / "o", "--ldraw", tmp_path)
+    assert res.returncode == 2 and "not an LDraw library" in res.stderr
+
+
+def test_feedback_accepts_a_matrix_that_is_not_a_rotation(reader):
+    bad = [placed("3003", 14, (0, -24, 0), R=np.array([[2.0, 0, 0], [0, 1, 0], [0, 0, -1]]))]
+    img = render_feedback([placed("3001", 1, (0, 0, 0))], bad, 64, reader=reader)
+    assert img.size[0] == 4 * 64 + 3 * GAP
