@@ -39,6 +39,8 @@ class BuildStep:
     assembly: str
     """The sub-assembly instance the step builds: `main`, `main/wing.ldr#1`, ..."""
     parts: tuple[PlacedPart, ...]
+    frame: Pose = Pose.identity()
+    """Where the sub-assembly's own frame sits in the model frame (identity for `main`)."""
 
     def to_json(self) -> dict:
         return {
@@ -67,12 +69,16 @@ def is_submodel(res: Resolved) -> bool:
     return not (f.name.lower().endswith(".dat") and has_faces)
 
 
-def build_steps(reader: Reader, model: Model) -> list[BuildStep]:
-    """The model's build steps in order; steps that place no part are dropped."""
+def build_steps(reader: Reader, model: Model, frames: dict[str, Pose] | None = None) -> list[BuildStep]:
+    """The model's build steps in order; steps that place no part are dropped.
+
+    `frames`, when given, receives every sub-assembly instance's frame (also those with no part
+    of their own), keyed by tag.
+    """
     main = Resolved(model.main, f"{model.path}#{model.main.name.lower()}", "mpd", model)
     _count_parts(reader, main, (), {})
     steps: list[BuildStep] = []
-    _expand(reader, main, Pose.identity(), 16, MAIN_ASSEMBLY, steps, ())
+    _expand(reader, main, Pose.identity(), 16, MAIN_ASSEMBLY, steps, (), frames if frames is not None else {})
     return steps
 
 
@@ -102,15 +108,17 @@ def _expand(
     assembly: str,
     out: list[BuildStep],
     stack: tuple[str, ...],
+    frames: dict[str, Pose],
 ) -> None:
     if len(stack) > MAX_DEPTH:
         raise LDrawLimitError(f"submodels nest more than {MAX_DEPTH} levels deep", res.file.path)
+    frames[assembly] = pose
     current: list[PlacedPart] = []
     instances: dict[str, int] = defaultdict(int)
 
     def close_step() -> None:
         if current:
-            out.append(BuildStep(len(out), assembly, tuple(current)))
+            out.append(BuildStep(len(out), assembly, tuple(current), pose))
             current.clear()
 
     for item in res.file.items:
@@ -126,7 +134,7 @@ def _expand(
             label = _label(child.file, item)
             instances[label.lower()] += 1
             sub = f"{assembly}/{label}#{instances[label.lower()]}"
-            _expand(reader, child, child_pose, child_colour, sub, out, stack + (res.key,))
+            _expand(reader, child, child_pose, child_colour, sub, out, stack + (res.key,), frames)
         else:
             current.append(
                 PlacedPart(item.name, child_colour, child_pose, f"{res.file.path}:{item.line}")

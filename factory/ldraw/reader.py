@@ -32,8 +32,20 @@ _STUD = re.compile(r"^(?:.*/)?stud(|2|2a|6|6a|10|13|15|16|17a|18a|20|22a|p\d+[a-
 """Stud primitives (and logo variants). Not stud3*/stud4*: those are underside bars and tubes."""
 
 
+_OTHER_CONNECTOR = re.compile(
+    r"^(?:.*/)?(axl\d?ho\w*|axle\w*|beamhole|bush\d?|clh\d\w*|clip\d\w*|confric\d*|connect\d*|connhole|"
+    r"npeghol\w*|peghole|wpin\w*|wpinhol\w*|phandle\d*)\.dat$"
+)
+"""Primitives of connections the checker does not model: Technic axles and pin holes, clips,
+bushes, wheel pins, handles."""
+
+
 def is_stud_primitive(name: str) -> bool:
     return _STUD.match(name) is not None
+
+
+def is_other_connector(name: str) -> bool:
+    return _OTHER_CONNECTOR.match(name) is not None
 
 
 @dataclass
@@ -73,6 +85,8 @@ class Flat:
     """Whether every triangle came from a BFC-certified file (winding known)."""
     in_stud: np.ndarray
     """(n,) bool: the triangle belongs to a stud primitive (studs collide only where unconnected)."""
+    other_connectors: int = 0
+    """Primitives of non-stud connections (Technic holes, axles, clips, pins) in the tree."""
 
 
 @dataclass
@@ -194,6 +208,7 @@ class Reader:
             return cached
         self._check_stack(res, stack)
         tris, cols, edges, studs, in_stud = [], [], [], [], []
+        others = 0
         certified = res.file.certified
         for it in res.file.items:
             if isinstance(it, Poly):
@@ -217,6 +232,7 @@ class Reader:
                 edges.append(e)
                 studs.append(s)
                 certified = certified and child.certified
+                others += child.other_connectors + is_other_connector(it.name)
                 stud_ref = is_stud_primitive(it.name)
                 in_stud.append(np.ones(len(t), bool) if stud_ref else child.in_stud)
                 if stud_ref:
@@ -235,6 +251,7 @@ class Reader:
             studs=_unique_studs(np.concatenate(studs)) if studs else np.zeros((0, 2, 3)),
             certified=certified,
             in_stud=np.concatenate(in_stud) if in_stud else np.zeros(0, bool),
+            other_connectors=others,
         )
         for arr in (flat.triangles, flat.colours, flat.edges, flat.studs, flat.in_stud):
             arr.setflags(write=False)

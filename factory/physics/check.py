@@ -6,9 +6,11 @@ the new connection, then a rollout of the structure with the candidate as one ri
 ground). A candidate that fails a cheap rule never reaches the expensive ones; its later fields
 are None (not evaluated).
 
-Reasons, in the order they are reported: `collision`, `no-connection` (floating), then
-`unsupported-connection` (touching the structure but held by no stud: clips, hinges, pins),
-`clutch` (the new connection cannot hold the part), `unstable` (the object moves on the ground).
+Reasons, in the order they are reported: `unsupported-connection` (no stud connection, but the
+candidate touches or overlaps structure parts and both sides have connections the checker does not
+model: Technic pins and axles, clips, hinges, tyres on rims), `collision`, `no-connection`
+(floating), `clutch` (the new connection cannot hold the part), `unstable` (the object moves on
+the ground).
 """
 
 from __future__ import annotations
@@ -82,12 +84,18 @@ def check_units(
     backend: str = "mujoco",
     config: CheckConfig = CheckConfig(),
     require_connection: bool = True,
+    floor_y: float | None = None,
+    standing: bool = True,
 ) -> list[Verdict]:
     """Check rigid units (each a list of placed parts, in world poses) against the structure.
 
     All units must share their parts and relative layout up to one rigid motion when many are
     given (the sampler's case: one part type at many poses); each unit's pose is that of its
-    first part.
+    first part. With `floor_y` (LDraw height) the ground is fixed there and nothing may go below
+    it (the sampler's case). Without it the object rests on its own lowest point with the unit
+    added (a human build: a car body waits for its wheels, held above the table). With
+    `standing=False` the structure is held in hand (a sub-assembly being built): only the clutch of
+    the new connection is judged, not whether the whole stands.
     """
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
@@ -96,10 +104,7 @@ def check_units(
     first = units[0]
     anchor = first[0].pose
     rel = [(p.part, anchor.inverse() @ p.pose) for p in first]
-    scene = CollisionScene(structure, rel)
-    floor_y = structure.floor_y() if len(structure) else max(
-        float(p.pose.apply(p.part.bbox)[:, 1].max()) for p in first
-    )
+    scene = CollisionScene(structure, rel, floor_y if floor_y is not None else 1e6)
     verdicts: list[Verdict | None] = [None] * len(units)
     pending: list[tuple[int, list[Placed]]] = []
     for k, unit in enumerate(units):
@@ -111,20 +116,33 @@ def check_units(
         depth, near = scene.penetration(pose, touched)
         collision = depth > config.max_penetration_ldu
         base = dict(pose=pose, connected=bool(conns), connections=len(conns), collision=collision,
-                    max_penetration_ldu=round(depth, 4), touching=near)
+                    max_penetration_ldu=round(depth, 4), touching=bool(near))
+        if not conns and near and any(_other_connection(p.part) for p in unit) and any(
+            _other_connection(structure.placed[i].part) for i in near
+        ):
+            # Held by a connection we do not model (both sides have one): not judged here.
+            verdicts[k] = Verdict(**base, reason="unsupported-connection")
+            continue
         if collision:
             verdicts[k] = Verdict(**base, reason="collision")
             continue
         if not connected:
-            verdicts[k] = Verdict(**base, reason="unsupported-connection" if near else "no-connection")
+            verdicts[k] = Verdict(**base, reason="no-connection")
             continue
         if conns and not _clutch(unit, conns, config.stability):
             verdicts[k] = Verdict(**base, clutch=False, reason="clutch")
             continue
-        verdicts[k] = Verdict(**base, clutch=True if conns else None)
-        pending.append((k, unit))
+        if standing:
+            verdicts[k] = Verdict(**base, clutch=True if conns else None)
+            pending.append((k, unit))
+        else:
+            verdicts[k] = Verdict(**base, clutch=True if conns else None, stable=True)
     if pending:
-        objs = [rigid_object(structure.placed + list(unit), floor_y, config.stability) for _, unit in pending]
+        objs = []
+        for _, unit in pending:
+            whole = structure.placed + list(unit)
+            ground = floor_y if floor_y is not None else Structure(whole).floor_y()
+            objs.append(rigid_object(whole, ground, config.stability))
         if backend == "mjx":
             from factory.physics.mjx_backend import rollout_mjx
 
@@ -137,6 +155,12 @@ def check_units(
             verdicts[k] = Verdict(**{**v.__dict__, "stable": stable, "movement_ldu": round(float(move), 4),
                                      "reason": None if stable else "unstable"})
     return verdicts  # type: ignore[return-value]
+
+
+def _other_connection(part: Part) -> bool:
+    """Whether a part can join others by more than studs: Technic or clip primitives, or a side
+    without studs or sockets (a hinge half, a tyre, a rim)."""
+    return part.flat.other_connectors > 0 or not part.studs or not part.sockets
 
 
 def _clutch(unit: Sequence[Placed], conns, cfg: StabilityConfig) -> bool:

@@ -22,6 +22,32 @@ from factory.pose import LDU_M, Pose, points_to_mujoco
 TEMPLATES = Path(__file__).resolve().parents[2] / "mjcf_templates"
 
 
+def _pieces(items) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Body pieces placed by poses: face planes (k, 4) with piece index, owner and centre per piece."""
+    from scipy.spatial import ConvexHull
+
+    planes, piece_of, owners, centres = [], [], [], []
+    for pose, shape, owner in items:
+        for verts in shape.body:
+            world = pose.apply(verts)
+            eq = ConvexHull(world).equations
+            planes.append(eq)
+            piece_of.append(np.full(len(eq), len(centres)))
+            owners.append(owner)
+            centres.append(world.mean(axis=0))
+    if not centres:
+        return np.zeros((0, 4)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+    return np.concatenate(planes), np.concatenate(piece_of), np.array(owners), np.array(centres)
+
+
+def _inside_depth(planes: np.ndarray, piece: np.ndarray, n_pieces: int, points: np.ndarray) -> np.ndarray:
+    """(n_pieces, n_points): how deep each point lies inside each piece (<= 0 outside)."""
+    signed = points @ planes[:, :3].T + planes[:, 3]  # (points, planes), > 0 outside a face
+    worst = np.full((n_pieces, len(points)), -np.inf)
+    np.maximum.at(worst, piece, signed.T)
+    return -worst
+
+
 def _fmt(a: np.ndarray) -> str:
     return " ".join(f"{v:.7g}" for v in np.asarray(a).ravel())
 
@@ -31,6 +57,7 @@ class _GeomInfo:
     owner: int
     """Index of the structure part, -1 for the candidate, -2 for the floor."""
     stud: bool
+    inset: float
 
 
 NEAR_LDU = 1.0
@@ -41,7 +68,7 @@ class CollisionScene:
     """A compiled scene for checking one candidate (a part, or a rigid unit of parts given with
     their poses in the unit's frame) against one structure."""
 
-    def __init__(self, structure: Structure, unit: list[tuple[Part, Pose]]):
+    def __init__(self, structure: Structure, unit: list[tuple[Part, Pose]], floor_y: float):
         self.structure = structure
         shapes = [collision_shape(p.part) for p in structure.placed]
         meshes: dict[str, np.ndarray] = {}
@@ -51,17 +78,23 @@ class CollisionScene:
             pos, quat = placed.pose.to_mujoco_quat()
             geoms = self._geoms(shape, meshes, idx, info)
             bodies.append(f'<body name="s{idx}" pos="{_fmt(pos)}" quat="{_fmt(quat)}">{geoms}</body>')
+        # Piece centres and faces for the coincidence test (MuJoCo's convex collision misses a
+        # piece sitting exactly on an identical one: no direction separates their centres).
+        self._s_planes, self._s_piece, self._s_owner, self._s_centre = _pieces(
+            [(p.pose, collision_shape(p.part), i) for i, p in enumerate(structure.placed)])
+        self._c_planes, self._c_piece, _, self._c_centre = _pieces(
+            [(rel, collision_shape(part), -1) for part, rel in unit])
         cand_geoms = ""
         for part, rel in unit:
             pos, quat = rel.to_mujoco_quat()
             inner = self._geoms(collision_shape(part), meshes, -1, info)
             cand_geoms += f'<body pos="{_fmt(pos)}" quat="{_fmt(quat)}">{inner}</body>'
-        floor_z = -structure.floor_y() * LDU_M if len(structure) else 0.0
+        floor_z = -floor_y * LDU_M
         template = (TEMPLATES / "collision.xml").read_text()
         xml = template.format(
             assets="".join(f'<mesh name="{n}" vertex="{_fmt(points_to_mujoco(v))}"/>' for n, v in meshes.items()),
             floor_z=f"{floor_z:.7g}",
-            margin=f"{(NEAR_LDU - 2 * INSET_LDU + 0.5) * LDU_M:.7g}",
+            margin=f"{(NEAR_LDU + 0.5) * LDU_M:.7g}",
             structure="".join(bodies),
             candidate=cand_geoms,
         )
@@ -71,10 +104,12 @@ class CollisionScene:
         # Geoms were written in order after the floor; map MuJoCo geom ids to owners.
         self.owner = np.full(self.model.ngeom, -2, np.int64)
         self.is_stud = np.zeros(self.model.ngeom, bool)
+        self.inset = np.zeros(self.model.ngeom)
         order = [g for g in range(self.model.ngeom) if g != floor_id]
         for g, gi in zip(order, info):
             self.owner[g] = gi.owner
             self.is_stud[g] = gi.stud
+            self.inset[g] = gi.inset
 
     @staticmethod
     def _geoms(shape: CollisionShape, meshes: dict, owner: int, info: list) -> str:
@@ -85,13 +120,13 @@ class CollisionScene:
                 meshes.setdefault(name, verts)
                 cls = "stud" if kind == "s" else "body"
                 out.append(f'<geom class="{cls}" mesh="{name}"/>')
-                info.append(_GeomInfo(owner, kind == "s"))
+                info.append(_GeomInfo(owner, kind == "s", shape.body_inset if kind == "b" else INSET_LDU))
         return "".join(out)
 
-    def penetration(self, pose: Pose, connected: set[int]) -> tuple[float, bool]:
-        """(Deepest overlap in LDU with the structure or the floor, whether it touches the structure).
+    def penetration(self, pose: Pose, connected: set[int]) -> tuple[float, set[int]]:
+        """(Deepest overlap in LDU with the structure or the floor, structure parts it touches).
 
-        Overlap = depth between inset pieces + 2 x inset; 0 when no inset pieces touch. Stud
+        Overlap = depth between inset pieces + both insets; 0 when no inset pieces touch. Stud
         contacts with parts in `connected` are ignored. Touching = a real gap under NEAR_LDU.
         """
         pos, quat = pose.to_mujoco_quat()
@@ -99,7 +134,7 @@ class CollisionScene:
         self.data.qpos[3:7] = quat
         mujoco.mj_fwdPosition(self.model, self.data)
         deepest = 0.0
-        near = False
+        near: set[int] = set()
         for c in self.data.contact[: self.data.ncon]:
             g1, g2 = c.geom1, c.geom2
             o1, o2 = self.owner[g1], self.owner[g2]
@@ -110,12 +145,27 @@ class CollisionScene:
                 continue
             if other >= 0 and other in connected and (self.is_stud[other_g] or self.is_stud[cand_g]):
                 continue
-            inset = INSET_LDU if other == -2 else 2 * INSET_LDU
-            overlap = -c.dist / LDU_M + inset
+            overlap = -c.dist / LDU_M + self.inset[g1] + self.inset[g2]
             if overlap > 0:
                 deepest = max(deepest, overlap)
             if other >= 0 and overlap > -NEAR_LDU:
-                near = True
-        return deepest, near
+                near.add(int(other))
+        depth, owners = self._coincident(pose)
+        near |= owners
+        return max(deepest, depth), near
+
+    def _coincident(self, pose: Pose) -> tuple[float, set[int]]:
+        """Depth of a candidate piece centre inside a structure piece, or the reverse."""
+        if not len(self._s_centre) or not len(self._c_centre):
+            return 0.0, set()
+        centres = pose.apply(self._c_centre)
+        a = _inside_depth(self._s_planes, self._s_piece, len(self._s_centre), centres)
+        inv = pose.inverse()
+        b = _inside_depth(self._c_planes, self._c_piece, len(self._c_centre), inv.apply(self._s_centre))
+        depth_s = a.max(axis=1)  # per structure piece: deepest candidate centre inside it
+        depth_c = b.max(axis=0)  # per structure centre: deepest inside a candidate piece
+        per_piece = np.maximum(depth_s, depth_c)
+        hit = per_piece > 0
+        return (float(per_piece.max()) if hit.any() else 0.0), {int(o) for o in self._s_owner[hit]}
 
 

@@ -36,17 +36,20 @@ INSET_LDU = 0.25
 class DecompositionConfig:
     """coacd settings for part bodies; part of the cache key."""
 
-    threshold: float = 0.2
-    """coacd concavity threshold: coarser is fewer pieces; 0.2 gives 1-4 pieces for bricks."""
-    max_convex_hull: int = 12
+    threshold: float = 0.05
+    """coacd concavity threshold, for parts whose hull is not faithful (brackets, holders, seats):
+    they are concave where other parts sit, so the split must be fine."""
+    max_convex_hull: int = 32
     """Upper bound on body pieces per part (contacts cost grows with pieces)."""
-    preprocess_resolution: int = 30
+    preprocess_resolution: int = 50
     """coacd's voxel resolution for its manifold preprocessing."""
     mcts_iterations: int = 60
     mcts_nodes: int = 12
     mcts_max_depth: int = 2
     seed: int = 0
     inset_ldu: float = INSET_LDU
+    snap_ldu: float = 1.0
+    """A coacd piece is rebuilt from the part's vertices within this distance of it."""
 
 
 def cache_dir() -> Path:
@@ -61,27 +64,44 @@ class CollisionShape:
 
     body: tuple[np.ndarray, ...]
     studs: tuple[np.ndarray, ...]
+    body_inset: float
+    """How far the body pieces sit inside the part's surface (LDU)."""
     key: str
     """Content hash of the part geometry and settings: names the cache entry and the MJCF meshes."""
 
 
-def inset_hull(points: np.ndarray, inset: float) -> np.ndarray | None:
-    """Vertices of the convex hull of `points` with every face moved `inset` inward (None if gone)."""
+def inset_hull(points: np.ndarray, inset: float, clip: np.ndarray | None = None) -> np.ndarray | None:
+    """Vertices of the convex hull of `points` with every face moved `inset` inward, also cut by
+    the halfspaces `clip` (rows a, b, c, d: inside where a x + b y + c z + d <= 0). None if empty."""
     try:
         hull = ConvexHull(points)
     except (QhullError, ValueError):
         return None
     eq = hull.equations.copy()
     eq[:, 3] += inset
-    centre = points[hull.vertices].mean(axis=0)
-    if np.any(eq[:, :3] @ centre + eq[:, 3] >= -1e-6):
-        return None  # thinner than twice the inset
+    if clip is not None:
+        eq = np.concatenate([eq, clip])
+    centre = _interior_point(eq)
+    if centre is None:
+        return None
     try:
         verts = HalfspaceIntersection(eq, centre).intersections
         inner = ConvexHull(verts)
     except (QhullError, ValueError):
         return None
     return np.ascontiguousarray(verts[inner.vertices])
+
+
+def _interior_point(eq: np.ndarray, min_depth: float = 1e-3) -> np.ndarray | None:
+    """The point deepest inside the halfspaces (Chebyshev centre), None if thinner than min_depth."""
+    from scipy.optimize import linprog
+
+    norms = np.linalg.norm(eq[:, :3], axis=1)
+    a = np.column_stack([eq[:, :3], norms])
+    res = linprog(c=[0, 0, 0, -1], A_ub=a, b_ub=-eq[:, 3], bounds=[(None, None)] * 3 + [(0, None)])
+    if not res.success or res.x[3] < min_depth:
+        return None
+    return res.x[:3]
 
 
 def stud_prism(pos, axis, segments: int = 16) -> np.ndarray:
@@ -144,6 +164,19 @@ def _hull_is_faithful(tris: np.ndarray, pitch: float = 3.0) -> bool:
     return True
 
 
+def _snap(piece: np.ndarray, verts: np.ndarray, snap: float) -> np.ndarray | None:
+    """The part's vertices that lie in (or within `snap` of) a convex piece, or None if too few."""
+    try:
+        eq = ConvexHull(piece).equations
+    except (QhullError, ValueError):
+        return None
+    inside = np.all(verts @ eq[:, :3].T + eq[:, 3] <= snap, axis=1)
+    pts = verts[inside]
+    if len(pts) < 4 or np.linalg.matrix_rank(pts - pts.mean(0), tol=1e-6) < 3:
+        return None
+    return pts
+
+
 def _body_mesh(part: Part) -> tuple[np.ndarray, np.ndarray]:
     tris = part.flat.triangles[~part.flat.in_stud]
     verts, faces = np.unique(np.round(tris.reshape(-1, 3), 4), axis=0, return_inverse=True)
@@ -169,25 +202,30 @@ def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()
         try:
             with np.load(path) as data:
                 body = [data[f"p{i}"] for i in range(int(data["n"]))]
+                inset = float(data["inset"])
         except (OSError, ValueError, KeyError):
             body = None  # a damaged entry is recomputed and replaced
     if body is None:
+        inset = cfg.inset_ldu
         if not len(faces):
-            raw = []
+            body = []
         elif _hull_is_faithful(part.flat.triangles[~part.flat.in_stud]):
-            raw = [verts]
+            body = [p for p in [inset_hull(verts, cfg.inset_ldu)] if p is not None]
         else:
-            raw = _decompose(verts, faces, cfg)
-        body = [p for p in (inset_hull(r, cfg.inset_ldu) for r in raw) if p is not None]
+            # coacd remeshes its input on a voxel grid, so its pieces bulge up to ~1 LDU out of
+            # the part. Rebuild each piece as the hull of the part's own vertices it holds (within
+            # a snap distance): pieces then follow the real surface.
+            pieces = (_snap(r, verts, cfg.snap_ldu) for r in _decompose(verts, faces, cfg))
+            body = [p for p in (inset_hull(r, cfg.inset_ldu) for r in pieces if r is not None) if p is not None]
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
-        np.savez(tmp, n=len(body), **{f"p{i}": p for i, p in enumerate(body)})
+        np.savez(tmp, n=len(body), inset=inset, **{f"p{i}": p for i, p in enumerate(body)})
         os.replace(tmp, path)
     studs = []
     for s in part.studs:
         prism = inset_hull(stud_prism(s.pos, s.axis), cfg.inset_ldu)
         if prism is not None:
             studs.append(prism)
-    shape = CollisionShape(tuple(body), tuple(studs), key)
+    shape = CollisionShape(tuple(body), tuple(studs), inset, key)
     memo[cfg] = shape
     return shape

@@ -1,0 +1,192 @@
+"""Replay a human-designed model's build steps through the physics checks.
+
+`python -m pipelines.verify MODEL [--ldraw DIR] [--backend mujoco|mjx] --json`
+
+Each placed part is checked against the parts placed before it in the same sub-assembly (the first
+part of a sub-assembly, or one laid on the table beside it, needs no connection; a part may hang
+from another part of its own step); a completed sub-assembly is checked as one rigid unit against
+the parts of its parent placed before it. Each sub-assembly is checked in its own frame (as its
+author built it) and is held in hand while built: only the main model must stand on the ground,
+sub-assemblies are judged on their connections.
+One JSON object per placed part, and one with `"unit": true` per sub-assembly attachment.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections import Counter
+
+import numpy as np
+from dataclasses import dataclass, field
+
+from factory.errors import LDrawError
+from factory.ldraw import build_steps, get_reader
+from factory.parts import load_part
+from factory.physics.check import BACKENDS, CheckConfig, Verdict, check_units
+from factory.physics.structure import Placed, Structure, canonical_key
+from factory.pose import Pose
+from factory.symmetry import rotation_about
+
+
+@dataclass
+class _Assembly:
+    tag: str
+    frame: Pose
+    structure: Structure = field(default_factory=Structure)
+    last_step: int = 0
+
+
+def _record(verdict: Verdict, **extra) -> dict:
+    return {
+        **extra,
+        "collision": bool(verdict.collision),
+        "max_penetration_ldu": verdict.max_penetration_ldu,
+        "connected": verdict.connected,
+        "connections": verdict.connections,
+        "stable": verdict.stable,
+        "reason": verdict.reason,
+    }
+
+
+def _faults(structure, local: Placed, backend, config, standing, step, index):
+    for name, fault in FAULTS.items():
+        if name == "turn":
+            moved = Pose(local.pose.R @ fault.R, local.pose.t)
+            if canonical_key(local.part, moved) == canonical_key(local.part, local.pose):
+                continue  # the part looks the same turned: no fault to inject
+        else:
+            moved = Pose(local.pose.R, local.pose.t + fault.t)
+        (v,) = check_units(structure, [[Placed(local.part, local.colour, moved)]], backend, config,
+                           standing=standing)
+        yield _record(v, step=step, index=index, part=local.part.name, color=local.colour, fault=name)
+
+
+def _on_table(structure: Structure, unit: list[Placed]) -> bool:
+    """A first part, or one laid on the table beside the structure (its bottom within half a plate
+    of the structure's lowest point): it needs no connection yet (a base layer is bridged later)."""
+    if not len(structure):
+        return True
+    return Structure(list(unit)).floor_y() >= structure.floor_y() - 4.0
+
+
+FAULTS = {
+    "shift": Pose(np.eye(3), [10.0, 0.0, 0.0]),
+    "lift": Pose(np.eye(3), [0.0, -8.0, 0.0]),
+    "turn": Pose(rotation_about((0.0, -1.0, 0.0), 90.0), [0.0, 0.0, 0.0]),
+}
+"""Injected faults: 10 LDU sideways, 8 LDU up, a quarter turn about the vertical through the part's
+origin (applied only where it changes the geometry)."""
+
+
+def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckConfig = CheckConfig(),
+                 faults: bool = False):
+    """Yield one record per placed part and per sub-assembly attachment, in build order.
+
+    With `faults`, every accepted stud-connected part is also checked shifted, lifted and turned
+    (records with a `"fault"` key), against the same structure.
+    """
+    reader = get_reader(ldraw)
+    frames: dict[str, Pose] = {}
+    steps = build_steps(reader, reader.open_model(model_path), frames)
+    open_: list[_Assembly] = []
+
+    def close_until(tag: str):
+        while open_ and not (tag == open_[-1].tag or tag.startswith(open_[-1].tag + "/")):
+            done = open_.pop()
+            parent = open_[-1] if open_ else None
+            if parent is None or not done.structure.placed:
+                continue
+            to_parent = parent.frame.inverse() @ done.frame
+            unit = [Placed(p.part, p.colour, to_parent @ p.pose) for p in done.structure.placed]
+            (v,) = check_units(parent.structure, [unit], backend, config,
+                               require_connection=not _on_table(parent.structure, unit),
+                               standing=parent.tag == "main")
+            yield _record(v, step=done.last_step, index=0, part=done.tag.rsplit("/", 1)[-1],
+                          color=unit[0].colour, unit=True, assembly=done.tag)
+            for p in unit:
+                parent.structure.add(p)
+
+    for step in steps:
+        yield from close_until(step.assembly)
+        # Open the step's sub-assembly and any ancestor not yet open (one with no part of its own
+        # before this child's steps).
+        path = step.assembly.split("/")
+        for depth in range(1, len(path) + 1):
+            tag = "/".join(path[:depth])
+            if not any(a.tag == tag for a in open_):
+                open_.append(_Assembly(tag, frames[tag]))
+        asm = open_[-1]
+        asm.last_step = step.index
+        to_local = asm.frame.inverse()
+        locals_ = [Placed(load_part(reader, p.part), p.colour, to_local @ p.pose) for p in step.parts]
+        for index, (placed, local) in enumerate(zip(step.parts, locals_)):
+            standing = asm.tag == "main"
+            (v,) = check_units(asm.structure, [[local]], backend, config,
+                               require_connection=not _on_table(asm.structure, [local]), standing=standing)
+            if v.reason == "no-connection":
+                # Parts of one step go in together: a part may hang from one listed after it.
+                later = Structure(asm.structure.placed + locals_[index + 1 :])
+                (v,) = check_units(later, [[local]], backend, config, standing=standing)
+            yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour)
+            if faults and v.ok and v.connected:
+                yield from _faults(asm.structure, local, backend, config, standing, step.index, index)
+            asm.structure.add(local)
+    yield from close_until("")
+
+
+RIGHT_REASONS = {"shift": {"collision", "no-connection"}, "lift": {"no-connection"},
+                 "turn": {"collision", "no-connection"}}
+
+
+def summarize(records: list[dict]) -> dict:
+    """Fidelity (share of stud-connected placements accepted) and fault rejection rates."""
+    plain = [r for r in records if "fault" not in r]
+    judged = [r for r in plain if r["reason"] != "unsupported-connection"]
+    out = {
+        "placements": len(plain),
+        "unsupported_connection": len(plain) - len(judged),
+        "accepted": sum(r["reason"] is None for r in judged),
+        "fidelity": (sum(r["reason"] is None for r in judged) / len(judged)) if judged else None,
+        "rejections": dict(Counter(r["reason"] for r in judged if r["reason"])),
+        "faults": {},
+    }
+    for name in FAULTS:
+        rs = [r for r in records if r.get("fault") == name]
+        if rs:
+            out["faults"][name] = {
+                "injected": len(rs),
+                "rejected": sum(r["reason"] is not None for r in rs) / len(rs),
+                "right_reason": sum(r["reason"] in RIGHT_REASONS[name] for r in rs) / len(rs),
+                "reasons": dict(Counter(str(r["reason"]) for r in rs)),
+            }
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m pipelines.verify", description=__doc__.split("\n\n")[0])
+    ap.add_argument("model")
+    ap.add_argument("--ldraw", help="LDraw library folder (default: $LDRAWDIR, else the embedded library)")
+    ap.add_argument("--backend", choices=BACKENDS, default="mujoco")
+    ap.add_argument("--json", action="store_true", help="print JSON lines (the only format)")
+    ap.add_argument("--faults", action="store_true",
+                    help="also inject faults into accepted parts and end with a summary line")
+    args = ap.parse_args(argv)
+    try:
+        records = []
+        for record in verify_model(args.model, args.ldraw, args.backend, faults=args.faults):
+            records.append(record)
+            print(json.dumps(record), flush=True)
+        if args.faults:
+            print(json.dumps({"summary": summarize(records)}), flush=True)
+    except LDrawError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        return 0
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

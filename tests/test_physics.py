@@ -1,0 +1,194 @@
+"""Physics checks on small structures built inline from the embedded library: enumeration, every
+rejection rule, the cache, and verdict parity of the MuJoCo and MJX backends."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from factory import Pose, get_reader, load_part
+from factory.physics.check import CheckConfig, check, check_units
+from factory.physics.geometry import DecompositionConfig, cache_dir, collision_shape
+from factory.physics.stability import StabilityConfig
+from factory.physics.structure import Placed, Structure, canonical_key, feasible_poses
+from factory.symmetry import rotation_about
+
+ROOT = Path(__file__).resolve().parents[1]
+I3 = np.eye(3)
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+def part(name):
+    return load_part(get_reader(), name)
+
+
+def at(name, x, y, z, R=I3, colour=4):
+    return Placed(part(name), colour, Pose(R, [x, y, z]))
+
+
+def test_enumeration_connects_every_pose_and_drops_symmetric_duplicates():
+    base = Structure([at("3001", 0, 0, 0)])
+    poses = feasible_poses(base, part("3001"))
+    assert poses and all(base.connections_with(part("3001"), p) for p in poses)
+    keys = [canonical_key(part("3001"), p) for p in poses]
+    assert len(set(keys)) == len(keys)
+    # A 2x2 brick is 4-fold symmetric: each of its placements is found once, not four times.
+    two = feasible_poses(Structure([at("3003", 0, 0, 0)]), part("3003"))
+    spots_2x2 = {tuple(np.round(p.t, 3)) for p in two}
+    assert len(two) == len(spots_2x2)
+    # The exact stack is among them, on top and hanging below.
+    assert any(np.allclose(p.t, [0, -24, 0]) and np.allclose(p.R, I3) for p in poses)
+    assert any(np.allclose(p.t, [0, 24, 0]) for p in poses)
+
+
+def test_occupied_studs_are_not_offered():
+    stack = Structure([at("3001", 0, 0, 0), at("3001", 0, -24, 0)])
+    poses = feasible_poses(stack, part("3001"))
+    # The lower brick's studs are all covered: nothing may sit on them (y = -24 spots).
+    assert not any(np.isclose(p.t[1], -24) for p in poses)
+
+
+def test_stacked_brick_is_accepted():
+    (v,) = check(Structure([at("3001", 0, 0, 0)]), part("3001"), [Pose(I3, [0, -24, 0])])
+    assert v.ok and v.connections == 8 and not v.collision and v.stable and v.movement_ldu < 0.5
+
+
+def test_each_rejection_rule():
+    base = Structure([at("3001", 0, 0, 0)])
+    brick = part("3001")
+    shifted, lifted, inside, below_floor = check(
+        base, brick,
+        [Pose(I3, [10, -24, 0]), Pose(I3, [0, -32, 0]), Pose(I3, [0, 0, 0]), Pose(I3, [0, 24, 0])],
+        config=CheckConfig(), colour=4,
+    )
+    assert shifted.reason == "collision" and shifted.max_penetration_ldu > 3
+    assert lifted.reason == "no-connection" and not lifted.touching
+    assert inside.reason == "collision"
+    # Hanging under the first brick is fine in the air, but the sampler's ground is fixed.
+    (hang,) = check_units(base, [[Placed(brick, 4, Pose(I3, [0, 24, 0]))]], floor_y=24.0)
+    assert hang.reason == "collision"
+    assert below_floor.reason is None  # without a fixed ground the object rests on its new bottom
+    # Tipping: a tower leaning out over its base.
+    lean = Structure([at("3001", 0, 0, 0), at("3001", 60, -24, 0)])
+    (tip,) = check(lean, brick, [Pose(I3, [120, -48, 0])])
+    assert tip.reason == "unstable" and tip.movement_ldu > 10
+    # Clutch: a brick hanging on one stud with a clutch too weak for its weight (25 mN).
+    weak = CheckConfig(stability=StabilityConfig(clutch_n=0.005))
+    (pull,) = check_units(base, [[at("3001", 60, 24, 0)]], config=weak)
+    assert pull.reason == "clutch"
+    (held,) = check_units(base, [[at("3001", 60, 24, 0)]])
+    assert held.clutch and held.reason is None
+
+
+def test_unknown_backend_is_refused():
+    with pytest.raises(ValueError, match="expected one of mujoco, mjx"):
+        check(Structure([at("3001", 0, 0, 0)]), part("3001"), [Pose.identity()], backend="bullet")
+
+
+def test_decompositions_are_cached_on_disk(tmp_path, monkeypatch):
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path))
+    cfg = DecompositionConfig(inset_ldu=0.3)  # a config no other test uses: a fresh entry
+    first = collision_shape(part("3039"), cfg)
+    files = list(cache_dir().glob("*.npz"))
+    assert len(files) == 1 and files[0].stem == first.key
+    # A new Part object (as in a new process) reads the entry instead of decomposing again.
+    from factory.parts import Part
+
+    clone = Part(name="3039.dat", description="", moved_to=None, flat=part("3039").flat)
+    mtime = files[0].stat().st_mtime_ns
+    again = collision_shape(clone, cfg)
+    assert files[0].stat().st_mtime_ns == mtime
+    assert all(np.allclose(a, b) for a, b in zip(first.body, again.body))
+    # A damaged entry is recomputed and replaced.
+    files[0].write_bytes(b"not a zip")
+    clone2 = Part(name="3039.dat", description="", moved_to=None, flat=part("3039").flat)
+    repaired = collision_shape(clone2, cfg)
+    assert len(repaired.body) == len(first.body)
+    with np.load(files[0]) as data:
+        assert int(data["n"]) == len(first.body)
+
+
+def test_inset_pieces_stay_inside_the_part():
+    for name in ("3001", "3039", "3665", "3024"):
+        shape = collision_shape(part(name))
+        lo, hi = part(name).bbox
+        for piece in shape.body + shape.studs:
+            assert np.all(piece >= lo + 0.2) and np.all(piece <= hi - 0.2)
+
+
+def _random_candidates(rng, n):
+    """Structures and candidates of every kind: valid, colliding, floating, overhanging."""
+    cases = []
+    names = ["3001", "3003", "3004", "3022", "3039", "3010"]
+    while len(cases) < n:
+        parts = [at(rng.choice(names), 0, 0, 0)]
+        for _ in range(rng.integers(1, 4)):
+            s = Structure(parts)
+            cand = part(rng.choice(names))
+            poses = feasible_poses(s, cand)
+            good = [p for p in poses if p.t[1] < parts[-1].pose.t[1]]  # build upward
+            if not good:
+                break
+            parts.append(Placed(cand, 4, good[rng.integers(len(good))]))
+        s = Structure(parts)
+        cand = part(rng.choice(names))
+        poses = feasible_poses(s, cand)
+        picks = [poses[i] for i in rng.choice(len(poses), size=min(6, len(poses)), replace=False)]
+        extra = [
+            Pose(picks[0].R, picks[0].t + [10, 0, 0]),  # colliding or floating
+            Pose(picks[0].R, picks[0].t + [0, -8, 0]),  # floating
+            Pose(picks[0].R, picks[0].t + [0, 0, 0]),
+            Pose(I3, [rng.choice([-100, 100]), -24 * len(parts), 0]),  # far overhang or floating
+        ]
+        cases.append((s, cand, picks + extra))
+    return cases
+
+
+def test_mujoco_and_mjx_backends_agree_on_200_candidates():
+    pytest.importorskip("mujoco.mjx")
+    rng = np.random.default_rng(7)
+    total, reasons = 0, set()
+    # A shorter rollout keeps MJX on this CPU affordable; tipping shows within 0.2 s.
+    cfg = CheckConfig(stability=StabilityConfig(duration_s=0.2))
+    for s, cand, poses in _random_candidates(rng, 24):
+        a = check(s, cand, poses, backend="mujoco", config=cfg, colour=4)
+        b = check(s, cand, poses, backend="mjx", config=cfg, colour=4)
+        assert [v.reason for v in a] == [v.reason for v in b]
+        total += len(poses)
+        reasons |= {v.reason for v in a}
+    assert total >= 200
+    assert {None, "collision", "no-connection"} <= reasons
+
+
+def test_verify_command_on_the_example_model():
+    out = subprocess.run(
+        [sys.executable, "-m", "pipelines.verify", "factory/data/examples/tower.mpd", "--faults", "--json"],
+        cwd=ROOT, capture_output=True, text=True, timeout=600,
+    )
+    assert out.returncode == 0, out.stderr
+    lines = [json.loads(x) for x in out.stdout.splitlines()]
+    plain = [r for r in lines if "fault" not in r and "summary" not in r]
+    assert {"step", "index", "part", "color", "collision", "max_penetration_ldu", "connected",
+            "connections", "stable", "reason"} <= set(plain[0])
+    assert all(r["reason"] is None for r in plain)
+    assert [r for r in plain if r.get("unit")][0]["part"] == "roof.ldr#1"
+    summary = lines[-1]["summary"]
+    assert summary["fidelity"] == 1.0
+    assert summary["faults"]["shift"]["rejected"] == 1.0
+    assert summary["faults"]["lift"]["right_reason"] == 1.0
+
+
+def test_turning_a_symmetric_part_is_no_fault():
+    p = part("3003")
+    pose = Pose(I3, [0, -24, 0])
+    turned = Pose(rotation_about((0, -1, 0), 90) @ I3, [0, -24, 0])
+    assert canonical_key(p, pose) == canonical_key(p, turned)
