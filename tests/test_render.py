@@ -353,7 +353,7 @@ def _cli(*args, env=None):
     return subprocess.run(
         [sys.executable, "-m", "pipelines.render", *map(str, args)],
         check=False, capture_output=True, text=True, cwd=ROOT, timeout=120,
-        env={**os.environ, "PYTHONPATH": str(ROOT), **(env or {})},
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])), **(env or {})},
     )
 
 

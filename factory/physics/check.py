@@ -23,6 +23,7 @@ import numpy as np
 from factory.parts import Part
 from factory.physics.collide import CollisionScene
 from factory.physics.stability import (
+    MassAggregate,
     StabilityConfig,
     clutch_ok,
     part_mass_properties,
@@ -132,17 +133,19 @@ def check_units(
         if conns and not _clutch(unit, conns, config.stability):
             verdicts[k] = Verdict(**base, clutch=False, reason="clutch")
             continue
-        if standing:
+        if standing and (conns or len(structure) == 0):
             verdicts[k] = Verdict(**base, clutch=True if conns else None)
             pending.append((k, unit))
         else:
+            # Held in hand (a sub-assembly), or laid on the table beside the structure with no
+            # connection yet: nothing joins it to the structure to fall with.
             verdicts[k] = Verdict(**base, clutch=True if conns else None, stable=True)
     if pending:
         objs = []
+        base = MassAggregate.of(structure.placed)
         for _, unit in pending:
-            whole = structure.placed + list(unit)
-            ground = floor_y if floor_y is not None else Structure(whole).floor_y()
-            objs.append(rigid_object(whole, ground, config.stability))
+            ground = floor_y if floor_y is not None else Structure(structure.placed + list(unit)).floor_y()
+            objs.append(rigid_object(base + MassAggregate.of(list(unit)), ground, config.stability))
         if backend == "mjx":
             from factory.physics.mjx_backend import rollout_mjx
 
@@ -181,6 +184,9 @@ def check(
     backend: str = "mujoco",
     config: CheckConfig = CheckConfig(),
     colour: int = 16,
+    floor_y: float | None = None,
 ) -> list[Verdict]:
-    """Check one part type at many candidate poses against the structure (a batch)."""
-    return check_units(structure, [[Placed(part, colour, p)] for p in poses], backend, config)
+    """Check one part type at many candidate poses against the structure (a batch); see
+    `check_units` for the ground (`floor_y`)."""
+    return check_units(structure, [[Placed(part, colour, p)] for p in poses], backend, config,
+                       floor_y=floor_y)

@@ -14,7 +14,7 @@ import numpy as np
 
 from factory.physics.stability import RigidObject, StabilityConfig, movement_ldu, stability_model
 
-BUCKETS = (64, 256, 1024, 4096)
+BUCKETS = (64, 256, 1024, 4096, 16384, 65536)
 """Batch sizes the rollout is compiled for; larger batches run in chunks of the largest."""
 
 COMPILES: list[tuple[int, int]] = []

@@ -104,43 +104,63 @@ class RigidObject:
     """(8, 3) bounding-box corners relative to the COM."""
 
 
-def rigid_object(placed: list[Placed], floor_y: float, cfg: StabilityConfig) -> RigidObject:
-    """Merge placed parts into one rigid body standing on the ground at LDraw height floor_y."""
-    masses, coms, inertias, support, points = [], [], [], [], []
-    for p in placed:
-        m, c, i = part_mass_properties(p.part)
-        r = LDRAW_TO_MUJOCO @ p.pose.R @ LDRAW_TO_MUJOCO.T
-        masses.append(m)
-        coms.append(points_to_mujoco(p.pose.apply(c)))
-        inertias.append(r @ (LDRAW_TO_MUJOCO @ i @ LDRAW_TO_MUJOCO.T) @ r.T)
-        shape = collision_shape(p.part)
-        for verts in shape.body + shape.studs:
-            world = p.pose.apply(verts)
-            points.append(world)
-            support.append(world[world[:, 1] >= floor_y - 0.5])
-    masses = np.array(masses)
-    coms = np.array(coms)
-    total = masses.sum()
-    com = (masses[:, None] * coms).sum(0) / total
-    inertia = np.zeros((3, 3))
-    for m, c, i in zip(masses, coms, inertias):
-        d = c - com
-        inertia += i + m * (d @ d * np.eye(3) - np.outer(d, d))
+@dataclass(frozen=True)
+class MassAggregate:
+    """Mass properties and points of a set of placed parts, additive, in MuJoCo's frame (metres,
+    Z up, before lifting onto the ground): the structure's is computed once per step and each
+    candidate's is added to it."""
+
+    mass: float
+    moment: np.ndarray
+    """Sum of mass times centre of mass."""
+    inertia_origin: np.ndarray
+    """Inertia about the frame origin."""
+    points: np.ndarray
+    """Collision piece vertices (LDU, LDraw frame), for the support polygon and bounds."""
+
+    @classmethod
+    def of(cls, placed: list[Placed]) -> "MassAggregate":
+        mass, moment, inertia, points = 0.0, np.zeros(3), np.zeros((3, 3)), []
+        for p in placed:
+            m, c, i = part_mass_properties(p.part)
+            r = LDRAW_TO_MUJOCO @ p.pose.R @ LDRAW_TO_MUJOCO.T
+            com = points_to_mujoco(p.pose.apply(c))
+            mass += m
+            moment += m * com
+            inertia += r @ (LDRAW_TO_MUJOCO @ i @ LDRAW_TO_MUJOCO.T) @ r.T + m * (com @ com * np.eye(3) - np.outer(com, com))
+            shape = collision_shape(p.part)
+            points.extend(p.pose.apply(v) for v in shape.body + shape.studs)
+        pts = np.concatenate(points) if points else np.zeros((0, 3))
+        return cls(mass, moment, inertia, pts)
+
+    def __add__(self, other: "MassAggregate") -> "MassAggregate":
+        return MassAggregate(self.mass + other.mass, self.moment + other.moment,
+                             self.inertia_origin + other.inertia_origin,
+                             np.concatenate([self.points, other.points]))
+
+
+def rigid_object(placed, floor_y: float, cfg: StabilityConfig) -> RigidObject:
+    """Merge placed parts (a list, or their `MassAggregate`) into one rigid body standing on the
+    ground at LDraw height floor_y."""
+    agg = placed if isinstance(placed, MassAggregate) else MassAggregate.of(list(placed))
+    com = agg.moment / agg.mass
+    inertia = agg.inertia_origin - agg.mass * (com @ com * np.eye(3) - np.outer(com, com))
     moments, axes = np.linalg.eigh(inertia)
     if np.linalg.det(axes) < 0:
         axes[:, 0] = -axes[:, 0]
-    pts = points_to_mujoco(np.concatenate(points))
+    pts = points_to_mujoco(agg.points)
     lo, hi = pts.min(0), pts.max(0)
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    feet = _support_points(points_to_mujoco(np.concatenate(support)) if support else np.zeros((0, 3)), cfg.n_feet)
+    support = agg.points[agg.points[:, 1] >= floor_y - 0.5]
+    feet = _support_points(points_to_mujoco(support), cfg.n_feet)
     # The scene's ground plane is z = 0: lift everything by the ground's height.
-    com = com + [0.0, 0.0, floor_y * LDU_M]
+    lift = np.array([0.0, 0.0, floor_y * LDU_M])
+    com = com + lift
     feet_rel = np.zeros((cfg.n_feet, 3))
     if len(feet):
         feet[:, 2] = cfg.foot_radius_m
         feet_rel[: len(feet)] = feet - com
-    corners = corners + [0.0, 0.0, floor_y * LDU_M]
-    return RigidObject(total, com, np.maximum(moments, 1e-12), _quat(axes), feet_rel, corners - com)
+    return RigidObject(agg.mass, com, np.maximum(moments, 1e-12), _quat(axes), feet_rel, corners + lift - com)
 
 
 def _support_points(pts: np.ndarray, n: int) -> np.ndarray:

@@ -1,0 +1,108 @@
+"""Benchmark the physics checks: candidate checks per second by structure size, batch and backend.
+
+`python -m pipelines.bench_physics [--backends mujoco,mjx] [--sizes 10,30,60]
+[--batches 256,1024,4096] [--out FILE.json]`
+
+Structures are grown from a seed with 2x4 bricks (embedded library) by the checker itself, so
+they are valid; candidates are feasible attachments of a 2x4 brick (drawn with replacement to fill
+a batch). Reported per (backend, size, batch): full check rate (connection, collision, clutch,
+rollout), and the rollout stage alone (objects already built), with the compiles MJX made.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+
+import numpy as np
+
+from factory import Pose, get_reader, load_part
+from factory.physics.check import CheckConfig, check
+from factory.physics.stability import MassAggregate, rigid_object, rollout_cpu
+from factory.physics.structure import Placed, Structure, feasible_poses
+
+
+def grow(n: int, seed: int = 0) -> Structure:
+    """A valid structure of n 2x4 bricks, grown compactly on the ground plane and upward."""
+    rng = np.random.default_rng(seed)
+    brick = load_part(get_reader(), "3001")
+    s = Structure([Placed(brick, 4, Pose.identity())])
+    while len(s) < n:
+        poses = [p for p in feasible_poses(s, brick) if p.t[1] <= 0]  # on top, not hanging
+        poses.sort(key=lambda p: (abs(p.t[0]) + abs(p.t[2]), -p.t[1]))
+        pick = poses[: max(8, len(poses) // 4)]
+        order = rng.permutation(len(pick))
+        verdicts = check(s, brick, [pick[i] for i in order[:16]], floor_y=24.0)
+        ok = [v for v in verdicts if v.ok]
+        if ok:
+            s.add(Placed(brick, 4, ok[0].pose))
+    return s
+
+
+def candidates(s: Structure, batch: int, seed: int = 1) -> list[Pose]:
+    brick = load_part(get_reader(), "3001")
+    poses = feasible_poses(s, brick)
+    rng = np.random.default_rng(seed)
+    return [poses[i] for i in rng.integers(0, len(poses), size=batch)]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m pipelines.bench_physics")
+    ap.add_argument("--backends", default="mujoco")
+    ap.add_argument("--sizes", default="10,30,60")
+    ap.add_argument("--batches", default="256")
+    ap.add_argument("--out")
+    args = ap.parse_args(argv)
+    brick = load_part(get_reader(), "3001")
+    cfg = CheckConfig()
+    rows = []
+    for n in [int(x) for x in args.sizes.split(",")]:
+        t0 = time.perf_counter()
+        s = grow(n)
+        grow_s = time.perf_counter() - t0
+        for batch in [int(x) for x in args.batches.split(",")]:
+            poses = candidates(s, batch)
+            base = MassAggregate.of(s.placed)
+            objs = [rigid_object(base + MassAggregate.of([Placed(brick, 4, p)]), 24.0, cfg.stability) for p in poses]
+            for backend in args.backends.split(","):
+                if backend == "mjx":
+                    from factory.physics.mjx_backend import COMPILES, rollout_mjx
+
+                    t = time.perf_counter()
+                    rollout_mjx(objs[:1], cfg.stability)  # compile (and warm) this bucket
+                    compile_s = time.perf_counter() - t
+                    t = time.perf_counter()
+                    moves = rollout_mjx(objs, cfg.stability)
+                    roll_s = time.perf_counter() - t
+                    compiles = len(COMPILES)
+                else:
+                    compile_s, compiles = 0.0, 0
+                    t = time.perf_counter()
+                    moves = rollout_cpu(objs, cfg.stability)
+                    roll_s = time.perf_counter() - t
+                t = time.perf_counter()
+                verdicts = check(s, brick, poses, backend=backend, config=cfg, floor_y=24.0)
+                check_s = time.perf_counter() - t
+                row = {
+                    "backend": backend, "bricks": n, "batch": batch,
+                    "rollouts_per_s": round(batch / roll_s, 1),
+                    "checks_per_s": round(batch / check_s, 1),
+                    "accepted": sum(v.ok for v in verdicts),
+                    "rolled_out": sum(v.stable is not None for v in verdicts),
+                    "unstable_in_rollout": int(np.sum(moves > cfg.stability.max_move_ldu)),
+                    "compile_s": round(compile_s, 2), "compiles_so_far": compiles,
+                    "grow_s": round(grow_s, 1),
+                }
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+    if args.out:
+        meta = {"machine": platform.node(), "processor": platform.processor(), "rows": rows}
+        with open(args.out, "w") as fh:
+            json.dump(meta, fh, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
