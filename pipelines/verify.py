@@ -25,7 +25,7 @@ from factory.errors import LDrawError
 from factory.ldraw import build_steps, get_reader
 from factory.parts import load_part
 from factory.physics.check import BACKENDS, CheckConfig, Verdict, check_units
-from factory.physics.structure import Placed, Structure, canonical_key
+from factory.physics.structure import Placed, Structure, canonical_key, connectors, match
 from factory.pose import Pose
 from factory.symmetry import rotation_about
 
@@ -51,13 +51,31 @@ def _record(verdict: Verdict, **extra) -> dict:
 
 
 def _faults(structure, local: Placed, backend, config, standing, step, index):
-    for name, fault in FAULTS.items():
+    # Faults follow the part's connection: 'up' is away from the studs it sits on (or hangs from),
+    # 'sideways' is across that axis, 'turn' is about it through the part's origin.
+    axes = []
+    sp, sa, _ = structure.studs
+    kp, ka, _ = structure.sockets
+
+    cp, ca = connectors(local.part, local.pose, "sockets")
+    for i, _ in match(sp, sa, cp, ca):
+        axes.append(sa[i])  # a structure stud in our socket: we sit on it, away = its axis
+    cp, ca = connectors(local.part, local.pose, "studs")
+    for _, j in match(cp, ca, kp, ka):
+        axes.append(-ka[j])  # our stud in a structure socket above: away = against its axis
+    up = np.mean(axes, axis=0)
+    up = up / np.linalg.norm(up)
+    side = np.cross(up, [0.0, 0.0, 1.0]) if abs(up[2]) < 0.9 else np.cross(up, [1.0, 0.0, 0.0])
+    side = side / np.linalg.norm(side)
+    for name in FAULTS:
         if name == "turn":
-            moved = Pose(local.pose.R @ fault.R, local.pose.t)
+            moved = Pose(rotation_about(up, 90.0) @ local.pose.R, local.pose.t)
             if canonical_key(local.part, moved) == canonical_key(local.part, local.pose):
                 continue  # the part looks the same turned: no fault to inject
+        elif name == "lift":
+            moved = Pose(local.pose.R, local.pose.t + 8.0 * up)
         else:
-            moved = Pose(local.pose.R, local.pose.t + fault.t)
+            moved = Pose(local.pose.R, local.pose.t + 10.0 * side)
         (v,) = check_units(structure, [[Placed(local.part, local.colour, moved)]], backend, config,
                            standing=standing)
         yield _record(v, step=step, index=index, part=local.part.name, color=local.colour, fault=name)
@@ -71,13 +89,9 @@ def _on_table(structure: Structure, unit: list[Placed]) -> bool:
     return Structure(list(unit)).floor_y() >= structure.floor_y() - 4.0
 
 
-FAULTS = {
-    "shift": Pose(np.eye(3), [10.0, 0.0, 0.0]),
-    "lift": Pose(np.eye(3), [0.0, -8.0, 0.0]),
-    "turn": Pose(rotation_about((0.0, -1.0, 0.0), 90.0), [0.0, 0.0, 0.0]),
-}
-"""Injected faults: 10 LDU sideways, 8 LDU up, a quarter turn about the vertical through the part's
-origin (applied only where it changes the geometry)."""
+FAULTS = ("shift", "lift", "turn")
+"""Injected faults: 10 LDU sideways, 8 LDU up (off its studs), a quarter turn about the stud axis
+through the part's origin (only where that changes the geometry)."""
 
 
 def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckConfig = CheckConfig(),
