@@ -395,3 +395,18 @@ def test_feedback_accepts_a_matrix_that_is_not_a_rotation(reader):
     bad = [placed("3003", 14, (0, -24, 0), R=np.array([[2.0, 0, 0], [0, 1, 0], [0, 0, -1]]))]
     img = render_feedback([placed("3001", 1, (0, 0, 0))], bad, 64, reader=reader)
     assert img.size[0] == 4 * 64 + 3 * GAP
+
+
+@pytest.mark.skipif(
+    __import__("ctypes.util").util.find_library("OSMesa") is None,
+    reason="libOSMesa is not installed (apt-get install libosmesa6); EGL is the default backend",
+)
+def test_osmesa_fallback_renders_the_step(tmp_path):
+    env = {"MUJOCO_GL": "osmesa", "PYOPENGL_PLATFORM": "osmesa"}
+    res = _cli(TOWER, "--step", 3, "--out", tmp_path, "--size", 96, "--tile", 48, env=env)
+    assert res.returncode == 0, res.stderr
+    from PIL import Image
+
+    after = np.asarray(Image.open(tmp_path / "after.png").convert("RGB")).astype(int)
+    red = (after[..., 0] > 200) & (after[..., 1] < 60) & (after[..., 2] < 60)
+    assert red.sum() > 20, "the red box around the new part is drawn"
