@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from factory.cli import run_guarded
 from factory.errors import LDrawError
 
 
@@ -140,7 +141,8 @@ def main(argv: list[str] | None = None) -> int:
         return 3
 
     t0 = time.perf_counter()
-    try:
+
+    def body() -> int:
         reader = get_reader(args.ldraw)
         steps = read_steps(args.model, args.ldraw)
         if not steps:
@@ -192,20 +194,10 @@ def main(argv: list[str] | None = None) -> int:
             "images": sorted(f"{n}.png" for n in images),
         }
         (out / "step.json").write_text(_json(meta) + "\n")
-    except LDrawError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except RenderUnavailableError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 3
-    except RecursionError:
-        print("error: input nests too deeply to read", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print(f"wrote {len(images)} images and step.json to {out} in {time.perf_counter() - t0:.1f} s")
-    return 0
+        print(f"wrote {len(images)} images and step.json to {out} in {time.perf_counter() - t0:.1f} s")
+        return 0
+
+    return run_guarded(body, {RenderUnavailableError: 3, OSError: 2})
 
 
 if __name__ == "__main__":

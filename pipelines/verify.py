@@ -21,7 +21,7 @@ from collections import Counter
 import numpy as np
 from dataclasses import dataclass, field
 
-from factory.errors import LDrawError
+from factory.cli import run_guarded
 from factory.ldraw import build_steps, get_reader
 from factory.parts import load_part
 from factory.physics.check import BACKENDS, CheckConfig, Verdict, check_units
@@ -187,20 +187,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--faults", action="store_true",
                     help="also inject faults into accepted parts and end with a summary line")
     args = ap.parse_args(argv)
-    try:
+    def body() -> None:
         records = []
         for record in verify_model(args.model, args.ldraw, args.backend, faults=args.faults):
             records.append(record)
             print(json.dumps(record), flush=True)
         if args.faults:
             print(json.dumps({"summary": summarize(records)}), flush=True)
-    except LDrawError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except BrokenPipeError:
-        return 0
-    return 0
 
+    return run_guarded(body)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from factory.errors import LDrawError
+from factory.cli import run_guarded
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -24,22 +24,14 @@ def main(argv: list[str] | None = None) -> int:
     from factory.ldraw import get_reader, read_steps
     from factory.parts import load_part
 
-    try:
+    def body() -> None:
         if args.command == "steps":
             for step in read_steps(args.model, args.ldraw):
                 print(json.dumps(step.to_json()))
         else:
             print(json.dumps(load_part(get_reader(args.ldraw), args.name).to_json()))
-    except LDrawError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except RecursionError:
-        print("error: input nests too deeply to read", file=sys.stderr)
-        return 2
-    except BrokenPipeError:
-        return 0
-    return 0
 
+    return run_guarded(body)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,0 +1,23 @@
+"""The sampler: physics-verified synthetic objects grown with a density reward, reproducible from a
+seed. See `docs/sampler.md`.
+
+    from factory.sampler import Sampler, SamplerConfig
+    a = Sampler(SamplerConfig(seed=7)).sample(0)     # an Assembly
+    a.to_ldr("object_00000.ldr")
+"""
+
+from factory.sampler.assembly import Assembly, AssemblyStep
+from factory.sampler.config import DEFAULT_COLOURS, DEFAULT_PARTS, SamplerConfig, SamplerConfigError
+from factory.sampler.density import density
+from factory.sampler.sampler import Sampler
+
+__all__ = [
+    "DEFAULT_COLOURS",
+    "DEFAULT_PARTS",
+    "Assembly",
+    "AssemblyStep",
+    "Sampler",
+    "SamplerConfig",
+    "SamplerConfigError",
+    "density",
+]

@@ -1,0 +1,94 @@
+"""Feasible attachments, vectorised: the same poses, in the same order, as
+`factory.physics.structure.feasible_poses`, fast enough for structures of 90 parts.
+
+`feasible_poses` builds and keys every (connector, target, turn) pose in Python; a 60-part
+structure gives ~14,000 poses and takes seconds per step. Here the rotation of a pose depends only
+on the part connector, the target's axis and the turn, so rotations (and their symmetry-aware keys)
+are computed once per (connector, axis, turn) and the translations of all targets at once; the
+duplicates are then dropped with one `np.unique`, keeping first occurrences in `feasible_poses`'s
+loop order (connector, target, turn). `tests/test_sampler.py` checks both give the same list.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from factory.parts import Part
+from factory.physics.structure import Structure, align
+from factory.pose import Pose
+from factory.symmetry import rotation_about
+
+_TURNS = [rotation_about((0.0, 1.0, 0.0), 90.0 * k) for k in range(4)]
+
+
+def _rotation_key(part: Part, r: np.ndarray) -> tuple:
+    # As `structure.canonical_key`, rotation half.
+    return min(tuple(np.round(r @ s, 4).ravel().tolist()) for s in part.symmetry.rotations)
+
+
+def attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations (n, 3, 3) and translations (n, 3) of the feasible attachments, deduplicated by
+    the part's symmetry, in `feasible_poses` order."""
+    stud_busy, sock_busy = structure.occupied()
+    sp, sa, _ = structure.studs
+    kp, ka, _ = structure.sockets
+    plans = []
+    for c in part.sockets:
+        plans.append((np.array(c.pos), np.array(c.axis), sp[~stud_busy], sa[~stud_busy]))
+    for c in part.studs:
+        plans.append((np.array(c.pos), np.array(c.axis), kp[~sock_busy], ka[~sock_busy]))
+
+    rot_ids: dict[tuple, int] = {}  # symmetry-aware rotation key -> id
+    rots: list[np.ndarray] = []  # one representative rotation matrix per (plan, axis, turn) use
+    chunks_order, chunks_rot, chunks_t, chunks_key = [], [], [], []
+    for plan_i, (q, b, targets, axes) in enumerate(plans):
+        if len(targets) == 0:
+            continue
+        groups: dict[tuple, list[int]] = {}
+        for j, a in enumerate(np.round(axes, 9)):
+            groups.setdefault(tuple(a.tolist()), []).append(j)
+        for _, members in groups.items():
+            idx = np.array(members)
+            a = axes[idx[0]]
+            base = align(b, a)
+            vertical = np.allclose(a, [0, -1, 0]) or np.allclose(a, [0, 1, 0])
+            for k in range(4):
+                twist = _TURNS[k] if vertical else rotation_about(a, 90.0 * k)
+                r = np.round(twist @ base, 12)
+                key = _rotation_key(part, r)
+                rid = rot_ids.setdefault(key, len(rot_ids))
+                t = targets[idx] - r @ q
+                n = len(idx)
+                chunks_order.append(np.stack([np.full(n, plan_i), idx, np.full(n, k)], axis=1))
+                rots.append(r)
+                chunks_rot.append(np.full(n, len(rots) - 1))
+                chunks_t.append(t)
+                chunks_key.append(np.full(n, rid))
+    if not chunks_t:
+        return np.zeros((0, 3, 3)), np.zeros((0, 3))
+    order = np.concatenate(chunks_order)
+    rot_index = np.concatenate(chunks_rot)
+    t = np.concatenate(chunks_t)
+    rid = np.concatenate(chunks_key)
+    # Loop order of feasible_poses: plan, target, turn.
+    perm = np.lexsort((order[:, 2], order[:, 1], order[:, 0]))
+    rot_index, t, rid = rot_index[perm], t[perm], rid[perm]
+    tkey = np.round(np.round(t, 3) * 1000).astype(np.int64)
+    keys = np.concatenate([rid[:, None].astype(np.int64), tkey], axis=1)
+    _, first = np.unique(keys, axis=0, return_index=True)
+    first = np.sort(first)
+    return np.stack(rots)[rot_index[first]], t[first]
+
+
+def attachments(structure: Structure, part: Part) -> list[Pose]:
+    """Every feasible attachment of `part` on `structure` (see `feasible_poses`)."""
+    r, t = attachment_arrays(structure, part)
+    return [Pose(ri, ti) for ri, ti in zip(r, t)]
+
+
+def lowest_y(part: Part, r: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The lowest point (largest LDraw y) of the part's bounding box at each pose (n,)."""
+    lo, hi = part.bbox
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    ys = np.einsum("nj,kj->nk", r[:, 1, :], corners) + t[:, 1:2]
+    return ys.max(axis=1)

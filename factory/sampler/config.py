@@ -1,0 +1,151 @@
+"""The sampler's typed configuration, validated when built (and against the library by `Sampler`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence, Union
+
+from factory.embedded.catalog import INVERTED_SLOPE, PARTS, SLOPE, TILE
+from factory.physics.check import BACKENDS, CheckConfig
+
+
+class SamplerConfigError(ValueError):
+    """A sampler setting is invalid; the message names the setting and the valid choices."""
+
+
+WeightsLike = Union[Mapping, Sequence]
+"""`{"3001": 2.0, ...}`, `[("3001", 2.0), ...]` or `["3001", ...]` (weight 1 each)."""
+
+DEFAULT_PARTS: tuple[tuple[str, float], ...] = tuple(
+    (p.number, 0.5 if p.kind in (TILE, SLOPE, INVERTED_SLOPE) else 1.0) for p in PARTS
+)
+"""Every part of the embedded library: bricks and plates weight 1, tiles and slopes 0.5 (they
+cap growth upward, so they are drawn less)."""
+
+DEFAULT_COLOURS: tuple[tuple[int, float], ...] = tuple(
+    (c, 1.0) for c in (0, 1, 2, 4, 14, 15, 19, 25, 70, 71, 72)
+)
+"""Eleven common LDraw colours, equally likely: black, blue, green, red, yellow, white, tan,
+orange, reddish brown, light and dark bluish grey."""
+
+
+def _weights(name: str, value: WeightsLike, key) -> tuple[tuple, ...]:
+    items = list(value.items()) if isinstance(value, Mapping) else [
+        tuple(v) if isinstance(v, (tuple, list)) else (v, 1.0) for v in value
+    ]
+    if not items:
+        raise SamplerConfigError(f"{name}: the set is empty; give at least one entry with a positive weight")
+    out, seen = [], set()
+    for item in items:
+        if len(item) != 2:
+            raise SamplerConfigError(f"{name}: expected (name, weight) pairs, got {item!r}")
+        k, w = item
+        try:
+            k = key(k)
+        except (TypeError, ValueError):
+            raise SamplerConfigError(f"{name}: invalid entry {item[0]!r}") from None
+        try:
+            w = float(w)
+        except (TypeError, ValueError):
+            raise SamplerConfigError(f"{name}: weight of {k!r} must be a number, got {item[1]!r}") from None
+        if not (math.isfinite(w) and w > 0):
+            raise SamplerConfigError(f"{name}: weight of {k!r} must be a finite number > 0, got {w}")
+        if k in seen:
+            raise SamplerConfigError(f"{name}: {k!r} is listed twice")
+        seen.add(k)
+        out.append((k, w))
+    return tuple(out)
+
+
+def part_key(name) -> str:
+    """A part name as the config keeps it: lower case, no `.dat`, '/' separators."""
+    s = str(name).strip().replace("\\", "/").lower()
+    if not s:
+        raise ValueError("empty part name")
+    return s[:-4] if s.endswith(".dat") else s
+
+
+@dataclass(frozen=True)
+class SamplerConfig:
+    """How objects are grown. Object `i` is a function of this config, `i` and the library only."""
+
+    parts: tuple[tuple[str, float], ...] = DEFAULT_PARTS
+    """Part set with draw weights: `(name, weight)` pairs (a mapping or a list of names is
+    accepted). Names as in the library (`3001` or `3001.dat`); checked against it by `Sampler`."""
+    colours: tuple[tuple[int, float], ...] = DEFAULT_COLOURS
+    """Colour set with draw weights: `(LDraw colour code, weight)` pairs; codes are checked against
+    the library's `LDConfig.ldr` by `Sampler` (16 and 24 are not colours of their own)."""
+    min_steps: int = 20
+    """Fewest parts of an object: each object's target length is drawn uniformly in
+    [min_steps, max_steps]. An object that gets stuck earlier ends early (`end_reason` says why)."""
+    max_steps: int = 90
+    """Most parts of an object."""
+    density_weight: float = 1.0
+    """Weight of the density reward in the choice among surviving candidates (0: uniform choice,
+    the reward off)."""
+    temperature: float = 0.01
+    """Softmax temperature, in density units: a candidate whose density after placement is lower
+    by `temperature / density_weight` is e times less likely. Small: nearly greedy."""
+    candidates_per_step: int = 64
+    """Feasible attachments checked per part draw: a random subset (drawn with the object's RNG)
+    when there are more; all of them otherwise."""
+    max_redraws: int = 8
+    """Part draws after the first in one step when no candidate of the drawn part survives; then
+    the object ends (`end_reason` 'stuck')."""
+    backend: str = "mujoco"
+    """Rollout backend of the physics check: 'mujoco' (CPU) or 'mjx' (batched, GPU)."""
+    seed: int = 0
+    """Seed of the whole run: object i draws from `np.random.default_rng([seed, i])` only."""
+    check: CheckConfig = field(default_factory=CheckConfig)
+    """Thresholds of the physics checks."""
+
+    def __post_init__(self):
+        object.__setattr__(self, "parts", _weights("parts", self.parts, part_key))
+        object.__setattr__(self, "colours", _weights("colours", self.colours, _colour_key))
+        for name in ("min_steps", "max_steps", "candidates_per_step", "max_redraws", "seed"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int):
+                raise SamplerConfigError(f"{name} must be an integer, got {v!r}")
+        if self.min_steps < 1:
+            raise SamplerConfigError(f"min_steps must be >= 1, got {self.min_steps}")
+        if self.max_steps < self.min_steps:
+            raise SamplerConfigError(f"max_steps ({self.max_steps}) must be >= min_steps ({self.min_steps})")
+        if self.candidates_per_step < 1:
+            raise SamplerConfigError(f"candidates_per_step must be >= 1, got {self.candidates_per_step}")
+        if self.max_redraws < 0:
+            raise SamplerConfigError(f"max_redraws must be >= 0, got {self.max_redraws}")
+        if self.seed < 0:
+            raise SamplerConfigError(f"seed must be >= 0, got {self.seed}")
+        if not (math.isfinite(self.density_weight) and self.density_weight >= 0):
+            raise SamplerConfigError(f"density_weight must be a finite number >= 0, got {self.density_weight}")
+        if not (math.isfinite(self.temperature) and self.temperature > 0):
+            raise SamplerConfigError(f"temperature must be a finite number > 0, got {self.temperature}")
+        if self.backend not in BACKENDS:
+            raise SamplerConfigError(
+                f"unknown backend {self.backend!r}; valid choices: {', '.join(BACKENDS)}"
+            )
+
+    def to_json(self) -> dict:
+        return {
+            "parts": {k: w for k, w in self.parts},
+            "colours": {str(k): w for k, w in self.colours},
+            "min_steps": self.min_steps,
+            "max_steps": self.max_steps,
+            "density_weight": self.density_weight,
+            "temperature": self.temperature,
+            "candidates_per_step": self.candidates_per_step,
+            "max_redraws": self.max_redraws,
+            "backend": self.backend,
+            "seed": self.seed,
+        }
+
+
+def _colour_key(code) -> int:
+    if isinstance(code, bool):
+        raise ValueError(code)
+    if isinstance(code, str):
+        return int(code.strip(), 0)
+    if isinstance(code, float) and not code.is_integer():
+        raise ValueError(code)
+    return int(code)

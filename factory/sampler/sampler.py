@@ -1,0 +1,193 @@
+"""Grow physics-verified objects one checked attachment at a time, with a density reward.
+
+Object `i` under seed `s`: every random choice comes from `np.random.default_rng([s, i])`, in a
+fixed order, so the object is the same whatever the batch, order, worker or machine.
+
+Growth, per step:
+1. draw a part and a colour (config weights);
+2. enumerate its feasible attachments on the structure (`attach.attachments`, the same list as
+   `feasible_poses`); drop those reaching below the ground (counted 'below-ground');
+3. check a random subset of at most `candidates_per_step` of them as one batch
+   (`factory.physics.check.check`, ground fixed at the first part's lowest point);
+4. score the survivors by the density of the assembly after placement, choose one by a softmax of
+   `density_weight * density / temperature`;
+5. if none survives, draw another part (and colour), at most `max_redraws` times, then end the
+   object ('stuck', with the rejections of that step).
+The first part is placed at the origin with the identity rotation (its lowest point fixes the
+ground) and is checked like any other (it must stand on its own).
+"""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from factory.ldraw import ColourTable, Reader, get_reader
+from factory.ldraw.colours import EDGE, MAIN
+from factory.parts import Part, load_part
+from factory.physics.check import check
+from factory.physics.structure import Placed, Structure
+from factory.pose import Pose
+from factory.sampler.assembly import Assembly, AssemblyStep
+from factory.sampler.attach import attachment_arrays, lowest_y
+from factory.sampler.config import SamplerConfig, SamplerConfigError
+from factory.sampler.density import DensityTracker
+
+LIST_LIMIT = 80
+"""Valid choices listed in full in an error up to this many; beyond, close matches and a count."""
+
+
+class Sampler:
+    """Grows objects under one configuration and library (`ldraw`: see `get_reader`)."""
+
+    def __init__(self, config: SamplerConfig = SamplerConfig(), ldraw: str | os.PathLike | None = None):
+        self.config = config
+        self.reader = get_reader(ldraw)
+        self.parts: list[Part] = _load_parts(self.reader, config)
+        self.part_p = _probabilities([w for _, w in config.parts])
+        self.colours = [c for c, _ in config.colours]
+        _check_colours(self.reader, self.colours)
+        self.colour_p = _probabilities([w for _, w in config.colours])
+
+    # -- public -----------------------------------------------------------------------------------
+    def sample(self, index: int) -> Assembly:
+        """Object `index` (an integer >= 0) of this configuration."""
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:
+            raise ValueError(f"object index must be an integer >= 0, got {index!r}")
+        cfg = self.config
+        rng = np.random.default_rng([cfg.seed, int(index)])
+        target = int(rng.integers(cfg.min_steps, cfg.max_steps + 1))
+        structure = Structure()
+        tracker = DensityTracker()
+        floor: float | None = None
+        steps: list[AssemblyStep] = []
+        end, stuck = "target", {}
+        while len(steps) < target:
+            rejected: Counter = Counter()
+            checked = 0
+            chosen = None
+            for draw in range(cfg.max_redraws + 1):
+                part = self.parts[int(rng.choice(len(self.parts), p=self.part_p))]
+                colour = self.colours[int(rng.choice(len(self.colours), p=self.colour_p))]
+                if not steps:
+                    ground = Structure([Placed(part, colour, Pose.identity())]).floor_y()
+                    poses, feasible = [Pose.identity()], 1
+                else:
+                    ground = floor
+                    r, t = attachment_arrays(structure, part)
+                    feasible = len(t)
+                    keep = lowest_y(part, r, t) <= ground + cfg.check.max_penetration_ldu if feasible else []
+                    below = int(feasible - np.count_nonzero(keep))
+                    if below:
+                        rejected["below-ground"] += below
+                    r, t = r[keep], t[keep]
+                    if len(t) > cfg.candidates_per_step:
+                        pick = np.sort(rng.choice(len(t), cfg.candidates_per_step, replace=False))
+                        r, t = r[pick], t[pick]
+                    poses = [Pose(ri, ti) for ri, ti in zip(r, t)]
+                if not poses:
+                    if not feasible:
+                        rejected["no-attachment"] += 1
+                    continue
+                verdicts = check(structure, part, poses, backend=cfg.backend, config=cfg.check,
+                                 colour=colour, floor_y=ground)
+                checked += len(verdicts)
+                rejected.update(v.reason for v in verdicts if v.reason is not None)
+                ok = [v for v in verdicts if v.ok]
+                if not ok:
+                    continue
+                dens = np.array([tracker.density_with(part, v.pose) for v in ok])
+                logits = cfg.density_weight * dens / cfg.temperature
+                p = np.exp(logits - logits.max())
+                k = int(rng.choice(len(ok), p=p / p.sum()))
+                chosen = (part, colour, ok[k], ground, len(ok), draw + 1, feasible)
+                break
+            if chosen is None:
+                end, stuck = "stuck", dict(sorted(rejected.items()))
+                break
+            part, colour, verdict, ground, survivors, draws, feasible = chosen
+            floor = ground
+            structure.add(Placed(part, colour, verdict.pose))
+            d = tracker.add(part, verdict.pose)
+            steps.append(AssemblyStep(
+                part=part.name, colour=colour, pose=verdict.pose, verdict=verdict,
+                rejected=dict(sorted(rejected.items())), checked=checked, feasible=feasible,
+                survivors=survivors, draws=draws, density=d,
+            ))
+        return Assembly(
+            steps=tuple(steps), density=tracker.density() if steps else 0.0, seed=cfg.seed,
+            index=int(index), target_steps=target, end_reason=end, stuck_rejected=stuck,
+        )
+
+    def sample_many(self, indices: Iterable[int]) -> Iterator[Assembly]:
+        """`sample(i)` for each index, in the given order (each object is independent of it)."""
+        for i in indices:
+            yield self.sample(i)
+
+
+# -- validation against the library ----------------------------------------------------------------
+def library_parts(reader: Reader) -> list[str]:
+    """Part names (no `.dat`) the library offers at its top level `parts/` folder."""
+    source = reader.library.source
+    files = getattr(source, "files", None)
+    if files is not None:
+        return sorted(k[6:-4] for k in files if k.startswith("parts/") and k.count("/") == 1 and k.endswith(".dat"))
+    root = getattr(source, "root", None)
+    if root is not None and os.path.isdir(os.path.join(root, "parts")):
+        return sorted(n[:-4].lower() for n in os.listdir(os.path.join(root, "parts")) if n.lower().endswith(".dat"))
+    return []
+
+
+def library_colours(reader: Reader) -> list[int]:
+    """Colour codes of the library's `LDConfig.ldr` (without 16 and 24, which are not colours)."""
+    loc = reader.library.config()
+    if loc is None:
+        return []
+    table = ColourTable.parse(loc.read().decode("utf-8", errors="replace"), loc.display)
+    return sorted(c for c in table.colours if c not in (MAIN, EDGE))
+
+
+def _choices(valid: list, wanted: str) -> str:
+    if len(valid) <= LIST_LIMIT:
+        return "valid choices: " + ", ".join(str(v) for v in valid)
+    import difflib
+
+    close = difflib.get_close_matches(wanted, [str(v) for v in valid], n=5, cutoff=0.5)
+    hint = f"close matches: {', '.join(close)}; " if close else ""
+    return f"{hint}{len(valid)} valid choices in the library (e.g. {', '.join(str(v) for v in valid[:10])})"
+
+
+def _load_parts(reader: Reader, config: SamplerConfig) -> list[Part]:
+    from factory.errors import LDrawError
+
+    out = []
+    for name, _ in config.parts:
+        try:
+            part = load_part(reader, name)
+        except LDrawError:
+            raise SamplerConfigError(
+                f"parts: unknown part {name!r} in the {reader.library.description}; "
+                f"{_choices(library_parts(reader), name)}"
+            ) from None
+        if not part.studs and not part.sockets:
+            raise SamplerConfigError(f"parts: {name!r} has no studs and no sockets; it cannot attach to anything")
+        out.append(part)
+    return out
+
+
+def _check_colours(reader: Reader, codes: list[int]) -> None:
+    valid = library_colours(reader)
+    for code in codes:
+        if code in (MAIN, EDGE) or (valid and code not in valid):
+            raise SamplerConfigError(
+                f"colours: unknown colour code {code} in the {reader.library.description}; "
+                f"{_choices(valid, str(code))}"
+            )
+
+
+def _probabilities(weights: list[float]) -> np.ndarray:
+    w = np.asarray(weights, dtype=np.float64)
+    return w / w.sum()
