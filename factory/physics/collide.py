@@ -63,6 +63,11 @@ class _GeomInfo:
 NEAR_LDU = 1.0
 """A candidate this close to the structure (real gap, LDU) touches it."""
 
+CONNECTED_SLACK_LDU = 4.0
+"""Overlap ignored between a candidate and a part it is stud-connected to (a stud's height): the
+filled hollow under a part reaches that far into whatever its sockets hold (a wheel holder's
+raised stud base, a plate's recessed top), and stud mating already fixes their relative place."""
+
 
 class CollisionScene:
     """A compiled scene for checking one candidate (a part, or a rigid unit of parts given with
@@ -146,6 +151,8 @@ class CollisionScene:
             if other >= 0 and other in connected and (self.is_stud[other_g] or self.is_stud[cand_g]):
                 continue
             overlap = -c.dist / LDU_M + self.inset[g1] + self.inset[g2]
+            if other >= 0 and other in connected:
+                overlap -= CONNECTED_SLACK_LDU
             if overlap > 0:
                 deepest = max(deepest, overlap)
             if other >= 0 and overlap > -NEAR_LDU:
