@@ -139,8 +139,9 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
             standing = asm.tag == "main"
             (v,) = check_units(asm.structure, [[local]], backend, config,
                                require_connection=not _on_table(asm.structure, [local]), standing=standing)
-            if v.reason == "no-connection":
-                # Parts of one step go in together: a part may hang from one listed after it.
+            if v.reason in ("no-connection", "unstable") and index + 1 < len(locals_):
+                # Parts of one step go in together: a part may hang from one listed after it, and
+                # the step is judged standing once all its parts are in.
                 later = Structure(asm.structure.placed + locals_[index + 1 :])
                 (v,) = check_units(later, [[local]], backend, config, standing=standing)
             yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour)
