@@ -235,7 +235,10 @@ def rollout_cpu(objs: list[RigidObject], cfg: StabilityConfig) -> np.ndarray:
         for _ in range(cfg.steps):
             mujoco.mj_step(model, data)
         q = data.qpos.copy()
-        out[k] = movement_ldu(obj, q) if np.all(np.isfinite(q)) else np.inf
+        # MuJoCo resets a diverging simulation (and says so in a warning counter): count that as
+        # failing, as MJX's NaNs are.
+        diverged = data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0
+        out[k] = np.inf if diverged or not np.all(np.isfinite(q)) else movement_ldu(obj, q)
     return out
 
 
