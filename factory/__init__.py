@@ -26,10 +26,13 @@ from factory.ldraw import (
 )
 from factory.parts import Part, load_part
 from factory.pose import LDU_M, Pose
+from factory.sampler import Assembly, AssemblyStep, Sampler, SamplerConfig, SamplerConfigError
 from factory.symmetry import Symmetry
 
 __all__ = [
     "LDU_M",
+    "Assembly",
+    "AssemblyStep",
     "BuildStep",
     "Colour",
     "ColourTable",
@@ -46,6 +49,9 @@ __all__ = [
     "PlacedPart",
     "Pose",
     "Reader",
+    "Sampler",
+    "SamplerConfig",
+    "SamplerConfigError",
     "Symmetry",
     "build_steps",
     "get_reader",

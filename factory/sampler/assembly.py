@@ -36,11 +36,10 @@ class AssemblyStep:
     'no-connection', 'clutch', 'unstable', ...) and 'below-ground' (feasible attachments reaching
     under the ground, dropped before the check), summed over the step's part draws."""
     checked: int = 0
-    """Candidates sent to the checker in this step (over all its part draws)."""
+    """Candidates the checker judged in this step, over all its part draws (in decreasing order of
+    softmax key, up to the first survivor's batch: see `Sampler`)."""
     feasible: int = 0
     """Feasible attachments of the chosen part (before the ground filter and the subset)."""
-    survivors: int = 0
-    """Candidates of the chosen part that passed every check (the softmax chose among these)."""
     draws: int = 1
     """Part draws this step took (1 + redraws)."""
     density: float = 0.0
@@ -59,7 +58,6 @@ class AssemblyStep:
             "rejected": dict(self.rejected),
             "checked": self.checked,
             "feasible": self.feasible,
-            "survivors": self.survivors,
             "draws": self.draws,
             "density": self.density,
             "movement_ldu": None if self.verdict is None else self.verdict.movement_ldu,

@@ -84,12 +84,22 @@ class SamplerConfig:
     density_weight: float = 1.0
     """Weight of the density reward in the choice among surviving candidates (0: uniform choice,
     the reward off)."""
-    temperature: float = 0.01
-    """Softmax temperature, in density units: a candidate whose density after placement is lower
-    by `temperature / density_weight` is e times less likely. Small: nearly greedy."""
+    temperature: float = 0.3
+    """Softmax temperature. A surviving candidate's logit is
+    `density_weight * n * ln(density after placing it) / temperature`, n = parts after placement:
+    one part changes the density by about 1/n relatively, so the factor n keeps the logits' spread
+    the same at every object size (the choice goes by density^(w n / T)). Against a candidate
+    inside the current hull, one that grows the hull by h is exp(w h / (T H/n)) times less likely,
+    H/n being the hull volume per part so far: at the defaults, growing it by one part's share
+    makes a candidate e^(1/0.3) ~ 28x less likely."""
     candidates_per_step: int = 64
     """Feasible attachments checked per part draw: a random subset (drawn with the object's RNG)
     when there are more; all of them otherwise."""
+    check_batch: int = 8
+    """Candidates sent to the checker at once, in decreasing order of softmax key, until a batch
+    holds a survivor. Changes only the cost and the rejection counts, never the chosen placement
+    (see `Sampler`): small on the CPU (fewer rollouts), large (e.g. = candidates_per_step) for the
+    'mjx' backend on a GPU."""
     max_redraws: int = 8
     """Part draws after the first in one step when no candidate of the drawn part survives; then
     the object ends (`end_reason` 'stuck')."""
@@ -103,7 +113,7 @@ class SamplerConfig:
     def __post_init__(self):
         object.__setattr__(self, "parts", _weights("parts", self.parts, part_key))
         object.__setattr__(self, "colours", _weights("colours", self.colours, _colour_key))
-        for name in ("min_steps", "max_steps", "candidates_per_step", "max_redraws", "seed"):
+        for name in ("min_steps", "max_steps", "candidates_per_step", "check_batch", "max_redraws", "seed"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int):
                 raise SamplerConfigError(f"{name} must be an integer, got {v!r}")
@@ -113,6 +123,8 @@ class SamplerConfig:
             raise SamplerConfigError(f"max_steps ({self.max_steps}) must be >= min_steps ({self.min_steps})")
         if self.candidates_per_step < 1:
             raise SamplerConfigError(f"candidates_per_step must be >= 1, got {self.candidates_per_step}")
+        if self.check_batch < 1:
+            raise SamplerConfigError(f"check_batch must be >= 1, got {self.check_batch}")
         if self.max_redraws < 0:
             raise SamplerConfigError(f"max_redraws must be >= 0, got {self.max_redraws}")
         if self.seed < 0:
@@ -135,6 +147,7 @@ class SamplerConfig:
             "density_weight": self.density_weight,
             "temperature": self.temperature,
             "candidates_per_step": self.candidates_per_step,
+            "check_batch": self.check_batch,
             "max_redraws": self.max_redraws,
             "backend": self.backend,
             "seed": self.seed,

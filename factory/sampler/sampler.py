@@ -4,13 +4,18 @@ Object `i` under seed `s`: every random choice comes from `np.random.default_rng
 fixed order, so the object is the same whatever the batch, order, worker or machine.
 
 Growth, per step:
-1. draw a part and a colour (config weights);
-2. enumerate its feasible attachments on the structure (`attach.attachments`, the same list as
-   `feasible_poses`); drop those reaching below the ground (counted 'below-ground');
-3. check a random subset of at most `candidates_per_step` of them as one batch
-   (`factory.physics.check.check`, ground fixed at the first part's lowest point);
-4. score the survivors by the density of the assembly after placement, choose one by a softmax of
-   `density_weight * density / temperature`;
+1. draw a part and a colour (config weights; the first part among parts with studs);
+2. enumerate its feasible attachments on the structure (`attach.attachment_arrays`, the same list
+   as `feasible_poses`); drop those reaching below the ground (counted 'below-ground');
+3. take a random subset of at most `candidates_per_step` of them; score each by the density of
+   the assembly after placing it (`density.DensityTracker`);
+4. choose among those that pass the physics checks (`factory.physics.check.check`, ground fixed at
+   the first part's lowest point) by a softmax of `density_weight * n * ln(density) / temperature`
+   (n = parts after placement; see `SamplerConfig.temperature`). The softmax is drawn by the
+   Gumbel-max trick: key = logit + Gumbel noise, candidates are checked in batches of
+   `check_batch` in decreasing key order, and the first survivor is the choice. That is exactly
+   the softmax over all survivors of the subset (the argmax of logit + Gumbel over the survivors),
+   whatever `check_batch` is; it only spares checking the candidates after it;
 5. if none survives, draw another part (and colour), at most `max_redraws` times, then end the
    object ('stuck', with the rejections of that step).
 The first part is placed at the origin with the identity rotation (its lowest point fixes the
@@ -34,7 +39,7 @@ from factory.pose import Pose
 from factory.sampler.assembly import Assembly, AssemblyStep
 from factory.sampler.attach import attachment_arrays, lowest_y
 from factory.sampler.config import SamplerConfig, SamplerConfigError
-from factory.sampler.density import DensityTracker
+from factory.sampler.density import DensityTracker, part_hull_points
 
 LIST_LIMIT = 80
 """Valid choices listed in full in an error up to this many; beyond, close matches and a count."""
@@ -48,9 +53,14 @@ class Sampler:
         self.reader = get_reader(ldraw)
         self.parts: list[Part] = _load_parts(self.reader, config)
         self.part_p = _probabilities([w for _, w in config.parts])
+        # The first part must carry studs (something has to be able to go on top of it).
+        studded = [w if p.studs else 0.0 for p, (_, w) in zip(self.parts, config.parts)]
+        self.first_p = _probabilities(studded) if any(studded) else self.part_p
         self.colours = [c for c, _ in config.colours]
         _check_colours(self.reader, self.colours)
         self.colour_p = _probabilities([w for _, w in config.colours])
+        for part in self.parts:  # derive each part's connectors, symmetry and hull once, up front
+            part.symmetry, part_hull_points(part)
 
     # -- public -----------------------------------------------------------------------------------
     def sample(self, index: int) -> Assembly:
@@ -70,16 +80,22 @@ class Sampler:
             checked = 0
             chosen = None
             for draw in range(cfg.max_redraws + 1):
-                part = self.parts[int(rng.choice(len(self.parts), p=self.part_p))]
+                first = not steps
+                part_i = int(rng.choice(len(self.parts), p=self.first_p if first else self.part_p))
+                part = self.parts[part_i]
                 colour = self.colours[int(rng.choice(len(self.colours), p=self.colour_p))]
-                if not steps:
+                if first:
                     ground = Structure([Placed(part, colour, Pose.identity())]).floor_y()
-                    poses, feasible = [Pose.identity()], 1
+                    r, t = np.eye(3)[None], np.zeros((1, 3))
+                    feasible = 1
                 else:
                     ground = floor
                     r, t = attachment_arrays(structure, part)
                     feasible = len(t)
-                    keep = lowest_y(part, r, t) <= ground + cfg.check.max_penetration_ldu if feasible else []
+                    if not feasible:
+                        rejected["no-attachment"] += 1
+                        continue
+                    keep = lowest_y(part, r, t) <= ground + cfg.check.max_penetration_ldu
                     below = int(feasible - np.count_nonzero(keep))
                     if below:
                         rejected["below-ground"] += below
@@ -87,35 +103,43 @@ class Sampler:
                     if len(t) > cfg.candidates_per_step:
                         pick = np.sort(rng.choice(len(t), cfg.candidates_per_step, replace=False))
                         r, t = r[pick], t[pick]
-                    poses = [Pose(ri, ti) for ri, ti in zip(r, t)]
-                if not poses:
-                    if not feasible:
-                        rejected["no-attachment"] += 1
+                if not len(t):
                     continue
-                verdicts = check(structure, part, poses, backend=cfg.backend, config=cfg.check,
-                                 colour=colour, floor_y=ground)
-                checked += len(verdicts)
-                rejected.update(v.reason for v in verdicts if v.reason is not None)
-                ok = [v for v in verdicts if v.ok]
-                if not ok:
-                    continue
-                dens = np.array([tracker.density_with(part, v.pose) for v in ok])
-                logits = cfg.density_weight * dens / cfg.temperature
-                p = np.exp(logits - logits.max())
-                k = int(rng.choice(len(ok), p=p / p.sum()))
-                chosen = (part, colour, ok[k], ground, len(ok), draw + 1, feasible)
-                break
+                poses = [Pose(ri, ti) for ri, ti in zip(r, t)]
+                # Softmax over the survivors by the Gumbel-max trick: the survivor with the largest
+                # logit + Gumbel noise. Checking candidates in decreasing order of that key and taking
+                # the first survivor chooses exactly as a softmax over all survivors would, whatever
+                # the batch size, and spares the rollouts of the candidates after it.
+                dens = np.array([tracker.density_with(part, pose) for pose in poses])
+                n = len(steps) + 1  # parts after placement
+                logits = cfg.density_weight * n * np.log(np.maximum(dens, 1e-12)) / cfg.temperature
+                key = logits + rng.gumbel(size=len(poses))
+                order = np.argsort(-key, kind="stable")
+                for start in range(0, len(order), cfg.check_batch):
+                    batch = order[start:start + cfg.check_batch]
+                    verdicts = check(structure, part, [poses[i] for i in batch], backend=cfg.backend,
+                                     config=cfg.check, colour=colour, floor_y=ground)
+                    for i, v in zip(batch, verdicts):
+                        checked += 1
+                        if v.ok:
+                            chosen = (part, colour, v, ground, draw + 1, feasible, float(dens[i]))
+                            break
+                        rejected[v.reason] += 1
+                    if chosen is not None:
+                        break
+                if chosen is not None:
+                    break
             if chosen is None:
                 end, stuck = "stuck", dict(sorted(rejected.items()))
                 break
-            part, colour, verdict, ground, survivors, draws, feasible = chosen
+            part, colour, verdict, ground, draws, feasible, _ = chosen
             floor = ground
             structure.add(Placed(part, colour, verdict.pose))
             d = tracker.add(part, verdict.pose)
             steps.append(AssemblyStep(
                 part=part.name, colour=colour, pose=verdict.pose, verdict=verdict,
                 rejected=dict(sorted(rejected.items())), checked=checked, feasible=feasible,
-                survivors=survivors, draws=draws, density=d,
+                draws=draws, density=d,
             ))
         return Assembly(
             steps=tuple(steps), density=tracker.density() if steps else 0.0, seed=cfg.seed,
@@ -172,7 +196,7 @@ def _load_parts(reader: Reader, config: SamplerConfig) -> list[Part]:
                 f"parts: unknown part {name!r} in the {reader.library.description}; "
                 f"{_choices(library_parts(reader), name)}"
             ) from None
-        if not part.studs and not part.sockets:
+        if not part.studs and not part.sockets:  # (also derives both, once per reader)
             raise SamplerConfigError(f"parts: {name!r} has no studs and no sockets; it cannot attach to anything")
         out.append(part)
     return out

@@ -1,0 +1,46 @@
+"""Sharded Parquet datasets of assembly steps for training and evaluating vision-language models.
+
+    from pipelines.dataset import DatasetConfig, build, build_shard
+    summary = build(config, "out/synth", backend="local", workers=2)
+
+See docs/dataset.md: rows, layout, determinism and resume, the Ray backend, the designs source.
+"""
+
+from pipelines.dataset.build import BACKENDS, ShardFailedError, build, finalize, prepare, summary_line
+from pipelines.dataset.config import (
+    SCHEMA_VERSION,
+    ConfigMismatchError,
+    DatasetConfig,
+    split_of,
+)
+from pipelines.dataset.prompts import (
+    POSE_IMAGES,
+    SELECTION_IMAGES,
+    SYSTEM_TEXT,
+    feedback_prompt,
+    feedback_turn,
+    pose_prompt,
+    selection_prompt,
+)
+from pipelines.dataset.shards import build_shard
+
+__all__ = [
+    "BACKENDS",
+    "POSE_IMAGES",
+    "SCHEMA_VERSION",
+    "SELECTION_IMAGES",
+    "SYSTEM_TEXT",
+    "ConfigMismatchError",
+    "DatasetConfig",
+    "ShardFailedError",
+    "build",
+    "build_shard",
+    "feedback_prompt",
+    "feedback_turn",
+    "finalize",
+    "pose_prompt",
+    "prepare",
+    "selection_prompt",
+    "split_of",
+    "summary_line",
+]

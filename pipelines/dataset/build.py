@@ -1,0 +1,242 @@
+"""Run a build: check the folder against the config, run the missing shards (in this process, in
+local worker processes or as Ray tasks), then write `meta/info.json`, the dataset card and the
+gallery from the completion markers and the data files.
+
+    from pipelines.dataset import DatasetConfig, build
+    summary = build(config, "out/synth", backend="local", workers=2)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from importlib import metadata
+from pathlib import Path
+
+from pipelines.dataset.config import (
+    SCHEMA_VERSION,
+    SPLITS,
+    ConfigMismatchError,
+    DatasetConfig,
+    diff_configs,
+    json_bytes,
+    write_atomic,
+)
+from pipelines.dataset.shards import build_shard, read_marker
+
+BACKENDS = ("local", "ray")
+PACKAGES = ("brick-factory", "numpy", "scipy", "trimesh", "mujoco", "pillow", "pyarrow")
+ENV_FOR_WORKERS = ("PYTHONPATH", "MUJOCO_GL", "BRICK_FACTORY_CACHE", "LDRAWDIR", "BRICK_RENDER_SAMPLES")
+
+
+class ShardFailedError(RuntimeError):
+    pass
+
+
+def prepare(config: DatasetConfig, out) -> Path:
+    """Create `out` for `config`, or check that it was started with the same config."""
+    out = Path(out)
+    cfg_path = out / "meta" / "config.json"
+    if cfg_path.exists():
+        try:
+            old = json.loads(cfg_path.read_text())
+        except ValueError:
+            raise ConfigMismatchError(f"{cfg_path} is not valid JSON; delete {out} to start over") from None
+        if old.get("config_hash") != config.hash:
+            diffs = diff_configs(old.get("config", {}), config.to_json())
+            raise ConfigMismatchError(
+                f"{out} was started with a different config (hash {old.get('config_hash')}, this run "
+                f"{config.hash}): " + ("; ".join(diffs) or "same keys, different values")
+                + f". Resume it with the original settings, use another output folder, or delete {out} "
+                "to start over."
+            )
+        return out
+    data = out / "data"
+    if data.is_dir() and any(data.iterdir()):
+        raise ConfigMismatchError(f"{out} holds data files but no meta/config.json; use an empty folder")
+    write_atomic(cfg_path, json_bytes({"config_hash": config.hash, "config": config.to_json()}))
+    return out
+
+
+def _worker_env() -> dict[str, str]:
+    return {k: os.environ[k] for k in ENV_FOR_WORKERS if k in os.environ}
+
+
+def _run_local(config, todo, out, workers, bar):
+    errors = []
+    if workers <= 1:
+        for k in todo:
+            try:
+                build_shard(config, k, out, progress=bar.update)
+            except KeyboardInterrupt:
+                raise
+            except Exception as exc:  # noqa: BLE001 - reported with the shard number
+                errors.append((k, exc))
+        return errors
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    # spawn: a fresh interpreter per worker (no GL or MuJoCo state forked from this process).
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(build_shard, config.to_json(), k, str(out)): k for k in todo}
+        for fut in as_completed(futures):
+            k = futures[fut]
+            try:
+                fut.result()
+            except Exception as exc:  # noqa: BLE001
+                errors.append((k, exc))
+            bar.update(len(config.shard_objects(k)))
+    return errors
+
+
+def _run_ray(config, todo, out, workers, bar):
+    """The same shard function as Ray tasks: a local Ray instance (`workers` CPUs), or the cluster
+    at `$RAY_ADDRESS` (then `out` must be a folder every node sees, e.g. a shared filesystem)."""
+    import ray
+
+    started = False
+    if not ray.is_initialized():
+        address = os.environ.get("RAY_ADDRESS") or None
+        kwargs = {"include_dashboard": False, "runtime_env": {"env_vars": _worker_env()}}
+        if address is None:
+            kwargs["num_cpus"] = max(1, workers)
+        ray.init(address=address, **kwargs)
+        started = True
+    try:
+        task = ray.remote(num_cpus=1, max_retries=2)(build_shard)
+        refs = {task.remote(config.to_json(), k, str(out)): k for k in todo}
+        errors = []
+        pending = list(refs)
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            for ref in done:
+                k = refs[ref]
+                try:
+                    ray.get(ref)
+                except Exception as exc:  # noqa: BLE001
+                    errors.append((k, exc))
+                bar.update(len(config.shard_objects(k)))
+        return errors
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, progress: bool = True,
+          desc: str = "objects") -> dict:
+    """Build every missing shard of `config` into `out`, then the metadata; returns the summary."""
+    from tqdm import tqdm
+
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    t0 = time.perf_counter()
+    out = prepare(config, out)
+    todo = [k for k in range(config.num_shards) if read_marker(out, k, config) is None]
+    done_objects = sum(len(config.shard_objects(k)) for k in range(config.num_shards) if k not in set(todo))
+    with tqdm(total=config.n_objects, initial=done_objects, desc=desc, unit="obj", disable=not progress,
+              file=sys.stderr, dynamic_ncols=True) as bar:
+        runner = _run_local if backend == "local" else _run_ray
+        errors = runner(config, todo, out, workers, bar) if todo else []
+    if errors:
+        k, exc = errors[0]
+        raise ShardFailedError(f"{len(errors)} shard(s) failed (first: shard {k}: {type(exc).__name__}: {exc}); "
+                               "finished shards are kept, re-run the same command to retry the rest")
+    summary = finalize(config, out)
+    summary["wall_seconds"] = round(time.perf_counter() - t0, 3)
+    summary["shards_built"] = len(todo)
+    summary["shards_skipped"] = config.num_shards - len(todo)
+    write_atomic(out / "meta" / "timings.json", json_bytes({
+        "wall_seconds_last_run": summary["wall_seconds"],
+        "shards_built_last_run": len(todo),
+        "stage_seconds_all_shards": summary["stage_seconds"],
+        "note": "seconds are summed over worker processes; not part of the reproducible output",
+    }))
+    return summary
+
+
+# -- metadata ----------------------------------------------------------------------------------------
+def _versions() -> dict:
+    out = {}
+    for name in PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    out["python"] = ".".join(map(str, sys.version_info[:3]))
+    return out
+
+
+def finalize(config: DatasetConfig, out) -> dict:
+    """`meta/info.json`, `meta/objects.jsonl`, `README.md` and `gallery/` from the markers."""
+    from pipelines.dataset.card import dataset_card
+    from pipelines.dataset.gallery import write_gallery
+
+    out = Path(out)
+    markers = [read_marker(out, k, config) for k in range(config.num_shards)]
+    if any(m is None for m in markers):
+        raise ShardFailedError("not every shard is complete; re-run the build")
+    counts = {s: {"objects": 0, "steps": 0, "bytes": 0} for s in SPLITS}
+    stats: dict[str, dict[str, int]] = {}
+    stages: dict[str, float] = {}
+    objects = []
+    for m in markers:
+        for s in SPLITS:
+            counts[s]["objects"] += m["counts"][s]["objects"]
+            counts[s]["steps"] += m["counts"][s]["steps"]
+            counts[s]["bytes"] += m["bytes"][s]
+        for g, c in m["stats"].items():
+            agg = stats.setdefault(g, {})
+            for r, n in c.items():
+                agg[r] = agg.get(r, 0) + n
+        for k, v in m["seconds"].items():
+            stages[k] = stages.get(k, 0.0) + v
+        objects += m["objects"]
+    total = {k: sum(counts[s][k] for s in SPLITS) for k in ("objects", "steps", "bytes")}
+    info = {
+        "schema_version": SCHEMA_VERSION,
+        "dataset_id": config.dataset_id,
+        "source": config.source,
+        "seed": config.seed,
+        "config_hash": config.hash,
+        "config": config.to_json(),
+        "counts": counts,
+        "total": total,
+        "num_shards": config.num_shards,
+        "statistics": {g: dict(sorted(c.items())) for g, c in sorted(stats.items())},
+        "package_versions": _versions(),
+        "splits_present": [s for s in SPLITS if counts[s]["steps"] > 0],
+    }
+    meta = out / "meta"
+    write_atomic(meta / "info.json", json_bytes(info))
+    write_atomic(meta / "objects.jsonl",
+                 "".join(json.dumps(o, sort_keys=True) + "\n" for o in objects).encode())
+    write_gallery(config, out, info)
+    write_atomic(out / "README.md", dataset_card(config, info).encode())
+    return {
+        "dataset_id": config.dataset_id,
+        "source": config.source,
+        "out": str(out),
+        "counts": counts,
+        "total": total,
+        "statistics": info["statistics"],
+        "stage_seconds": {k: round(v, 1) for k, v in sorted(stages.items())},
+    }
+
+
+def summary_line(summary: dict) -> str:
+    """The one-line report of a build."""
+    c, t = summary["counts"], summary["total"]
+    stats = summary["statistics"]
+    if "rejections" in stats:
+        label, reasons = "rejected candidates", stats["rejections"]
+    else:
+        label, reasons = "physics flags", stats.get("physics_flags", {})
+    why = ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0]))) or "none"
+    stages = ", ".join(f"{k} {v:.0f}" for k, v in summary["stage_seconds"].items())
+    resumed = f", {summary['shards_skipped']} shard(s) already done" if summary.get("shards_skipped") else ""
+    return (f"{summary['dataset_id']}: {t['objects']} objects ({c['train']['objects']} train, "
+            f"{c['test']['objects']} test), {t['steps']} steps ({c['train']['steps']} train, "
+            f"{c['test']['steps']} test); {label}: {why}; wall {summary['wall_seconds']:.1f} s"
+            f"{resumed}; stage s (summed over workers): {stages}; {t['bytes'] / 1e6:.1f} MB in {summary['out']}")

@@ -1,0 +1,89 @@
+"""The row layout: the Arrow schema of the Parquet files and the Hugging Face features behind it.
+
+Images are Hugging Face `Image` features: a struct {bytes: PNG, path: null}, declared as such in
+the Parquet schema metadata (key `huggingface`), so `datasets.load_dataset(OUT)` decodes them to
+PIL images with no extra arguments. The features JSON is generated here from the Arrow schema (no
+`datasets` import in the workers); a test checks it against `datasets.Features`.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pyarrow as pa
+
+IMAGE_COLUMNS = ("before", "after", "isometric", "part", "axes", "catalog")
+
+IMAGE = pa.struct([("bytes", pa.binary()), ("path", pa.string())])
+CONTENT = pa.struct([("type", pa.string()), ("text", pa.string()), ("index", pa.int64())])
+MESSAGES = pa.list_(pa.struct([("role", pa.string()), ("content", pa.list_(CONTENT))]))
+MATRIX = pa.list_(pa.list_(pa.float64()))
+BRICK = pa.struct([
+    ("part", pa.string()),
+    ("colour", pa.int32()),
+    ("colour_name", pa.string()),
+    ("row", pa.int32()),
+    ("col", pa.int32()),
+    ("cells", pa.list_(pa.list_(pa.int32()))),
+    ("R", MATRIX),
+    ("T", pa.list_(pa.float64())),
+    ("size_cm", pa.list_(pa.float64())),
+    ("symmetry_order", pa.int32()),
+    ("symmetry_continuous_axis", pa.list_(pa.float64())),
+    ("symmetry_rotations", pa.list_(MATRIX)),
+])
+CATALOG_ENTRY = pa.struct([("part", pa.string()), ("colour", pa.int32()), ("row", pa.int32()),
+                           ("col", pa.int32())])
+
+FIELDS = [
+    # identity
+    ("dataset_id", pa.string()),
+    ("object_id", pa.string()),
+    ("step_id", pa.string()),
+    ("step_index", pa.int32()),
+    ("num_steps", pa.int32()),
+    ("split", pa.string()),
+    ("source", pa.string()),
+    ("seed", pa.int64()),
+    ("assembly", pa.string()),
+    ("step_kind", pa.string()),
+    # images
+    *[(name, IMAGE) for name in IMAGE_COLUMNS],
+    # targets
+    ("bricks", pa.list_(BRICK)),
+    ("catalog_parts", pa.list_(CATALOG_ENTRY)),
+    ("physics", pa.string()),
+    # tasks
+    ("system", pa.string()),
+    ("selection_messages", MESSAGES),
+    ("selection_images", pa.list_(pa.string())),
+    ("selection_answer", pa.string()),
+    ("pose_messages", MESSAGES),
+    ("pose_images", pa.list_(pa.string())),
+    ("pose_answer", pa.string()),
+]
+
+
+def _feature(t: pa.DataType, image: bool = False) -> dict:
+    if image:
+        return {"_type": "Image"}
+    if pa.types.is_struct(t):
+        return {t.field(i).name: _feature(t.field(i).type) for i in range(t.num_fields)}
+    if pa.types.is_list(t):
+        return {"feature": _feature(t.value_type), "_type": "List"}
+    names = {pa.string(): "string", pa.int32(): "int32", pa.int64(): "int64", pa.float64(): "float64",
+             pa.binary(): "binary", pa.bool_(): "bool"}
+    return {"dtype": names[t], "_type": "Value"}
+
+
+def features_json() -> dict:
+    """The Hugging Face `Features.to_dict()` of the rows."""
+    return {name: _feature(t, name in IMAGE_COLUMNS) for name, t in FIELDS}
+
+
+def arrow_schema() -> pa.Schema:
+    meta = {"huggingface": json.dumps({"info": {"features": features_json()}}, sort_keys=False)}
+    return pa.schema([pa.field(n, t) for n, t in FIELDS], metadata=meta)
+
+
+SCHEMA = arrow_schema()

@@ -1,0 +1,284 @@
+"""Where objects come from: the sampler (synthetic) and human LDraw designs, as `ObjectSpec`s.
+
+An `ObjectSpec` is what the row builder needs: per step the parts already placed (`before`), the
+parts the step places (`new`), the bricks the catalog offers, every part of the assembly the step
+builds (framing and render scene), and the physics record of the step.
+
+Human designs are shown the way a printed manual shows sub-assemblies: the sub-assembly's own
+steps on their own (in its own frame, as its author built it, with only its own parts in view),
+then one "module" step that attaches the finished sub-assembly to its parent, a multi-brick step
+whose bricks are every part of the sub-assembly at its pose in the parent's frame. Nested
+sub-assemblies nest the same way. The catalog of a step holds the bricks still in the box (every
+brick of the model not yet placed), plus, for a module step, the module's own bricks.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from factory.ldraw import PlacedPart, build_steps, get_reader
+from factory.pose import Pose
+
+
+@dataclass
+class Step:
+    assembly: str
+    """The assembly the step builds: `main`, or a sub-assembly tag such as `main/roof.ldr#1`."""
+    kind: str
+    """'part' (bricks from the catalog) or 'module' (a finished sub-assembly attached at once)."""
+    before: tuple
+    """`PlacedPart`s already in the assembly, in its frame."""
+    new: tuple
+    """`PlacedPart`s this step places, in the same frame."""
+    catalog: tuple
+    """(part, colour) of every brick offered by the catalog (any order; the row builder sorts)."""
+    physics: dict
+    scene: tuple = ()
+    """Every part of the finished assembly (frames every step of it alike; one render scene)."""
+
+
+@dataclass
+class ObjectSpec:
+    object_id: str
+    source: str
+    steps: list
+    info: dict = field(default_factory=dict)
+    """JSON-able facts about the object (kept in the shard's completion marker)."""
+    stats: dict = field(default_factory=dict)
+    """Counters summed into `info.json`: 'rejections' (synthetic), 'physics_flags' (design)."""
+    timings: dict = field(default_factory=dict)
+    """Seconds per stage spent making the object ('sample', 'check')."""
+
+
+def _py(v):
+    """numpy scalars and arrays into plain JSON values."""
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, float) and not np.isfinite(v):
+        return None  # JSON has no NaN; an unstable rollout's movement is "unknown"
+    if isinstance(v, np.ndarray):
+        return _py(v.tolist())
+    if isinstance(v, dict):
+        return {str(k): _py(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_py(x) for x in v]
+    return v
+
+
+def verdict_json(verdict) -> dict | None:
+    if verdict is None:
+        return None
+    keys = ("connected", "connections", "collision", "max_penetration_ldu", "touching", "clutch", "stable",
+            "movement_ldu", "reason")
+    return {k: _py(getattr(verdict, k)) for k in keys}
+
+
+# -- synthetic ---------------------------------------------------------------------------------------
+def sampler_config_json(config) -> dict:
+    """`SamplerConfig.to_json()` with parts and colours as ordered [name, weight] lists (their
+    order drives the sampler's draws, so it must survive sorted-key JSON)."""
+    out = dict(config.to_json())
+    out["parts"] = [[k, float(w)] for k, w in config.parts]
+    out["colours"] = [[int(c), float(w)] for c, w in config.colours]
+    return out
+
+
+def sampler_config_from_json(data: dict):
+    from factory.sampler import SamplerConfig
+
+    kw = dict(data)
+    kw["parts"] = [tuple(p) for p in kw["parts"]]
+    kw["colours"] = [(int(c), w) for c, w in kw["colours"]]
+    return SamplerConfig(**kw)
+
+
+class _CheckClock:
+    """Time spent in the physics check inside the sampler (it calls `check` by module name)."""
+
+    seconds = 0.0
+    installed = False
+
+    @classmethod
+    def install(cls) -> None:
+        if cls.installed:
+            return
+        import factory.sampler.sampler as mod
+
+        inner = getattr(mod, "check", None)
+        if inner is None:  # the sampler no longer calls `check` by that name: no split of the time
+            cls.installed = True
+            return
+
+        def timed(*args, **kwargs):
+            t = time.perf_counter()
+            try:
+                return inner(*args, **kwargs)
+            finally:
+                cls.seconds += time.perf_counter() - t
+
+        mod.check = timed
+        cls.installed = True
+
+
+class SyntheticSource:
+    """Objects from `factory.sampler.Sampler`: one step per placed part, its sampler verdict."""
+
+    def __init__(self, sampler_json: dict, ldraw: str | None = None):
+        from factory.sampler import Sampler
+
+        _CheckClock.install()
+        self.sampler = Sampler(sampler_config_from_json(sampler_json), ldraw)
+
+    def object(self, index: int, object_id: str) -> ObjectSpec:
+        c0, t0 = _CheckClock.seconds, time.perf_counter()
+        a = self.sampler.sample(index)
+        total = time.perf_counter() - t0
+        check = _CheckClock.seconds - c0
+        placed = [PlacedPart(s.part, s.colour, s.pose, f"sampler:{k}") for k, s in enumerate(a.steps)]
+        scene = tuple(placed)
+        steps = []
+        for k, s in enumerate(a.steps):
+            record = {key: v for key, v in s.to_json().items() if key not in ("part", "colour", "R", "t")}
+            physics = {"source": "sampler", "verdict": verdict_json(s.verdict), **_py(record)}
+            steps.append(Step("main", "part", tuple(placed[:k]), (placed[k],),
+                              tuple((p.part, p.colour) for p in placed[k:]), physics, scene))
+        rejections = Counter(a.rejected)
+        info = {"end_reason": a.end_reason, "target_steps": a.target_steps, "density": _py(a.density),
+                "stuck_rejected": _py(dict(getattr(a, "stuck_rejected", {}) or {}))}
+        return ObjectSpec(object_id, "synthetic", steps, info,
+                          {"rejections": dict(rejections), "end_reasons": {str(a.end_reason): 1}},
+                          {"sample": total - check, "check": check})
+
+
+# -- human designs -----------------------------------------------------------------------------------
+def file_sha256(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _physics_records(path, ldraw, enabled: bool):
+    """verify_model's records, keyed by (build step, part index) and by sub-assembly tag."""
+    if not enabled:
+        return None, None, 0.0
+    from pipelines.verify import verify_model
+
+    t = time.perf_counter()
+    parts, units = {}, {}
+    for r in verify_model(path, ldraw):
+        r = _py(r)
+        if r.get("unit"):
+            units[r["assembly"]] = r
+        else:
+            parts[(r["step"], r["index"])] = r
+    return parts, units, time.perf_counter() - t
+
+
+def _inverse(p: Pose) -> Pose:
+    """The exact inverse (`Pose.inverse` transposes, which is off by ~1e-5 LDU for the rounded,
+    not quite orthonormal matrices of real files such as 0.707107)."""
+    inv = np.linalg.inv(p.R)
+    return Pose(inv, -inv @ p.t)
+
+
+class _Open:
+    def __init__(self, tag: str, frame: Pose):
+        self.tag, self.frame, self.placed = tag, frame, []
+
+
+def manual_steps(model_path, ldraw=None, physics: bool = True) -> tuple[list[Step], dict, float]:
+    """A human design's steps in manual order (see the module docstring), the count of physics
+    flags by reason, and the seconds the physics replay took."""
+    reader = get_reader(ldraw)
+    frames: dict[str, Pose] = {}
+    build = build_steps(reader, reader.open_model(model_path), frames)
+    part_rec, unit_rec, seconds = _physics_records(model_path, ldraw, physics)
+    inventory = Counter((p.part, p.colour) for s in build for p in s.parts)
+    out: list[Step] = []
+    flags: Counter = Counter()
+    open_: list[_Open] = []
+    not_run = {"source": "none", "note": "physics replay not run"}
+
+    def emit(tag, kind, before, new, record):
+        offered = list(inventory.elements())
+        if kind == "module":
+            offered += [(p.part, p.colour) for p in new]
+        out.append(Step(tag, kind, tuple(before), tuple(new), tuple(offered), record))
+
+    def close_until(tag: str):
+        while open_ and not (tag == open_[-1].tag or tag.startswith(open_[-1].tag + "/")):
+            done = open_.pop()
+            if not open_ or not done.placed:
+                continue
+            parent = open_[-1]
+            to_parent = _inverse(parent.frame) @ done.frame
+            new = [PlacedPart(p.part, p.colour, to_parent @ p.pose, p.source) for p in done.placed]
+            if unit_rec is None:
+                record = dict(not_run)
+            else:
+                unit = unit_rec.get(done.tag)
+                record = {"source": "verify", "unit": unit, "bricks": []}
+                if unit and unit.get("reason"):
+                    flags[unit["reason"]] += 1
+            emit(parent.tag, "module", parent.placed, new, record)
+            parent.placed.extend(new)
+
+    for step in build:
+        close_until(step.assembly)
+        path = step.assembly.split("/")
+        for depth in range(1, len(path) + 1):
+            tag = "/".join(path[:depth])
+            if not any(a.tag == tag for a in open_):
+                open_.append(_Open(tag, frames.get(tag, Pose.identity())))
+        asm = open_[-1]
+        to_local = _inverse(asm.frame)
+        new = [PlacedPart(p.part, p.colour, to_local @ p.pose, p.source) for p in step.parts]
+        if part_rec is None:
+            record = dict(not_run)
+        else:
+            bricks = [part_rec.get((step.index, i)) for i in range(len(new))]
+            record = {"source": "verify", "unit": None, "bricks": bricks}
+            flags.update(b["reason"] for b in bricks if b and b.get("reason"))
+        emit(asm.tag, "part", asm.placed, new, record)
+        for p in step.parts:
+            inventory[(p.part, p.colour)] -= 1
+        asm.placed.extend(new)
+    close_until("")
+    # Every assembly's final parts (its last step's before + new), for framing.
+    last: dict[str, tuple] = {}
+    for s in out:
+        last[s.assembly] = s.before + s.new
+    for s in out:
+        s.scene = last[s.assembly]
+    return out, dict(flags), seconds
+
+
+class DesignSource:
+    """Human LDraw models, one object each (`config.models`)."""
+
+    def __init__(self, models, ldraw: str | None = None, physics: bool = True):
+        self.models, self.ldraw, self.physics = list(models), ldraw, physics
+
+    def object(self, index: int, object_id: str) -> ObjectSpec:
+        m = self.models[index]
+        t = time.perf_counter()
+        steps, flags, check = manual_steps(m["path"], self.ldraw, self.physics)
+        total = time.perf_counter() - t
+        info = {"model": m["path"], "sha256": m["sha256"], "physics": self.physics,
+                "modules": sum(s.kind == "module" for s in steps)}
+        return ObjectSpec(object_id, "design", steps, info, {"physics_flags": flags},
+                          {"sample": total - check, "check": check})
+
+
+def make_source(config):
+    """The object source of a `DatasetConfig`."""
+    if config.source == "synthetic":
+        return SyntheticSource(config.sampler, config.ldraw)
+    return DesignSource(config.models, config.ldraw, config.physics)

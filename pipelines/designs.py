@@ -1,0 +1,64 @@
+"""Human designs as step-wise data: `python -m pipelines.designs MODEL... --out OUT [--ldraw DIR]`.
+
+Each LDraw model (.ldr/.mpd with `0 STEP`s) becomes one object (source `design`), its id the file
+name without extension. Sub-assemblies are shown as a printed manual shows them: their own steps on
+their own, in their own frame, then one multi-brick "module" step attaching the finished
+sub-assembly to its parent (see docs/dataset.md). Each step's physics record is the replay of
+`pipelines.verify` (skip it with --no-physics). Same layout, resume and summary as
+`pipelines.synth`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import sys
+
+from pipelines.synth import _ldraw, add_run_args, guarded, run
+
+
+def object_ids(paths) -> list[str]:
+    """File stems, lower case, with characters outside [a-z0-9._-] as '-'; repeats get '-2', '-3'."""
+    seen: dict[str, int] = {}
+    out = []
+    for p in paths:
+        stem = re.sub(r"[^a-z0-9._-]+", "-", os.path.splitext(os.path.basename(p))[0].lower()).strip("-") or "model"
+        seen[stem] = seen.get(stem, 0) + 1
+        out.append(stem if seen[stem] == 1 else f"{stem}-{seen[stem]}")
+    return out
+
+
+def config_from_args(args):
+    from factory import read_steps
+    from pipelines.dataset import DatasetConfig
+    from pipelines.dataset.sources import file_sha256
+
+    paths = [os.path.realpath(p) for p in args.models]
+    for p in paths:
+        if not os.path.isfile(p):
+            raise ValueError(f"no such model file: {p}")
+        if not read_steps(p, _ldraw(args.ldraw)):  # bad files and missing parts fail here, exit 2
+            raise ValueError(f"{p} places no parts")
+    models = [{"object_id": oid, "path": p, "sha256": file_sha256(p)} for oid, p in zip(object_ids(paths), paths)]
+    return DatasetConfig("design", len(models), seed=args.seed, size=args.size, tile=args.tile,
+                         objects_per_shard=args.objects_per_shard, models=tuple(models),
+                         ldraw=_ldraw(args.ldraw), physics=not args.no_physics,
+                         **({"dataset_id": args.dataset_id} if args.dataset_id else {}))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m pipelines.designs", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("models", nargs="+", help="LDraw model files")
+    ap.add_argument("--out", required=True, help="output folder")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the train/test split")
+    ap.add_argument("--no-physics", action="store_true", help="do not replay the physics checks")
+    add_run_args(ap)
+    ap.set_defaults(objects_per_shard=1)
+    args = ap.parse_args(argv)
+    return guarded(lambda: run(config_from_args(args), args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

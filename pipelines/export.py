@@ -1,0 +1,133 @@
+"""Export a built dataset for other trainers: `python -m pipelines.export OUT --format llamafactory DEST`.
+
+`llamafactory` writes, under DEST:
+- `images/{object_id}/{step:03d}_{name}.png`: the rows' PNG bytes as they are (each written once,
+  shared by both tasks);
+- `{dataset_id}_{task}_{split}.json` for task `selection` and `pose`: ShareGPT records
+  {"messages": [{"role": "user", "content": "<image>...<image>\\n" + prompt},
+  {"role": "assistant", "content": answer}], "system": ..., "images": [paths relative to DEST]},
+  one `<image>` per image, in the order of the images list;
+- `dataset_info.json` registering each file (formatting `sharegpt`, role/content tags), so
+  LLaMA-Factory takes `dataset_dir: DEST` and `dataset: {dataset_id}_selection_train,...`.
+Files are streamed (one object's rows at a time), so memory stays small on 40K steps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+FORMATS = ("llamafactory",)
+TASKS = ("selection", "pose")
+
+
+def _user_text(messages) -> str:
+    for m in messages:
+        if m["role"] == "user":
+            return "\n".join(c["text"] for c in m["content"] if c["type"] == "text")
+    raise ValueError("conversation has no user message")
+
+
+def _answer(messages) -> str:
+    for m in messages:
+        if m["role"] == "assistant":
+            return "\n".join(c["text"] for c in m["content"] if c["type"] == "text")
+    raise ValueError("conversation has no assistant message")
+
+
+def export_llamafactory(out, dest, splits=("train", "test"), tasks=TASKS) -> dict:
+    """Write the LLaMA-Factory files; returns {dataset name: record count}."""
+    import pyarrow.parquet as pq
+
+    out, dest = Path(out), Path(dest)
+    info = json.loads((out / "meta" / "info.json").read_text())
+    did = info["dataset_id"]
+    dest.mkdir(parents=True, exist_ok=True)
+    counts: dict[str, int] = {}
+    registry = {}
+    for split in splits:
+        files = sorted((out / "data").glob(f"{split}-*.parquet"))
+        names = {t: f"{did}_{t}_{split}" for t in tasks}
+        handles = {t: open(dest / f"{names[t]}.json", "w", encoding="utf-8") for t in tasks}
+        first = {t: True for t in tasks}
+        try:
+            for h in handles.values():
+                h.write("[\n")
+            for f in files:
+                pf = pq.ParquetFile(f)
+                for g in range(pf.num_row_groups):
+                    for row in pf.read_row_group(g).to_pylist():
+                        folder = dest / "images" / row["object_id"]
+                        folder.mkdir(parents=True, exist_ok=True)
+                        paths = {}
+                        for t in tasks:
+                            for name in row[f"{t}_images"]:
+                                if name not in paths:
+                                    rel = f"images/{row['object_id']}/{row['step_index']:03d}_{name}.png"
+                                    (dest / rel).write_bytes(row[name]["bytes"])
+                                    paths[name] = rel
+                        for t in tasks:
+                            msgs = row[f"{t}_messages"]
+                            imgs = [paths[n] for n in row[f"{t}_images"]]
+                            rec = {
+                                "id": f"{row['step_id']}/{t}",
+                                "messages": [
+                                    {"role": "user", "content": "<image>" * len(imgs) + "\n" + _user_text(msgs)},
+                                    {"role": "assistant", "content": _answer(msgs)},
+                                ],
+                                "system": row["system"],
+                                "images": imgs,
+                            }
+                            handles[t].write(("" if first[t] else ",\n") + json.dumps(rec, ensure_ascii=False))
+                            first[t] = False
+                            counts[names[t]] = counts.get(names[t], 0) + 1
+            for h in handles.values():
+                h.write("\n]\n")
+        finally:
+            for h in handles.values():
+                h.close()
+        for t in tasks:
+            counts.setdefault(names[t], 0)
+            registry[names[t]] = {
+                "file_name": f"{names[t]}.json",
+                "formatting": "sharegpt",
+                "columns": {"messages": "messages", "system": "system", "images": "images"},
+                "tags": {"role_tag": "role", "content_tag": "content", "user_tag": "user",
+                         "assistant_tag": "assistant"},
+            }
+    (dest / "dataset_info.json").write_text(json.dumps(registry, indent=2, sort_keys=True) + "\n")
+    return counts
+
+
+def main(argv: list[str] | None = None) -> int:
+    from factory.cli import run_guarded
+
+    ap = argparse.ArgumentParser(prog="python -m pipelines.export", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("out", help="a dataset folder written by pipelines.synth or pipelines.designs")
+    ap.add_argument("--format", choices=FORMATS, required=True)
+    ap.add_argument("dest", help="output folder")
+    ap.add_argument("--splits", default="train,test", help="comma-separated (default train,test)")
+    ap.add_argument("--tasks", default="selection,pose", help="comma-separated (default selection,pose)")
+    args = ap.parse_args(argv)
+
+    def body() -> int:
+        if not (Path(args.out) / "meta" / "info.json").exists():
+            print(f"error: {args.out} has no meta/info.json (not a finished dataset build)", file=sys.stderr)
+            return 2
+        tasks = [t for t in args.tasks.split(",") if t]
+        bad = [t for t in tasks if t not in TASKS]
+        if bad:
+            print(f"error: unknown task {bad[0]!r}; valid: {', '.join(TASKS)}", file=sys.stderr)
+            return 2
+        counts = export_llamafactory(args.out, args.dest, [s for s in args.splits.split(",") if s], tasks)
+        print(", ".join(f"{k}: {v}" for k, v in counts.items()) + f" -> {args.dest}")
+        return 0
+
+    return run_guarded(body, {OSError: 2, ValueError: 2})
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,179 @@
+"""Sample physics-verified objects to LDraw files.
+
+`python -m pipelines.sample --n N --seed S --out DIR [--ldraw DIR] [--backend mujoco|mjx]
+[--start I] [--workers W] [--min-steps A --max-steps B --candidates K --check-batch C
+--density-weight W --temperature T]`
+
+Writes `DIR/object_00000.ldr ...` (object i of seed S, the same whatever --start, --workers or the
+machine) and `DIR/summary.json`: per object its steps, density, end reason, rejections by rule
+and time; totals with the distribution of steps per object and objects per minute. Every file is
+written atomically (a temporary file, then `os.replace`). Runs on the embedded default library
+when no LDraw library is given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import platform
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from factory.cli import run_guarded
+from factory.physics.check import BACKENDS
+from factory.sampler import Sampler, SamplerConfig, SamplerConfigError
+from factory.sampler.assembly import write_atomic
+
+_SAMPLER: Sampler | None = None
+_WARNINGS = [0]
+
+
+def _count_mujoco_warnings() -> None:
+    """MuJoCo prints a warning per diverging rollout (a candidate flung away: it is rejected as
+    'unstable'); count them instead of letting them break the progress bar."""
+    import mujoco
+
+    mujoco.set_mju_user_warning(lambda msg: _WARNINGS.__setitem__(0, _WARNINGS[0] + 1))
+
+
+def _init(config: SamplerConfig, ldraw: str | None) -> None:
+    global _SAMPLER
+    _count_mujoco_warnings()
+    _SAMPLER = Sampler(config, ldraw)
+
+
+def _one(index: int):
+    before = _WARNINGS[0]
+    t0 = time.perf_counter()
+    a = _SAMPLER.sample(index)
+    return a, time.perf_counter() - t0, _WARNINGS[0] - before
+
+
+def _stats(values) -> dict:
+    v = np.asarray(values, dtype=np.float64)
+    if not len(v):
+        return {}
+    q = np.percentile(v, [0, 10, 25, 50, 75, 90, 100])
+    return {"min": q[0], "p10": q[1], "p25": q[2], "median": q[3], "mean": float(v.mean()), "p75": q[4],
+            "p90": q[5], "max": q[6], "sum": float(v.sum())}
+
+
+def histogram(values, edges) -> dict:
+    counts, _ = np.histogram(values, bins=edges)
+    return {f"{edges[i]:g}-{edges[i + 1]:g}": int(c) for i, c in enumerate(counts)}
+
+
+def summarize(records: list[dict], wall: float, config: SamplerConfig, library: str, workers: int,
+              warnings: int) -> dict:
+    rejected: Counter = Counter()
+    for r in records:
+        rejected.update(r["rejected"])
+    steps = [r["steps"] for r in records]
+    return {
+        "config": config.to_json(),
+        "library": library,
+        "workers": workers,
+        "machine": {"platform": platform.platform(), "cpus": os.cpu_count()},
+        "objects": records,
+        "totals": {
+            "objects": len(records),
+            "steps": int(sum(steps)),
+            "steps_per_object": _stats(steps),
+            "steps_histogram": histogram(steps, list(range(0, max(steps + [config.max_steps]) + 11, 10))),
+            "density": _stats([r["density"] for r in records]),
+            "end_reasons": dict(Counter(r["end_reason"] for r in records)),
+            "rejected": dict(sorted(rejected.items())),
+            "seconds_per_object": _stats([r["seconds"] for r in records]),
+            "wall_seconds": wall,
+            "objects_per_minute": 60.0 * len(records) / wall if wall > 0 else None,
+            "mujoco_warnings": warnings,
+        },
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m pipelines.sample", description=__doc__.split("\n\n")[0])
+    d = SamplerConfig()
+    ap.add_argument("--n", type=int, required=True, help="number of objects")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", required=True, help="output folder")
+    ap.add_argument("--ldraw", help="LDraw library folder (default: $LDRAWDIR, else the embedded library)")
+    ap.add_argument("--backend", choices=BACKENDS, default=d.backend)
+    ap.add_argument("--start", type=int, default=0, help="index of the first object (default 0)")
+    ap.add_argument("--workers", type=int, default=1, help="processes (objects do not depend on it)")
+    ap.add_argument("--min-steps", type=int, default=d.min_steps)
+    ap.add_argument("--max-steps", type=int, default=d.max_steps)
+    ap.add_argument("--candidates", type=int, default=d.candidates_per_step, help="candidates per step")
+    ap.add_argument("--check-batch", type=int, default=None,
+                    help=f"candidates per checker call (default {d.check_batch}; mjx: --candidates)")
+    ap.add_argument("--density-weight", type=float, default=d.density_weight, help="0 turns the reward off")
+    ap.add_argument("--temperature", type=float, default=d.temperature)
+    ap.add_argument("--steps-json", action="store_true", help="also list every step in summary.json")
+    args = ap.parse_args(argv)
+    if args.n < 0 or args.start < 0 or args.workers < 1:
+        ap.error("--n and --start must be >= 0, --workers >= 1")
+    check_batch = args.check_batch or (args.candidates if args.backend == "mjx" else d.check_batch)
+
+    def body() -> int:
+        config = SamplerConfig(
+            min_steps=args.min_steps, max_steps=args.max_steps, density_weight=args.density_weight,
+            temperature=args.temperature, candidates_per_step=args.candidates, check_batch=check_batch,
+            backend=args.backend, seed=args.seed,
+        )
+        _init(config, args.ldraw)  # validates against the library before any work
+        return _run(args, config)
+
+    return run_guarded(body, {SamplerConfigError: 2})
+
+
+def _run(args, config: SamplerConfig) -> int:
+    from tqdm import tqdm
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    indices = range(args.start, args.start + args.n)
+    records: list[dict] = []
+    warnings = 0
+    t0 = time.perf_counter()
+    pool = None
+    if args.workers > 1:
+        pool = mp.get_context("fork").Pool(args.workers, initializer=_init, initargs=(config, args.ldraw))
+        results = pool.imap(_one, indices)
+    else:
+        results = map(_one, indices)
+    try:
+        bar = tqdm(results, total=args.n, unit="obj", desc="sampling", dynamic_ncols=True)
+        for assembly, seconds, warn in bar:
+            name = f"object_{assembly.index:05d}.ldr"
+            assembly.to_ldr(out / name)
+            rec = {"file": name, **assembly.to_json(steps=args.steps_json), "seconds": round(seconds, 3)}
+            records.append(rec)
+            warnings += warn
+            bar.set_postfix(steps=len(assembly), density=f"{assembly.density:.3f}")
+    finally:
+        if pool is not None:
+            pool.terminate()
+    wall = time.perf_counter() - t0
+    summary = summarize(records, wall, config, _SAMPLER.reader.library.description, args.workers, warnings)
+    write_atomic(out / "summary.json", (json.dumps(summary, indent=1, default=_json_default) + "\n").encode())
+    t = summary["totals"]
+    print(f"{t['objects']} objects, {t['steps']} steps, median density "
+          f"{t['density'].get('median', 0):.3f}, {t['objects_per_minute'] or 0:.2f} objects/min -> {out}",
+          file=sys.stderr)
+    return 0
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,340 @@
+"""The dataset builder (pipelines.dataset, pipelines.synth, pipelines.export): schema, split,
+byte-identical resume after a deleted shard and after a kill, refusal of a changed config, the Ray
+backend, `datasets.load_dataset`, the gallery and the LLaMA-Factory export.
+
+One small build (3 sampled objects of 2-3 steps, 128 px views, one object per shard) is made once
+per session and compared against by the other tests.
+"""
+
+from __future__ import annotations
+
+import filecmp
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from eval.metrics import BrickTarget, StepTarget, score_step
+from factory.symmetry import Symmetry
+from pipelines.dataset import (
+    POSE_IMAGES,
+    SELECTION_IMAGES,
+    ConfigMismatchError,
+    DatasetConfig,
+    build,
+    feedback_prompt,
+    split_of,
+)
+from pipelines.dataset.schema import IMAGE_COLUMNS, SCHEMA, features_json
+
+ROOT = Path(__file__).resolve().parents[1]
+CLI_ARGS = ["--n", "3", "--seed", "0", "--min-steps", "2", "--max-steps", "3", "--candidates", "16",
+            "--size", "128", "--tile", "64", "--objects-per-shard", "1"]
+"""The session build, as command-line arguments (the kill test runs the same build as a process)."""
+
+
+def _config(**changes) -> DatasetConfig:
+    import argparse
+
+    from pipelines.synth import config_from_args
+
+    ns = argparse.Namespace(n=3, seed=0, min_steps=2, max_steps=3, candidates=16, parts=None,
+                            check_backend="mujoco", size=128, tile=64, objects_per_shard=1, ldraw=None,
+                            dataset_id=None)
+    for k, v in changes.items():
+        setattr(ns, k, v)
+    return config_from_args(ns)
+
+
+def _env() -> dict:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    env.setdefault("MUJOCO_GL", "egl")
+    return env
+
+
+def _files(out: Path) -> list[str]:
+    """The files a build guarantees byte for byte (markers and timings hold seconds; not these)."""
+    keep = []
+    for p in sorted(out.rglob("*")):
+        rel = p.relative_to(out).as_posix()
+        if p.is_file() and not rel.startswith("meta/shards/") and rel != "meta/timings.json":
+            keep.append(rel)
+    return keep
+
+
+def _assert_identical(a: Path, b: Path) -> None:
+    fa, fb = _files(a), _files(b)
+    assert fa == fb
+    diff = [f for f in fa if not filecmp.cmp(a / f, b / f, shallow=False)]
+    assert not diff, f"files differ: {diff}"
+
+
+@pytest.fixture(scope="session")
+def built(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("ds") / "synth"
+    summary = build(_config(), out, progress=False)
+    assert summary["shards_built"] == 3
+    return out
+
+
+def _rows(out: Path, split: str | None = None, columns=None) -> list[dict]:
+    rows = []
+    for f in sorted((out / "data").glob(f"{split or '*'}-*.parquet")):
+        rows += pq.read_table(f, columns=columns).to_pylist()
+    return rows
+
+
+# -- pure parts ------------------------------------------------------------------------------------
+def test_split_is_per_object_deterministic_and_proportional():
+    cfg = DatasetConfig("synthetic", 700, seed=3)
+    splits = [cfg.split(i) for i in range(700)]
+    assert splits.count("test") == 140
+    # every run of 5 consecutive objects holds exactly one test object
+    assert all(splits[i:i + 5].count("test") == 1 for i in range(695))
+    assert splits == [DatasetConfig("synthetic", 9999, seed=3).split(i) for i in range(700)]  # not on N
+    # designs: from (seed, name) alone
+    names = [f"model-{i}" for i in range(400)]
+    s = [split_of(1, n, 0.8) for n in names]
+    assert 0.7 < s.count("train") / 400 < 0.9
+    assert s[:50] == [split_of(1, n, 0.8) for n in names[:50]]
+
+
+def test_config_hash_round_trip_and_diff():
+    cfg = _config()
+    again = DatasetConfig.from_json(json.loads(json.dumps(cfg.to_json())))
+    assert again.hash == cfg.hash and again == cfg
+    assert _config(size=96).hash != cfg.hash
+    # the sampler's part order survives sorted-key JSON (it drives the draws)
+    assert [p for p, _ in again.sampler["parts"]] == [p for p, _ in cfg.sampler["parts"]]
+
+
+def test_features_match_datasets():
+    datasets = pytest.importorskip("datasets")
+    f = datasets.Features.from_arrow_schema(SCHEMA)
+    assert f.to_dict() == features_json()
+    for name in IMAGE_COLUMNS:
+        assert isinstance(f[name], datasets.Image)
+
+
+def test_feedback_prompt():
+    text = feedback_prompt([{"translation_error": 23.4, "rotation_error": 90.0, "R": np.eye(3)}])
+    assert "23.4 LDU" in text and "90.0 degrees" in text and "[1.0, 0.0, 0.0]" in text
+    assert "R p + T" in text  # the convention is restated
+    assert "x=" not in text  # no per-axis offsets
+
+
+# -- the built dataset ------------------------------------------------------------------------------
+def test_layout_schema_and_row_groups(built):
+    info = json.loads((built / "meta" / "info.json").read_text())
+    cfg = DatasetConfig.from_json(info["config"])
+    assert info["config_hash"] == cfg.hash and cfg.num_shards == 3
+    names = sorted(p.name for p in (built / "data").iterdir())
+    assert names == sorted(f"{s}-{k:05d}-of-00003.parquet" for s in ("train", "test") for k in range(3))
+    objects = [json.loads(line) for line in (built / "meta" / "objects.jsonl").read_text().splitlines()]
+    for split in ("train", "test"):
+        for k in range(3):
+            pf = pq.ParquetFile(built / "data" / f"{split}-{k:05d}-of-00003.parquet")
+            assert pf.schema_arrow.equals(SCHEMA)
+            assert pf.schema_arrow.metadata[b"huggingface"] == SCHEMA.metadata[b"huggingface"]
+            in_file = [o for o in objects if o["index"] == k and o["split"] == split]
+            assert pf.num_row_groups == len(in_file)  # one row group per object
+            assert pf.metadata.num_rows == sum(o["steps"] for o in in_file)
+    assert info["total"]["steps"] == sum(o["steps"] for o in objects) == len(_rows(built))
+    assert info["package_versions"]["pyarrow"] and info["statistics"]["rejections"]
+
+
+def test_rows_targets_and_conversations(built):
+    import io
+
+    from PIL import Image
+
+    for row in _rows(built):
+        assert row["source"] == "synthetic" and row["seed"] == 0 and row["dataset_id"] == "brick-factory-synth"
+        assert row["step_id"] == f"{row['object_id']}/{row['step_index']:03d}"
+        for name in IMAGE_COLUMNS:
+            assert row[name]["bytes"][:8] == b"\x89PNG\r\n\x1a\n"
+            Image.open(io.BytesIO(row[name]["bytes"])).verify()
+        assert len(row["bricks"]) == 1
+        b = row["bricks"][0]
+        assert [b["row"], b["col"]] in b["cells"]
+        cat = {(c["row"], c["col"]): (c["part"], c["colour"]) for c in row["catalog_parts"]}
+        assert all(cat[tuple(c)] == (b["part"], b["colour"]) for c in b["cells"])
+        assert len(row["catalog_parts"]) == row["num_steps"] - row["step_index"]  # bricks still to place
+        R = np.array(b["R"])
+        assert np.allclose(R @ R.T, np.eye(3)) and len(b["T"]) == 3
+        assert b["symmetry_order"] == len(b["symmetry_rotations"]) >= 1
+        phys = json.loads(row["physics"])
+        assert phys["source"] == "sampler" and phys["verdict"]["reason"] is None
+        # conversations: system, user (images then text), assistant = the answer columns
+        for task, images in (("selection", SELECTION_IMAGES), ("pose", POSE_IMAGES)):
+            msgs = row[f"{task}_messages"]
+            assert [m["role"] for m in msgs] == ["system", "user", "assistant"]
+            assert msgs[0]["content"][0]["text"] == row["system"]
+            content = msgs[1]["content"]
+            assert [c["type"] for c in content] == ["image"] * len(images) + ["text"]
+            assert [c["index"] for c in content[:-1]] == list(range(len(images)))
+            assert row[f"{task}_images"] == list(images)
+            assert msgs[2]["content"][0]["text"] == row[f"{task}_answer"]
+        assert "R p + T" in row["pose_messages"][1]["content"][-1]["text"]
+        # the answers parse back and score perfectly against the targets
+        sym = Symmetry(tuple(np.array(r) for r in b["symmetry_rotations"]),
+                       tuple(b["symmetry_continuous_axis"]) if b["symmetry_continuous_axis"] else None)
+        target = StepTarget(row["step_id"], row["object_id"],
+                            (BrickTarget(b["part"], b["colour"], [tuple(c) for c in b["cells"]], R,
+                                         np.array(b["T"]), sym),))
+        res = score_step(target, row["selection_answer"], row["pose_answer"], mode="strict")
+        assert res.success and res.selection == 1.0
+        assert row["selection_answer"] == f"{b['part']}, row {b['row']}, col {b['col']}"
+
+
+def test_split_is_at_object_level(built):
+    cfg = DatasetConfig.from_json(json.loads((built / "meta" / "info.json").read_text())["config"])
+    seen = {}
+    for split in ("train", "test"):
+        for row in _rows(built, split, ["object_id", "split"]):
+            assert row["split"] == split
+            assert seen.setdefault(row["object_id"], split) == split
+    assert sorted(seen) == [cfg.object_id(i) for i in range(3)]
+    assert all(seen[cfg.object_id(i)] == cfg.split(i) for i in range(3))
+    assert set(seen.values()) == {"train", "test"}
+
+
+def test_load_dataset(built):
+    datasets = pytest.importorskip("datasets")
+    from PIL import Image
+
+    ds = datasets.load_dataset(str(built))
+    info = json.loads((built / "meta" / "info.json").read_text())
+    assert set(ds) == {"train", "test"}
+    for split in ("train", "test"):
+        assert ds[split].num_rows == info["counts"][split]["steps"]
+    row = ds["test"][0]
+    for name in IMAGE_COLUMNS:
+        assert isinstance(row[name], Image.Image)
+    assert row["pose_messages"][1]["content"][0]["type"] == "image"
+
+
+def test_gallery_and_card(built):
+    card = (built / "README.md").read_text()
+    assert card.startswith("---\nconfigs:\n- config_name: default\n  data_files:\n  - split: train\n"
+                           "    path: data/train-*\n  - split: test\n    path: data/test-*\n")
+    sheet = built / "gallery" / "contact_sheet.png"
+    assert sheet.stat().st_size > 1000
+    html = (built / "gallery" / "index.html").read_text()
+    import re
+
+    srcs = re.findall(r'src="([^"]+)"', html)
+    assert srcs and all((built / "gallery" / s).is_file() for s in srcs)
+
+
+def test_rerun_skips_and_resume_after_lost_shard_is_byte_identical(built, tmp_path):
+    out = tmp_path / "copy"
+    shutil.copytree(built, out)
+    s = build(_config(), out, progress=False)
+    assert s["shards_built"] == 0
+    _assert_identical(built, out)
+    # lose shard 1 (its data files and marker) and a stray temporary file of a killed writer
+    for p in (out / "data").glob("*-00001-of-00003.parquet"):
+        p.unlink()
+    (out / "meta" / "shards" / "00001.json").unlink()
+    (out / "data" / ".train-00001-of-00003.parquet.999.tmp").write_bytes(b"partial")
+    s = build(_config(), out, progress=False)
+    assert s["shards_built"] == 1 and s["shards_skipped"] == 2
+    _assert_identical(built, out)
+
+
+def test_changed_config_is_refused(built, tmp_path):
+    out = tmp_path / "copy"
+    shutil.copytree(built, out)
+    with pytest.raises(ConfigMismatchError, match=r"size: 128 -> 96"):
+        build(_config(size=96), out, progress=False)
+    # the command line says so in one line, exit status 2, and writes nothing
+    before = {p: p.stat().st_mtime_ns for p in out.rglob("*")}
+    args = list(CLI_ARGS)
+    args[args.index("--seed") + 1] = "5"
+    r = subprocess.run([sys.executable, "-m", "pipelines.synth", *args, "--out", str(out), "--no-progress"],
+                       cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    assert r.stderr.startswith("error: ") and "different config" in r.stderr and "seed: 0 -> 5" in r.stderr
+    assert before == {p: p.stat().st_mtime_ns for p in out.rglob("*")}
+
+
+def test_killed_run_resumes_to_identical_bytes(built, tmp_path):
+    """A build killed (SIGKILL) in the middle of a shard, then re-run, equals the session build."""
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "pipelines.synth", *CLI_ARGS, "--out", str(out), "--no-progress"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    try:
+        deadline = time.time() + 150
+        while not (out / "meta" / "shards" / "00000.json").exists():
+            assert proc.poll() is None, "the build ended before it could be killed"
+            assert time.time() < deadline
+            time.sleep(0.05)
+        time.sleep(0.5)  # inside shard 1
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    assert not (out / "meta" / "info.json").exists()
+    assert not (out / "meta" / "shards" / "00002.json").exists()
+    s = build(_config(), out, progress=False)
+    assert s["shards_skipped"] >= 1
+    assert not list((out / "data").glob(".*.tmp"))
+    _assert_identical(built, out)
+
+
+def test_ray_backend_gives_the_same_bytes(built, tmp_path):
+    ray = pytest.importorskip("ray")
+    out = tmp_path / "ray"
+    ray.init(num_cpus=2, include_dashboard=False, runtime_env={"env_vars": {
+        "PYTHONPATH": _env()["PYTHONPATH"], "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
+        **({"BRICK_FACTORY_CACHE": os.environ["BRICK_FACTORY_CACHE"]} if "BRICK_FACTORY_CACHE" in os.environ
+           else {})}})
+    try:
+        s = build(_config(), out, backend="ray", workers=2, progress=False)
+    finally:
+        ray.shutdown()
+    assert s["shards_built"] == 3
+    _assert_identical(built, out)
+
+
+def test_export_llamafactory(built, tmp_path):
+    dest = tmp_path / "lf"
+    r = subprocess.run([sys.executable, "-m", "pipelines.export", str(built), "--format", "llamafactory",
+                        str(dest)], cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    registry = json.loads((dest / "dataset_info.json").read_text())
+    info = json.loads((built / "meta" / "info.json").read_text())
+    assert set(registry) == {f"brick-factory-synth_{t}_{s}" for t in ("selection", "pose") for s in ("train", "test")}
+    for name, entry in registry.items():
+        assert entry["formatting"] == "sharegpt" and entry["columns"]["images"] == "images"
+        records = json.loads((dest / entry["file_name"]).read_text())
+        split = name.rsplit("_", 1)[1]
+        assert len(records) == info["counts"][split]["steps"]
+        for rec in records:
+            user, answer = rec["messages"]
+            assert user["role"] == "user" and answer["role"] == "assistant"
+            assert user["content"].count("<image>") == len(rec["images"]) == (4 if "_pose_" in name else 3)
+            assert all((dest / p).is_file() for p in rec["images"])
+            assert rec["system"].startswith("You are")
+    first = json.loads((dest / "brick-factory-synth_selection_train.json").read_text())[0]
+    row = _rows(built, "train", ["selection_answer"])[0]
+    assert first["messages"][1]["content"] == row["selection_answer"]
+
+
+def test_local_worker_processes_give_the_same_bytes(built, tmp_path):
+    out = tmp_path / "pool"
+    s = build(_config(), out, backend="local", workers=2, progress=False)
+    assert s["shards_built"] == 3
+    pids = {json.loads((out / "meta" / "shards" / f"{k:05d}.json").read_text())["pid"] for k in range(3)}
+    assert os.getpid() not in pids
+    _assert_identical(built, out)
