@@ -27,24 +27,16 @@ import numpy as np
 
 from factory.cli import run_guarded
 from factory.physics.check import BACKENDS
+from factory.physics.stability import DIVERGED_WARNINGS
 from factory.sampler import Sampler, SamplerConfig, SamplerConfigError
 from factory.sampler.assembly import write_atomic
 
 _SAMPLER: Sampler | None = None
-_WARNINGS = [0]
-
-
-def _count_mujoco_warnings() -> None:
-    """MuJoCo prints a warning per diverging rollout (a candidate flung away: it is rejected as
-    'unstable'); count them instead of letting them break the progress bar."""
-    import mujoco
-
-    mujoco.set_mju_user_warning(lambda msg: _WARNINGS.__setitem__(0, _WARNINGS[0] + 1))
+_WARNINGS = DIVERGED_WARNINGS  # diverging rollouts, counted by the physics (not printed)
 
 
 def _init(config: SamplerConfig, ldraw: str | None) -> None:
     global _SAMPLER
-    _count_mujoco_warnings()
     _SAMPLER = Sampler(config, ldraw)
 
 

@@ -225,8 +225,20 @@ def movement_ldu(obj: RigidObject, qpos: np.ndarray) -> float:
     return float(max(np.linalg.norm(pos - obj.com), np.linalg.norm(moved, axis=1).max()) / LDU_M)
 
 
+DIVERGED_WARNINGS = [0]
+"""MuJoCo warnings in this process, counted instead of printed: they come from diverging rollouts
+(a candidate flung away, judged unstable) and would otherwise break progress bars and leave
+MUJOCO_LOG.TXT in the working folder."""
+
+
+@lru_cache(maxsize=1)
+def _count_warnings() -> None:
+    mujoco.set_mju_user_warning(lambda msg: DIVERGED_WARNINGS.__setitem__(0, DIVERGED_WARNINGS[0] + 1))
+
+
 def rollout_cpu(objs: list[RigidObject], cfg: StabilityConfig) -> np.ndarray:
     """Movement (LDU) of each object after `cfg.duration_s`, with MuJoCo's C engine."""
+    _count_warnings()
     model = stability_model(cfg)
     data = mujoco.MjData(model)
     out = np.empty(len(objs))
