@@ -225,8 +225,9 @@ def test_load_dataset(built):
 
 def test_gallery_and_card(built):
     card = (built / "README.md").read_text()
-    assert card.startswith("---\nconfigs:\n- config_name: default\n  data_files:\n  - split: train\n"
-                           "    path: data/train-*\n  - split: test\n    path: data/test-*\n")
+    info = json.loads((built / "meta" / "info.json").read_text())
+    assert card.startswith(f"---\nconfigs:\n- config_name: bf-{info['config_hash'][:12]}\n  data_files:\n"
+                           "  - split: train\n    path: data/train-*\n  - split: test\n    path: data/test-*\n")
     sheet = built / "gallery" / "contact_sheet.png"
     assert sheet.stat().st_size > 1000
     html = (built / "gallery" / "index.html").read_text()

@@ -15,7 +15,10 @@ def _size_category(n: int) -> str:
 
 def dataset_card(config, info: dict) -> str:
     splits = info["splits_present"]
-    yaml = ["---", "configs:", "- config_name: default", "  data_files:"]
+    # The config's name carries the dataset's config hash: `datasets` caches a local folder under
+    # its name and this YAML only, so two datasets in folders of the same name would otherwise
+    # share (and serve each other) one cache entry.
+    yaml = ["---", "configs:", f"- config_name: bf-{info['config_hash'][:12]}", "  data_files:"]
     for s in splits:
         yaml += [f"  - split: {s}", f"    path: data/{s}-*"]
     yaml += [
