@@ -21,7 +21,8 @@ import numpy as np
 from factory import Pose, get_reader, load_part
 from factory.physics.check import CheckConfig, check
 from factory.physics.stability import MassAggregate, rigid_object, rollout_cpu
-from factory.physics.structure import Placed, Structure, feasible_poses
+from factory.physics.attach import feasible_poses
+from factory.physics.structure import Placed, Structure
 
 
 def grow(n: int, seed: int = 0) -> Structure:

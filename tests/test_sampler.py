@@ -13,9 +13,8 @@ import pytest
 
 from factory import Pose, get_reader, load_part, read_steps
 from factory.physics.check import check_units
-from factory.physics.structure import Placed, Structure, feasible_poses
+from factory.physics.structure import Placed, Structure
 from factory.sampler import Assembly, Sampler, SamplerConfig, SamplerConfigError, density
-from factory.sampler.attach import attachments
 
 ROOT = Path(__file__).resolve().parents[1]
 PARTS = {"3001": 1.0, "3003": 1.0, "3004": 1.0, "3020": 1.0, "3022": 0.5, "3039": 0.5, "3068b": 0.3}
@@ -93,16 +92,6 @@ def test_sampled_objects_pass_the_checks_independently(objects, tmp_path):
             assert v.ok and (v.connected or not len(structure)), v
             assert Structure([p]).floor_y() <= floor + 0.5
             structure.add(p)
-
-
-def test_attachments_are_feasible_poses_fast():
-    reader = get_reader()
-    brick, slope, plate = (load_part(reader, n) for n in ("3001", "3039", "3022"))
-    s = Structure([Placed(brick, 4, Pose.identity()), Placed(plate, 1, Pose(np.eye(3), [10, -8, 10]))])
-    for part in (brick, slope, plate):
-        mine, theirs = attachments(s, part), feasible_poses(s, part)
-        assert len(mine) == len(theirs) > 0
-        assert all(a.allclose(b) for a, b in zip(mine, theirs))
 
 
 def test_density_prefers_compact():

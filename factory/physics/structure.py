@@ -1,4 +1,4 @@
-"""A structure of placed parts, its connection points in the world, and feasible attachments.
+"""A structure of placed parts and its connection points in the world (attachments: `attach.py`).
 
 World = the model's LDraw frame (LDU, y down). A stud and a socket are connected when they sit at
 the same place with the same axis; a connection point that is connected is occupied.
@@ -147,32 +147,3 @@ def canonical_key(part: Part, pose: Pose) -> tuple:
         r = pose.R @ s
         keys.append(tuple(np.round(r, 4).ravel().tolist()))
     return (min(keys), tuple(np.round(pose.t, 3).tolist()))
-
-
-def feasible_poses(structure: Structure, part: Part) -> list[Pose]:
-    """Every pose that puts one of the part's sockets on a free stud of the structure, or one of
-    its studs into a free socket, at each of the 4 turns about the stud axis; duplicates (equal by
-    the part's symmetry) dropped. Deterministic order."""
-    stud_busy, sock_busy = structure.occupied()
-    sp, sa, _ = structure.studs
-    kp, ka, _ = structure.sockets
-    plans = []
-    for c in part.sockets:  # part socket onto a free structure stud
-        plans.append((np.array(c.pos), np.array(c.axis), sp[~stud_busy], sa[~stud_busy]))
-    for c in part.studs:  # part stud into a free structure socket
-        plans.append((np.array(c.pos), np.array(c.axis), kp[~sock_busy], ka[~sock_busy]))
-    seen: set = set()
-    out: list[Pose] = []
-    turns = [rotation_about((0.0, 1.0, 0.0), 90.0 * k) for k in range(4)]
-    for q, b, targets, axes in plans:
-        for p, a in zip(targets, axes):
-            base = align(b, a)
-            for k in range(4):
-                twist = turns[k] if np.allclose(a, [0, -1, 0]) or np.allclose(a, [0, 1, 0]) else rotation_about(a, 90.0 * k)
-                r = np.round(twist @ base, 12)
-                pose = Pose(r, p - r @ q)
-                key = canonical_key(part, pose)
-                if key not in seen:
-                    seen.add(key)
-                    out.append(pose)
-    return out

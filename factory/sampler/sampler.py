@@ -5,8 +5,7 @@ fixed order, so the object is the same whatever the batch, order, worker or mach
 
 Growth, per step:
 1. draw a part and a colour (config weights; the first part among parts with studs);
-2. enumerate its feasible attachments on the structure (`attach.attachment_arrays`, the same list
-   as `feasible_poses`); drop those reaching below the ground (counted 'below-ground');
+2. enumerate its feasible attachments on the structure (`factory.physics.attach`); drop those reaching below the ground (counted 'below-ground');
 3. take a random subset of at most `candidates_per_step` of them; score each by the density of
    the assembly after placing it (`density.DensityTracker`);
 4. choose among those that pass the physics checks (`factory.physics.check.check`, ground fixed at
@@ -37,7 +36,7 @@ from factory.physics.check import check
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
 from factory.sampler.assembly import Assembly, AssemblyStep
-from factory.sampler.attach import attachment_arrays, lowest_y
+from factory.physics.attach import attachment_arrays, lowest_y
 from factory.sampler.config import SamplerConfig, SamplerConfigError
 from factory.sampler.density import DensityTracker, part_hull_points
 

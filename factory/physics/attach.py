@@ -1,12 +1,12 @@
-"""Feasible attachments, vectorised: the same poses, in the same order, as
-`factory.physics.structure.feasible_poses`, fast enough for structures of 90 parts.
+"""Feasible attachments: every pose that puts one of a part's sockets on a free stud of the
+structure, or one of its studs into a free socket, at each of the 4 turns about the stud axis, with
+poses equal under the part's symmetry dropped. Deterministic order: connector, target, turn.
 
-`feasible_poses` builds and keys every (connector, target, turn) pose in Python; a 60-part
-structure gives ~14,000 poses and takes seconds per step. Here the rotation of a pose depends only
-on the part connector, the target's axis and the turn, so rotations (and their symmetry-aware keys)
-are computed once per (connector, axis, turn) and the translations of all targets at once; the
-duplicates are then dropped with one `np.unique`, keeping first occurrences in `feasible_poses`'s
-loop order (connector, target, turn). `tests/test_sampler.py` checks both give the same list.
+Vectorised: a pose's rotation depends only on the part connector, the target's axis and the turn,
+so rotations (and their symmetry-aware keys) are computed once per (connector, axis, turn) and the
+translations of all targets at once; duplicates go with one `np.unique` keeping first occurrences.
+A 60-part structure gives ~14,000 poses; a pose-by-pose loop took seconds per step.
+`tests/test_physics.py` checks the result against that plain loop.
 """
 
 from __future__ import annotations
@@ -27,8 +27,7 @@ def _rotation_key(part: Part, r: np.ndarray) -> tuple:
 
 
 def attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarray, np.ndarray]:
-    """Rotations (n, 3, 3) and translations (n, 3) of the feasible attachments, deduplicated by
-    the part's symmetry, in `feasible_poses` order."""
+    """Rotations (n, 3, 3) and translations (n, 3) of the feasible attachments (module docstring)."""
     stud_busy, sock_busy = structure.occupied()
     sp, sa, _ = structure.studs
     kp, ka, _ = structure.sockets
@@ -70,7 +69,7 @@ def attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarray, np.
     rot_index = np.concatenate(chunks_rot)
     t = np.concatenate(chunks_t)
     rid = np.concatenate(chunks_key)
-    # Loop order of feasible_poses: plan, target, turn.
+    # Order: plan (connector), target, turn.
     perm = np.lexsort((order[:, 2], order[:, 1], order[:, 0]))
     rot_index, t, rid = rot_index[perm], t[perm], rid[perm]
     tkey = np.round(np.round(t, 3) * 1000).astype(np.int64)
@@ -80,8 +79,8 @@ def attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarray, np.
     return np.stack(rots)[rot_index[first]], t[first]
 
 
-def attachments(structure: Structure, part: Part) -> list[Pose]:
-    """Every feasible attachment of `part` on `structure` (see `feasible_poses`)."""
+def feasible_poses(structure: Structure, part: Part) -> list[Pose]:
+    """Every feasible attachment of `part` on `structure`, as poses."""
     r, t = attachment_arrays(structure, part)
     return [Pose(ri, ti) for ri, ti in zip(r, t)]
 
