@@ -82,6 +82,9 @@ class Assembly:
     stuck_rejected: dict[str, int] = field(default_factory=dict)
     """For a stuck object: the candidates of the failed step rejected by rule (also
     'no-attachment': a drawn part had no feasible attachment at all)."""
+    check_seconds: float = 0.0
+    """Wall time spent in the physics checks while growing it (a measurement: not written to the
+    `.ldr`, not part of the object)."""
 
     def __len__(self) -> int:
         return len(self.steps)

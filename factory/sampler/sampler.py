@@ -24,6 +24,7 @@ ground) and is checked like any other (it must stand on its own).
 from __future__ import annotations
 
 import os
+import time
 from collections import Counter
 from typing import Iterable, Iterator
 
@@ -68,6 +69,7 @@ class Sampler:
             raise ValueError(f"object index must be an integer >= 0, got {index!r}")
         cfg = self.config
         rng = np.random.default_rng([cfg.seed, int(index)])
+        check_seconds = 0.0
         target = int(rng.integers(cfg.min_steps, cfg.max_steps + 1))
         structure = Structure()
         tracker = DensityTracker()
@@ -116,8 +118,10 @@ class Sampler:
                 order = np.argsort(-key, kind="stable")
                 for start in range(0, len(order), cfg.check_batch):
                     batch = order[start:start + cfg.check_batch]
+                    t_check = time.perf_counter()
                     verdicts = check(structure, part, [poses[i] for i in batch], backend=cfg.backend,
                                      config=cfg.check, colour=colour, floor_y=ground)
+                    check_seconds += time.perf_counter() - t_check
                     for i, v in zip(batch, verdicts):
                         checked += 1
                         if v.ok:
@@ -143,6 +147,7 @@ class Sampler:
         return Assembly(
             steps=tuple(steps), density=tracker.density() if steps else 0.0, seed=cfg.seed,
             index=int(index), target_steps=target, end_reason=end, stuck_rejected=stuck,
+            check_seconds=check_seconds,
         )
 
     def sample_many(self, indices: Iterable[int]) -> Iterator[Assembly]:

@@ -97,48 +97,19 @@ def sampler_config_from_json(data: dict):
     return SamplerConfig(**kw)
 
 
-class _CheckClock:
-    """Time spent in the physics check inside the sampler (it calls `check` by module name)."""
-
-    seconds = 0.0
-    installed = False
-
-    @classmethod
-    def install(cls) -> None:
-        if cls.installed:
-            return
-        import factory.sampler.sampler as mod
-
-        inner = getattr(mod, "check", None)
-        if inner is None:  # the sampler no longer calls `check` by that name: no split of the time
-            cls.installed = True
-            return
-
-        def timed(*args, **kwargs):
-            t = time.perf_counter()
-            try:
-                return inner(*args, **kwargs)
-            finally:
-                cls.seconds += time.perf_counter() - t
-
-        mod.check = timed
-        cls.installed = True
-
-
 class SyntheticSource:
     """Objects from `factory.sampler.Sampler`: one step per placed part, its sampler verdict."""
 
     def __init__(self, sampler_json: dict, ldraw: str | None = None):
         from factory.sampler import Sampler
 
-        _CheckClock.install()
         self.sampler = Sampler(sampler_config_from_json(sampler_json), ldraw)
 
     def object(self, index: int, object_id: str) -> ObjectSpec:
-        c0, t0 = _CheckClock.seconds, time.perf_counter()
+        t0 = time.perf_counter()
         a = self.sampler.sample(index)
         total = time.perf_counter() - t0
-        check = _CheckClock.seconds - c0
+        check = a.check_seconds
         placed = [PlacedPart(s.part, s.colour, s.pose, f"sampler:{k}") for k, s in enumerate(a.steps)]
         scene = tuple(placed)
         steps = []
