@@ -85,3 +85,30 @@ def _box_text() -> str:
 
 
 BOX = _box_text()
+
+
+def tiny_dataset_config(**changes):
+    """The config of the session's tiny synthetic dataset: 3 sampled objects of 2-3 steps, 128 px
+    views, one object per shard (changes override fields of the command line's namespace)."""
+    import argparse
+
+    from pipelines.synth import config_from_args
+
+    ns = argparse.Namespace(n=3, seed=0, min_steps=2, max_steps=3, candidates=16, parts=None,
+                            check_backend="mujoco", size=128, tile=64, objects_per_shard=1, ldraw=None,
+                            dataset_id=None)
+    for k, v in changes.items():
+        setattr(ns, k, v)
+    return config_from_args(ns)
+
+
+@pytest.fixture(scope="session")
+def tiny_dataset(tmp_path_factory) -> Path:
+    """A real dataset folder built once per session (embedded library): 3 objects, 2-3 steps each,
+    train and test splits. Read-only: tests that change a dataset copy it first."""
+    from pipelines.dataset import build
+
+    out = tmp_path_factory.mktemp("ds") / "synth"
+    summary = build(tiny_dataset_config(), out, progress=False)
+    assert summary["shards_built"] == 3
+    return out

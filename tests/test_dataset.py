@@ -34,6 +34,7 @@ from pipelines.dataset import (
     split_of,
 )
 from pipelines.dataset.schema import IMAGE_COLUMNS, SCHEMA, features_json
+from conftest import tiny_dataset_config
 
 ROOT = Path(__file__).resolve().parents[1]
 CLI_ARGS = ["--n", "3", "--seed", "0", "--min-steps", "2", "--max-steps", "3", "--candidates", "16",
@@ -42,16 +43,7 @@ CLI_ARGS = ["--n", "3", "--seed", "0", "--min-steps", "2", "--max-steps", "3", "
 
 
 def _config(**changes) -> DatasetConfig:
-    import argparse
-
-    from pipelines.synth import config_from_args
-
-    ns = argparse.Namespace(n=3, seed=0, min_steps=2, max_steps=3, candidates=16, parts=None,
-                            check_backend="mujoco", size=128, tile=64, objects_per_shard=1, ldraw=None,
-                            dataset_id=None)
-    for k, v in changes.items():
-        setattr(ns, k, v)
-    return config_from_args(ns)
+    return tiny_dataset_config(**changes)
 
 
 def _env() -> dict:
@@ -79,11 +71,8 @@ def _assert_identical(a: Path, b: Path) -> None:
 
 
 @pytest.fixture(scope="session")
-def built(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("ds") / "synth"
-    summary = build(_config(), out, progress=False)
-    assert summary["shards_built"] == 3
-    return out
+def built(tiny_dataset) -> Path:
+    return tiny_dataset
 
 
 def _rows(out: Path, split: str | None = None, columns=None) -> list[dict]:
