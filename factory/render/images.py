@@ -24,7 +24,7 @@ from factory.render.cameras import (
     VIEWS,
     Framing,
 )
-from factory.render.scene import Item, Scene, colour_table, scene_for
+from factory.render.scene import ON_CLEAR, Item, Scene, colour_table, scene_for
 from factory.render.views import render_rgb, render_seg
 
 EDGE_PX = 0.9
@@ -33,6 +33,14 @@ BOX_PAD = 2
 """Pixels between a part's segmentation bounds and its red dashed box."""
 FEEDBACK_RGBA = (0.93, 0.06, 0.06, 1.0)
 FEEDBACK_EDGE = (0.35, 0.0, 0.0, 1.0)
+
+_TILES: dict[tuple, Image.Image] = {}
+"""Catalog tiles by (reader, part, colour, common height, tile size): a catalog shrinks by a brick
+per step and keeps its scale until its tallest part is used up, so most tiles repeat. Cleared with
+the scenes (`clear_cache`), like them per object in the dataset builder."""
+_PARTS: dict[tuple, Image.Image] = {}
+"""Part renders by (reader, part, colour, size)."""
+ON_CLEAR.extend([_TILES.clear, _PARTS.clear])
 
 
 def _reader(reader: Reader | None) -> Reader:
@@ -91,6 +99,9 @@ class StepRender:
     framing: Framing
     segmentation: dict[str, np.ndarray] = field(default_factory=dict)
     """Per view: index into before + new of the part seen at each pixel, -1 for background."""
+    after_views: list[np.ndarray] = field(default_factory=list)
+    """The six orthographic views after the step, plain (no boxes): the next step's `before_views`
+    when it renders the same assembly, framing and scene."""
 
 
 def render_step(before: Sequence[PlacedPart], new: Sequence[PlacedPart], size: int = 256, *,
@@ -114,8 +125,12 @@ def render_step(before: Sequence[PlacedPart], new: Sequence[PlacedPart], size: i
 def render_step_full(before: Sequence[PlacedPart], new: Sequence[PlacedPart], size: int = 256, *,
                      reader: Reader | None = None, bounds=None,
                      scene_parts: Sequence[PlacedPart] | None = None, axes_state: str = "before",
-                     parts: bool = True) -> StepRender:
-    """`render_step`, also returning the red boxes, the framing and the segmentation renders."""
+                     parts: bool = True, before_views: Sequence[np.ndarray] | None = None) -> StepRender:
+    """`render_step`, also returning the red boxes, the framing and the segmentation renders.
+
+    `before_views`: the previous step's `after_views`, when that step rendered exactly `before`
+    with the same bounds, scene parts and size; the same pixels, without rendering them again.
+    """
     if axes_state not in ("before", "after"):
         raise ValueError("axes_state must be 'before' or 'after'")
     reader = _reader(reader)
@@ -125,12 +140,17 @@ def render_step_full(before: Sequence[PlacedPart], new: Sequence[PlacedPart], si
     framing = Framing.from_bounds(bounds if bounds is not None else bounds_of([*before, *new], reader))
     scene = _scene(after, framing.height, size, scene_parts, reader)
 
-    before_tiles = [Image.fromarray(a) for a in _views(scene, b_items, colours, framing, size)]
+    if before_views is None:
+        before_views = _views(scene, b_items, colours, framing, size)
+    before_tiles = [Image.fromarray(a) for a in before_views]
     boxes: dict[str, list] = {}
     segs: dict[str, np.ndarray] = {}
-    after_tiles = []
+    after_tiles, after_views = [], []
     for v in ALL_VIEWS:
-        rgb = Image.fromarray(render_rgb(scene, after, colours, v, framing, size))
+        arr = render_rgb(scene, after, colours, v, framing, size)
+        if v != ISOMETRIC:
+            after_views.append(arr.copy())
+        rgb = Image.fromarray(arr)
         seg = render_seg(scene, after, colours, v, framing, size)
         segs[v] = seg
         boxes[v] = []
@@ -147,11 +167,14 @@ def render_step_full(before: Sequence[PlacedPart], new: Sequence[PlacedPart], si
     }
     if parts:
         for j, p in enumerate(new, 1):
-            images[f"part_{j}"] = render_part(p.part, p.colour, size=size, reader=reader)
+            key = (id(reader), p.part.lower(), int(p.colour), size)
+            if key not in _PARTS:
+                _PARTS[key] = render_part(p.part, p.colour, size=size, reader=reader)
+            images[f"part_{j}"] = _PARTS[key].copy()
     shown = b_items if axes_state == "before" else after
     images["axes"] = _axes_composite(scene, shown, colours, framing, size,
                                      title=f"{axes_state} this step")
-    return StepRender(images, boxes, framing, segs)
+    return StepRender(images, boxes, framing, segs, after_views)
 
 
 def _axes_margins(size: int) -> tuple[int, int]:
@@ -269,17 +292,18 @@ def render_catalog(parts: Sequence[tuple[str, int] | PlacedPart], tile: int = 12
     distinct = list({id(p): p for p in loaded}.values())
     heights = [Framing.from_bounds(p.bbox, margin=0.06).iso_height for p in distinct]
     height = max(heights)
-    scene = scene_for(distinct, EDGE_PX * height / tile)
-    cache: dict[tuple[int, int], Image.Image] = {}
+    scene = None
     tiles, cells = [], []
     for i, (p, (_name, colour)) in enumerate(zip(loaded, entries)):
-        key = (id(p), colour)
-        if key not in cache:
+        key = (id(reader), p.name.lower(), colour, height, tile)
+        if key not in _TILES:
+            if scene is None:
+                scene = scene_for(distinct, EDGE_PX * height / tile)
             bb = np.asarray(p.bbox, float)
             f = Framing(tuple(((bb[0] + bb[1]) / 2).tolist()), height, height)  # type: ignore[arg-type]
             arr = render_rgb(scene, [Item(p, colour, Pose.identity())], colours, ISOMETRIC, f, tile)
-            cache[key] = compose.labelled(Image.fromarray(arr), p.name)
-        tiles.append(cache[key])
+            _TILES[key] = compose.labelled(Image.fromarray(arr), p.name)
+        tiles.append(_TILES[key])
         r, c = divmod(i, cols)
         cells.append((r + 1, c + 1))
     return compose.grid(tiles, cols=cols), cells

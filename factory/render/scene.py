@@ -350,8 +350,15 @@ def scene_for(parts: Sequence[Part], edge_radius: float, universe: Sequence[Part
     return scene
 
 
+ON_CLEAR: list = []
+"""Callables `clear_cache` also runs: image caches built on these scenes (catalog tiles, part renders)."""
+
+
 def clear_cache() -> None:
-    """Drop every cached scene and free its GL resources (the next render rebuilds)."""
+    """Drop every cached scene and free its GL resources (the next render rebuilds), and every
+    image cache registered in `ON_CLEAR`."""
+    for hook in ON_CLEAR:
+        hook()
     for cache in (_SCENES, _SINGLES):
         while cache:
             _, old = cache.popitem()

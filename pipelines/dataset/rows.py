@@ -74,6 +74,12 @@ def assign_cells(reader, new, entries, cells):
     return out
 
 
+def _placed_key(placed) -> tuple:
+    """Placed parts as a hashable, exactly comparable key (name, colour, pose bytes)."""
+    return tuple((p.part.lower(), int(p.colour), np.asarray(p.pose.R, np.float64).tobytes(),
+                  np.asarray(p.pose.t, np.float64).tobytes()) for p in placed)
+
+
 def object_rows(obj, config, split: str, timings: dict) -> list[dict]:
     """Every step of `obj` (an `ObjectSpec`) as a row dict in `schema.FIELDS` order.
 
@@ -100,14 +106,18 @@ def _rows(obj, config, split, timings, reader, colours) -> list[dict]:
     from factory.render import bounds_of, render_catalog, render_step_full
 
     bounds: dict[str, np.ndarray] = {}
+    last_after: tuple = (None, None)  # (what the previous step rendered after it, its plain views)
     rows = []
     n_steps = len(obj.steps)
     for k, step in enumerate(obj.steps):
         t0 = time.perf_counter()
         if step.assembly not in bounds:
             bounds[step.assembly] = bounds_of(list(step.scene), reader)
+        before_key = (step.assembly, _placed_key(step.before))
+        reuse = last_after[1] if last_after[0] == before_key else None
         res = render_step_full(list(step.before), list(step.new), config.size, reader=reader,
-                               bounds=bounds[step.assembly], scene_parts=list(step.scene))
+                               bounds=bounds[step.assembly], scene_parts=list(step.scene), before_views=reuse)
+        last_after = ((step.assembly, _placed_key(tuple(step.before) + tuple(step.new))), res.after_views)
         entries = catalog_layout(reader, step.catalog)
         catalog_img, cells = render_catalog(entries, tile=config.tile, reader=reader)
         images = {
