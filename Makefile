@@ -8,15 +8,21 @@ SEED ?= 0
 OUT ?= out/synth
 BACKEND ?= local
 WORKERS ?= 2
+DATA ?= $(OUT)
+OUTDIR ?= checkpoints/run
+TASKS ?= selection,pose
+STEPS ?= 200
+LORA ?= 1
+MODEL ?=
 
-.PHONY: setup synth designs test clean
+.PHONY: setup synth designs train bench test clean
 
 setup: $(STAMP)
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[mjx,ray,dev]'
+	$(PY) -m pip install --quiet -e '.[mjx,ray,train,bench,dev]'
 	touch $(STAMP)
 
 # The main job: sample N physics-verified objects, render every step, write sharded Parquet to OUT
@@ -27,6 +33,15 @@ synth: setup
 # Human-designed models into the same rows (source "design").
 designs: setup
 	$(PY) -m pipelines.designs ../shared/ldraw_models/*.ldr ../shared/ldraw_models/*.mpd --out out/designs --ldraw ../shared/ldraw
+
+# Fine-tune a vision-language model on DATA (default: the synth output); with no MODEL, a small
+# Qwen2-VL-architecture model built from a config. Re-running resumes from the last checkpoint.
+train: setup
+	$(PY) -m train --data $(DATA) --outdir $(OUTDIR) --tasks $(TASKS) --steps $(STEPS) --lora $(LORA) $(if $(MODEL),--model $(MODEL))
+
+# Throughput of the factory and the baselines' scores: bench/report.md, report.json, PNG plots.
+bench: setup
+	$(PY) -m pipelines.bench --out bench
 
 test: setup
 	$(PY) -m pytest -q

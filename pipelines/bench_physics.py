@@ -49,25 +49,20 @@ def candidates(s: Structure, batch: int, seed: int = 1) -> list[Pose]:
     return [poses[i] for i in rng.integers(0, len(poses), size=batch)]
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pipelines.bench_physics")
-    ap.add_argument("--backends", default="mujoco")
-    ap.add_argument("--sizes", default="10,30,60")
-    ap.add_argument("--batches", default="256")
-    ap.add_argument("--out")
-    args = ap.parse_args(argv)
+def measure(backends, sizes, batches, log=None) -> list[dict]:
+    """One row per (size, batch, backend): rollout-only and full-check candidates per second."""
     brick = load_part(get_reader(), "3001")
     cfg = CheckConfig()
     rows = []
-    for n in [int(x) for x in args.sizes.split(",")]:
+    for n in sizes:
         t0 = time.perf_counter()
         s = grow(n)
         grow_s = time.perf_counter() - t0
-        for batch in [int(x) for x in args.batches.split(",")]:
+        for batch in batches:
             poses = candidates(s, batch)
             base = MassAggregate.of(s.placed)
             objs = [rigid_object(base + MassAggregate.of([Placed(brick, 4, p)]), 24.0, cfg.stability) for p in poses]
-            for backend in args.backends.split(","):
+            for backend in backends:
                 if backend == "mjx":
                     from factory.physics.mjx_backend import COMPILES, rollout_mjx
 
@@ -97,7 +92,20 @@ def main(argv=None) -> int:
                     "grow_s": round(grow_s, 1),
                 }
                 rows.append(row)
-                print(json.dumps(row), flush=True)
+                if log is not None:
+                    log(row)
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m pipelines.bench_physics")
+    ap.add_argument("--backends", default="mujoco")
+    ap.add_argument("--sizes", default="10,30,60")
+    ap.add_argument("--batches", default="256")
+    ap.add_argument("--out")
+    args = ap.parse_args(argv)
+    rows = measure(args.backends.split(","), [int(x) for x in args.sizes.split(",")],
+                   [int(x) for x in args.batches.split(",")], log=lambda r: print(json.dumps(r), flush=True))
     if args.out:
         meta = {"machine": platform.node(), "processor": platform.processor(), "rows": rows}
         with open(args.out, "w") as fh:

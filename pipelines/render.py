@@ -57,8 +57,10 @@ def _json(meta: dict) -> str:
     return "\n".join(lines)
 
 
-def _bench(args) -> int:
-    """Views per second of the whole model (RGB with outlines and multisampling; segmentation)."""
+def view_rates(model, ldraw, sizes, repeats: int = 3) -> list[dict]:
+    """Views per second of a whole model at each size: RGB (outlines, multisampling) and
+    segmentation over the six orthographic views plus the isometric, best of `repeats`, and the
+    seconds of one full step render (every image of a step but the catalog)."""
     from factory.ldraw import get_reader, read_steps
     from factory.parts import load_part
     from factory.render import ALL_VIEWS, Framing, bounds_of, render_step_full
@@ -66,18 +68,13 @@ def _bench(args) -> int:
     from factory.render.scene import Item, colour_table, scene_for
     from factory.render.views import render_rgb, render_seg
 
-    try:
-        sizes = [int(s) for s in args.bench.split(",")]
-        reader = get_reader(args.ldraw)
-        steps = read_steps(args.model, args.ldraw)
-    except (ValueError, LDrawError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    reader = get_reader(ldraw)
+    steps = read_steps(model, ldraw)
     every = [p for s in steps for p in s.parts]
     items = [Item(load_part(reader, p.part), p.colour, p.pose) for p in every]
     colours = colour_table(reader)
     framing = Framing.from_bounds(bounds_of(every, reader))
-    print(f"{args.model}: {len(steps)} steps, {len(every)} parts")
+    out = []
     for size in sizes:
         t = time.perf_counter()
         scene = scene_for([it.part for it in items], EDGE_PX * framing.height / size)
@@ -85,22 +82,41 @@ def _bench(args) -> int:
         render_seg(scene, items, colours, "Front", framing, size)
         setup = time.perf_counter() - t
         tris = sum(int(scene.model.mesh_facenum[scene.model.geom_dataid[g]]) for g in range(scene.model.ngeom))
-        line = [f"{size}px: scene + contexts {setup:.2f} s, {tris} triangles"]
+        row = {"model": Path(model).name, "steps": len(steps), "parts": len(every), "size": size,
+               "triangles": tris, "setup_s": round(setup, 2)}
         for kind, fn in (("rgb", render_rgb), ("seg", render_seg)):
             rates = []
-            for _ in range(3):
+            for _ in range(repeats):
                 t = time.perf_counter()
                 for v in ALL_VIEWS:
                     fn(scene, items, colours, v, framing, size)
                 rates.append(len(ALL_VIEWS) / (time.perf_counter() - t))
-            line.append(f"{kind} {max(rates):.1f} views/s (median {sorted(rates)[1]:.1f})")
+            row[f"{kind}_views_per_s"] = round(max(rates), 1)
+            row[f"{kind}_views_per_s_median"] = round(sorted(rates)[len(rates) // 2], 1)
         k = len(steps) // 2
         before = [p for s in steps[:k] for p in s.parts]
         t = time.perf_counter()
         render_step_full(before, list(steps[k].parts), size, reader=reader, bounds=bounds_of(every, reader),
                          scene_parts=every)
-        line.append(f"render_step {time.perf_counter() - t:.2f} s")
-        print(", ".join(line))
+        row["step_render_s"] = round(time.perf_counter() - t, 3)
+        out.append(row)
+    return out
+
+
+def _bench(args) -> int:
+    """Print `view_rates` of the model, one line per size."""
+    try:
+        sizes = [int(s) for s in args.bench.split(",")]
+        rows = view_rates(args.model, args.ldraw, sizes)
+    except (ValueError, LDrawError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{args.model}: {rows[0]['steps']} steps, {rows[0]['parts']} parts")
+    for r in rows:
+        print(f"{r['size']}px: scene + contexts {r['setup_s']:.2f} s, {r['triangles']} triangles, "
+              f"rgb {r['rgb_views_per_s']:.1f} views/s (median {r['rgb_views_per_s_median']:.1f}), "
+              f"seg {r['seg_views_per_s']:.1f} views/s (median {r['seg_views_per_s_median']:.1f}), "
+              f"render_step {r['step_render_s']:.2f} s")
     return 0
 
 

@@ -147,13 +147,25 @@ def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, 
     summary["wall_seconds"] = round(time.perf_counter() - t0, 3)
     summary["shards_built"] = len(todo)
     summary["shards_skipped"] = config.num_shards - len(todo)
+    summary["peak_rss_mb"] = _peak_rss_mb()
     write_atomic(out / "meta" / "timings.json", json_bytes({
         "wall_seconds_last_run": summary["wall_seconds"],
         "shards_built_last_run": len(todo),
+        "peak_rss_mb_last_run": summary["peak_rss_mb"],
         "stage_seconds_all_shards": summary["stage_seconds"],
         "note": "seconds are summed over worker processes; not part of the reproducible output",
     }))
     return summary
+
+
+def _peak_rss_mb() -> dict:
+    """Peak resident memory of this process and of its largest finished worker process (MB; Linux
+    reports KB). Ray workers are not children of this process and are not counted."""
+    import resource
+
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    child = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    return {"main": round(own, 1), "largest_worker": round(child, 1)}
 
 
 # -- metadata ----------------------------------------------------------------------------------------
@@ -239,4 +251,6 @@ def summary_line(summary: dict) -> str:
     return (f"{summary['dataset_id']}: {t['objects']} objects ({c['train']['objects']} train, "
             f"{c['test']['objects']} test), {t['steps']} steps ({c['train']['steps']} train, "
             f"{c['test']['steps']} test); {label}: {why}; wall {summary['wall_seconds']:.1f} s"
-            f"{resumed}; stage s (summed over workers): {stages}; {t['bytes'] / 1e6:.1f} MB in {summary['out']}")
+            f"{resumed}; stage s (summed over workers): {stages}; {t['bytes'] / 1e6:.1f} MB in {summary['out']}"
+            + (f"; peak RSS {summary['peak_rss_mb']['main']:.0f} MB main, "
+               f"{summary['peak_rss_mb']['largest_worker']:.0f} MB largest worker" if "peak_rss_mb" in summary else ""))

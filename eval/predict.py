@@ -1,0 +1,293 @@
+"""Answer every step of a dataset split with a model or a baseline; write the answers as JSONL.
+
+`python -m eval.predict --data OUT --model SPEC --out preds.jsonl [--split test]
+    [--tasks selection,pose] [--seed 0] [--limit N] [--feedback] [--max-new-tokens 256] [--device D]`
+
+SPEC is one of:
+
+- ``baseline:oracle``: the ground truth (a pipeline check: scores 1.0);
+- ``baseline:random``: chance (`eval.baselines.random_baseline`). Each step draws from its own
+  generator seeded by (seed, step id), so a step's answer does not depend on which other steps,
+  tasks or `--limit` were asked: the same seed writes the same file, byte for byte;
+- ``baseline:heuristic``: `eval.baselines.heuristic` with the step's catalog and the previous step
+  of the same object and assembly;
+- ``hf:PATH``: a local checkpoint folder, full model or LoRA adapter (`eval.hf.HFPredictor`).
+
+One line per answer, in dataset order: ``{"id": step id, "task": "selection" | "pose", "text": ...}``.
+`--limit N` answers the first N steps of the split. The file is written to a temporary file
+beside it and renamed into place, so an interrupted run never leaves a half file under the name.
+
+`--feedback` (the paper's world feedback, `eval.feedback`): a pose answer that parses and fails the
+step in paper mode is drawn in red on the before-assembly, and the model is asked again with that
+image and its per-brick errors; the second answer is written as an extra line with
+``"revised": true``. One revision per step. The baselines under feedback: the oracle is never
+wrong; random answers afresh (a new draw, seeded by (seed, step id, 1)); the heuristic sees nothing
+it uses in the feedback, so it gives the same answer again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import zlib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from eval import baselines
+from eval.chat import TASKS, columns_for, task_chat
+from eval.data import (
+    SPLITS,
+    TARGET_COLUMNS,
+    DatasetError,
+    catalog_of,
+    catalog_rows,
+    count_rows,
+    info,
+    iter_rows,
+    step_target,
+)
+from eval.feedback import Feedback, assembly_rows, before_rows, feedback_columns, feedback_example
+from eval.metrics import StepTarget
+from factory.cli import run_guarded
+
+BASELINES = ("baseline:random", "baseline:oracle", "baseline:heuristic")
+MODEL_CHOICES = (*BASELINES, "hf:PATH")
+
+
+class ModelSpecError(ValueError):
+    """A --model value that names no predictor."""
+
+
+@dataclass
+class StepContext:
+    """What a predictor may use to answer one step: the row and its object's history."""
+
+    row: dict
+    target: StepTarget
+    previous: StepTarget | None
+    """The previous step of the same object and assembly (None at its first step)."""
+    object_rows: list[dict] = field(default_factory=list)
+    """Every row of the step's object (the feedback render's before-assembly and framing)."""
+
+
+class Predictor:
+    """Answers the tasks of a step, and revises a pose answer given world feedback."""
+
+    needs_chat = False
+    """Whether `answer` reads the prompt messages and images (the row's task columns)."""
+
+    def answer(self, ctx: StepContext, task: str) -> str:
+        raise NotImplementedError
+
+    def revise(self, ctx: StepContext, feedback: Feedback, first: str) -> str:
+        raise NotImplementedError
+
+
+class OraclePredictor(Predictor):
+    def answer(self, ctx, task):
+        return baselines.oracle(ctx.target)[task]
+
+    def revise(self, ctx, feedback, first):
+        return baselines.oracle(ctx.target)["pose"]
+
+
+class RandomPredictor(Predictor):
+    def __init__(self, seed: int = 0):
+        self.seed = int(seed)
+
+    def _draw(self, ctx, attempt: int) -> dict:
+        key = zlib.crc32(ctx.row["step_id"].encode())
+        rng = np.random.default_rng([self.seed, key, attempt])
+        return baselines.random_baseline(ctx.target, rng, catalog_rows(ctx.row))
+
+    def answer(self, ctx, task):
+        return self._draw(ctx, 0)[task]
+
+    def revise(self, ctx, feedback, first):
+        return self._draw(ctx, 1)["pose"]
+
+
+class HeuristicPredictor(Predictor):
+    def answer(self, ctx, task):
+        return baselines.heuristic(ctx.target, ctx.previous, catalog_of(ctx.row))[task]
+
+    def revise(self, ctx, feedback, first):
+        return first  # nothing in the feedback is an input of the heuristic
+
+
+class ModelPredictor(Predictor):
+    """An `eval.hf.HFPredictor` (or anything with its `predict(messages, images, max_new_tokens)`)."""
+
+    needs_chat = True
+
+    def __init__(self, model, max_new_tokens: int = 256):
+        self.model, self.max_new_tokens = model, int(max_new_tokens)
+
+    def answer(self, ctx, task):
+        messages, images, _ = task_chat(ctx.row, task)
+        return self.model.predict(messages, images, self.max_new_tokens)
+
+    def revise(self, ctx, feedback, first):
+        return self.model.predict(feedback.messages, feedback.images, self.max_new_tokens)
+
+
+def make_predictor(spec: str, seed: int = 0, max_new_tokens: int = 256, device: str | None = None) -> Predictor:
+    """The predictor named by a --model value (see the module docstring)."""
+    if spec == "baseline:oracle":
+        return OraclePredictor()
+    if spec == "baseline:random":
+        return RandomPredictor(seed)
+    if spec == "baseline:heuristic":
+        return HeuristicPredictor()
+    if spec.startswith("hf:") and len(spec) > 3:
+        from eval.hf import HFPredictor
+
+        return ModelPredictor(HFPredictor.from_path(spec[3:], device=device), max_new_tokens)
+    raise ModelSpecError(f"unknown model {spec!r}; valid: {', '.join(MODEL_CHOICES)}")
+
+
+def parse_tasks(value: str) -> tuple[str, ...]:
+    tasks = tuple(dict.fromkeys(t.strip() for t in value.split(",") if t.strip()))
+    bad = [t for t in tasks if t not in TASKS]
+    if bad or not tasks:
+        raise ModelSpecError(f"unknown task(s) {', '.join(bad) or repr(value)}; valid: {', '.join(TASKS)}")
+    return tasks
+
+
+def _objects(rows) -> Iterator[list[dict]]:
+    """Consecutive rows of one object as a list (a row group holds one object)."""
+    group: list[dict] = []
+    for row in rows:
+        if group and row["object_id"] != group[0]["object_id"]:
+            yield group
+            group = []
+        group.append(row)
+    if group:
+        yield group
+
+
+def iter_predictions(data, predictor: Predictor, split: str | None = "test", tasks=TASKS,
+                     limit: int | None = None, feedback: bool = False, progress: bool = False) -> Iterator[dict]:
+    """The answer records of the split's steps (`split` None: every split), in dataset order."""
+    tasks = tuple(tasks)
+    columns = list(TARGET_COLUMNS)
+    if predictor.needs_chat:
+        columns += [c for t in tasks for c in columns_for(t)]
+    reader = size = None
+    if feedback and "pose" in tasks:
+        columns += feedback_columns()
+        from factory.ldraw import get_reader
+
+        config = info(data)["config"]
+        reader, size = get_reader(config.get("ldraw")), int(config["size"])
+    columns = list(dict.fromkeys(columns))
+    total = count_rows(data, split)
+    total = min(total, limit) if limit is not None else total
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, unit="step", desc="predict", disable=not progress, file=sys.stderr)
+    done = 0
+    try:
+        for rows in _objects(iter_rows(data, split, columns)):
+            previous: dict[str, StepTarget] = {}
+            for row in rows:
+                if done >= total:
+                    return
+                target = step_target(row)
+                ctx = StepContext(row, target, previous.get(row["assembly"]), rows)
+                previous[row["assembly"]] = target
+                for task in tasks:
+                    text = predictor.answer(ctx, task)
+                    yield {"id": row["step_id"], "task": task, "text": text}
+                    if task == "pose" and reader is not None:
+                        fb = feedback_example(row, text, before_rows(rows, row), reader, size,
+                                              scene=assembly_rows(rows, row))
+                        if fb is not None:
+                            yield {"id": row["step_id"], "task": "pose", "text": predictor.revise(ctx, fb, text),
+                                   "revised": True}
+                done += 1
+                bar.update(1)
+            if reader is not None:
+                from factory.render.scene import clear_cache
+
+                clear_cache()  # free the object's render scenes before the next object
+    finally:
+        bar.close()
+
+
+def write_predictions(data, predictor: Predictor, out, split: str | None = "test", tasks=TASKS,
+                      limit: int | None = None, feedback: bool = False, progress: bool = False) -> dict:
+    """Write `iter_predictions` to `out` atomically; returns {"lines", "steps", "revised", "path"}."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+    summary = {"lines": 0, "steps": 0, "revised": 0, "path": str(out)}
+    steps = set()
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            for rec in iter_predictions(data, predictor, split, tasks, limit, feedback, progress):
+                f.write(json.dumps(rec, ensure_ascii=False) + "\n")
+                summary["lines"] += 1
+                summary["revised"] += bool(rec.get("revised"))
+                steps.add(rec["id"])
+        os.replace(tmp, out)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    summary["steps"] = len(steps)
+    return summary
+
+
+def predict_file(data, model, out, split: str | None = "test", tasks=TASKS, seed: int = 0,
+                 limit: int | None = None, feedback: bool = False, max_new_tokens: int = 256, device: str | None = None,
+                 progress: bool = False) -> dict:
+    """The command line as a function: `model` is a --model value or a `Predictor`; `split` None
+    answers every split. Returns `write_predictions`'s summary."""
+    predictor = model if isinstance(model, Predictor) else make_predictor(model, seed, max_new_tokens, device)
+    return write_predictions(data, predictor, out, split, tasks, limit, feedback, progress)
+
+
+def run(args) -> int:
+    if args.limit is not None and args.limit < 0:
+        raise ModelSpecError("--limit must be >= 0")
+    if Path(args.out).is_dir():
+        raise ModelSpecError(f"--out {args.out} is a folder; give a file name (preds.jsonl)")
+    tasks = parse_tasks(args.tasks)
+    info(args.data)  # a clear error before a model is loaded
+    predictor = make_predictor(args.model, args.seed, args.max_new_tokens, args.device)
+    summary = write_predictions(args.data, predictor, args.out, args.split, tasks, args.limit, args.feedback,
+                                progress=not args.no_progress)
+    print(f"wrote {summary['lines']} answers for {summary['steps']} steps"
+          + (f" ({summary['revised']} revised after feedback)" if args.feedback else "")
+          + f" to {summary['path']}", file=sys.stderr)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    from eval.hf import CheckpointError
+
+    ap = argparse.ArgumentParser(prog="python -m eval.predict", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", required=True, help="dataset folder (make synth / pipelines.designs output)")
+    ap.add_argument("--model", required=True, help=f"one of: {', '.join(MODEL_CHOICES)}")
+    ap.add_argument("--out", required=True, help="predictions file to write (JSONL)")
+    ap.add_argument("--split", default="test", choices=SPLITS, help="default: test")
+    ap.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks (default: selection,pose)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of baseline:random (default 0)")
+    ap.add_argument("--limit", type=int, help="answer only the first N steps")
+    ap.add_argument("--feedback", action="store_true", help="revise failed pose answers with world feedback")
+    ap.add_argument("--max-new-tokens", type=int, default=256, help="hf: longest answer in tokens (default 256)")
+    ap.add_argument("--device", help="hf: torch device (default: cuda when available, else cpu)")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    args = ap.parse_args(argv)
+    return run_guarded(lambda: run(args), {DatasetError: 2, ModelSpecError: 2, CheckpointError: 2})
+
+
+if __name__ == "__main__":
+    sys.exit(main())

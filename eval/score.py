@@ -1,0 +1,185 @@
+"""Score a predictions file against a dataset split: BC-Bench metrics in strict and paper modes.
+
+`python -m eval.score --data OUT --pred preds.jsonl [--split test] [--mode strict|paper|both] [--json]`
+
+The predictions file is what `eval.predict` writes: one JSON object per line,
+``{"id": step id, "task": "selection" | "pose", "text": answer}``, and optionally
+``"revised": true`` on a pose answer given after world feedback. Blank lines are skipped. A line
+that is not such an object, names an unknown task or a step id not in the split, or repeats an
+(id, task) (or a revised pose) is an error naming the file and line (exit 2): a file that silently
+scores fewer answers than it holds would misreport a model. Steps without an answer count as wrong
+(`eval.metrics.score` counts them in ``missing_predictions``).
+
+Output (the same shape for every `--mode`, so callers need no special case): a dict keyed by mode
+(``strict``, ``paper``, or both), each the `eval.metrics.score` result (``overall``,
+``best_object``, ``counts``, ``mode``; rates are fractions in [0, 1], errors in LDU and degrees),
+plus ``split``. When the file holds revised answers, ``feedback`` holds the same metrics by mode
+over the answers after revision: a revised step is scored with its revised pose (and its original
+selection); a step that was not revised keeps its original answers (a right answer, or one that
+does not parse, gets no feedback: `eval.feedback`). ``feedback.revised_steps`` counts revised
+steps, ``feedback.fixed[mode]`` those of them that fail with the original pose and succeed with
+the revised one.
+Without `--json`, a short table is printed instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from eval.chat import TASKS
+from eval.data import SPLITS, DatasetError, load_targets
+from eval.metrics import MODES, score, score_step
+from factory.cli import run_guarded
+
+MODE_CHOICES = (*MODES, "both")
+
+
+class PredictionsError(ValueError):
+    """A predictions file that cannot be scored as written."""
+
+
+def read_predictions(path, step_ids) -> tuple[dict, dict]:
+    """(answers {(id, task): text}, revised pose answers {id: text}) of a predictions file.
+
+    Every line is checked against the rules of the module docstring; the first bad one raises
+    `PredictionsError` naming ``path:line``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise PredictionsError(f"{path}: no such predictions file")
+    known = set(step_ids)
+    answers: dict[tuple[str, str], str] = {}
+    revised: dict[str, str] = {}
+    revised_line: dict[str, int] = {}
+    with path.open(encoding="utf-8", errors="replace") as f:
+        for n, line in enumerate(f, 1):
+            if not line.strip():
+                continue
+            where = f"{path}:{n}"
+            try:
+                rec = json.loads(line)
+            except json.JSONDecodeError as exc:
+                raise PredictionsError(f"{where}: not JSON ({exc.msg})") from None
+            if not isinstance(rec, dict):
+                raise PredictionsError(f"{where}: expected a JSON object with id, task and text")
+            missing = [k for k in ("id", "task", "text") if k not in rec]
+            if missing:
+                raise PredictionsError(f"{where}: missing key(s) {', '.join(missing)}")
+            sid, task, text = rec["id"], rec["task"], rec["text"]
+            if not isinstance(sid, str):
+                raise PredictionsError(f"{where}: id must be a string, got {sid!r}")
+            if task not in TASKS:
+                raise PredictionsError(f"{where}: unknown task {task!r}; valid: {', '.join(TASKS)}")
+            if not isinstance(text, str):
+                raise PredictionsError(f"{where}: text must be a string, got {type(text).__name__}")
+            if sid not in known:
+                raise PredictionsError(f"{where}: step id {sid!r} is not in the split")
+            is_revised = rec.get("revised", False)
+            if is_revised not in (True, False):
+                raise PredictionsError(f"{where}: revised must be true or false, got {is_revised!r}")
+            if is_revised:
+                if task != "pose":
+                    raise PredictionsError(f"{where}: only pose answers are revised, got task {task!r}")
+                if sid in revised:
+                    raise PredictionsError(f"{where}: second revised pose for {sid!r}")
+                revised[sid], revised_line[sid] = text, n
+            else:
+                if (sid, task) in answers:
+                    raise PredictionsError(f"{where}: second {task} answer for {sid!r}")
+                answers[(sid, task)] = text
+    for sid, n in revised_line.items():
+        if (sid, "pose") not in answers:
+            raise PredictionsError(f"{path}:{n}: revised pose for {sid!r} without an original pose answer")
+    return answers, revised
+
+
+def _modes(mode: str) -> tuple[str, ...]:
+    if mode not in MODE_CHOICES:
+        raise PredictionsError(f"unknown mode {mode!r}; valid: {', '.join(MODE_CHOICES)}")
+    return MODES if mode == "both" else (mode,)
+
+
+def score_predictions(steps, answers: dict, revised: dict | None = None, mode: str = "both") -> dict:
+    """Metrics by mode of `answers` {(id, task): text} over `steps` (`StepTarget`s), and with
+    `revised` {id: revised pose text} a ``feedback`` section (see the module docstring); revised
+    answers of ids not in `steps` are ignored, as `eval.metrics.score` ignores such answers."""
+    modes = _modes(mode)
+    result: dict = {m: score(steps, answers, m) for m in modes}
+    by_id = {s.id: s for s in steps}
+    revised = {sid: text for sid, text in (revised or {}).items() if sid in by_id}
+    if revised:
+        after = {**answers, **{(sid, "pose"): text for sid, text in revised.items()}}
+        fixed = {}
+        for m in modes:
+            fixed[m] = sum(
+                not score_step(by_id[sid], answers.get((sid, "selection")), answers.get((sid, "pose")), m).success
+                and score_step(by_id[sid], answers.get((sid, "selection")), text, m).success
+                for sid, text in revised.items())
+        result["feedback"] = {"revised_steps": len(revised), "fixed": fixed,
+                              **{m: score(steps, after, m) for m in modes}}
+    return result
+
+
+def score_file(data, pred_path, split: str | None = "test", mode: str = "both") -> dict:
+    """Score a predictions file against `split` (None: every split) of the dataset folder `data`."""
+    _modes(mode)  # a bad mode fails before the dataset is read
+    steps = load_targets(data, split)
+    answers, revised = read_predictions(pred_path, [s.id for s in steps])
+    return {"split": split, **score_predictions(steps, answers, revised, mode)}
+
+
+def _fmt(v, spec: str) -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def format_table(result: dict) -> str:
+    """A short human-readable summary of a `score_file` result."""
+    modes = [m for m in MODES if m in result]
+    first = result[modes[0]]["counts"]
+    lines = [(f"split {result.get('split') or 'all'}: {first['steps']} steps of {first['objects']} objects; "
+              f"missing answers {first['missing_predictions']}, unparseable {first['unparseable']}")]
+    head = f"{'':<24}{'selection':>10}{'step ok':>10}{'transl LDU':>12}{'rot deg':>10}"
+
+    def block(res: dict, title: str) -> list[str]:
+        out = [title, head]
+        for m in modes:
+            for label, row in (("overall", res[m]["overall"]), ("best object", res[m]["best_object"])):
+                out.append(f"{m + ' ' + label:<24}{_fmt(row['selection_accuracy'], '.3f'):>10}"
+                           f"{_fmt(row['step_success'], '.3f'):>10}{_fmt(row['translation_error_ldu'], '.2f'):>12}"
+                           f"{_fmt(row['rotation_error_deg'], '.2f'):>10}")
+        return out
+
+    lines += block(result, "")
+    fb = result.get("feedback")
+    if fb:
+        fixed = ", ".join(f"{m} {fb['fixed'][m]}" for m in modes)
+        lines += block(fb, f"\nafter world feedback ({fb['revised_steps']} steps revised; fixed: {fixed})")
+    return "\n".join(line for line in lines if line != "")
+
+
+def run(args) -> int:
+    result = score_file(args.data, args.pred, args.split, args.mode)
+    if args.json:
+        print(json.dumps(result, indent=1, sort_keys=True))
+    else:
+        print(format_table(result))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m eval.score", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", required=True, help="dataset folder")
+    ap.add_argument("--pred", required=True, help="predictions file (JSONL, eval.predict's output)")
+    ap.add_argument("--split", default="test", choices=SPLITS, help="default: test")
+    ap.add_argument("--mode", default="both", choices=MODE_CHOICES, help="correctness thresholds (default: both)")
+    ap.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    args = ap.parse_args(argv)
+    return run_guarded(lambda: run(args), {DatasetError: 2, PredictionsError: 2})
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,361 @@
+"""`make bench`: one report of what the factory does per second and how the baselines score.
+
+`python -m pipelines.bench [--out bench] [--ldraw DIR] [--models FILE ...] [--quick]`
+
+Sections, each timed and written as soon as it ends (a later failure loses nothing before it):
+
+- machine: CPU count, GPU (through JAX or torch when they see one), package versions;
+- physics: candidate checks per second per backend present (`mujoco` always; `mjx` when JAX is
+  installed; larger batches when a GPU is present), from `pipelines.bench_physics.measure`;
+- render: views per second of the embedded example model and, where given, of human designs;
+- synth: a small `make synth` build end to end (steps per second, per-stage seconds, bytes);
+- evaluation: the baselines (`oracle`, `heuristic`, `random`, and `random` revised under world
+  feedback) scored on that build's test split and on the human designs, both modes.
+
+Outputs: `OUT/report.json`, `OUT/report.md`, `OUT/physics.png`, `OUT/render.png`, `OUT/eval.png`, and
+the work folders under `OUT/work/` (the datasets and prediction files, reused by a re-run: the
+dataset builder resumes). The defaults take about 10 minutes on a 2-core CPU.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from importlib import metadata
+from pathlib import Path
+
+from factory.cli import run_guarded
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "factory" / "data" / "examples" / "tower.mpd"
+SHARED = ROOT.parent / "shared"
+BASELINES = ("oracle", "heuristic", "random")
+PACKAGES = ("numpy", "mujoco", "mujoco-mjx", "jax", "coacd", "trimesh", "pyarrow", "torch", "transformers")
+
+
+def _atomic_write(path: Path, data: str | bytes) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_bytes(data.encode() if isinstance(data, str) else data)
+    os.replace(tmp, path)
+
+
+def _version(name: str) -> str | None:
+    try:
+        return metadata.version(name)
+    except metadata.PackageNotFoundError:
+        return None
+
+
+def gpu_name() -> str | None:
+    """The first GPU JAX or torch can see, else None (never initialises CUDA when neither is installed)."""
+    try:
+        import jax
+
+        gpus = [d for d in jax.devices() if d.platform == "gpu"]
+        if gpus:
+            return str(getattr(gpus[0], "device_kind", gpus[0]))
+    except Exception:  # no JAX, or JAX without a GPU backend
+        pass
+    try:
+        import torch
+
+        if torch.cuda.is_available():
+            return torch.cuda.get_device_name(0)
+    except Exception:
+        pass
+    return None
+
+
+def machine() -> dict:
+    return {
+        "node": platform.node(), "processor": platform.processor() or platform.machine(),
+        "cpus": os.cpu_count(), "python": platform.python_version(), "gpu": gpu_name(),
+        "mujoco_gl": os.environ.get("MUJOCO_GL"),
+        "packages": {p: _version(p) for p in PACKAGES},
+    }
+
+
+def physics_section(gpu: bool, quick: bool) -> dict:
+    from pipelines.bench_physics import measure
+
+    backends = ["mujoco"]
+    if _version("mujoco-mjx") and _version("jax"):
+        backends.append("mjx")
+    sizes = [10] if quick else [10, 30]
+    batches = [256, 4096] if gpu else [256]
+    rows = measure(backends, sizes, batches, log=lambda r: print(f"  physics {json.dumps(r)}", flush=True))
+    return {"backends": backends, "rows": rows,
+            "note": "candidates of a 2x4 brick on grown 2x4-brick structures; rollouts_per_s is the "
+                    "0.5 s stability rollout alone, checks_per_s the whole check (connection, contacts, "
+                    "clutch, rollout)"}
+
+
+def render_section(models: list[tuple[Path, str | None]]) -> dict:
+    from pipelines.render import view_rates
+
+    rows = []
+    for model, ldraw in models:
+        for r in view_rates(model, ldraw, [256]):
+            print(f"  render {json.dumps(r)}", flush=True)
+            rows.append(r)
+    return {"rows": rows}
+
+
+def synth_section(work: Path, quick: bool) -> dict:
+    """A small synthetic build: objects of 6-10 bricks so that it runs in about a minute here."""
+    from pipelines.dataset import build
+    from pipelines.synth import config_from_args
+
+    n = 5 if quick else 10
+    ns = argparse.Namespace(n=n, seed=0, min_steps=6, max_steps=10, candidates=None, parts=None,
+                            check_backend="mujoco", size=256, tile=128, objects_per_shard=1, ldraw=None,
+                            dataset_id="bench-synth")
+    out = work / "synth"
+    summary = build(config_from_args(ns), out, workers=min(2, os.cpu_count() or 1), progress=False)
+    steps = summary["total"]["steps"]
+    built = summary["shards_built"]
+    return {
+        "out": str(out), "objects": summary["total"]["objects"], "steps": steps,
+        "bytes": summary["total"]["bytes"], "counts": summary["counts"],
+        "wall_s": summary["wall_seconds"], "stage_seconds": summary["stage_seconds"],
+        "steps_per_s": round(steps / summary["wall_seconds"], 3) if built == summary["total"]["objects"] else None,
+        "resumed": built < summary["total"]["objects"],
+        "config": "objects of 6-10 bricks, 256 px views, 128 px catalog tiles, seed 0",
+    }
+
+
+def designs_section(work: Path, models: list[Path], ldraw: str) -> dict:
+    from pipelines.dataset import build
+    from pipelines.designs import config_from_args
+
+    ns = argparse.Namespace(models=[str(m) for m in models], seed=0, no_physics=False, ldraw=ldraw,
+                            size=256, tile=128, objects_per_shard=1, dataset_id="bench-designs")
+    out = work / "designs"
+    summary = build(config_from_args(ns), out, workers=1, progress=False)
+    return {"out": str(out), "objects": summary["total"]["objects"], "steps": summary["total"]["steps"],
+            "wall_s": summary["wall_seconds"], "counts": summary["counts"]}
+
+
+def evaluation_section(datasets: dict[str, tuple[str, str | None]], work: Path) -> dict:
+    """Baselines on each dataset (name -> (folder, split)), both modes, plus random under feedback."""
+    from eval.predict import predict_file
+    from eval.score import score_file
+
+    out = {}
+    for name, (folder, split) in datasets.items():
+        res = {}
+        for model in BASELINES:
+            preds = work / f"preds-{name}-{model}.jsonl"
+            feedback = model == "random"
+            t = time.perf_counter()
+            predict_file(folder, f"baseline:{model}", preds, split=split, seed=0, feedback=feedback,
+                         progress=False)
+            seconds = time.perf_counter() - t
+            res[model] = {"scores": score_file(folder, preds, split=split, mode="both"),
+                          "predict_s": round(seconds, 2)}
+            print(f"  eval {name} {model}: {_headline(res[model]['scores'])}", flush=True)
+        out[name] = {"data": folder, "split": split or "all", "baselines": res}
+    return out
+
+
+def _headline(scores: dict) -> str:
+    p = scores["paper"]["overall"]
+    return (f"selection {_fmt(p['selection_accuracy'])}, step success (paper) {_fmt(p['step_success'])}, "
+            f"strict {_fmt(scores['strict']['overall']['step_success'])}")
+
+
+def _fmt(v, digits: int = 3) -> str:
+    return "-" if v is None else f"{v:.{digits}f}"
+
+
+# -- report ---------------------------------------------------------------------------------------
+
+
+def plots(report: dict, out: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    written = []
+    phys = report.get("physics", {}).get("rows", [])
+    if phys:
+        fig, ax = plt.subplots(figsize=(6, 3.5))
+        keys = sorted({(r["backend"], r["batch"]) for r in phys})
+        for backend, batch in keys:
+            rs = [r for r in phys if r["backend"] == backend and r["batch"] == batch]
+            ax.plot([r["bricks"] for r in rs], [r["checks_per_s"] for r in rs], marker="o",
+                    label=f"{backend}, batch {batch}")
+        ax.set_xlabel("bricks in the structure")
+        ax.set_ylabel("candidate checks / s")
+        ax.set_yscale("log")
+        ax.set_title("Physics checker throughput")
+        ax.legend()
+        fig.tight_layout()
+        fig.savefig(out / "physics.png", dpi=100)
+        plt.close(fig)
+        written.append("physics.png")
+    rend = report.get("render", {}).get("rows", [])
+    if rend:
+        fig, ax = plt.subplots(figsize=(6, 3.5))
+        labels = [f"{r['model']}\n({r['parts']} parts)" for r in rend]
+        x = range(len(rend))
+        ax.bar([i - 0.2 for i in x], [r["rgb_views_per_s"] for r in rend], 0.4, label="RGB")
+        ax.bar([i + 0.2 for i in x], [r["seg_views_per_s"] for r in rend], 0.4, label="segmentation")
+        ax.set_xticks(list(x), labels)
+        ax.set_ylabel("views / s at 256 px")
+        ax.set_title("Render throughput")
+        ax.legend()
+        fig.tight_layout()
+        fig.savefig(out / "render.png", dpi=100)
+        plt.close(fig)
+        written.append("render.png")
+    ev = report.get("evaluation", {})
+    if ev:
+        fig, axes = plt.subplots(1, len(ev), figsize=(5 * len(ev), 3.5), squeeze=False)
+        for ax, (name, e) in zip(axes[0], ev.items()):
+            models = list(e["baselines"])
+            metrics = [("selection", lambda s: s["paper"]["overall"]["selection_accuracy"]),
+                       ("success paper", lambda s: s["paper"]["overall"]["step_success"]),
+                       ("success strict", lambda s: s["strict"]["overall"]["step_success"])]
+            w = 0.8 / len(metrics)
+            for j, (label, get) in enumerate(metrics):
+                ax.bar([i + (j - 1) * w for i in range(len(models))],
+                       [get(e["baselines"][m]["scores"]) or 0.0 for m in models], w, label=label)
+            ax.set_xticks(range(len(models)), models)
+            ax.set_ylim(0, 1.05)
+            ax.set_title(f"Baselines on {name} ({e['split']})")
+        axes[0][0].legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(out / "eval.png", dpi=100)
+        plt.close(fig)
+        written.append("eval.png")
+    return written
+
+
+def markdown(report: dict) -> str:
+    m = report["machine"]
+    lines = ["# Brick Factory benchmark", "",
+             f"Machine: {m['cpus']} CPUs ({m['processor']}), GPU: {m['gpu'] or 'none'}, "
+             f"Python {m['python']}, MUJOCO_GL={m['mujoco_gl']}. Total {report['wall_s']:.0f} s.", ""]
+    if "physics" in report:
+        lines += ["## Physics checker", "", report["physics"]["note"] + ".", "",
+                  "| backend | bricks | batch | checks/s | rollouts/s | accepted | compile s |",
+                  "|---|---:|---:|---:|---:|---:|---:|"]
+        for r in report["physics"]["rows"]:
+            lines.append(f"| {r['backend']} | {r['bricks']} | {r['batch']} | {r['checks_per_s']} | "
+                         f"{r['rollouts_per_s']} | {r['accepted']} | {r['compile_s']} |")
+        lines += ["", "![physics](physics.png)", ""]
+    if "render" in report:
+        lines += ["## Renders", "", "Best of 3 passes over 7 views (6 orthographic, 1 isometric) at 256 px; "
+                  "a step render is every image of one step except the catalog.", "",
+                  "| model | parts | RGB views/s | segmentation views/s | step render s |",
+                  "|---|---:|---:|---:|---:|"]
+        for r in report["render"]["rows"]:
+            lines.append(f"| {r['model']} | {r['parts']} | {r['rgb_views_per_s']} | {r['seg_views_per_s']} | "
+                         f"{r['step_render_s']} |")
+        lines += ["", "![render](render.png)", ""]
+    if "synth" in report:
+        s = report["synth"]
+        stages = ", ".join(f"{k} {v} s" for k, v in s["stage_seconds"].items())
+        rate = f"{s['steps_per_s']} steps/s" if s["steps_per_s"] is not None else "resumed, rate not measured"
+        lines += ["## End to end (`make synth`)", "",
+                  f"{s['objects']} objects ({s['config']}): {s['steps']} steps "
+                  f"({s['counts']['train']['steps']} train, {s['counts']['test']['steps']} test), "
+                  f"{s['bytes'] / 1e6:.1f} MB, wall {s['wall_s']} s, {rate}. Stage seconds summed over "
+                  f"workers: {stages}.", ""]
+    if "designs" in report:
+        d = report["designs"]
+        lines += [f"Human designs: {d['objects']} models, {d['steps']} steps, built in {d['wall_s']} s.", ""]
+    if "evaluation" in report:
+        lines += ["## Baselines", "",
+                  "`paper`: per-axis |dt| <= 10 LDU and rotation < 45 degrees; `strict`: within 0.5 LDU and "
+                  "1 degree. Overall = mean over objects of per-object means. `random + feedback`: the random "
+                  "baseline's pose answers after one world-feedback revision.", ""]
+        for name, e in report["evaluation"].items():
+            lines += [f"### {name} ({e['split']} split)", "",
+                      "| model | selection | transl. err LDU | rot. err deg | success paper | success strict | "
+                      "unparseable |", "|---|---:|---:|---:|---:|---:|---:|"]
+            for model, r in e["baselines"].items():
+                sc = r["scores"]
+                p, s = sc["paper"], sc["strict"]
+                lines.append(f"| {model} | {_fmt(p['overall']['selection_accuracy'])} | "
+                             f"{_fmt(p['overall']['translation_error_ldu'], 1)} | "
+                             f"{_fmt(p['overall']['rotation_error_deg'], 1)} | {_fmt(p['overall']['step_success'])} | "
+                             f"{_fmt(s['overall']['step_success'])} | {p['counts']['unparseable']} |")
+                fb = p.get("feedback")
+                if fb:
+                    lines.append(f"| {model} + feedback | - | {_fmt(fb['overall']['translation_error_ldu'], 1)} | "
+                                 f"{_fmt(fb['overall']['rotation_error_deg'], 1)} | "
+                                 f"{_fmt(fb['overall']['step_success'])} | "
+                                 f"{_fmt(sc['strict'].get('feedback', {}).get('overall', {}).get('step_success'))} | - |")
+            lines.append("")
+        lines += ["![baselines](eval.png)", ""]
+    lines += ["Sections and their seconds: " + ", ".join(f"{k} {v:.0f}" for k, v in report["section_s"].items()), ""]
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    out = Path(args.out)
+    work = out / "work"
+    work.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    report: dict = {"schema_version": 1, "machine": machine(), "section_s": {}}
+    gpu = report["machine"]["gpu"] is not None
+    ldraw = args.ldraw or (str(SHARED / "ldraw") if (SHARED / "ldraw" / "parts").is_dir() else None)
+    models = [Path(m) for m in args.models] if args.models is not None else sorted(
+        p for p in (SHARED / "ldraw_models").glob("*") if p.suffix.lower() in (".ldr", ".mpd"))
+    if models and ldraw is None:
+        print("bench: human designs need an LDraw library (--ldraw or ../shared/ldraw); skipping them",
+              file=sys.stderr)
+        models = []
+    report["designs_models"] = [str(m) for m in models]
+
+    def section(name, fn):
+        print(f"bench: {name} ...", flush=True)
+        t = time.perf_counter()
+        report[name] = fn()
+        report["section_s"][name] = round(time.perf_counter() - t, 1)
+        report["wall_s"] = round(time.perf_counter() - t0, 1)
+        _atomic_write(out / "report.json", json.dumps(report, indent=1))
+
+    section("physics", lambda: physics_section(gpu, args.quick))
+    render_models = [(EXAMPLE, None)] + ([(m, ldraw) for m in models] if not args.quick else [])
+    section("render", lambda: render_section(render_models))
+    section("synth", lambda: synth_section(work, args.quick))
+    datasets = {"synthetic": (report["synth"]["out"], "test")}
+    if models:
+        section("designs", lambda: designs_section(work, models, ldraw))
+        datasets["designs"] = (report["designs"]["out"], None)
+    section("evaluation", lambda: evaluation_section(datasets, work))
+    report["wall_s"] = round(time.perf_counter() - t0, 1)
+    report["plots"] = plots(report, out)
+    _atomic_write(out / "report.json", json.dumps(report, indent=1))
+    _atomic_write(out / "report.md", markdown(report))
+    print(f"bench: wrote {out / 'report.md'} and {out / 'report.json'} in {report['wall_s']:.0f} s")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m pipelines.bench", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default="bench", help="report folder (default bench)")
+    ap.add_argument("--ldraw", help="LDraw library for the human designs (default ../shared/ldraw when present)")
+    ap.add_argument("--models", nargs="*", help="human-designed models to render and evaluate "
+                    "(default: ../shared/ldraw_models/*.ldr|*.mpd when present)")
+    ap.add_argument("--quick", action="store_true", help="smaller sections (a smoke run, for tests)")
+    args = ap.parse_args(argv)
+    from eval.data import DatasetError
+    from factory.sampler import SamplerConfigError
+    from pipelines.dataset import ConfigMismatchError
+
+    return run_guarded(lambda: run(args), {DatasetError: 2, ConfigMismatchError: 2, SamplerConfigError: 2,
+                                           OSError: 2})
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,281 @@
+"""The trainer on the session's tiny dataset with the tiny Qwen2-VL: answer-only labels, learning,
+exact resume, refusal of a changed config, world-feedback rows, and the command end to end."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("transformers")
+pytest.importorskip("peft")
+
+END = "<|im_end|>"
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tiny_dataset, tmp_path_factory):
+    from train.tiny import build_tiny_model, dataset_texts
+
+    return build_tiny_model(tmp_path_factory.mktemp("tiny") / "base", dataset_texts([tiny_dataset]), seed=0)
+
+
+@pytest.fixture(scope="module")
+def processor(tiny_model):
+    from train.processor import load_processor
+
+    return load_processor(tiny_model)
+
+
+def _first_row(dataset, split="train"):
+    from eval.data import iter_rows
+
+    return next(iter_rows(dataset, split))
+
+
+def _labelled(processor, ex) -> str:
+    return processor.tokenizer.decode(ex["input_ids"][ex["labels"] != -100])
+
+
+def _base_cfg(dataset, outdir, **kw):
+    from train.config import TrainConfig
+
+    args = dict(data=(str(dataset),), outdir=str(outdir), steps=4, batch_size=2, save_every=2, keep_checkpoints=0,
+                lr=1e-3, warmup=1, eval=False, seed=0, workers=0)
+    args.update(kw)
+    return TrainConfig(**args)
+
+
+def test_tiny_model_loads_back_and_is_deterministic(tiny_dataset, tiny_model, tmp_path):
+    from transformers import AutoModelForImageTextToText
+
+    from train.tiny import SPECIAL_TOKENS, build_tiny_model, dataset_texts
+
+    again = build_tiny_model(tmp_path / "again", dataset_texts([tiny_dataset]), seed=0)
+    for name in ("model.safetensors", "tokenizer.json", "config.json"):
+        assert (again / name).read_bytes() == (tiny_model / name).read_bytes(), name
+    model = AutoModelForImageTextToText.from_pretrained(str(tiny_model))
+    from train.processor import load_processor
+
+    tok = load_processor(tiny_model).tokenizer
+    ids = {t: tok.convert_tokens_to_ids(t) for t in SPECIAL_TOKENS}
+    assert model.config.image_token_id == ids["<|image_pad|>"]
+    assert model.config.vision_start_token_id == ids["<|vision_start|>"]
+    assert tok.eos_token == END and model.config.text_config.eos_token_id == ids[END]
+    assert 0.2e6 < sum(p.numel() for p in model.parameters()) < 20e6
+
+
+@pytest.mark.parametrize("task", ["selection", "pose"])
+def test_labels_cover_exactly_the_answer(tiny_dataset, processor, task):
+    from eval.chat import task_chat
+    from train.data import encode
+
+    messages, images, answer = task_chat(_first_row(tiny_dataset), task, with_answer=True)
+    ex = encode(processor, messages, images, max_length=4096)
+    assert _labelled(processor, ex) == answer + END
+    mask = (ex["labels"] != -100).nonzero().flatten().tolist()
+    assert mask == list(range(mask[0], mask[-1] + 1))  # one contiguous span
+    assert mask[-1] == len(ex["input_ids"]) - 2  # the trailing newline after <|im_end|> is not trained
+    image_id = processor.tokenizer.convert_tokens_to_ids("<|image_pad|>")
+    assert (ex["input_ids"] == image_id).sum() > len(images)  # images expanded to several tokens each
+    assert ex["image_grid_thw"].shape[0] == len(images)
+
+
+def test_only_the_final_answer_of_a_multi_turn_chat_is_trained(tiny_dataset, processor):
+    from eval.chat import task_chat
+    from train.data import encode
+
+    messages, images, answer = task_chat(_first_row(tiny_dataset), "pose", with_answer=True)
+    wrong = {"role": "assistant", "content": [{"type": "text", "text": "Brick 1:\nTranslation:\nx=1.0, y=2.0, z=3.0"}]}
+    again = {"role": "user", "content": [{"type": "text", "text": "The placement is not right. Try again."}]}
+    ex = encode(processor, [*messages[:-1], wrong, again, messages[-1]], images)
+    assert _labelled(processor, ex) == answer + END
+
+
+def test_too_long_examples_are_skipped_and_counted(tiny_dataset, processor):
+    from train.config import ConfigError
+    from train.data import ExampleStream, epoch_order
+
+    stream = ExampleStream([tiny_dataset], processor, max_length=600)  # selection fits, pose does not
+    it = iter(stream)
+    got = [next(it) for _ in range(6)]  # the six selection examples of the first epoch
+    assert all(len(e["input_ids"]) <= 600 for e in got)
+    read = epoch_order(stream.groups, 0, 0, stream.window)[:stream.position[1]]
+    assert stream.position[0] == 0 and stream.skipped == sum(t == "pose" for _, _, t, _ in read) >= 5
+    with pytest.raises(ConfigError, match="max_length"):
+        next(iter(ExampleStream([tiny_dataset], processor, max_length=50)))
+
+
+def test_data_order_is_a_function_of_seed_and_position(tiny_dataset, processor):
+    from train.data import ExampleStream
+
+    def ids(position, n, seed=0):
+        s = ExampleStream([tiny_dataset], processor, seed=seed, position=position)
+        it = s.raw()
+        return [w for *_, w in (next(it) for _ in range(n))], s.position
+
+    full, end = ids((0, 0), 20)
+    later, _ = ids((0, 7), 13)
+    assert later == full[7:] and end == (1, 8)
+    assert sorted(full[:12]) == sorted(full[12:] + ids((1, 8), 4)[0])  # every epoch is all examples
+    assert ids((0, 0), 12, seed=1)[0] != full[:12]
+
+
+def test_worker_processes_give_the_same_examples(tiny_dataset, tiny_model, processor):
+    from train.data import ExampleStream
+
+    def take(workers):
+        s = ExampleStream([tiny_dataset], processor, position=(0, 5), workers=workers, processor_path=tiny_model)
+        it = iter(s)
+        out = [(next(it), s.position) for _ in range(4)]
+        it.close()
+        return out
+
+    for (a, pa), (b, pb) in zip(take(0), take(1)):
+        assert pa == pb and a.keys() == b.keys()
+        assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_overfits_a_fixed_batch(tiny_dataset, tiny_model, processor):
+    from train.data import ExampleStream, collate
+    from train.loop import forward_backward, make_optimizer, make_scheduler
+    from train.model import load_base
+
+    it = iter(ExampleStream([tiny_dataset], processor))
+    batch = collate([next(it) for _ in range(2)], processor.tokenizer.pad_token_id)
+    torch.manual_seed(0)
+    model = load_base(tiny_model)
+    model.train()
+    cfg = _base_cfg(tiny_dataset, "unused", lora=False, lr=2e-3, steps=30, warmup=0)
+    opt = make_optimizer(model, cfg)
+    sched = make_scheduler(opt, cfg)
+    losses = []
+    for _ in range(cfg.steps):
+        opt.zero_grad()
+        losses.append(forward_backward(model, batch, torch.device("cpu"), None))
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+        opt.step()
+        sched.step()
+    assert losses[-1] < 0.5 * losses[0], losses
+
+
+def _log(run):
+    return [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+
+
+def test_resume_continues_the_same_run_and_refuses_other_settings(tiny_dataset, tmp_path):
+    from safetensors.torch import load_file
+
+    from train import checkpoint as ckpt
+    from train.config import ConfigError
+    from train.loop import train
+
+    run = tmp_path / "run"
+    cfg = _base_cfg(tiny_dataset, run)  # LoRA with dropout: the RNG state must be restored too
+    summary = train(cfg, progress=False)
+    assert summary["steps"] == 4 and (run / "final" / "model.safetensors").is_file()
+    assert [s for s, _ in ckpt.checkpoints(run)] == [2, 4]
+    uninterrupted = load_file(str(run / "final" / "model.safetensors"))
+    log_before = _log(run)
+    assert [r["step"] for r in log_before] == [1, 2, 3, 4]
+
+    # killed after step 4 was logged but before its checkpoint: only checkpoint 2 is complete
+    shutil.rmtree(run / "checkpoint-000004")
+    shutil.rmtree(run / "final")
+    (run / "last").write_text("checkpoint-000004\n")
+    (run / ".tmp-checkpoint-000004-1").mkdir()
+    assert ckpt.latest(run).name == "checkpoint-000002"
+    train(cfg, progress=False)
+    log_after = _log(run)
+    assert [r["step"] for r in log_after] == [1, 2, 3, 4]
+    for a, b in zip(log_before, log_after):
+        assert a["loss"] == pytest.approx(b["loss"], abs=1e-5)
+    resumed = load_file(str(run / "final" / "model.safetensors"))
+    assert resumed.keys() == uninterrupted.keys()
+    for k in resumed:
+        torch.testing.assert_close(resumed[k], uninterrupted[k], atol=1e-6, rtol=1e-5)
+    assert not (run / ".tmp-checkpoint-000004-1").exists()
+
+    with pytest.raises(ConfigError, match=r"lr: 0.001 -> 0.0005"):
+        train(_base_cfg(tiny_dataset, run, lr=5e-4), progress=False)
+    with pytest.raises(ConfigError, match="steps"):
+        train(_base_cfg(tiny_dataset, run, steps=6), progress=False)
+    # settings that do not change the training may change
+    assert train(_base_cfg(tiny_dataset, run, save_every=1, eval_limit=1), progress=False)["steps"] == 4
+
+
+def test_feedback_rows_train_the_revision(tiny_dataset, tmp_path, processor):
+    from eval.chat import clean_messages, task_chat
+    from eval.data import info, iter_rows
+    from eval.feedback import assembly_rows, before_rows, feedback_example
+    from eval.predict import RandomPredictor, write_predictions
+    from factory.ldraw import get_reader
+    from train.data import ExampleStream, encode
+    from train.feedback import build_feedback
+
+    preds = tmp_path / "preds.jsonl"
+    write_predictions(tiny_dataset, RandomPredictor(0), preds, split="train", tasks=("pose",))
+    out = tmp_path / "fb"
+    summary = build_feedback(tiny_dataset, preds, out)
+    meta = info(out)
+    assert meta["kind"] == "feedback" and meta["tasks"] == ["pose"]
+    assert summary["total"]["steps"] >= 1
+    assert sum(summary["reasons"].get(k, 0) for k in ("built", "right", "unparseable", "missing", "failed")) == 6
+
+    rows = list(iter_rows(out, "train"))
+    assert len(rows) == summary["total"]["steps"]
+    row = rows[0]
+    assert row["pose_images"] == ["before", "after", "part", "axes", "feedback"]
+    assert [m["role"] for m in row["pose_messages"]] == ["system", "user", "assistant", "user", "assistant"]
+    # the prompt is exactly what the evaluator asks after a wrong answer
+    src_rows = [r for r in iter_rows(tiny_dataset, "train") if r["object_id"] == row["object_id"]]
+    src = next(r for r in src_rows if r["step_id"] == row["step_id"])
+    predicted = row["pose_messages"][2]["content"][0]["text"]
+    fb = feedback_example(src, predicted, before_rows(src_rows, src), get_reader(None), int(meta["config"]["size"]),
+                          scene=assembly_rows(src_rows, src))
+    assert clean_messages(row["pose_messages"][:-1]) == fb.messages
+
+    messages, images, answer = task_chat(row, "pose", with_answer=True)
+    ex = encode(processor, messages, images)
+    assert len(images) == 5 and answer == src["pose_answer"]
+    assert _labelled(processor, ex) == answer + END
+
+    stream = ExampleStream([tiny_dataset, out], processor, tasks=("selection", "pose"))
+    assert stream.examples_per_epoch == 12 + len(rows)  # feedback rows give pose examples only
+    it = iter(stream)
+    for _ in range(stream.examples_per_epoch):
+        next(it)
+
+
+def test_command_line_trains_evaluates_and_leaves_a_loadable_model(tiny_dataset, tmp_path, capsys):
+    from transformers import AutoModelForImageTextToText
+
+    from train.__main__ import main
+
+    run = tmp_path / "cli"
+    argv = ["--data", str(tiny_dataset), "--outdir", str(run), "--steps", "3", "--batch-size", "2", "--lora", "0",
+            "--lr", "1e-3", "--save-every", "2", "--workers", "0", "--eval-limit", "1", "--max-new-tokens", "8",
+            "--quiet"]
+    assert main(argv) == 0
+    for name in ("base/config.json", "checkpoint-000002/model.safetensors", "checkpoint-000003/trainer_state.pt",
+                 "final/model.safetensors", "final/train_config.json", "log.jsonl", "loss.png",
+                 "train_summary.json", "metrics.json", "preds_before.jsonl", "preds_after.jsonl"):
+        assert (run / name).is_file(), name
+    summary = json.loads((run / "train_summary.json").read_text())
+    assert summary["steps"] == 3 and summary["examples"] == 6 and summary["samples_per_s"] > 0
+    metrics = json.loads((run / "metrics.json").read_text())
+    for name in ("before", "after"):
+        assert set(metrics[name]) >= {"strict", "paper"}
+        assert metrics[name]["paper"]["counts"]["steps"] == 3  # the test split; 1 step answered
+    assert len((run / "preds_after.jsonl").read_text().splitlines()) == 2
+    AutoModelForImageTextToText.from_pretrained(str(run / "final"))
+    from eval.hf import HFPredictor
+    from train.processor import load_processor
+
+    HFPredictor(AutoModelForImageTextToText.from_pretrained(str(run / "final")), load_processor(run / "final"))
+    # a changed setting is refused with a clear one-line error, exit status 2
+    capsys.readouterr()
+    assert main([*argv[:-1], "--lr", "5e-4", "--quiet"]) == 2
+    assert "lr: 0.001 -> 0.0005" in capsys.readouterr().err

@@ -1,0 +1,191 @@
+"""The training run's settings: one frozen `TrainConfig`, saved into every checkpoint.
+
+A checkpoint records the config it was trained under, so a re-run of the same command resumes it
+and a run with different settings is refused (`resume_conflicts`) instead of silently mixing two
+trainings in one folder. Settings that do not change what is trained (how often to save or log,
+what to evaluate afterwards) may change between runs; the rest may not.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+TASKS = ("selection", "pose")
+DTYPES = ("auto", "bf16", "fp32")
+DEVICES = ("auto", "cpu", "cuda")
+SPLITS = ("train", "test")
+LORA_TARGETS = ("q_proj", "k_proj", "v_proj", "o_proj", "gate_proj", "up_proj", "down_proj")
+"""The language model's attention and MLP projections (Qwen2 / Llama names)."""
+
+RESUME_FREE = ("outdir", "workers", "save_every", "log_every", "keep_checkpoints", "eval", "eval_limit", "eval_split",
+               "max_new_tokens", "device")
+"""Fields that may differ between a checkpoint's config and the run resuming it."""
+
+CONFIG_FILE = "train_config.json"
+
+
+class ConfigError(ValueError):
+    """A setting out of range, or a config that cannot resume a checkpoint."""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that decides a training run (see the module docstring)."""
+
+    data: tuple[str, ...]
+    """Dataset folders (`make synth` output, `python -m train.feedback` output) whose train splits
+    are mixed into one stream."""
+    outdir: str
+    """The run folder: base model, checkpoints, logs, final model, metrics."""
+    model: str | None = None
+    """A local model folder to fine-tune; None builds the tiny Qwen2-VL into OUTDIR/base first."""
+    tasks: tuple[str, ...] = TASKS
+    """Tasks to train on; each (row, task) is one example. Feedback folders give pose only."""
+    steps: int = 200
+    """Optimizer steps (each `batch_size * grad_accum` examples)."""
+    batch_size: int = 2
+    """Examples per forward pass."""
+    grad_accum: int = 1
+    """Forward passes whose gradients are summed before one optimizer step."""
+    lr: float = 2e-4
+    """Peak learning rate of AdamW."""
+    warmup: int = 10
+    """Steps of linear warmup from 0 to `lr`; then linear decay to 0 at `steps`."""
+    weight_decay: float = 0.0
+    """AdamW weight decay (not applied to biases and norms)."""
+    max_grad_norm: float = 1.0
+    """Gradient clipping by global norm; 0 turns clipping off."""
+    lora: bool = True
+    """Train LoRA adapters on the language model's projections (True) or every weight (False)."""
+    lora_r: int = 16
+    """LoRA rank."""
+    lora_alpha: int = 32
+    """LoRA scale numerator (the update is scaled by alpha / r)."""
+    lora_dropout: float = 0.05
+    """Dropout on the LoRA branch's input."""
+    lora_targets: tuple[str, ...] = LORA_TARGETS
+    """Names of the Linear layers of the language model that get adapters (the vision tower never)."""
+    max_pixels: int = 28 * 28 * 64
+    """Most pixels per image after resizing (28 x 28 pixels make one merged image token in
+    Qwen2-VL, so 28*28*64 is at most 64 tokens per image)."""
+    gradient_checkpointing: bool = False
+    """Recompute activations in the backward pass (less GPU memory, about a third slower)."""
+    max_length: int = 2048
+    """Longest sequence in tokens (image tokens included); longer examples are skipped and counted,
+    never truncated (a cut answer would teach a wrong one)."""
+    shuffle_window: int = 16
+    """Row groups (objects) whose examples are shuffled together; the order of row groups is
+    shuffled too. Bounds the rows held in memory."""
+    workers: int | None = None
+    """Processes that decode and encode examples (PNGs, image resizing, tokenizing) ahead of the
+    model; 0 does it in a thread of the trainer; None picks min(8, CPUs - 2), or 0 below 4 CPUs.
+    Changes speed only, never which examples come in which order."""
+    save_every: int = 100
+    """Write a checkpoint every this many steps (and always at the last step); 0: only at the end."""
+    keep_checkpoints: int = 2
+    """Checkpoints kept (oldest removed first); 0 keeps all."""
+    log_every: int = 1
+    """Write a line to log.jsonl every this many steps."""
+    seed: int = 0
+    """Seed of the model build, LoRA init, data order and dropout."""
+    dtype: str = "auto"
+    """Compute precision: auto (bf16 autocast on CUDA, fp32 on CPU), bf16, or fp32."""
+    device: str = "auto"
+    """auto (cuda when available), cpu or cuda."""
+    eval: bool = True
+    """Predict and score the test split with the base and the trained model after training."""
+    eval_limit: int | None = None
+    """Steps of the eval split to predict (None: all)."""
+    eval_split: str = "test"
+    """Split predicted after training."""
+    max_new_tokens: int = 256
+    """Generation budget per answer in the evaluation."""
+
+    def __post_init__(self):
+        def choice(name, value, valid):
+            if value not in valid:
+                raise ConfigError(f"{name}={value!r} is not valid; valid: {', '.join(map(str, valid))}")
+
+        if not self.data:
+            raise ConfigError("data: give at least one dataset folder (--data OUT)")
+        if not self.tasks:
+            raise ConfigError(f"tasks: give at least one; valid: {', '.join(TASKS)}")
+        for t in self.tasks:
+            choice("task", t, TASKS)
+        choice("dtype", self.dtype, DTYPES)
+        choice("device", self.device, DEVICES)
+        choice("eval_split", self.eval_split, SPLITS)
+        positive = ("steps", "batch_size", "grad_accum", "lora_r", "lora_alpha", "max_pixels", "max_length",
+                    "shuffle_window", "log_every", "max_new_tokens")
+        for name in positive:
+            if int(getattr(self, name)) < 1:
+                raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        for name in ("warmup", "save_every", "keep_checkpoints"):
+            if int(getattr(self, name)) < 0:
+                raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if not self.lr > 0:
+            raise ConfigError(f"lr must be > 0, got {self.lr!r}")
+        if self.weight_decay < 0 or self.max_grad_norm < 0:
+            raise ConfigError("weight_decay and max_grad_norm must be >= 0")
+        if not 0 <= self.lora_dropout < 1:
+            raise ConfigError(f"lora_dropout must be in [0, 1), got {self.lora_dropout!r}")
+        if self.lora and not self.lora_targets:
+            raise ConfigError(f"lora_targets: give at least one module name, e.g. {','.join(LORA_TARGETS)}")
+        if self.workers is not None and self.workers < 0:
+            raise ConfigError(f"workers must be >= 0 (or None for automatic), got {self.workers!r}")
+        if self.eval_limit is not None and self.eval_limit < 1:
+            raise ConfigError(f"eval_limit must be >= 1 (or None for all), got {self.eval_limit!r}")
+
+    # -- (de)serialisation --------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        for k, v in d.items():
+            if isinstance(v, tuple):
+                d[k] = list(v)
+        return d
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=1, sort_keys=True)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TrainConfig":
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ConfigError(f"unknown config field(s) {', '.join(unknown)}; valid: {', '.join(sorted(names))}")
+        d = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
+        return cls(**d)
+
+    @classmethod
+    def from_json(cls, text: str) -> "TrainConfig":
+        return cls.from_dict(json.loads(text))
+
+    def save(self, folder) -> Path:
+        path = Path(folder) / CONFIG_FILE
+        path.write_text(self.to_json() + "\n")
+        return path
+
+    @classmethod
+    def load(cls, folder) -> "TrainConfig":
+        return cls.from_json((Path(folder) / CONFIG_FILE).read_text())
+
+    # -- derived -------------------------------------------------------------------------------------
+    @property
+    def examples_per_step(self) -> int:
+        return self.batch_size * self.grad_accum
+
+    def resolved_workers(self) -> int:
+        if self.workers is not None:
+            return int(self.workers)
+        import os
+
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        return min(8, cpus - 2) if cpus >= 4 else 0
+
+
+def resume_conflicts(saved: TrainConfig, new: TrainConfig) -> list[str]:
+    """'field: saved -> new' for each difference that forbids resuming `saved`'s checkpoint."""
+    a, b = saved.to_dict(), new.to_dict()
+    return [f"{k}: {a[k]!r} -> {b[k]!r}" for k in sorted(a) if k not in RESUME_FREE and a[k] != b[k]]

@@ -1,0 +1,195 @@
+"""Correction examples from a model's wrong pose answers: the paper's world feedback as training data.
+
+    python -m train.feedback --data OUT --pred preds.jsonl --out OUT_FB [--split train]
+
+For each pose answer in `preds.jsonl` (`eval.predict` output on `--split` of OUT) that parses and
+fails its step in paper mode, `eval.feedback.feedback_example` renders the predicted placement in
+red and writes the revision prompt; the row is written to OUT_FB with `pose_messages` = the pose
+prompt, the wrong answer (assistant), the feedback turn (user, with the `feedback` image) and the
+right answer (assistant), and `pose_images` = the pose images then `feedback`. The trainer learns
+the last turn only, so the model is taught to revise a wrong pose given what the simulator showed.
+
+OUT_FB is a dataset folder in the row format of `pipelines.dataset.schema` plus one image column,
+`feedback`: `data/train-00000-of-00001.parquet` (one row group per object, written to a temporary
+file and renamed) and `meta/info.json` (written last) with ``"kind": "feedback"``, ``"tasks":
+["pose"]`` (so `python -m train --data OUT --data OUT_FB` trains only pose on it) and where the
+predictions and the dataset came from. Answers that get no example are counted by reason
+(right, unparseable, missing, failed to render) and reported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import sys
+from collections import Counter
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+FEEDBACK_COLUMN = "feedback"
+OUT_FILE = "train-00000-of-00001.parquet"
+
+
+def feedback_schema() -> pa.Schema:
+    """The dataset's Arrow schema plus the `feedback` image column (HF `Image` in the metadata)."""
+    from pipelines.dataset.schema import IMAGE, SCHEMA, features_json
+
+    features = {**features_json(), FEEDBACK_COLUMN: {"_type": "Image"}}
+    meta = {"huggingface": json.dumps({"info": {"features": features}}, sort_keys=False)}
+    return pa.schema([*SCHEMA, pa.field(FEEDBACK_COLUMN, IMAGE)], metadata=meta)
+
+
+def correction_messages(row: dict, predicted: str, errors: list[dict]) -> list[dict]:
+    """The row's pose conversation (Parquet format) with the wrong answer, the feedback turn and the
+    right answer appended: what `eval.feedback.feedback_example` asks, then its target."""
+    from pipelines.dataset.prompts import feedback_turn, text_part
+
+    prompt = [m for m in row["pose_messages"]]
+    if prompt and prompt[-1]["role"] == "assistant":
+        prompt = prompt[:-1]
+    return [*prompt,
+            {"role": "assistant", "content": [text_part(predicted)]},
+            feedback_turn(errors, image_index=len(row["pose_images"])),
+            {"role": "assistant", "content": [text_part(row["pose_answer"])]}]
+
+
+def _objects(rows):
+    group: list[dict] = []
+    for row in rows:
+        if group and row["object_id"] != group[0]["object_id"]:
+            yield group
+            group = []
+        group.append(row)
+    if group:
+        yield group
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def build_feedback(data, pred, out, split: str = "train", progress: bool = False) -> dict:
+    """Write the correction dataset OUT from predictions `pred` on `split` of `data`; returns the counts."""
+    from eval.data import info, iter_rows, load_targets
+    from eval.feedback import assembly_rows, before_rows, feedback_example
+    from eval.parse import parse_pose
+    from eval.score import read_predictions
+    from factory.ldraw import get_reader
+    from factory.render.scene import clear_cache
+    from pipelines.dataset.rows import png_bytes
+    from pipelines.dataset.shards import WRITER_OPTIONS
+    from train.checkpoint import write_atomic_text
+
+    data, pred, out = Path(data), Path(pred), Path(out)
+    src = info(data)
+    answers, _ = read_predictions(pred, [s.id for s in load_targets(data, split)])
+    config = src["config"]
+    reader, size = get_reader(config.get("ldraw")), int(config["size"])
+    level = int(config.get("png_compress_level", 6))
+    schema = feedback_schema()
+    counts: Counter = Counter()
+    objects = 0
+    (out / "data").mkdir(parents=True, exist_ok=True)
+    (out / "meta").mkdir(parents=True, exist_ok=True)
+    final = out / "data" / OUT_FILE
+    tmp = final.with_name(f".{final.name}.{os.getpid()}.tmp")
+    writer = pq.ParquetWriter(str(tmp), schema, **WRITER_OPTIONS)
+    from tqdm import tqdm
+
+    bar = tqdm(unit="step", desc="feedback", disable=not progress, file=sys.stderr)
+    try:
+        for rows in _objects(iter_rows(data, split)):
+            built = []
+            for row in rows:
+                bar.update(1)
+                text = answers.get((row["step_id"], "pose"))
+                if text is None:
+                    counts["missing"] += 1
+                    continue
+                blocks = parse_pose(text)
+                if any((i + 1) not in blocks for i in range(len(row["bricks"]))):
+                    counts["unparseable"] += 1
+                    continue
+                try:
+                    fb = feedback_example(row, text, before_rows(rows, row), reader, size,
+                                          scene=assembly_rows(rows, row))
+                except Exception as exc:  # a pose the renderer cannot draw: count it, go on
+                    counts["failed"] += 1
+                    counts[f"failed:{type(exc).__name__}"] += 1
+                    continue
+                if fb is None:
+                    counts["right"] += 1
+                    continue
+                new = dict(row)
+                new["dataset_id"] = f"{row['dataset_id']}-feedback"
+                new["pose_messages"] = correction_messages(row, text, fb.errors)
+                new["pose_images"] = [*row["pose_images"], FEEDBACK_COLUMN]
+                new[FEEDBACK_COLUMN] = {"bytes": png_bytes(fb.images[-1], level), "path": None}
+                built.append({f.name: new.get(f.name) for f in schema})
+                counts["built"] += 1
+            clear_cache()
+            if built:
+                writer.write_table(pa.Table.from_pylist(built, schema=schema))
+                objects += 1
+        writer.close()
+        os.replace(tmp, final)
+    except BaseException:
+        writer.close()
+        tmp.unlink(missing_ok=True)
+        raise
+    finally:
+        bar.close()
+    summary = {
+        "kind": "feedback",
+        "tasks": ["pose"],
+        "dataset_id": f"{src.get('dataset_id', 'dataset')}-feedback",
+        "source_dataset": str(data.resolve()),
+        "source_dataset_id": src.get("dataset_id"),
+        "source_config_hash": src.get("config_hash"),
+        "source_split": split,
+        "predictions": str(pred.resolve()),
+        "predictions_sha256": _sha256(pred),
+        "counts": {"train": {"objects": objects, "steps": counts["built"]}},
+        "reasons": dict(sorted(counts.items())),
+        "splits_present": ["train"],
+        "total": {"objects": objects, "steps": counts["built"]},
+        "config": config,
+        "schema_extra_columns": [FEEDBACK_COLUMN],
+    }
+    write_atomic_text(out / "meta" / "info.json", json.dumps(summary, indent=1, sort_keys=True) + "\n")
+    return summary
+
+
+def main(argv: list[str] | None = None) -> int:
+    from eval.data import DatasetError
+    from eval.score import PredictionsError
+    from factory.cli import run_guarded
+
+    ap = argparse.ArgumentParser(prog="python -m train.feedback", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", required=True, help="dataset folder the predictions answer")
+    ap.add_argument("--pred", required=True, help="predictions file (eval.predict output)")
+    ap.add_argument("--out", required=True, help="folder for the correction dataset")
+    ap.add_argument("--split", default="train", choices=("train", "test"), help="split of the predictions")
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+
+    def run() -> int:
+        s = build_feedback(args.data, args.pred, args.out, args.split, progress=not args.quiet)
+        reasons = ", ".join(f"{k} {v}" for k, v in s["reasons"].items())
+        print(f"{args.out}: {s['total']['steps']} correction rows from {s['total']['objects']} objects ({reasons})")
+        return 0
+
+    return run_guarded(run, {DatasetError: 2, PredictionsError: 2})
+
+
+if __name__ == "__main__":
+    sys.exit(main())
