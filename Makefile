@@ -12,7 +12,7 @@ DATA ?= $(OUT)
 OUTDIR ?= checkpoints/run
 TASKS ?= selection,pose
 STEPS ?= 200
-LORA ?= 1
+LORA ?= auto
 MODEL ?=
 
 .PHONY: setup synth designs train bench test clean

@@ -14,7 +14,8 @@ SPEC is one of:
 - ``hf:PATH``: a local checkpoint folder, full model or LoRA adapter (`eval.hf.HFPredictor`).
 
 One line per answer, in dataset order: ``{"id": step id, "task": "selection" | "pose", "text": ...}``.
-`--limit N` answers the first N steps of the split. The file is written to a temporary file
+`--limit N` answers N steps spread evenly over the split (every (steps / N)-th step, so every
+object is reached); score them with `eval.score --only-predicted`. The file is written to a temporary file
 beside it and renamed into place, so an interrupted run never leaves a half file under the name.
 
 `--feedback` (the paper's world feedback, `eval.feedback`): a pose answer that parses and fails the
@@ -187,21 +188,28 @@ def iter_predictions(data, predictor: Predictor, split: str | None = "test", tas
         config = info(data)["config"]
         reader, size = get_reader(config.get("ldraw")), int(config["size"])
     columns = list(dict.fromkeys(columns))
-    total = count_rows(data, split)
-    total = min(total, limit) if limit is not None else total
+    n_rows = count_rows(data, split)
+    total = min(n_rows, limit) if limit is not None else n_rows
+    # A limit picks steps spread evenly over the split (every n_rows/limit-th), so a small
+    # evaluation still covers every object and every stage of assembly.
+    chosen = None if total == n_rows else {int(i * n_rows / total) for i in range(total)}
     from tqdm import tqdm
 
     bar = tqdm(total=total, unit="step", desc="predict", disable=not progress, file=sys.stderr)
     done = 0
+    index = -1
     try:
         for rows in _objects(iter_rows(data, split, columns)):
             previous: dict[str, StepTarget] = {}
             for row in rows:
                 if done >= total:
                     return
+                index += 1
                 target = step_target(row)
                 ctx = StepContext(row, target, previous.get(row["assembly"]), rows)
                 previous[row["assembly"]] = target
+                if chosen is not None and index not in chosen:
+                    continue
                 for task in tasks:
                     text = predictor.answer(ctx, task)
                     yield {"id": row["step_id"], "task": task, "text": text}
@@ -280,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--split", default="test", choices=SPLITS, help="default: test")
     ap.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks (default: selection,pose)")
     ap.add_argument("--seed", type=int, default=0, help="seed of baseline:random (default 0)")
-    ap.add_argument("--limit", type=int, help="answer only the first N steps")
+    ap.add_argument("--limit", type=int, help="answer only N steps, spread evenly over the split")
     ap.add_argument("--feedback", action="store_true", help="revise failed pose answers with world feedback")
     ap.add_argument("--max-new-tokens", type=int, default=256, help="hf: longest answer in tokens (default 256)")
     ap.add_argument("--device", help="hf: torch device (default: cuda when available, else cpu)")

@@ -123,12 +123,22 @@ def score_predictions(steps, answers: dict, revised: dict | None = None, mode: s
     return result
 
 
-def score_file(data, pred_path, split: str | None = "test", mode: str = "both") -> dict:
-    """Score a predictions file against `split` (None: every split) of the dataset folder `data`."""
+def score_file(data, pred_path, split: str | None = "test", mode: str = "both",
+               only_predicted: bool = False) -> dict:
+    """Score a predictions file against `split` (None: every split) of the dataset folder `data`.
+
+    Steps with no answer count as wrong; with `only_predicted` the steps scored are those the file
+    answers (for a `--limit`ed prediction run), and the result says how many of the split's that is.
+    """
     _modes(mode)  # a bad mode fails before the dataset is read
     steps = load_targets(data, split)
     answers, revised = read_predictions(pred_path, [s.id for s in steps])
-    return {"split": split, **score_predictions(steps, answers, revised, mode)}
+    n_split = len(steps)
+    if only_predicted:
+        answered = {sid for sid, _task in answers}
+        steps = [s for s in steps if s.id in answered]
+    return {"split": split, "split_steps": n_split, "scored_steps": len(steps),
+            **score_predictions(steps, answers, revised, mode)}
 
 
 def _fmt(v, spec: str) -> str:
@@ -161,7 +171,7 @@ def format_table(result: dict) -> str:
 
 
 def run(args) -> int:
-    result = score_file(args.data, args.pred, args.split, args.mode)
+    result = score_file(args.data, args.pred, args.split, args.mode, only_predicted=args.only_predicted)
     if args.json:
         print(json.dumps(result, indent=1, sort_keys=True))
     else:
@@ -177,6 +187,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--split", default="test", choices=SPLITS, help="default: test")
     ap.add_argument("--mode", default="both", choices=MODE_CHOICES, help="correctness thresholds (default: both)")
     ap.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    ap.add_argument("--only-predicted", action="store_true",
+                    help="score only the steps the file answers (after `eval.predict --limit`); default: "
+                         "every step of the split, missing answers counted wrong")
     args = ap.parse_args(argv)
     return run_guarded(lambda: run(args), {DatasetError: 2, PredictionsError: 2})
 

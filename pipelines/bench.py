@@ -79,12 +79,11 @@ def machine() -> dict:
     }
 
 
-def physics_section(gpu: bool, quick: bool) -> dict:
+def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None) -> dict:
     from pipelines.bench_physics import measure
 
-    backends = ["mujoco"]
-    if _version("mujoco-mjx") and _version("jax"):
-        backends.append("mjx")
+    if backends is None:
+        backends = ["mujoco"] + (["mjx"] if _version("mujoco-mjx") and _version("jax") else [])
     sizes = [10] if quick else [10, 30]
     batches = [256, 4096] if gpu else [256]
     rows = measure(backends, sizes, batches, log=lambda r: print(f"  physics {json.dumps(r)}", flush=True))
@@ -110,7 +109,7 @@ def synth_section(work: Path, quick: bool) -> dict:
     from pipelines.dataset import build
     from pipelines.synth import config_from_args
 
-    n = 5 if quick else 10
+    n = 5 if quick else 20
     ns = argparse.Namespace(n=n, seed=0, min_steps=6, max_steps=10, candidates=None, parts=None,
                             check_backend="mujoco", size=256, tile=128, objects_per_shard=1, ldraw=None,
                             dataset_id="bench-synth")
@@ -287,12 +286,13 @@ def markdown(report: dict) -> str:
                              f"{_fmt(p['overall']['translation_error_ldu'], 1)} | "
                              f"{_fmt(p['overall']['rotation_error_deg'], 1)} | {_fmt(p['overall']['step_success'])} | "
                              f"{_fmt(s['overall']['step_success'])} | {p['counts']['unparseable']} |")
-                fb = p.get("feedback")
+                fb = sc.get("feedback")
                 if fb:
-                    lines.append(f"| {model} + feedback | - | {_fmt(fb['overall']['translation_error_ldu'], 1)} | "
-                                 f"{_fmt(fb['overall']['rotation_error_deg'], 1)} | "
-                                 f"{_fmt(fb['overall']['step_success'])} | "
-                                 f"{_fmt(sc['strict'].get('feedback', {}).get('overall', {}).get('step_success'))} | - |")
+                    fp, fs = fb["paper"]["overall"], fb["strict"]["overall"]
+                    lines.append(f"| {model} + feedback ({fb['revised_steps']} revised) | "
+                                 f"{_fmt(fp['selection_accuracy'])} | {_fmt(fp['translation_error_ldu'], 1)} | "
+                                 f"{_fmt(fp['rotation_error_deg'], 1)} | {_fmt(fp['step_success'])} | "
+                                 f"{_fmt(fs['step_success'])} | - |")
             lines.append("")
         lines += ["![baselines](eval.png)", ""]
     lines += ["Sections and their seconds: " + ", ".join(f"{k} {v:.0f}" for k, v in report["section_s"].items()), ""]
@@ -323,7 +323,11 @@ def run(args) -> int:
         report["wall_s"] = round(time.perf_counter() - t0, 1)
         _atomic_write(out / "report.json", json.dumps(report, indent=1))
 
-    section("physics", lambda: physics_section(gpu, args.quick))
+    backends = None if args.backends == "auto" else [b.strip() for b in args.backends.split(",") if b.strip()]
+    for b in backends or []:
+        if b not in ("mujoco", "mjx"):
+            raise ValueError(f"unknown backend {b!r}; valid: mujoco, mjx, auto")
+    section("physics", lambda: physics_section(gpu, args.quick, backends))
     render_models = [(EXAMPLE, None)] + ([(m, ldraw) for m in models] if not args.quick else [])
     section("render", lambda: render_section(render_models))
     section("synth", lambda: synth_section(work, args.quick))
@@ -348,13 +352,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--models", nargs="*", help="human-designed models to render and evaluate "
                     "(default: ../shared/ldraw_models/*.ldr|*.mpd when present)")
     ap.add_argument("--quick", action="store_true", help="smaller sections (a smoke run, for tests)")
+    ap.add_argument("--backends", default="auto",
+                    help="physics backends to time: comma-separated mujoco,mjx, or auto (default: every one installed)")
     args = ap.parse_args(argv)
     from eval.data import DatasetError
     from factory.sampler import SamplerConfigError
     from pipelines.dataset import ConfigMismatchError
 
     return run_guarded(lambda: run(args), {DatasetError: 2, ConfigMismatchError: 2, SamplerConfigError: 2,
-                                           OSError: 2})
+                                           OSError: 2, ValueError: 2})
 
 
 if __name__ == "__main__":

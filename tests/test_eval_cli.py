@@ -87,7 +87,7 @@ def test_random_is_below_oracle_and_the_same_seed_writes_the_same_bytes(tiny_dat
     first = _predict(tiny_dataset, "baseline:random", tmp_path / "d.jsonl", "--seed", "3", "--limit", "1")
     assert _lines(first) == _lines(a)[:2]
     r = score_cli.score_file(tiny_dataset, a, "test", "paper")
-    assert set(r) == {"split", "paper"}
+    assert set(r) == {"split", "split_steps", "scored_steps", "paper"}
     assert r["paper"]["overall"]["step_success"] < 1.0
     assert r["paper"]["counts"]["missing_predictions"] == 0
 
@@ -123,6 +123,17 @@ def test_tasks_and_limit(tiny_dataset, tmp_path):
     # missing selections count as missing (and score 0 selection) but do not fail the pose steps
     assert r["counts"]["missing_predictions"] == r["counts"]["steps"] + (r["counts"]["steps"] - 2)
     assert r["overall"]["selection_accuracy"] == 0.0
+    only = score_cli.score_file(tiny_dataset, pred, "test", "strict", only_predicted=True)
+    assert only["scored_steps"] == 2 and only["split_steps"] == r["counts"]["steps"]
+    assert only["strict"]["counts"]["missing_predictions"] == 2  # the two selections not asked for
+
+
+def test_limit_spreads_over_the_split(tiny_dataset, tmp_path):
+    rows = [t.id for t in load_targets(tiny_dataset, "train")]
+    pred = _predict(tiny_dataset, "baseline:oracle", tmp_path / "p.jsonl", "--split", "train", "--limit", "2")
+    ids = [ln["id"] for ln in _lines(pred) if ln["task"] == "pose"]
+    assert ids == [rows[0], rows[len(rows) // 2]]
+    assert len({i.split("/")[0] for i in ids}) == 2  # two objects, not the first object's first steps
 
 
 # -- bad input ---------------------------------------------------------------------------------

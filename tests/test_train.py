@@ -268,7 +268,8 @@ def test_command_line_trains_evaluates_and_leaves_a_loadable_model(tiny_dataset,
     metrics = json.loads((run / "metrics.json").read_text())
     for name in ("before", "after"):
         assert set(metrics[name]) >= {"strict", "paper"}
-        assert metrics[name]["paper"]["counts"]["steps"] == 3  # the test split; 1 step answered
+        # --eval-limit 1: the one answered step of the 3-step test split is scored, not the other two
+        assert metrics[name]["paper"]["counts"]["steps"] == 1 and metrics[name]["split_steps"] == 3
     assert len((run / "preds_after.jsonl").read_text().splitlines()) == 2
     AutoModelForImageTextToText.from_pretrained(str(run / "final"))
     from eval.hf import HFPredictor

@@ -46,7 +46,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--warmup", type=int, default=d.warmup, help="warmup steps")
     ap.add_argument("--weight-decay", type=float, default=d.weight_decay)
     ap.add_argument("--max-grad-norm", type=float, default=d.max_grad_norm, help="0: no clipping")
-    ap.add_argument("--lora", type=_bool, default=d.lora, help="1: LoRA adapters (default), 0: full fine-tuning")
+    ap.add_argument("--lora", default="auto", help="1: LoRA adapters, 0: full fine-tuning, auto (default): LoRA "
+                    "for a --model checkpoint, full fine-tuning for a model built from a config")
+    ap.add_argument("--base-size", default=d.base_size, help="model built when no --model is given: tiny or small")
     ap.add_argument("--lora-r", type=int, default=d.lora_r)
     ap.add_argument("--lora-alpha", type=int, default=d.lora_alpha)
     ap.add_argument("--lora-dropout", type=float, default=d.lora_dropout)
@@ -80,7 +82,8 @@ def config_from_args(args) -> TrainConfig:
         data=tuple(str(Path(p).resolve()) for p in args.data), outdir=str(Path(args.outdir).resolve()),
         model=str(Path(args.model).resolve()) if args.model else None, tasks=args.tasks, steps=args.steps,
         batch_size=args.batch_size, grad_accum=args.grad_accum, lr=args.lr, warmup=args.warmup,
-        weight_decay=args.weight_decay, max_grad_norm=args.max_grad_norm, lora=args.lora, lora_r=args.lora_r,
+        weight_decay=args.weight_decay, max_grad_norm=args.max_grad_norm, lora=(args.model is not None) if str(args.lora).lower() == "auto" else _bool(str(args.lora)),
+        base_size=args.base_size, lora_r=args.lora_r,
         lora_alpha=args.lora_alpha, lora_dropout=args.lora_dropout, lora_targets=args.lora_targets,
         gradient_checkpointing=args.gradient_checkpointing, max_pixels=args.max_pixels,
         max_length=args.max_length, shuffle_window=args.shuffle_window, workers=args.workers,

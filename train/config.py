@@ -58,7 +58,11 @@ class TrainConfig:
     max_grad_norm: float = 1.0
     """Gradient clipping by global norm; 0 turns clipping off."""
     lora: bool = True
-    """Train LoRA adapters on the language model's projections (True) or every weight (False)."""
+    """Train LoRA adapters on the language model's projections (True) or every weight (False). The
+    command line's default `auto` is LoRA for a given checkpoint and full fine-tuning for a model
+    built from a config (adapters on random weights learn little)."""
+    base_size: str = "tiny"
+    """Size of the model built from a config when `model` is None: tiny or small (`train.tiny.SIZES`)."""
     lora_r: int = 16
     """LoRA rank."""
     lora_alpha: int = 32
@@ -107,6 +111,8 @@ class TrainConfig:
         def choice(name, value, valid):
             if value not in valid:
                 raise ConfigError(f"{name}={value!r} is not valid; valid: {', '.join(map(str, valid))}")
+
+        choice("base_size", self.base_size, ("tiny", "small"))
 
         if not self.data:
             raise ConfigError("data: give at least one dataset folder (--data OUT)")

@@ -72,7 +72,8 @@ def evaluate(config: TrainConfig, base: Path, final: Path, device, progress: boo
         preds = run / f"preds_{name}.jsonl"
         write_predictions(data, predictor, preds, split=config.eval_split, tasks=config.tasks,
                           limit=config.eval_limit, progress=progress)
-        result[name] = score_file(data, preds, config.eval_split, "both")
+        result[name] = score_file(data, preds, config.eval_split, "both",
+                                  only_predicted=config.eval_limit is not None)
         result[f"{name}_model"] = str(path)
         result[f"{name}_predictions"] = str(preds)
         del predictor

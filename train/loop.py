@@ -101,7 +101,8 @@ def base_model_path(config: TrainConfig, progress: bool = False) -> Path:
 
         if progress:
             print(f"building the tiny Qwen2-VL base model into {base}", flush=True)
-        build_tiny_model(base, dataset_texts(config.data), seed=config.seed, max_pixels=config.max_pixels)
+        build_tiny_model(base, dataset_texts(config.data), seed=config.seed, max_pixels=config.max_pixels,
+                         size=config.base_size)
     return base
 
 

@@ -119,8 +119,16 @@ def tiny_config(tokenizer, vocab_size: int, hidden: int = 128, layers: int = 2, 
     return cfg
 
 
+SIZES = {
+    "tiny": dict(hidden=128, layers=2, heads=4, vision_depth=2, vision_dim=64),
+    "small": dict(hidden=512, layers=6, heads=8, vision_depth=4, vision_dim=256),
+}
+"""Configs a model can be built from: `tiny` (about 1M parameters, CPU tests) and `small` (about
+25M, for a GPU run of the whole path); a real checkpoint is the user's own (`--model`)."""
+
+
 def build_tiny_model(out_dir, texts: Iterable[str], vocab_size: int = 1024, seed: int = 0,
-                     max_pixels: int = MAX_PIXELS) -> Path:
+                     max_pixels: int = MAX_PIXELS, size: str = "tiny") -> Path:
     """Build the tiny model, its tokenizer (trained on `texts`) and processor into `out_dir`.
 
     Written to a temporary folder beside `out_dir` and renamed, so `out_dir` is complete or absent.
@@ -135,7 +143,9 @@ def build_tiny_model(out_dir, texts: Iterable[str], vocab_size: int = 1024, seed
     tok = train_tokenizer(texts, vocab_size)
     processor = make_processor(tok, max_pixels=max_pixels)
     n_vocab = -(-tok.get_vocab_size() // 64) * 64
-    cfg = tiny_config(tok, n_vocab)
+    if size not in SIZES:
+        raise ValueError(f"unknown model size {size!r}; valid: {', '.join(SIZES)}")
+    cfg = tiny_config(tok, n_vocab, **SIZES[size])
     state = torch.random.get_rng_state()
     torch.manual_seed(seed)
     try:

@@ -1,0 +1,40 @@
+"""`make bench` end to end, small: `pipelines.bench --quick` with the CPU backend and no human designs
+writes a report whose numbers come from real runs (the oracle scores 1, chance scores below it)."""
+
+from __future__ import annotations
+
+import json
+
+from pipelines import bench
+
+
+def test_quick_bench_writes_report_and_plots(tmp_path):
+    out = tmp_path / "bench"
+    assert bench.main(["--out", str(out), "--quick", "--backends", "mujoco", "--models"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    for name in ("report.md", "physics.png", "render.png", "eval.png"):
+        assert (out / name).stat().st_size > 0, name
+    assert set(report["section_s"]) == {"physics", "render", "synth", "evaluation"}
+    (phys,) = report["physics"]["rows"]
+    assert phys["backend"] == "mujoco" and phys["checks_per_s"] > 0 and 0 < phys["accepted"] <= phys["batch"]
+    assert report["render"]["rows"][0]["rgb_views_per_s"] > 0
+    synth = report["synth"]
+    assert synth["objects"] == 5 and synth["steps"] >= 30 and synth["steps_per_s"] > 0
+    ev = report["evaluation"]["synthetic"]["baselines"]
+    oracle, rnd = ev["oracle"]["scores"], ev["random"]["scores"]
+    for mode in ("strict", "paper"):
+        assert oracle[mode]["overall"]["step_success"] == 1.0
+        assert oracle[mode]["overall"]["selection_accuracy"] == 1.0
+        assert rnd[mode]["overall"]["step_success"] < 1.0
+    assert rnd["feedback"]["revised_steps"] > 0  # random answers get world feedback and a second try
+    md = (out / "report.md").read_text()
+    assert "| oracle | 1.000 | 0.0 | 0.0 | 1.000 | 1.000 | 0 |" in md
+    assert "random + feedback" in md
+    # a re-run reuses the finished dataset (the builder resumes) and rewrites the report
+    assert bench.main(["--out", str(out), "--quick", "--backends", "mujoco", "--models"]) == 0
+    assert json.loads((out / "report.json").read_text())["synth"]["resumed"] is True
+
+
+def test_unknown_backend_is_a_clear_error(tmp_path, capsys):
+    assert bench.main(["--out", str(tmp_path), "--backends", "cuda"]) == 2
+    assert "unknown backend 'cuda'; valid: mujoco, mjx, auto" in capsys.readouterr().err
