@@ -156,6 +156,10 @@ _WORKER: dict = {}
 
 
 def _worker_init(processor_path: str, max_pixels: int | None, max_length: int | None) -> None:
+    # One thread per worker, as torch's own DataLoader workers do: with torch's default (a thread
+    # per core) in every worker, 8 workers on 16 cores encoded 5.6 examples/s on the GPU machine
+    # instead of the ~20/s per worker one thread gives.
+    torch.set_num_threads(1)
     from train.processor import load_processor
 
     _WORKER.update(processor=load_processor(processor_path, max_pixels), max_length=max_length)
