@@ -105,7 +105,7 @@ def check_units(
     first = units[0]
     anchor = first[0].pose
     rel = [(p.part, anchor.inverse() @ p.pose) for p in first]
-    scene = CollisionScene(structure, rel, floor_y if floor_y is not None else 1e6)
+    scene = _collision_scene(structure, rel, floor_y if floor_y is not None else 1e6)
     verdicts: list[Verdict | None] = [None] * len(units)
     pending: list[tuple[int, list[Placed]]] = []
     for k, unit in enumerate(units):
@@ -158,6 +158,22 @@ def check_units(
             verdicts[k] = Verdict(**{**v.__dict__, "stable": stable, "movement_ldu": round(float(move), 4),
                                      "reason": None if stable else "unstable"})
     return verdicts  # type: ignore[return-value]
+
+
+_LAST_SCENE: list = []
+"""The last collision scene with what it was built from (the placed parts themselves, so their ids
+cannot be reused while it is kept). The sampler checks one part against one structure in several
+calls per step (batches, redraws of the same part); building the scene is most of a call's time."""
+
+
+def _collision_scene(structure: Structure, rel, floor: float) -> CollisionScene:
+    key = (tuple(id(p) for p in structure.placed),
+           tuple((id(part), pose.R.tobytes(), pose.t.tobytes()) for part, pose in rel), float(floor))
+    if _LAST_SCENE and _LAST_SCENE[0] == key:
+        return _LAST_SCENE[2]
+    scene = CollisionScene(structure, rel, floor)
+    _LAST_SCENE[:] = [key, (list(structure.placed), [part for part, _ in rel]), scene]
+    return scene
 
 
 def _other_connection(part: Part) -> bool:
