@@ -57,6 +57,18 @@ def iter_rows(out, split: str | None = None, columns=None) -> Iterator[dict]:
             yield from pf.read_row_group(g, columns=cols).to_pylist()
 
 
+def iter_objects(rows) -> Iterator[list[dict]]:
+    """Consecutive rows of one object as a list (a row group holds one object)."""
+    group: list[dict] = []
+    for row in rows:
+        if group and row["object_id"] != group[0]["object_id"]:
+            yield group
+            group = []
+        group.append(row)
+    if group:
+        yield group
+
+
 def count_rows(out, split: str | None = None) -> int:
     return sum(pq.ParquetFile(f).metadata.num_rows for f in shard_files(out, split))
 

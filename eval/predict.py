@@ -50,6 +50,7 @@ from eval.data import (
     catalog_rows,
     count_rows,
     info,
+    iter_objects,
     iter_rows,
     step_target,
 )
@@ -161,18 +162,6 @@ def parse_tasks(value: str) -> tuple[str, ...]:
     return tasks
 
 
-def _objects(rows) -> Iterator[list[dict]]:
-    """Consecutive rows of one object as a list (a row group holds one object)."""
-    group: list[dict] = []
-    for row in rows:
-        if group and row["object_id"] != group[0]["object_id"]:
-            yield group
-            group = []
-        group.append(row)
-    if group:
-        yield group
-
-
 def iter_predictions(data, predictor: Predictor, split: str | None = "test", tasks=TASKS,
                      limit: int | None = None, feedback: bool = False, progress: bool = False) -> Iterator[dict]:
     """The answer records of the split's steps (`split` None: every split), in dataset order."""
@@ -199,7 +188,7 @@ def iter_predictions(data, predictor: Predictor, split: str | None = "test", tas
     done = 0
     index = -1
     try:
-        for rows in _objects(iter_rows(data, split, columns)):
+        for rows in iter_objects(iter_rows(data, split, columns)):
             previous: dict[str, StepTarget] = {}
             for row in rows:
                 if done >= total:

@@ -57,17 +57,6 @@ def correction_messages(row: dict, predicted: str, errors: list[dict]) -> list[d
             {"role": "assistant", "content": [text_part(row["pose_answer"])]}]
 
 
-def _objects(rows):
-    group: list[dict] = []
-    for row in rows:
-        if group and row["object_id"] != group[0]["object_id"]:
-            yield group
-            group = []
-        group.append(row)
-    if group:
-        yield group
-
-
 def _sha256(path: Path) -> str:
     h = hashlib.sha256()
     with path.open("rb") as f:
@@ -78,7 +67,7 @@ def _sha256(path: Path) -> str:
 
 def build_feedback(data, pred, out, split: str = "train", progress: bool = False) -> dict:
     """Write the correction dataset OUT from predictions `pred` on `split` of `data`; returns the counts."""
-    from eval.data import info, iter_rows, load_targets
+    from eval.data import info, iter_objects, iter_rows, load_targets
     from eval.feedback import assembly_rows, before_rows, feedback_example
     from eval.parse import parse_pose
     from eval.score import read_predictions
@@ -106,7 +95,7 @@ def build_feedback(data, pred, out, split: str = "train", progress: bool = False
 
     bar = tqdm(unit="step", desc="feedback", disable=not progress, file=sys.stderr)
     try:
-        for rows in _objects(iter_rows(data, split)):
+        for rows in iter_objects(iter_rows(data, split)):
             built = []
             for row in rows:
                 bar.update(1)
