@@ -11,7 +11,7 @@ import io
 
 from PIL import Image
 
-TASKS = ("selection", "pose")
+from eval.metrics import TASKS
 
 
 def _check_task(task: str) -> None:

@@ -48,15 +48,14 @@ def feedback_columns() -> list[str]:
     return list(dict.fromkeys([*TARGET_COLUMNS, *columns_for("pose")]))
 
 
-def before_rows(object_rows: list[dict], row: dict) -> list[dict]:
-    """The rows whose bricks stand before `row` is built: earlier steps of its object and assembly."""
-    return [r for r in object_rows if r["object_id"] == row["object_id"] and r["assembly"] == row["assembly"]
-            and r["step_index"] < row["step_index"]]
-
-
 def assembly_rows(object_rows: list[dict], row: dict) -> list[dict]:
     """Every row of `row`'s object and assembly: the finished assembly frames every step of it alike."""
     return [r for r in object_rows if r["object_id"] == row["object_id"] and r["assembly"] == row["assembly"]]
+
+
+def before_rows(object_rows: list[dict], row: dict) -> list[dict]:
+    """The rows whose bricks stand before `row` is built: earlier steps of its object and assembly."""
+    return [r for r in assembly_rows(object_rows, row) if r["step_index"] < row["step_index"]]
 
 
 def placed_parts(rows: list[dict]) -> list:

@@ -29,18 +29,13 @@ from importlib import metadata
 from pathlib import Path
 
 from factory.cli import run_guarded
+from pipelines.dataset.config import write_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "factory" / "data" / "examples" / "tower.mpd"
 SHARED = ROOT.parent / "shared"
 BASELINES = ("oracle", "heuristic", "random")
 PACKAGES = ("numpy", "mujoco", "mujoco-mjx", "jax", "coacd", "trimesh", "pyarrow", "torch", "transformers")
-
-
-def _atomic_write(path: Path, data: str | bytes) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(data.encode() if isinstance(data, str) else data)
-    os.replace(tmp, path)
 
 
 def _version(name: str) -> str | None:
@@ -324,7 +319,7 @@ def run(args) -> int:
         report[name] = fn()
         report["section_s"][name] = round(time.perf_counter() - t, 1)
         report["wall_s"] = round(time.perf_counter() - t0, 1)
-        _atomic_write(out / "report.json", json.dumps(report, indent=1))
+        write_atomic(out / "report.json", json.dumps(report, indent=1).encode())
 
     backends = None if args.backends == "auto" else [b.strip() for b in args.backends.split(",") if b.strip()]
     for b in backends or []:
@@ -342,8 +337,8 @@ def run(args) -> int:
     section("evaluation", lambda: evaluation_section(datasets, work))
     report["wall_s"] = round(time.perf_counter() - t0, 1)
     report["plots"] = plots(report, out)
-    _atomic_write(out / "report.json", json.dumps(report, indent=1))
-    _atomic_write(out / "report.md", markdown(report))
+    write_atomic(out / "report.json", json.dumps(report, indent=1).encode())
+    write_atomic(out / "report.md", markdown(report).encode())
     print(f"bench: wrote {out / 'report.md'} and {out / 'report.json'} in {report['wall_s']:.0f} s")
     return 0
 

@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 
 FORMATS = ("llamafactory",)
-TASKS = ("selection", "pose")
+from eval.metrics import TASKS
 
 
 def _user_text(messages) -> str:

@@ -30,9 +30,10 @@ def tmp_dir(run: Path, name: str) -> Path:
 
 
 def write_atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    """`pipelines.dataset.config.write_atomic` for text (UTF-8)."""
+    from pipelines.dataset.config import write_atomic
+
+    write_atomic(path, text.encode())
 
 
 def publish(tmp: Path, final: Path) -> Path:

@@ -12,7 +12,8 @@ import json
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
-TASKS = ("selection", "pose")
+from eval.metrics import TASKS
+
 DTYPES = ("auto", "bf16", "fp32")
 DEVICES = ("auto", "cpu", "cuda")
 SPLITS = ("train", "test")

@@ -20,7 +20,6 @@ predictions and the dataset came from. Answers that get no example are counted b
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import sys
@@ -57,17 +56,10 @@ def correction_messages(row: dict, predicted: str, errors: list[dict]) -> list[d
             {"role": "assistant", "content": [text_part(row["pose_answer"])]}]
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with path.open("rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def build_feedback(data, pred, out, split: str = "train", progress: bool = False) -> dict:
     """Write the correction dataset OUT from predictions `pred` on `split` of `data`; returns the counts."""
     from eval.data import info, iter_objects, iter_rows, load_targets
+    from pipelines.dataset.sources import file_sha256
     from eval.feedback import assembly_rows, before_rows, feedback_example
     from eval.parse import parse_pose
     from eval.score import read_predictions
@@ -145,7 +137,7 @@ def build_feedback(data, pred, out, split: str = "train", progress: bool = False
         "source_config_hash": src.get("config_hash"),
         "source_split": split,
         "predictions": str(pred.resolve()),
-        "predictions_sha256": _sha256(pred),
+        "predictions_sha256": file_sha256(pred),
         "counts": {"train": {"objects": objects, "steps": counts["built"]}},
         "reasons": dict(sorted(counts.items())),
         "splits_present": ["train"],

@@ -117,7 +117,7 @@ def _rows(obj, config, split, timings, reader, colours) -> list[dict]:
         reuse = last_after[1] if last_after[0] == before_key else None
         res = render_step_full(list(step.before), list(step.new), config.size, reader=reader,
                                bounds=bounds[step.assembly], scene_parts=list(step.scene), before_views=reuse)
-        last_after = ((step.assembly, _placed_key(tuple(step.before) + tuple(step.new))), res.after_views)
+        last_after = ((step.assembly, before_key[1] + _placed_key(step.new)), res.after_views)
         entries = catalog_layout(reader, step.catalog)
         catalog_img, cells = render_catalog(entries, tile=config.tile, reader=reader)
         images = {
