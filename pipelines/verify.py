@@ -50,7 +50,7 @@ def _record(verdict: Verdict, **extra) -> dict:
     }
 
 
-def _faults(structure, local: Placed, backend, config, standing, step, index):
+def _faults(structure, local: Placed, backend, config, standing, step, index, finished=None):
     # Faults follow the part's connection: 'up' is away from the studs it sits on (or hangs from),
     # 'sideways' is across that axis, 'turn' is about it through the part's origin.
     axes = []
@@ -70,8 +70,12 @@ def _faults(structure, local: Placed, backend, config, standing, step, index):
     for name in FAULTS:
         if name == "turn":
             moved = Pose(rotation_about(up, 90.0) @ local.pose.R, local.pose.t)
-            if canonical_key(local.part, moved) == canonical_key(local.part, local.pose):
-                continue  # the part looks the same turned: no fault to inject
+            if canonical_key(local.part, moved) == canonical_key(local.part, local.pose) or np.allclose(
+                _envelope(local.part, moved), _envelope(local.part, local.pose), atol=1.0
+            ):
+                # The part looks the same turned, or fills the same box (a 1x1 or 2x2 part: only
+                # its slope or face turns): nothing it could clash with moves, no fault to inject.
+                continue
         elif name == "lift":
             moved = Pose(local.pose.R, local.pose.t + 8.0 * up)
         else:
@@ -79,6 +83,23 @@ def _faults(structure, local: Placed, backend, config, standing, step, index):
         (v,) = check_units(structure, [[Placed(local.part, local.colour, moved)]], backend, config,
                            standing=standing)
         yield _record(v, step=step, index=index, part=local.part.name, color=local.colour, fault=name)
+        if name == "turn" and finished is not None:
+            # The same turn in the finished design: every other part of the assembly in place,
+            # those built later too (a turn that fits the parts built so far can still clash
+            # with the parts the design puts around it).
+            others = Structure([q for q in finished if q is not local])
+            (v,) = check_units(others, [[Placed(local.part, local.colour, moved)]], backend, config,
+                               standing=standing)
+            yield _record(v, step=step, index=index, part=local.part.name, color=local.colour,
+                          fault=TURN_FINISHED)
+
+
+def _envelope(part, pose: Pose) -> np.ndarray:
+    """The axis-aligned box (LDU) a part fills at a pose."""
+    lo, hi = part.bbox
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    world = pose.apply(corners)
+    return np.stack([world.min(0), world.max(0)])
 
 
 def _on_table(structure: Structure, unit: list[Placed]) -> bool:
@@ -91,7 +112,9 @@ def _on_table(structure: Structure, unit: list[Placed]) -> bool:
 
 FAULTS = ("shift", "lift", "turn")
 """Injected faults: 10 LDU sideways, 8 LDU up (off its studs), a quarter turn about the stud axis
-through the part's origin (only where that changes the geometry)."""
+through the part's origin (only where that changes the geometry). Each is checked against the
+parts placed before it; the turn also against the finished design (`TURN_FINISHED`)."""
+TURN_FINISHED = "turn-in-finished-design"
 
 
 def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckConfig = CheckConfig(),
@@ -105,6 +128,19 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
     frames: dict[str, Pose] = {}
     steps = build_steps(reader, reader.open_model(model_path), frames)
     open_: list[_Assembly] = []
+    # Every part of each assembly in its own frame, in build order; a finished sub-assembly also
+    # belongs to its parents (for the turn fault judged in the finished design).
+    locals_of: dict[int, list[Placed]] = {}
+    finished: dict[str, list[Placed]] = {}
+    for step in steps:
+        to_local = frames[step.assembly].inverse()
+        locals_of[id(step)] = [Placed(load_part(reader, p.part), p.colour, to_local @ p.pose) for p in step.parts]
+        finished.setdefault(step.assembly, []).extend(locals_of[id(step)])
+    for depth in range(max((t.count("/") for t in finished), default=0), 0, -1):
+        for tag in [t for t in finished if t.count("/") == depth]:
+            parent = tag.rsplit("/", 1)[0]
+            move = frames[parent].inverse() @ frames[tag]
+            finished.setdefault(parent, []).extend(Placed(q.part, q.colour, move @ q.pose) for q in finished[tag])
 
     def close_until(tag: str):
         while open_ and not (tag == open_[-1].tag or tag.startswith(open_[-1].tag + "/")):
@@ -133,8 +169,7 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
                 open_.append(_Assembly(tag, frames[tag]))
         asm = open_[-1]
         asm.last_step = step.index
-        to_local = asm.frame.inverse()
-        locals_ = [Placed(load_part(reader, p.part), p.colour, to_local @ p.pose) for p in step.parts]
+        locals_ = locals_of[id(step)]
         for index, (placed, local) in enumerate(zip(step.parts, locals_)):
             standing = asm.tag == "main"
             (v,) = check_units(asm.structure, [[local]], backend, config,
@@ -146,13 +181,14 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
                 (v,) = check_units(later, [[local]], backend, config, standing=standing)
             yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour)
             if faults and v.ok and v.connected:
-                yield from _faults(asm.structure, local, backend, config, standing, step.index, index)
+                yield from _faults(asm.structure, local, backend, config, standing, step.index, index,
+                                   finished[asm.tag])
             asm.structure.add(local)
     yield from close_until("")
 
 
 RIGHT_REASONS = {"shift": {"collision", "no-connection"}, "lift": {"no-connection"},
-                 "turn": {"collision", "no-connection"}}
+                 "turn": {"collision", "no-connection"}, TURN_FINISHED: {"collision", "no-connection"}}
 
 
 def summarize(records: list[dict]) -> dict:
@@ -167,7 +203,7 @@ def summarize(records: list[dict]) -> dict:
         "rejections": dict(Counter(r["reason"] for r in judged if r["reason"])),
         "faults": {},
     }
-    for name in FAULTS:
+    for name in (*FAULTS, TURN_FINISHED):
         rs = [r for r in records if r.get("fault") == name]
         if rs:
             out["faults"][name] = {

@@ -222,3 +222,28 @@ def test_turning_a_symmetric_part_is_no_fault():
     pose = Pose(I3, [0, -24, 0])
     turned = Pose(rotation_about((0, -1, 0), 90) @ I3, [0, -24, 0])
     assert canonical_key(p, pose) == canonical_key(p, turned)
+
+
+@pytest.mark.parametrize("name, held_otherwise, offers_other", [
+    ("3001", False, False),   # brick: studs and sockets only
+    ("3068b", False, True),   # tile: sockets only, so it can only sit on studs
+    ("3938", True, True),     # hinge top: studs, no sockets; held by its hinge
+    ("3937", False, True),    # hinge base: sockets, no studs; offers the hinge
+    ("3641", True, True),     # tyre: neither
+    ("6157", True, True),     # wheel holder: Technic pins
+])
+def test_which_parts_may_be_held_by_connections_not_modelled(real_reader, name, held_otherwise, offers_other):
+    from factory.physics.check import _held_otherwise, _offers_other
+
+    p = load_part(real_reader, name)
+    assert (_held_otherwise(p), _offers_other(p)) == (held_otherwise, offers_other)
+
+
+def test_turn_faults_only_where_the_part_fills_another_box():
+    from pipelines.verify import _envelope
+
+    turn = rotation_about((0, -1, 0), 90)
+    square, long = part("3003"), part("3001")
+    pose = Pose(I3, [0, -24, 0])
+    assert np.allclose(_envelope(square, pose), _envelope(square, Pose(turn, pose.t)), atol=1.0)
+    assert not np.allclose(_envelope(long, pose), _envelope(long, Pose(turn, pose.t)), atol=1.0)

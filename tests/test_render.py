@@ -260,6 +260,25 @@ def test_adjacent_same_colour_bricks_are_distinguishable(reader, colour):
         assert seam_lum < 0.6 * face.mean(), (axis, seam_lum, face.mean())
 
 
+def test_a_scene_redraws_whatever_items_it_is_given(reader):
+    """Views of one set of parts reuse its poses and colours; other items, even equal copies or a
+    colour change, are drawn as given."""
+    size = 128
+    parts = [placed("3001", 4, (0, 0, 0)), placed("3001", 1, (0, -24, 0))]
+    f = Framing.from_bounds(bounds_of(parts, reader))
+    items = [Item(render.images.load_part(reader, p.part), p.colour, p.pose) for p in parts]
+    scene = scene_for([it.part for it in items], render.images.EDGE_PX * f.height / size)
+    colours = colour_table(reader)
+    both = render_rgb(scene, items, colours, "Front", f, size)
+    lower = render_rgb(scene, items[:1], colours, "Front", f, size)
+    recoloured = render_rgb(scene, [items[0], Item(items[1].part, 14, items[1].pose)], colours, "Front", f, size)
+    copies = render_rgb(scene, [Item(it.part, it.colour, it.pose) for it in items], colours, "Front", f, size)
+    again = render_rgb(scene, items, colours, "Front", f, size)
+    assert not np.array_equal(both, lower) and not np.array_equal(both, recoloured)
+    assert np.array_equal(both, copies) and np.array_equal(both, again)
+    assert np.allclose(scene.bounds(items), scene.bounds(items[:1]) + [[0, -24, 0], [0, 0, 0]])
+
+
 # -- catalog ---------------------------------------------------------------------------------------
 def test_catalog_cells_are_where_the_grid_says(reader):
     parts = [("3001", 71)] * 3 + [("3024", 71), ("3003", 71), ("3001", 4), ("3023", 71), ("3024", 71)]

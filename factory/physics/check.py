@@ -118,8 +118,8 @@ def check_units(
         collision = depth > config.max_penetration_ldu
         base = dict(pose=pose, connected=bool(conns), connections=len(conns), collision=collision,
                     max_penetration_ldu=round(depth, 4), touching=bool(near))
-        if not conns and near and any(_other_connection(p.part) for p in unit) and any(
-            _other_connection(structure.placed[i].part) for i in near
+        if not conns and near and any(_held_otherwise(p.part) for p in unit) and any(
+            _offers_other(structure.placed[i].part) for i in near
         ):
             # Held by a connection we do not model (both sides have one): not judged here.
             verdicts[k] = Verdict(**base, reason="unsupported-connection")
@@ -176,9 +176,16 @@ def _collision_scene(structure: Structure, rel, floor: float) -> CollisionScene:
     return scene
 
 
-def _other_connection(part: Part) -> bool:
-    """Whether a part can join others by more than studs: Technic or clip primitives, or a side
-    without studs or sockets (a hinge half, a tyre, a rim)."""
+def _held_otherwise(part: Part) -> bool:
+    """Whether a new part can be held by more than studs: Technic or clip primitives, or no
+    sockets to sit on studs with (a hinge top, a tyre, a rim). A tile or a cheese slope has
+    sockets and nothing else to hold it: off its studs it is judged like any brick."""
+    return part.flat.other_connectors > 0 or not part.sockets
+
+
+def _offers_other(part: Part) -> bool:
+    """Whether a placed part can hold another by more than studs: Technic or clip primitives, or
+    a side without studs or sockets (a hinge half, a tyre, a rim)."""
     return part.flat.other_connectors > 0 or not part.studs or not part.sockets
 
 

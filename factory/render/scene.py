@@ -199,6 +199,8 @@ class Scene:
         self._background: dict[int, tuple[int, int, int]] = {}
         self._buffer = 512
         self.shown: list[int] = []
+        self._show_key: tuple | None = None
+        self._bounds_memo: tuple | None = None
         self._vertices = {id(p): part_geometry(p).vertices for p in self.parts}
 
     @staticmethod
@@ -219,6 +221,12 @@ class Scene:
 
         `edges=False` leaves the outline prisms hidden (segmentation needs faces only).
         """
+        # The views of one image set show the same items: on a GPU, rewriting 60 parts' poses and
+        # colours per view cost more than drawing it. Items are frozen; `_shown_items` holds them,
+        # so their ids cannot be reused while the key is kept.
+        key = (tuple(map(id, items)), id(colours), edges)
+        if key == self._show_key:
+            return self.shown
         free: dict[int, list[int]] = {}
         for slot, part in enumerate(self.parts):
             free.setdefault(id(part), []).append(slot)
@@ -249,15 +257,21 @@ class Scene:
                     m.geom_group[gid] = SHOWN
         self.shown = slots
         self._shown_items = list(items)
+        self._show_key = key
         return slots
 
     def bounds(self, items: Sequence[Item]) -> np.ndarray:
         """Exact axis-aligned bounds (LDU) of placed items, from their mesh vertices."""
+        key = tuple(map(id, items))
+        if self._bounds_memo is not None and self._bounds_memo[0] == key:
+            return self._bounds_memo[2].copy()
         pts = [it.pose.apply(self._vertices[id(it.part)]) for it in items if len(self._vertices[id(it.part)])]
         if not pts:
             return np.zeros((2, 3))
         allp = np.concatenate(pts)
-        return np.stack([allp.min(0), allp.max(0)])
+        out = np.stack([allp.min(0), allp.max(0)])
+        self._bounds_memo = (key, list(items), out)
+        return out.copy()
 
     # -- GL ----------------------------------------------------------------------------------
     def context(self, kind: str, size: int) -> mujoco.MjrContext:
