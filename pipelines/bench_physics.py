@@ -20,7 +20,7 @@ import numpy as np
 
 from factory import Pose, get_reader, load_part
 from factory.physics.check import CheckConfig, check
-from factory.physics.stability import MassAggregate, rigid_object, rollout_cpu
+from factory.physics.stability import MassAggregate, StabilityConfig, rigid_object, rollout_cpu
 from factory.physics.attach import feasible_poses, lowest_y
 from factory.physics.structure import Placed, Structure
 
@@ -53,11 +53,12 @@ def candidates(s: Structure, batch: int, seed: int = 1) -> list[Pose]:
     return [poses[i] for i in rng.integers(0, len(poses), size=batch)]
 
 
-def measure(backends, sizes, batches, log=None, full_max: int | None = None) -> list[dict]:
+def measure(backends, sizes, batches, log=None, full_max: int | None = None,
+            config: CheckConfig = CheckConfig()) -> list[dict]:
     """One row per (size, batch, backend): rollout-only and full-check candidates per second (full
     checks only up to `full_max` candidates: their contact stage runs on the CPU for every backend)."""
     brick = load_part(get_reader(), "3001")
-    cfg = CheckConfig()
+    cfg = config
     rows = []
     for n in sizes:
         t0 = time.perf_counter()
@@ -66,7 +67,10 @@ def measure(backends, sizes, batches, log=None, full_max: int | None = None) -> 
         for batch in batches:
             poses = candidates(s, batch)
             base = MassAggregate.of(s.placed)
-            objs = [rigid_object(base + MassAggregate.of([Placed(brick, 4, p)]), 24.0, cfg.stability) for p in poses]
+            # Candidates repeat (drawn with replacement): each distinct pose is merged once.
+            merged = {id(p): rigid_object(base + MassAggregate.of([Placed(brick, 4, p)]), 24.0, cfg.stability)
+                      for p in {id(p): p for p in poses}.values()}
+            objs = [merged[id(p)] for p in poses]
             for backend in backends:
                 if backend == "mjx":
                     from factory.physics.mjx_backend import COMPILES, rollout_mjx
@@ -89,7 +93,7 @@ def measure(backends, sizes, batches, log=None, full_max: int | None = None) -> 
                     "unstable_in_rollout": int(np.sum(moves > cfg.stability.max_move_ldu)),
                     "compile_s": round(compile_s, 2), "compiles_so_far": compiles,
                     "grow_s": round(grow_s, 1),
-                    "solver_iterations": cfg.stability.iterations,
+                    "solver_iterations": cfg.stability.iterations, "ls_iterations": cfg.stability.ls_iterations,
                 }
                 if full_max is None or batch <= full_max:
                     t = time.perf_counter()
@@ -103,17 +107,24 @@ def measure(backends, sizes, batches, log=None, full_max: int | None = None) -> 
     return rows
 
 
+def _config(args) -> CheckConfig:
+    solver = {k: v for k, v in (("iterations", args.iterations), ("ls_iterations", args.ls_iterations)) if v}
+    return CheckConfig(stability=StabilityConfig(**solver))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m pipelines.bench_physics")
     ap.add_argument("--backends", default="mujoco")
     ap.add_argument("--sizes", default="10,30,60")
     ap.add_argument("--batches", default="256")
     ap.add_argument("--full-max", type=int, help="run full checks only for batches up to this size")
+    ap.add_argument("--iterations", type=int, help="solver iterations of the rollout (default: StabilityConfig's)")
+    ap.add_argument("--ls-iterations", type=int, help="line-search iterations (default: StabilityConfig's)")
     ap.add_argument("--out")
     args = ap.parse_args(argv)
     rows = measure(args.backends.split(","), [int(x) for x in args.sizes.split(",")],
                    [int(x) for x in args.batches.split(",")], log=lambda r: print(json.dumps(r), flush=True),
-                   full_max=args.full_max)
+                   full_max=args.full_max, config=_config(args))
     if args.out:
         meta = {"machine": platform.node(), "processor": platform.processor(), "rows": rows}
         with open(args.out, "w") as fh:

@@ -247,3 +247,21 @@ def test_turn_faults_only_where_the_part_fills_another_box():
     pose = Pose(I3, [0, -24, 0])
     assert np.allclose(_envelope(square, pose), _envelope(square, Pose(turn, pose.t)), atol=1.0)
     assert not np.allclose(_envelope(long, pose), _envelope(long, Pose(turn, pose.t)), atol=1.0)
+
+
+def test_batched_movement_matches_one_object_at_a_time():
+    from factory.physics.stability import RigidObject, movement_ldu, movements_ldu
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    n = 64
+    corners = rng.normal(size=(n, 8, 3)) * 0.02
+    com = rng.normal(size=(n, 3)) * 0.05
+    quat = Rotation.random(n, random_state=4).as_quat()[:, [3, 0, 1, 2]]  # w x y z
+    qpos = np.column_stack([com + rng.normal(size=(n, 3)) * 0.003, quat])
+    qpos[5, 2] = np.nan  # a diverged rollout
+    got = movements_ldu(corners, com, qpos)
+    for k in range(n):
+        obj = RigidObject(0.01, com[k], np.ones(3), np.array([1.0, 0, 0, 0]), np.zeros((16, 3)), corners[k])
+        want = np.inf if k == 5 else movement_ldu(obj, qpos[k])
+        assert got[k] == pytest.approx(want, rel=1e-9, abs=1e-9)

@@ -12,7 +12,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from factory.physics.stability import RigidObject, StabilityConfig, movement_ldu, stability_model
+from factory.physics.stability import RigidObject, StabilityConfig, movements_ldu, stability_model
 
 BUCKETS = (64, 256, 1024, 4096, 16384, 65536)
 """Batch sizes the rollout is compiled for; larger batches run in chunks of the largest."""
@@ -54,17 +54,11 @@ def rollout_mjx(objs: list[RigidObject], cfg: StabilityConfig) -> np.ndarray:
     while start < len(objs):
         chunk = objs[start : start + BUCKETS[-1]]
         bucket = next(b for b in BUCKETS if b >= len(chunk))
-        pad = chunk + [chunk[-1]] * (bucket - len(chunk))
-        args = (
-            np.array([o.mass for o in pad]),
-            np.array([o.inertia for o in pad]),
-            np.array([o.iquat for o in pad]),
-            np.array([o.feet for o in pad]),
-            np.array([o.com for o in pad]),
-        )
-        qpos = np.asarray(_rollout_fn(cfg, bucket)(*args))
-        for k, obj in enumerate(chunk):
-            q = qpos[k]
-            out[start + k] = movement_ldu(obj, q) if np.all(np.isfinite(q)) else np.inf
-        start += len(chunk)
+        n = len(chunk)
+        pad = np.r_[np.arange(n), np.full(bucket - n, n - 1)]  # repeat the last object into the bucket
+        fields = {k: np.array([getattr(o, k) for o in chunk]) for k in ("mass", "inertia", "iquat", "feet", "com", "corners")}
+        args = tuple(fields[k][pad] for k in ("mass", "inertia", "iquat", "feet", "com"))
+        qpos = np.asarray(_rollout_fn(cfg, bucket)(*args))[:n]
+        out[start : start + n] = movements_ldu(fields["corners"], fields["com"], qpos)
+        start += n
     return out

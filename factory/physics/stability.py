@@ -56,8 +56,9 @@ class StabilityConfig:
     member converges, so this limit sets its cost: MuJoCo's default (100, line search 50) made MJX
     rollouts 2.3x slower on this CPU than 8 (16). A body on its feet needs few: 8 gave the sampler
     the same objects as 100, byte for byte (4 did not: 17 of 166 steps changed)."""
-    ls_iterations: int = 16
-    """Line-search iterations per solver iteration at most."""
+    ls_iterations: int = 8
+    """Line-search iterations per solver iteration at most: 8 gave byte-identical objects to 16 and
+    to MuJoCo's 50; 4 kept every verdict but moved one recorded movement in 166 steps."""
 
     @property
     def steps(self) -> int:
@@ -232,6 +233,25 @@ def movement_ldu(obj: RigidObject, qpos: np.ndarray) -> float:
     rot = rot.reshape(3, 3)
     moved = obj.corners @ rot.T + pos - (obj.corners + obj.com)
     return float(max(np.linalg.norm(pos - obj.com), np.linalg.norm(moved, axis=1).max()) / LDU_M)
+
+
+def movements_ldu(corners: np.ndarray, com: np.ndarray, qpos: np.ndarray) -> np.ndarray:
+    """`movement_ldu` of many objects at once: corners (n, 8, 3) and start COMs (n, 3) of the
+    objects, final qpos (n, 7); inf where a rollout diverged (NaN). At 65,536 MJX rollouts a call
+    per object cost 2.4 s in Python next to 4.7 s on the GPU."""
+    q = np.asarray(qpos, dtype=np.float64)
+    pos = q[:, :3]
+    w, x, y, z = q[:, 3:7].T
+    rot = np.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ], axis=-1).reshape(-1, 3, 3)
+    moved = np.einsum("nij,nkj->nki", rot, corners) + pos[:, None] - (corners + com[:, None])
+    with np.errstate(invalid="ignore"):
+        out = np.maximum(np.linalg.norm(pos - com, axis=1), np.linalg.norm(moved, axis=2).max(axis=1)) / LDU_M
+    out[~np.isfinite(q).all(axis=1)] = np.inf
+    return out
 
 
 DIVERGED_WARNINGS = [0]
