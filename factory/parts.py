@@ -17,6 +17,11 @@ LDU_CM = 0.04
 """Centimetres per LDraw unit (1 LDU = 0.4 mm)."""
 
 
+def box_corners(bounds: np.ndarray) -> np.ndarray:
+    """The 8 corners (8, 3) of an axis-aligned box given as [lo, hi]."""
+    lo, hi = np.asarray(bounds, float)
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+
 @dataclass(frozen=True, eq=False)
 class Part:
     """A library part flattened into one mesh in its own LDraw frame (LDU, -Y up)."""

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 from factory.cli import run_guarded
 from factory.ldraw import build_steps, get_reader
-from factory.parts import load_part
+from factory.parts import box_corners, load_part
 from factory.physics.check import BACKENDS, CheckConfig, Verdict, check_units
 from factory.physics.structure import Placed, Structure, canonical_key, connectors, match
 from factory.pose import Pose
@@ -96,9 +96,7 @@ def _faults(structure, local: Placed, backend, config, standing, step, index, fi
 
 def _envelope(part, pose: Pose) -> np.ndarray:
     """The axis-aligned box (LDU) a part fills at a pose."""
-    lo, hi = part.bbox
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    world = pose.apply(corners)
+    world = pose.apply(box_corners(part.bbox))
     return np.stack([world.min(0), world.max(0)])
 
 

@@ -42,7 +42,7 @@ from factory.render import (
     render_step,
     render_step_full,
 )
-from factory.render.cameras import box_corners
+from factory.parts import box_corners
 from factory.render.images import _axes_margins, bounds_of
 from factory.render.scene import Item, colour_table, scene_for
 from factory.render.views import render_rgb, render_seg

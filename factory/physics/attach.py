@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from factory.parts import Part
+from factory.parts import Part, box_corners
 from factory.physics.structure import Structure, align
 from factory.pose import Pose
 from factory.symmetry import rotation_about
@@ -87,7 +87,5 @@ def feasible_poses(structure: Structure, part: Part) -> list[Pose]:
 
 def lowest_y(part: Part, r: np.ndarray, t: np.ndarray) -> np.ndarray:
     """The lowest point (largest LDraw y) of the part's bounding box at each pose (n,)."""
-    lo, hi = part.bbox
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    ys = np.einsum("nj,kj->nk", r[:, 1, :], corners) + t[:, 1:2]
+    ys = np.einsum("nj,kj->nk", r[:, 1, :], box_corners(part.bbox)) + t[:, 1:2]
     return ys.max(axis=1)

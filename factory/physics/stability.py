@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from factory.connections import STUD_RADIUS
-from factory.parts import Part
+from factory.parts import Part, box_corners
 from factory.physics.geometry import collision_shape
 from factory.physics.structure import Placed
 from factory.pose import LDRAW_TO_MUJOCO, LDU_M, points_to_mujoco
@@ -158,8 +158,7 @@ def rigid_object(placed, floor_y: float, cfg: StabilityConfig) -> RigidObject:
     if np.linalg.det(axes) < 0:
         axes[:, 0] = -axes[:, 0]
     pts = points_to_mujoco(agg.points)
-    lo, hi = pts.min(0), pts.max(0)
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    corners = box_corners([pts.min(0), pts.max(0)])
     support = agg.points[agg.points[:, 1] >= floor_y - 0.5]
     feet = _support_points(points_to_mujoco(support), cfg.n_feet)
     # The scene's ground plane is z = 0: lift everything by the ground's height.

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from factory.parts import Part
+from factory.parts import Part, box_corners
 from factory.pose import Pose
 from factory.symmetry import rotation_about
 
@@ -119,12 +119,7 @@ class Structure:
         """The ground plane's height: the lowest point of the structure (LDraw y grows down)."""
         if not self.placed:
             return 0.0
-        return max(float(p.pose.apply(_corners(p.part.bbox))[:, 1].max()) for p in self.placed)
-
-
-def _corners(bbox: np.ndarray) -> np.ndarray:
-    lo, hi = bbox
-    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        return max(float(p.pose.apply(box_corners(p.part.bbox))[:, 1].max()) for p in self.placed)
 
 
 def align(b: np.ndarray, a: np.ndarray) -> np.ndarray:

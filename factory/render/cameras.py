@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from factory.parts import box_corners
 from factory.pose import LDU_M, points_to_mujoco
 
 ORTHO_VIEWS = ("Top", "Front", "Right", "Bottom", "Back", "Left")
@@ -89,11 +90,6 @@ def _as_view(view: str | View) -> View:
         return VIEWS[view]
     except KeyError:
         raise ValueError(f"unknown view {view!r}; expected one of {', '.join(VIEWS)}") from None
-
-
-def box_corners(bounds: np.ndarray) -> np.ndarray:
-    lo, hi = np.asarray(bounds, float)
-    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
 
 
 @dataclass(frozen=True)
