@@ -29,7 +29,7 @@ from importlib import metadata
 from pathlib import Path
 
 from factory.cli import run_guarded
-from pipelines.dataset.config import write_atomic
+from factory.atomic import write_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "factory" / "data" / "examples" / "tower.mpd"

@@ -29,7 +29,7 @@ from factory.cli import run_guarded
 from factory.physics.check import BACKENDS
 from factory.physics.stability import DIVERGED_WARNINGS
 from factory.sampler import Sampler, SamplerConfig, SamplerConfigError
-from factory.sampler.assembly import write_atomic
+from factory.atomic import write_atomic
 
 _SAMPLER: Sampler | None = None
 _WARNINGS = DIVERGED_WARNINGS  # diverging rollouts, counted by the physics (not printed)

@@ -30,8 +30,8 @@ def tmp_dir(run: Path, name: str) -> Path:
 
 
 def write_atomic_text(path: Path, text: str) -> None:
-    """`pipelines.dataset.config.write_atomic` for text (UTF-8)."""
-    from pipelines.dataset.config import write_atomic
+    """`factory.atomic.write_atomic` for text (UTF-8)."""
+    from factory.atomic import write_atomic
 
     write_atomic(path, text.encode())
 

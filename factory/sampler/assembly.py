@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import os
 import re
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
+from factory.atomic import write_atomic
 from factory.ldraw import get_reader, read_steps
 from factory.parts import load_part
 from factory.physics.check import Verdict
@@ -179,23 +179,6 @@ def _read_meta(path: Path) -> dict[str, str]:
                 tokens = m.group(1).split()
                 return dict(zip(tokens[::2], tokens[1::2]))
     return {}
-
-
-def write_atomic(path: str | os.PathLike, data: bytes) -> None:
-    """Write bytes to `path` through a temporary file in the same folder and `os.replace`."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
 
 
 def steps_of(assembly: Assembly) -> Sequence[tuple[str, int, Pose]]:

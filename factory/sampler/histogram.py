@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from factory.sampler.assembly import write_atomic
+from factory.atomic import write_atomic
 
 COLOURS = [(200, 60, 50), (40, 100, 190), (60, 150, 70), (150, 90, 170)]
 

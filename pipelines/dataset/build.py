@@ -15,6 +15,7 @@ import time
 from importlib import metadata
 from pathlib import Path
 
+from factory.atomic import write_atomic
 from pipelines.dataset.config import (
     SCHEMA_VERSION,
     SPLITS,
@@ -22,7 +23,6 @@ from pipelines.dataset.config import (
     DatasetConfig,
     diff_configs,
     json_bytes,
-    write_atomic,
 )
 from pipelines.dataset.shards import build_shard, read_marker
 

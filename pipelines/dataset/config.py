@@ -10,9 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 from dataclasses import asdict, dataclass, field, fields
-from pathlib import Path
 
 SCHEMA_VERSION = 1
 """Version of the row layout (`schema.py`); part of the config hash."""
@@ -163,18 +161,6 @@ def diff_configs(old: dict, new: dict, prefix: str = "") -> list[str]:
                 sb = sb[:57] + "..."
             out.append(f"{prefix}{k}: {sa} -> {sb}")
     return out
-
-
-def write_atomic(path: str | os.PathLike, data: bytes) -> None:
-    """Write `data` through a temporary file in the same folder and `os.replace` (fsynced)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def json_bytes(obj) -> bytes:

@@ -9,7 +9,8 @@ from pathlib import Path
 import pyarrow.parquet as pq
 from PIL import Image
 
-from pipelines.dataset.config import SPLITS, write_atomic
+from factory.atomic import write_atomic
+from pipelines.dataset.config import SPLITS
 
 MAX_SAMPLES = 12
 SHOWN = ("before", "after", "isometric", "part", "axes", "catalog")

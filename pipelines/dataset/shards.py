@@ -25,7 +25,8 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pipelines.dataset.config import SPLITS, DatasetConfig, json_bytes, write_atomic
+from factory.atomic import write_atomic
+from pipelines.dataset.config import SPLITS, DatasetConfig, json_bytes
 from pipelines.dataset.schema import SCHEMA
 
 WRITER_OPTIONS = dict(

@@ -1,0 +1,31 @@
+"""Atomic writes: the old file or the whole new one, and no temporary file left behind."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from factory.atomic import write_atomic
+
+
+def test_write_replaces_and_creates_folders(tmp_path):
+    path = tmp_path / "a" / "b" / "f.json"
+    write_atomic(path, b"one")
+    write_atomic(path, b"two")
+    assert path.read_bytes() == b"two"
+    assert os.listdir(path.parent) == ["f.json"]
+
+
+def test_a_failed_write_keeps_the_old_file_and_cleans_up(tmp_path, monkeypatch):
+    path = tmp_path / "f.json"
+    write_atomic(path, b"old")
+
+    def broken(src, dst):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(os, "replace", broken)
+    with pytest.raises(OSError, match="disk full"):
+        write_atomic(path, b"new")
+    assert path.read_bytes() == b"old"
+    assert os.listdir(tmp_path) == ["f.json"]
