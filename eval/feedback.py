@@ -98,6 +98,18 @@ def feedback_render(row: dict, predicted_text, before: list[dict], reader, size:
                            scene_parts=scene_parts or None)
 
 
+def revision_messages(row: dict, predicted_text: str, errors: list[dict]) -> list[dict]:
+    """The row's pose prompt (Parquet message format), the wrong answer and the feedback turn that
+    asks for a revision: what a model is asked at evaluation, and a correction row's prompt."""
+    from pipelines.dataset.prompts import feedback_turn, text_part
+
+    prompt = list(row["pose_messages"])
+    if prompt and prompt[-1]["role"] == "assistant":
+        prompt = prompt[:-1]
+    return [*prompt, {"role": "assistant", "content": [text_part(predicted_text)]},
+            feedback_turn(errors, image_index=len(row["pose_images"]))]
+
+
 def feedback_example(row: dict, predicted_text, before: list[dict], reader, size: int, *,
                      scene: list[dict] | None = None) -> Feedback | None:
     """The revision conversation for a pose answer, or None when it gets no feedback.
@@ -107,16 +119,10 @@ def feedback_example(row: dict, predicted_text, before: list[dict], reader, size
     dataset's view size (`info["config"]["size"]`); `scene`: the rows of the whole assembly
     (`assembly_rows`) to frame the render like the row's own images (default: before and row).
     """
-    from pipelines.dataset.prompts import feedback_turn
-
     errors = pose_errors(row, predicted_text)
     if errors is None:
         return None
-    messages, images, _ = task_chat(row, "pose")
+    _, images, _ = task_chat(row, "pose")
     image = feedback_render(row, predicted_text, before, reader, size, scene)
-    turns = clean_messages([
-        {"role": "assistant", "content": [{"type": "text", "text": predicted_text}]},
-        feedback_turn(errors, image_index=len(images)),
-    ])
-    return Feedback(messages + turns, [*images, image], errors)
+    return Feedback(clean_messages(revision_messages(row, predicted_text, errors)), [*images, image], errors)
 

@@ -171,6 +171,12 @@ def _fmt(v, digits: int = 3) -> str:
     return "-" if v is None else f"{v:.{digits}f}"
 
 
+def _table(header: list[str], rows: list[list]) -> list[str]:
+    """A markdown table: the first column left-aligned, the numbers right-aligned."""
+    return ["| " + " | ".join(header) + " |", "|---|" + "---:|" * (len(header) - 1),
+            *("| " + " | ".join(str(c) for c in row) + " |" for row in rows)]
+
+
 # -- report ---------------------------------------------------------------------------------------
 
 
@@ -244,21 +250,17 @@ def markdown(report: dict) -> str:
              f"Machine: {m['cpus']} CPUs ({m['processor']}), GPU: {m['gpu'] or 'none'}, "
              f"Python {m['python']}, MUJOCO_GL={m['mujoco_gl']}. Total {report['wall_s']:.0f} s.", ""]
     if "physics" in report:
-        lines += ["## Physics checker", "", report["physics"]["note"] + ".", "",
-                  "| backend | bricks | batch | checks/s | rollouts/s | accepted | compile s |",
-                  "|---|---:|---:|---:|---:|---:|---:|"]
-        for r in report["physics"]["rows"]:
-            lines.append(f"| {r['backend']} | {r['bricks']} | {r['batch']} | {r.get('checks_per_s', '-')} | "
-                         f"{r['rollouts_per_s']} | {r.get('accepted', '-')} | {r['compile_s']} |")
+        lines += ["## Physics checker", "", report["physics"]["note"] + ".", ""]
+        lines += _table(["backend", "bricks", "batch", "checks/s", "rollouts/s", "accepted", "compile s"],
+                        [[r["backend"], r["bricks"], r["batch"], r.get("checks_per_s", "-"), r["rollouts_per_s"],
+                          r.get("accepted", "-"), r["compile_s"]] for r in report["physics"]["rows"]])
         lines += ["", "![physics](physics.png)", ""]
     if "render" in report:
         lines += ["## Renders", "", "Best of 3 passes over 7 views (6 orthographic, 1 isometric) at 256 px; "
-                  "a step render is every image of one step except the catalog.", "",
-                  "| model | parts | RGB views/s | segmentation views/s | step render s |",
-                  "|---|---:|---:|---:|---:|"]
-        for r in report["render"]["rows"]:
-            lines.append(f"| {r['model']} | {r['parts']} | {r['rgb_views_per_s']} | {r['seg_views_per_s']} | "
-                         f"{r['step_render_s']} |")
+                  "a step render is every image of one step except the catalog.", ""]
+        lines += _table(["model", "parts", "RGB views/s", "segmentation views/s", "step render s"],
+                        [[r["model"], r["parts"], r["rgb_views_per_s"], r["seg_views_per_s"], r["step_render_s"]]
+                         for r in report["render"]["rows"]])
         lines += ["", "![render](render.png)", ""]
     if "synth" in report:
         s = report["synth"]
@@ -278,24 +280,24 @@ def markdown(report: dict) -> str:
                   "`paper`: per-axis |dt| <= 10 LDU and rotation < 45 degrees; `strict`: within 0.5 LDU and "
                   "1 degree. Overall = mean over objects of per-object means. `random + feedback`: the random "
                   "baseline's pose answers after one world-feedback revision.", ""]
+        def scores(label, paper, strict, unparseable):
+            return [label, _fmt(paper["selection_accuracy"]), _fmt(paper["translation_error_ldu"], 1),
+                    _fmt(paper["rotation_error_deg"], 1), _fmt(paper["step_success"]),
+                    _fmt(strict["step_success"]), unparseable]
+
         for name, e in report["evaluation"].items():
-            lines += [f"### {name} ({e['split']} split)", "",
-                      "| model | selection | transl. err LDU | rot. err deg | success paper | success strict | "
-                      "unparseable |", "|---|---:|---:|---:|---:|---:|---:|"]
+            rows = []
             for model, r in e["baselines"].items():
                 sc = r["scores"]
-                p, s = sc["paper"], sc["strict"]
-                lines.append(f"| {model} | {_fmt(p['overall']['selection_accuracy'])} | "
-                             f"{_fmt(p['overall']['translation_error_ldu'], 1)} | "
-                             f"{_fmt(p['overall']['rotation_error_deg'], 1)} | {_fmt(p['overall']['step_success'])} | "
-                             f"{_fmt(s['overall']['step_success'])} | {p['counts']['unparseable']} |")
+                rows.append(scores(model, sc["paper"]["overall"], sc["strict"]["overall"],
+                                   sc["paper"]["counts"]["unparseable"]))
                 fb = sc.get("feedback")
                 if fb:
-                    fp, fs = fb["paper"]["overall"], fb["strict"]["overall"]
-                    lines.append(f"| {model} + feedback ({fb['revised_steps']} revised) | "
-                                 f"{_fmt(fp['selection_accuracy'])} | {_fmt(fp['translation_error_ldu'], 1)} | "
-                                 f"{_fmt(fp['rotation_error_deg'], 1)} | {_fmt(fp['step_success'])} | "
-                                 f"{_fmt(fs['step_success'])} | - |")
+                    rows.append(scores(f"{model} + feedback ({fb['revised_steps']} revised)",
+                                       fb["paper"]["overall"], fb["strict"]["overall"], "-"))
+            lines += [f"### {name} ({e['split']} split)", ""]
+            lines += _table(["model", "selection", "transl. err LDU", "rot. err deg", "success paper",
+                             "success strict", "unparseable"], rows)
             lines.append("")
         lines += ["![baselines](eval.png)", ""]
     lines += ["Sections and their seconds: " + ", ".join(f"{k} {v:.0f}" for k, v in report["section_s"].items()), ""]

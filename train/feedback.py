@@ -45,14 +45,10 @@ def feedback_schema() -> pa.Schema:
 def correction_messages(row: dict, predicted: str, errors: list[dict]) -> list[dict]:
     """The row's pose conversation (Parquet format) with the wrong answer, the feedback turn and the
     right answer appended: what `eval.feedback.feedback_example` asks, then its target."""
-    from pipelines.dataset.prompts import feedback_turn, text_part
+    from eval.feedback import revision_messages
+    from pipelines.dataset.prompts import text_part
 
-    prompt = [m for m in row["pose_messages"]]
-    if prompt and prompt[-1]["role"] == "assistant":
-        prompt = prompt[:-1]
-    return [*prompt,
-            {"role": "assistant", "content": [text_part(predicted)]},
-            feedback_turn(errors, image_index=len(row["pose_images"])),
+    return [*revision_messages(row, predicted, errors),
             {"role": "assistant", "content": [text_part(row["pose_answer"])]}]
 
 

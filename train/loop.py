@@ -154,25 +154,23 @@ class Batches:
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
 
+    def _put(self, item) -> None:
+        """Queue `item`, waiting while the queue is full, unless the consumer stops first."""
+        while not self.stop.is_set():
+            try:
+                self.q.put(item, timeout=0.2)
+                return
+            except queue.Full:
+                continue
+
     def _run(self):
         it = iter(self.stream)
         try:
             while not self.stop.is_set():
                 examples = [next(it) for _ in range(self.batch_size)]
-                item = (collate(examples, self.pad_id), self.stream.position, self.stream.skipped)
-                while not self.stop.is_set():
-                    try:
-                        self.q.put(item, timeout=0.2)
-                        break
-                    except queue.Full:
-                        continue
+                self._put((collate(examples, self.pad_id), self.stream.position, self.stream.skipped))
         except BaseException as exc:  # handed to the consumer
-            while not self.stop.is_set():
-                try:
-                    self.q.put(exc, timeout=0.2)
-                    break
-                except queue.Full:
-                    continue
+            self._put(exc)
         finally:
             it.close()  # ends the stream's worker processes
 

@@ -236,8 +236,9 @@ def movement_ldu(obj: RigidObject, qpos: np.ndarray) -> float:
 
 def movements_ldu(corners: np.ndarray, com: np.ndarray, qpos: np.ndarray) -> np.ndarray:
     """`movement_ldu` of many objects at once: corners (n, 8, 3) and start COMs (n, 3) of the
-    objects, final qpos (n, 7); inf where a rollout diverged (NaN). At 65,536 MJX rollouts a call
-    per object cost 2.4 s in Python next to 4.7 s on the GPU."""
+    objects, final qpos (n, 7); inf where a rollout diverged (NaN). At 65,536 MJX rollouts on the
+    H100 a call per object took about a third of `rollout_mjx`'s time (9,154 against 13,886
+    rollouts/s for the bare jitted function)."""
     q = np.asarray(qpos, dtype=np.float64)
     pos = q[:, :3]
     w, x, y, z = q[:, 3:7].T
