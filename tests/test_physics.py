@@ -233,10 +233,41 @@ def test_turning_a_symmetric_part_is_no_fault():
     ("6157", True, True),     # wheel holder: Technic pins
 ])
 def test_which_parts_may_be_held_by_connections_not_modelled(real_reader, name, held_otherwise, offers_other):
-    from factory.physics.check import _held_otherwise, _offers_other
+    from factory.physics import unmodelled
 
     p = load_part(real_reader, name)
-    assert (_held_otherwise(p), _offers_other(p)) == (held_otherwise, offers_other)
+    assert (unmodelled.held_otherwise(p), unmodelled.offers_other(p)) == (held_otherwise, offers_other)
+
+
+def test_a_pin_is_excused_only_in_the_hole(real_reader):
+    # A Technic beam 1 (18654: one pin hole along Y through its centre, 20 LDU long) and a friction
+    # pin (2780: two 20 LDU halves along X from its collar) turned to run along Y, half in the hole.
+    # Parts chosen for cheap collision pieces (a few seconds of coacd each).
+    beam, pin = load_part(real_reader, "18654"), load_part(real_reader, "2780")
+    base = Structure([Placed(beam, 4, Pose.identity())])
+    along_y = rotation_about((0, 0, 1), 90)
+    real, shifted, sideways = check(base, pin, [Pose(along_y, [0, -10, 0]), Pose(along_y, [10, -10, 0]),
+                                                Pose(along_y, [0, -10, 8])])
+    assert real.reason == "unsupported-connection"
+    # Both parts have Technic connectors, as before; but off the hole's axis the pin is judged like
+    # any part: it runs into the beam.
+    assert shifted.reason == "collision" and sideways.reason == "collision"
+
+
+def test_hinge_halves_are_excused_only_on_one_axis(real_reader):
+    from factory.physics.unmodelled import may_hold
+
+    dual, single = load_part(real_reader, "44302"), load_part(real_reader, "44301")
+    # Both hinge axes run along Z 10 LDU past the plate's end: turned about Y and 60 LDU on, the
+    # single finger sits between the two (the plates lie end to end).
+    end_to_end = rotation_about((0, 1, 0), 180)
+    at_home = Pose.identity()
+    assert may_hold(single, Pose(end_to_end, [60, 0, 0]), dual, at_home)
+    assert not may_hold(single, Pose(end_to_end, [70, 0, 0]), dual, at_home)
+    assert not may_hold(single, Pose(end_to_end, [60, -8, 0]), dual, at_home)
+    assert not may_hold(single, Pose(rotation_about((0, 1, 0), 90) @ end_to_end, [60, 0, 0]), dual, at_home)
+    # A tyre has no connector primitives: judged by its shape (no studs, no sockets), as before.
+    assert may_hold(load_part(real_reader, "3641"), Pose(I3, [500, 0, 0]), dual, at_home)
 
 
 def test_turn_faults_only_where_the_part_fills_another_box():

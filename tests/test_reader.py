@@ -7,7 +7,7 @@ import pytest
 
 from factory.errors import LDrawCycleError, LDrawLimitError, LDrawReadError
 from factory.ldraw import Library, Reader
-from factory.ldraw.reader import is_stud_primitive
+from factory.ldraw.reader import is_other_connector, is_stud_primitive
 from factory.parts import load_part
 
 
@@ -78,6 +78,50 @@ def test_stud_primitive_names(name):
 @pytest.mark.parametrize("name", ["stud3.dat", "stud4.dat", "stud4a.dat", "stud12.dat", "stug-1x2.dat", "filstud3.dat"])
 def test_underside_and_group_primitives_are_not_studs(name):
     assert not is_stud_primitive(name)
+
+
+def test_non_stud_connectors_keep_their_axis_once_through_groups(mini_library):
+    # A peg hole primitive 2 LDU deep along its Y, drawn twice inside a beam hole primitive (one
+    # connector, not three), which a part places turned so that the hole runs along Z.
+    (mini_library / "p" / "peghole.dat").write_text("0 Peg hole\n3 16 0 0 0 8 0 0 0 2 8\n")
+    (mini_library / "p" / "beamhole.dat").write_text(
+        "0 Beam hole\n1 16 0 -10 0 1 0 0 0 1 0 0 0 1 peghole.dat\n1 16 0 8 0 1 0 0 0 1 0 0 0 1 peghole.dat\n"
+    )
+    add_part(mini_library, "beam.dat", "1 16 20 10 0 1 0 0 0 0 1 0 -1 0 beamhole.dat\n"
+                                       "1 16 20 10 0 1 0 0 0 0 1 0 -1 0 beamhole.dat\n")
+    (conn,) = load_part(lib_reader(mini_library), "beam").flat.other_connectors
+    assert sorted(map(tuple, conn[:2].round(6) + 0.0)) == [(20.0, 10.0, -10.0), (20.0, 10.0, 10.0)]
+    assert np.allclose(np.abs(conn[2]), [0, 0, 1])
+
+
+@pytest.mark.parametrize("name", ["peghole.dat", "axlehole.dat", "connect.dat", "clh4.dat", "wpin.dat",
+                                  "clip3.dat", "beamhole.dat"])
+def test_other_connector_primitive_names(name):
+    assert is_other_connector(name)
+
+
+@pytest.mark.parametrize("name", ["stud.dat", "box.dat", "4-4cyli.dat", "3673.dat"])
+def test_other_primitives_are_not_other_connectors(name):
+    assert not is_other_connector(name)
+
+
+def test_technic_and_hinge_connectors_sit_on_their_axes(real_reader):
+    def conns(name):
+        return [(tuple(sorted(map(tuple, c[:2].round(3) + 0.0))), tuple(np.abs(c[2]).round(3) + 0.0))
+                for c in load_part(real_reader, name).flat.other_connectors]
+
+    z, x = (0.0, 0.0, 1.0), (1.0, 0.0, 0.0)
+    # Technic brick 1 x 2 with hole: the hole runs along Z through (0, 10), one peg hole 2 LDU deep
+    # at each face.
+    assert sorted(conns("3700")) == [(((0.0, 10.0, -10.0), (0.0, 10.0, -8.0)), z),
+                                     (((0.0, 10.0, 8.0), (0.0, 10.0, 10.0)), z)]
+    # Technic pin: two halves of 20 LDU along X from its collar at the origin.
+    assert sorted(conns("3673")) == [(((-20.0, 0.0, 0.0), (0.0, 0.0, 0.0)), x),
+                                     (((0.0, 0.0, 0.0), (20.0, 0.0, 0.0)), x)]
+    # Dual-finger hinge plate: the hinge axis runs along Z, 10 LDU past the plate's end, 2 below its top.
+    assert sorted(conns("44302")) == [(((30.0, 2.0, -8.5), (30.0, 2.0, -3.0)), z),
+                                      (((30.0, 2.0, 3.0), (30.0, 2.0, 8.5)), z)]
+    assert conns("3001") == []
 
 
 def test_reference_cycle_is_reported_with_its_chain(mini_library):

@@ -20,6 +20,7 @@ from factory.errors import (
     LDrawReadError,
 )
 from factory.ldraw.library import LIBRARY_SEARCH, DirSource, Library, Located, check_reference
+from factory.ldraw.other_connectors import axis_segment, is_other_connector
 from factory.ldraw.parse import LDrawFile, Poly, Ref, decode, parse_lines, split_mpd
 
 MAX_DEPTH = 64
@@ -32,20 +33,8 @@ _STUD = re.compile(r"^(?:.*/)?stud(|2|2a|6|6a|10|13|15|16|17a|18a|20|22a|p\d+[a-
 """Stud primitives (and logo variants). Not stud3*/stud4*: those are underside bars and tubes."""
 
 
-_OTHER_CONNECTOR = re.compile(
-    r"^(?:.*/)?(axl\d?ho\w*|axle\w*|beamhole|bush\d?|clh\d\w*|clip\d\w*|confric\d*|connect\d*|connhole|"
-    r"npeghol\w*|peghole|wpin\w*|wpinhol\w*|phandle\d*)\.dat$"
-)
-"""Primitives of connections the checker does not model: Technic axles and pin holes, clips,
-bushes, wheel pins, handles."""
-
-
 def is_stud_primitive(name: str) -> bool:
     return _STUD.match(name) is not None
-
-
-def is_other_connector(name: str) -> bool:
-    return _OTHER_CONNECTOR.match(name) is not None
 
 
 @dataclass
@@ -85,8 +74,11 @@ class Flat:
     """Whether every triangle came from a BFC-certified file (winding known)."""
     in_stud: np.ndarray
     """(n,) bool: the triangle belongs to a stud primitive (studs collide only where unconnected)."""
-    other_connectors: int = 0
-    """Primitives of non-stud connections (Technic holes, axles, clips, pins) in the tree."""
+    other_connectors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    """(j, 3, 3) float64: for each primitive of a non-stud connection (Technic hole, pin or axle,
+    clip, click hinge, wheel pin), the two ends of the stretch of its axis that it spans and the
+    unit axis. Kept with positions, not as a count, so the checker can tell whether two parts'
+    connectors meet."""
 
 
 @dataclass
@@ -207,8 +199,7 @@ class Reader:
         if cached is not None:
             return cached
         self._check_stack(res, stack)
-        tris, cols, edges, studs, in_stud = [], [], [], [], []
-        others = 0
+        tris, cols, edges, studs, in_stud, others = [], [], [], [], [], []
         certified = res.file.certified
         for it in res.file.items:
             if isinstance(it, Poly):
@@ -232,7 +223,12 @@ class Reader:
                 edges.append(e)
                 studs.append(s)
                 certified = certified and child.certified
-                others += child.other_connectors + is_other_connector(it.name)
+                if is_other_connector(it.name):
+                    # The connector as a whole; the primitives it is drawn with (a beam hole's peg
+                    # holes) are parts of it, not connectors of their own.
+                    others.append(_place_connectors(axis_segment(it.name, child.triangles)[None], it))
+                elif len(child.other_connectors):
+                    others.append(_place_connectors(child.other_connectors, it))
                 stud_ref = is_stud_primitive(it.name)
                 in_stud.append(np.ones(len(t), bool) if stud_ref else child.in_stud)
                 if stud_ref:
@@ -251,9 +247,10 @@ class Reader:
             studs=_unique_studs(np.concatenate(studs)) if studs else np.zeros((0, 2, 3)),
             certified=certified,
             in_stud=np.concatenate(in_stud) if in_stud else np.zeros(0, bool),
-            other_connectors=others,
+            other_connectors=_unique_connectors(np.concatenate(others)) if others else np.zeros((0, 3, 3)),
         )
-        for arr in (flat.triangles, flat.colours, flat.edges, flat.studs, flat.in_stud):
+        for arr in (flat.triangles, flat.colours, flat.edges, flat.studs, flat.in_stud,
+                    flat.other_connectors):
             arr.setflags(write=False)
         self._flat[res.key] = flat
         return flat
@@ -275,6 +272,30 @@ def _place(child: Flat, ref: Ref) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
         axes = studs[:, 1] @ m.T
         studs[:, 1] = axes / np.maximum(np.linalg.norm(axes, axis=1, keepdims=True), 1e-12)
     return tris, cols, edges, studs
+
+
+def _place_connectors(conns: np.ndarray, ref: Ref) -> np.ndarray:
+    """Non-stud connectors (end, end, axis) moved by a type 1 line."""
+    out = conns @ ref.matrix.T
+    out[:, :2] += ref.pos
+    if len(out):
+        out[:, 2] /= np.maximum(np.linalg.norm(out[:, 2], axis=1, keepdims=True), 1e-12)
+    return out
+
+
+def _unique_connectors(conns: np.ndarray) -> np.ndarray:
+    """Drop connectors drawn twice at the same place (the same ends in either order, the same
+    axis either way round)."""
+    seen, keep = set(), []
+    for i, (a, b, axis) in enumerate(np.round(conns, 3) + 0.0):
+        nz = np.flatnonzero(axis)
+        if len(nz) and axis[nz[0]] < 0:
+            axis = -axis
+        key = (tuple(sorted([tuple(a), tuple(b)])), tuple(axis + 0.0))
+        if key not in seen:
+            seen.add(key)
+            keep.append(i)
+    return conns[keep]
 
 
 def _unique_studs(studs: np.ndarray) -> np.ndarray:

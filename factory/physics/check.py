@@ -7,10 +7,10 @@ ground). A candidate that fails a cheap rule never reaches the expensive ones; i
 are None (not evaluated).
 
 Reasons, in the order they are reported: `unsupported-connection` (no stud connection, but the
-candidate touches or overlaps structure parts and both sides have connections the checker does not
-model: Technic pins and axles, clips, hinges, tyres on rims), `collision`, `no-connection`
-(floating), `clutch` (the new connection cannot hold the part), `unstable` (the object moves on
-the ground).
+candidate touches or overlaps a structure part that may hold it by a connection the checker does
+not model: Technic pins and axles, clips, hinges, tyres on rims; `factory.physics.unmodelled`
+says when), `collision`, `no-connection` (floating), `clutch` (the new connection cannot hold the
+part), `unstable` (the object moves on the ground).
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from factory.physics.stability import (
     rollout_cpu,
 )
 from factory.physics.structure import Placed, Structure, connectors, match
+from factory.physics.unmodelled import may_hold
 from factory.pose import Pose
 
 BACKENDS = ("mujoco", "mjx")
@@ -118,10 +119,11 @@ def check_units(
         collision = depth > config.max_penetration_ldu
         base = dict(pose=pose, connected=bool(conns), connections=len(conns), collision=collision,
                     max_penetration_ldu=round(depth, 4), touching=bool(near))
-        if not conns and near and any(_held_otherwise(p.part) for p in unit) and any(
-            _offers_other(structure.placed[i].part) for i in near
+        if not conns and near and any(
+            may_hold(p.part, p.pose, structure.placed[i].part, structure.placed[i].pose)
+            for p in unit for i in near
         ):
-            # Held by a connection we do not model (both sides have one): not judged here.
+            # Held by a connection we do not model (Technic, clip, hinge, tyre): not judged here.
             verdicts[k] = Verdict(**base, reason="unsupported-connection")
             continue
         if collision:
@@ -174,19 +176,6 @@ def _collision_scene(structure: Structure, rel, floor: float) -> CollisionScene:
     scene = CollisionScene(structure, rel, floor)
     _LAST_SCENE[:] = [key, (list(structure.placed), [part for part, _ in rel]), scene]
     return scene
-
-
-def _held_otherwise(part: Part) -> bool:
-    """Whether a new part can be held by more than studs: Technic or clip primitives, or no
-    sockets to sit on studs with (a hinge top, a tyre, a rim). A tile or a cheese slope has
-    sockets and nothing else to hold it: off its studs it is judged like any brick."""
-    return part.flat.other_connectors > 0 or not part.sockets
-
-
-def _offers_other(part: Part) -> bool:
-    """Whether a placed part can hold another by more than studs: Technic or clip primitives, or
-    a side without studs or sockets (a hinge half, a tyre, a rim)."""
-    return part.flat.other_connectors > 0 or not part.studs or not part.sockets
 
 
 def _clutch(unit: Sequence[Placed], conns, cfg: StabilityConfig) -> bool:
