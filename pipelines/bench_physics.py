@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import time
 
@@ -54,7 +55,7 @@ def candidates(s: Structure, batch: int, seed: int = 1) -> list[Pose]:
 
 
 def measure(backends, sizes, batches, log=None, full_max: int | None = None,
-            config: CheckConfig = CheckConfig()) -> list[dict]:
+            config: CheckConfig = CheckConfig(), mjx_impl: str | None = None) -> list[dict]:
     """One row per (size, batch, backend): rollout-only and full-check candidates per second (full
     checks only up to `full_max` candidates: their contact stage runs on the CPU for every backend)."""
     brick = load_part(get_reader(), "3001")
@@ -73,22 +74,23 @@ def measure(backends, sizes, batches, log=None, full_max: int | None = None,
             objs = [merged[id(p)] for p in poses]
             for backend in backends:
                 if backend == "mjx":
-                    from factory.physics.mjx_backend import COMPILES, rollout_mjx
+                    from factory.physics.mjx_backend import COMPILES, default_impl, rollout_mjx
 
+                    impl = mjx_impl or default_impl()
                     t = time.perf_counter()
-                    rollout_mjx(objs, cfg.stability)  # compile (and warm) this batch's bucket
+                    rollout_mjx(objs, cfg.stability, impl)  # compile (and warm) this batch's bucket
                     compile_s = time.perf_counter() - t
                     t = time.perf_counter()
-                    moves = rollout_mjx(objs, cfg.stability)
+                    moves = rollout_mjx(objs, cfg.stability, impl)
                     roll_s = time.perf_counter() - t
                     compiles = len(COMPILES)
                 else:
-                    compile_s, compiles = 0.0, 0
+                    compile_s, compiles, impl = 0.0, 0, None
                     t = time.perf_counter()
                     moves = rollout_cpu(objs, cfg.stability)
                     roll_s = time.perf_counter() - t
                 row = {
-                    "backend": backend, "bricks": n, "batch": batch,
+                    "backend": backend, "mjx_impl": impl, "bricks": n, "batch": batch,
                     "rollouts_per_s": round(batch / roll_s, 1),
                     "unstable_in_rollout": int(np.sum(moves > cfg.stability.max_move_ldu)),
                     "compile_s": round(compile_s, 2), "compiles_so_far": compiles,
@@ -120,11 +122,15 @@ def main(argv=None) -> int:
     ap.add_argument("--full-max", type=int, help="run full checks only for batches up to this size")
     ap.add_argument("--iterations", type=int, help="solver iterations of the rollout (default: StabilityConfig's)")
     ap.add_argument("--ls-iterations", type=int, help="line-search iterations (default: StabilityConfig's)")
+    ap.add_argument("--mjx-impl", choices=("jax", "warp"),
+                    help="MJX implementation (default: warp on a CUDA GPU with warp-lang, else jax)")
     ap.add_argument("--out")
     args = ap.parse_args(argv)
+    if args.mjx_impl:  # the full checks' rollouts (through check()) use it too
+        os.environ["BRICK_FACTORY_MJX_IMPL"] = args.mjx_impl
     rows = measure(args.backends.split(","), [int(x) for x in args.sizes.split(",")],
                    [int(x) for x in args.batches.split(",")], log=lambda r: print(json.dumps(r), flush=True),
-                   full_max=args.full_max, config=_config(args))
+                   full_max=args.full_max, config=_config(args), mjx_impl=args.mjx_impl)
     if args.out:
         meta = {"machine": platform.node(), "processor": platform.processor(), "rows": rows}
         with open(args.out, "w") as fh:

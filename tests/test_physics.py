@@ -296,3 +296,62 @@ def test_batched_movement_matches_one_object_at_a_time():
         obj = RigidObject(0.01, com[k], np.ones(3), np.array([1.0, 0, 0, 0]), np.zeros((16, 3)), corners[k])
         want = np.inf if k == 5 else movement_ldu(obj, qpos[k])
         assert got[k] == pytest.approx(want, rel=1e-9, abs=1e-9)
+
+
+def test_mjx_implementation_is_chosen_with_clear_errors(monkeypatch):
+    pytest.importorskip("mujoco.mjx")
+    from factory.physics import mjx_backend
+
+    monkeypatch.delenv(mjx_backend.IMPL_ENV, raising=False)
+    # No CUDA GPU here: MuJoCo Warp cannot run, so rollouts use MJX's JAX implementation.
+    assert mjx_backend.default_impl() == ("warp" if mjx_backend._warp_runs() else "jax")
+    monkeypatch.setenv(mjx_backend.IMPL_ENV, "cuda")
+    with pytest.raises(ValueError, match="BRICK_FACTORY_MJX_IMPL='cuda': expected one of jax, warp"):
+        mjx_backend.default_impl()
+    with pytest.raises(ValueError, match="expected one of jax, warp"):
+        mjx_backend.rollout_mjx([], StabilityConfig(), impl="cuda")
+    if not mjx_backend._warp_runs():
+        monkeypatch.setenv(mjx_backend.IMPL_ENV, "warp")
+        with pytest.raises(RuntimeError, match=r"needs warp-lang \(pip install '.\[gpu\]'\)"):
+            mjx_backend.default_impl()
+
+
+# A 55-part object of the sampler (seed 3, object 2, a 1x6 brick just placed), merged, on 5 support
+# points (the rest parked at the centre of mass). MuJoCo scales contact softness by the body's
+# `body_invweight0`, computed when the model is compiled: left at the template's 10 g and 1e-6 kg m^2,
+# MuJoCo's C engine flung this standing object away (movement inf) while MJX kept it standing.
+_FEET = [[-0.03350701848667892, -0.0012388546654629896], [0.04629298151332108, -0.0012388546654629896],
+         [0.04629298151332108, 0.022561145334537014], [0.038492981513321076, 0.022561145334537014],
+         [-0.03350701848667892, 0.014561145334537012]]
+
+
+def _sampler_object():
+    from factory.physics.stability import RigidObject
+
+    feet = np.zeros((16, 3))
+    feet[:5, :2], feet[:5, 2] = _FEET, -0.029463429582486846
+    lo = [-0.08950701848667893, -0.041238854665462996, -0.029563429582486846]
+    hi = [0.08229298151332108, 0.046561145334537, 0.039036570417513156]
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    return RigidObject(
+        0.13940632095327335, np.array([-0.0063929815133210765, -0.006661145334537011, 0.029663429582486845]),
+        np.array([6.14568487912604e-05, 0.00026479749014760636, 0.0002842975166159464]),
+        np.array([0.9355528949757301, -0.3428525999120549, 0.08450736725412453, -0.007168006407036939]),
+        feet, corners)
+
+
+def test_contact_softness_follows_each_objects_mass_and_inertia():
+    import mujoco
+    from factory.physics.stability import invweight0, rollout_cpu
+
+    # MuJoCo's own value for a free body of that mass and inertia, as the compiler computes it.
+    model = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><body><freejoint/><inertial pos="0 0 0" mass="0.13940632095327335" '
+        'diaginertia="6.14568487912604e-05 0.00026479749014760636 0.0002842975166159464"/></body></worldbody></mujoco>')
+    obj = _sampler_object()
+    assert np.allclose(invweight0(obj.mass, obj.inertia), model.body_invweight0[1], rtol=1e-6)
+    cfg = StabilityConfig()
+    assert rollout_cpu([obj], cfg)[0] < 0.2  # 0.11 LDU; inf before
+    from factory.physics.mjx_backend import rollout_mjx
+
+    assert rollout_mjx([obj], cfg, "jax")[0] < 0.2
