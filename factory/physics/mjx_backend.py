@@ -6,9 +6,10 @@ batched model fields and state. Batches are padded to a few bucket sizes, so a r
 most once per bucket, never per step or per structure.
 
 Two implementations of MJX run the same scene: "jax" (everywhere) and "warp" (MuJoCo Warp, on a
-CUDA GPU with `warp-lang` installed: the `gpu` extra). On an H100 Warp ran 3-4x more rollouts per
-second at batches of 256-4,096 with the same verdicts (docs/physics.md): MJX's JAX solver launches
-many small kernels per step and a small batch cannot fill the GPU between them.
+CUDA GPU with `warp-lang` installed: the `gpu` extra). On an H100 Warp ran 3-5x more rollouts per
+second at batches of 256-4,096 (docs/physics.md): MJX's JAX solver launches many small kernels per
+step and a small batch cannot fill the GPU between them. Warp's finite results gave the same
+verdicts as JAX; its few non-finite ones are redone with JAX (`rollout_mjx`).
 """
 
 from __future__ import annotations
