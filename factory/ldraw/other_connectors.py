@@ -39,6 +39,16 @@ else (Technic holes, pins, axles, bushes, wheel pins and their holes) runs along
 origin, as LDraw draws them."""
 
 
+def place_connectors(conns: np.ndarray, rotation: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """Connectors (j, 3, 3: end, end, axis) moved by a rotation (or an LDraw type 1 matrix, which
+    may scale: the axis is made unit again) and an offset."""
+    out = conns @ np.asarray(rotation).T
+    out[:, :2] += offset
+    if len(out):
+        out[:, 2] /= np.maximum(np.linalg.norm(out[:, 2], axis=1, keepdims=True), 1e-12)
+    return out
+
+
 def is_other_connector(name: str) -> bool:
     return _OTHER_CONNECTOR.match(name) is not None
 

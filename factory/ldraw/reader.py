@@ -20,7 +20,7 @@ from factory.errors import (
     LDrawReadError,
 )
 from factory.ldraw.library import LIBRARY_SEARCH, DirSource, Library, Located, check_reference
-from factory.ldraw.other_connectors import axis_segment, is_other_connector
+from factory.ldraw.other_connectors import axis_segment, is_other_connector, place_connectors
 from factory.ldraw.parse import LDrawFile, Poly, Ref, decode, parse_lines, split_mpd
 
 MAX_DEPTH = 64
@@ -226,9 +226,9 @@ class Reader:
                 if is_other_connector(it.name):
                     # The connector as a whole; the primitives it is drawn with (a beam hole's peg
                     # holes) are parts of it, not connectors of their own.
-                    others.append(_place_connectors(axis_segment(it.name, child.triangles)[None], it))
+                    others.append(place_connectors(axis_segment(it.name, child.triangles)[None], it.matrix, it.pos))
                 elif len(child.other_connectors):
-                    others.append(_place_connectors(child.other_connectors, it))
+                    others.append(place_connectors(child.other_connectors, it.matrix, it.pos))
                 stud_ref = is_stud_primitive(it.name)
                 in_stud.append(np.ones(len(t), bool) if stud_ref else child.in_stud)
                 if stud_ref:
@@ -272,15 +272,6 @@ def _place(child: Flat, ref: Ref) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
         axes = studs[:, 1] @ m.T
         studs[:, 1] = axes / np.maximum(np.linalg.norm(axes, axis=1, keepdims=True), 1e-12)
     return tris, cols, edges, studs
-
-
-def _place_connectors(conns: np.ndarray, ref: Ref) -> np.ndarray:
-    """Non-stud connectors (end, end, axis) moved by a type 1 line."""
-    out = conns @ ref.matrix.T
-    out[:, :2] += ref.pos
-    if len(out):
-        out[:, 2] /= np.maximum(np.linalg.norm(out[:, 2], axis=1, keepdims=True), 1e-12)
-    return out
 
 
 def _unique_connectors(conns: np.ndarray) -> np.ndarray:

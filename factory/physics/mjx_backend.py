@@ -64,7 +64,6 @@ def _rollout_fn(cfg: StabilityConfig, bucket: int, impl: str = "jax"):
     from mujoco import mjx
 
     COMPILES.append((bucket, cfg.n_feet, impl))
-    model = stability_model(cfg)
     if impl == "warp":
         # MuJoCo Warp refuses the midphase flag; its broadphase bounds each foot at run time anyway.
         model = mujoco.MjModel.from_xml_string(stability_xml(cfg).replace('<flag midphase="disable"/>', ""))
@@ -72,6 +71,7 @@ def _rollout_fn(cfg: StabilityConfig, bucket: int, impl: str = "jax"):
         # Solver and line-search limits are reached by design (StabilityConfig); do not print per step.
         mx = mx.replace(opt=mx.opt.replace(_impl=mx.opt._impl.replace(warn_overflow=0)))
     else:
+        model = stability_model(cfg)
         mx = mjx.put_model(model)
     feet_slice = slice(1, 1 + cfg.n_feet)
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from factory.ldraw.other_connectors import place_connectors
 from factory.parts import Part
 from factory.pose import Pose
 
@@ -46,14 +47,9 @@ def may_hold(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool
     have connector primitives, their positions decide; otherwise the shapes (see the module)."""
     a, b = new.flat.other_connectors, placed.flat.other_connectors
     if len(a) and len(b):
-        return connectors_meet(_world(a, new_pose), _world(b, placed_pose))
+        return connectors_meet(place_connectors(a, new_pose.R, new_pose.t),
+                               place_connectors(b, placed_pose.R, placed_pose.t))
     return held_otherwise(new) and offers_other(placed)
-
-
-def _world(conns: np.ndarray, pose: Pose) -> np.ndarray:
-    out = conns @ pose.R.T
-    out[:, :2] += pose.t
-    return out
 
 
 def separation(s: np.ndarray, t: np.ndarray) -> tuple[float, float, float]:
