@@ -27,12 +27,10 @@ import numpy as np
 
 from factory.cli import run_guarded
 from factory.physics.check import BACKENDS
-from factory.physics.stability import DIVERGED_WARNINGS
 from factory.sampler import Sampler, SamplerConfig, SamplerConfigError
 from factory.atomic import write_atomic
 
 _SAMPLER: Sampler | None = None
-_WARNINGS = DIVERGED_WARNINGS  # diverging rollouts, counted by the physics (not printed)
 
 
 def _init(config: SamplerConfig, ldraw: str | None) -> None:
@@ -41,10 +39,9 @@ def _init(config: SamplerConfig, ldraw: str | None) -> None:
 
 
 def _one(index: int):
-    before = _WARNINGS[0]
     t0 = time.perf_counter()
     a = _SAMPLER.sample(index)
-    return a, time.perf_counter() - t0, _WARNINGS[0] - before
+    return a, time.perf_counter() - t0
 
 
 def _stats(values) -> dict:
@@ -61,8 +58,7 @@ def histogram(values, edges) -> dict:
     return {f"{edges[i]:g}-{edges[i + 1]:g}": int(c) for i, c in enumerate(counts)}
 
 
-def summarize(records: list[dict], wall: float, config: SamplerConfig, library: str, workers: int,
-              warnings: int) -> dict:
+def summarize(records: list[dict], wall: float, config: SamplerConfig, library: str, workers: int) -> dict:
     rejected: Counter = Counter()
     for r in records:
         rejected.update(r["rejected"])
@@ -84,7 +80,6 @@ def summarize(records: list[dict], wall: float, config: SamplerConfig, library: 
             "seconds_per_object": _stats([r["seconds"] for r in records]),
             "wall_seconds": wall,
             "objects_per_minute": 60.0 * len(records) / wall if wall > 0 else None,
-            "mujoco_warnings": warnings,
         },
     }
 
@@ -131,7 +126,6 @@ def _run(args, config: SamplerConfig) -> int:
     out.mkdir(parents=True, exist_ok=True)
     indices = range(args.start, args.start + args.n)
     records: list[dict] = []
-    warnings = 0
     t0 = time.perf_counter()
     pool = None
     if args.workers > 1:
@@ -141,18 +135,17 @@ def _run(args, config: SamplerConfig) -> int:
         results = map(_one, indices)
     try:
         bar = tqdm(results, total=args.n, unit="obj", desc="sampling", dynamic_ncols=True)
-        for assembly, seconds, warn in bar:
+        for assembly, seconds in bar:
             name = f"object_{assembly.index:05d}.ldr"
             assembly.to_ldr(out / name)
             rec = {"file": name, **assembly.to_json(steps=args.steps_json), "seconds": round(seconds, 3)}
             records.append(rec)
-            warnings += warn
             bar.set_postfix(steps=len(assembly), density=f"{assembly.density:.3f}")
     finally:
         if pool is not None:
             pool.terminate()
     wall = time.perf_counter() - t0
-    summary = summarize(records, wall, config, _SAMPLER.reader.library.description, args.workers, warnings)
+    summary = summarize(records, wall, config, _SAMPLER.reader.library.description, args.workers)
     write_atomic(out / "summary.json", (json.dumps(summary, indent=1, default=_json_default) + "\n").encode())
     t = summary["totals"]
     print(f"{t['objects']} objects, {t['steps']} steps, median density "

@@ -1,36 +1,32 @@
 """The physics checks of a candidate placement, cheapest first, with the rule that failed.
 
 For each candidate: (1) **connection** (numpy: does a stud meet a socket?), (2) **collision**
-(MuJoCo contacts between inset convex pieces, one `mj_fwdPosition`), (3) **stability** (clutch of
-the new connection, then a rollout of the structure with the candidate as one rigid body on the
-ground). A candidate that fails a cheap rule never reaches the expensive ones; its later fields
-are None (not evaluated).
+(MuJoCo contacts between inset convex pieces, one `mj_fwdPosition`), (3) **clutch** (the
+candidate's own connections hold it with the rest fixed: `statics.holds_alone`), (4) **loads**
+(the whole structure with it: nothing tips, every stud connection within its capacity, a linear
+program per structure: `statics`). A candidate that fails a cheap rule never reaches the
+expensive ones; its later fields are None (not evaluated).
 
 Reasons, in the order they are reported: `unsupported-connection` (no stud connection, but the
 candidate touches or overlaps a structure part that may hold it by a connection the checker does
 not model: Technic pins and axles, clips, hinges, tyres on rims; `factory.physics.unmodelled`
-says when), `collision`, `no-connection` (floating), `clutch` (the new connection cannot hold the
-part), `unstable` (the object moves on the ground).
+says when), `collision`, `no-connection` (floating), `clutch` (its own connections cannot hold
+it), `unstable` (the part's component tips: its centre of mass is not over its support polygon),
+`overload` (some connection of the structure would carry more than its capacity).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
 
 from factory.parts import Part
 from factory.physics.collide import CollisionScene
-from factory.physics.stability import (
-    MassAggregate,
-    StabilityConfig,
-    clutch_ok,
-    part_mass_properties,
-    rigid_object,
-    rollout_cpu,
-)
-from factory.physics.structure import Placed, Structure, connectors, match
+from factory.physics.mass import part_mass_properties
+from factory.physics.statics import Failure, Link, LoadConfig, holds_alone, judge_many, load_model, support_points
+from factory.physics.structure import Placed, Structure, connectors, lowest_point, match
 from factory.physics.unmodelled import may_hold
 from factory.pose import Pose
 
@@ -43,12 +39,13 @@ class CheckConfig:
 
     max_penetration_ldu: float = 0.5
     """Deepest overlap accepted (LDU); the collision pieces are inset by half of it each."""
-    stability: StabilityConfig = field(default_factory=StabilityConfig)
+    loads: LoadConfig = field(default_factory=LoadConfig)
+    """The whole-structure load model's constants (clutch per stud, shear, ground friction)."""
 
 
 @dataclass(frozen=True)
 class Verdict:
-    """The checks of one candidate placement."""
+    """The checks of one candidate placement; a field is None where its check did not run."""
 
     pose: Pose
     connected: bool
@@ -57,8 +54,16 @@ class Verdict:
     max_penetration_ldu: float | None = None
     touching: bool | None = None
     clutch: bool | None = None
+    """Whether the candidate's own connections hold it with the rest of the structure fixed."""
     stable: bool | None = None
-    movement_ldu: float | None = None
+    """Whether the whole structure stands with it: nothing tips, no connection overloaded."""
+    load: float | None = None
+    """The largest share of any connection's capacity used in the whole structure (<= 1 stands)."""
+    failing: tuple[Failure, ...] = ()
+    """The connections at that load, when it is over capacity."""
+    held_by: tuple[int, ...] = ()
+    """For 'unsupported-connection': the structure parts that may hold it by a connection the
+    checker does not model (they become rigid links once it is placed)."""
     reason: str | None = None
 
     @property
@@ -66,17 +71,24 @@ class Verdict:
         return self.reason is None
 
 
-def _unit_connections(structure: Structure, unit: Sequence[tuple[Part, Pose]]) -> list[tuple[int, str, np.ndarray]]:
+def _unit_connections(structure: Structure, unit: Sequence[tuple[Part, Pose]]) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+    """Stud connections of a unit with the structure and among its own parts, as
+    (stud part, socket part, stud base, stud axis); the unit's parts are numbered after the
+    structure's."""
     out = []
     sp, sa, so = structure.studs
     kp, ka, ko = structure.sockets
-    for part, pose in unit:
+    base = len(structure)
+    for j, (part, pose) in enumerate(unit):
         cp, ca = connectors(part, pose, "sockets")
         for i, _ in match(sp, sa, cp, ca):
-            out.append((int(so[i]), "stud", sp[i]))
+            out.append((int(so[i]), base + j, sp[i], sa[i]))
         cp, ca = connectors(part, pose, "studs")
-        for _, j in match(cp, ca, kp, ka):
-            out.append((int(ko[j]), "socket", kp[j]))
+        for i, k in match(cp, ca, kp, ka):
+            out.append((base + j, int(ko[k]), cp[i], ca[i]))
+    if len(unit) > 1:
+        inner = Structure([Placed(part, 16, pose) for part, pose in unit])
+        out += [(base + a, base + b, p, n) for a, b, p, n in inner.connections]
     return out
 
 
@@ -88,6 +100,7 @@ def check_units(
     require_connection: bool = True,
     floor_y: float | None = None,
     standing: bool = True,
+    unit_links: Sequence[Link] = (),
 ) -> list[Verdict]:
     """Check rigid units (each a list of placed parts, in world poses) against the structure.
 
@@ -97,7 +110,8 @@ def check_units(
     it (the sampler's case). Without it the object rests on its own lowest point with the unit
     added (a human build: a car body waits for its wheels, held above the table). With
     `standing=False` the structure is held in hand (a sub-assembly being built): only the clutch of
-    the new connection is judged, not whether the whole stands.
+    the new connection is judged, not whether the whole stands. `unit_links`: rigid connections
+    among a unit's own parts (numbered within the unit) that the checker does not model.
     """
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
@@ -107,59 +121,78 @@ def check_units(
     anchor = first[0].pose
     rel = [(p.part, anchor.inverse() @ p.pose) for p in first]
     scene = _collision_scene(structure, rel, floor_y if floor_y is not None else 1e6)
+    base_n = len(structure)
     verdicts: list[Verdict | None] = [None] * len(units)
-    pending: list[tuple[int, list[Placed]]] = []
+    pending: list[tuple[int, list[Placed], list, float]] = []
     for k, unit in enumerate(units):
         pose = unit[0].pose
         world = [(p.part, p.pose) for p in unit]
         conns = _unit_connections(structure, world)
-        connected = bool(conns) or (not require_connection) or len(structure) == 0
-        touched = {c[0] for c in conns}
+        outer = [c for c in conns if min(c[0], c[1]) < base_n]
+        connected = bool(outer) or (not require_connection) or base_n == 0
+        touched = {min(c[0], c[1]) for c in outer}
         depth, near = scene.penetration(pose, touched)
         collision = depth > config.max_penetration_ldu
-        base = dict(pose=pose, connected=bool(conns), connections=len(conns), collision=collision,
+        base = dict(pose=pose, connected=bool(outer), connections=len(outer), collision=collision,
                     max_penetration_ldu=round(depth, 4), touching=bool(near))
-        if not conns and near and any(
-            may_hold(p.part, p.pose, structure.placed[i].part, structure.placed[i].pose)
-            for p in unit for i in near
-        ):
-            # Held by a connection we do not model (Technic, clip, hinge, tyre): not judged here.
-            verdicts[k] = Verdict(**base, reason="unsupported-connection")
-            continue
+        if not outer and near:
+            holders = tuple(sorted(i for i in near if any(
+                may_hold(p.part, p.pose, structure.placed[i].part, structure.placed[i].pose) for p in unit)))
+            if holders:
+                # Held by a connection we do not model (Technic, clip, hinge, tyre): not judged here.
+                verdicts[k] = Verdict(**base, held_by=holders, reason="unsupported-connection")
+                continue
         if collision:
             verdicts[k] = Verdict(**base, reason="collision")
             continue
         if not connected:
             verdicts[k] = Verdict(**base, reason="no-connection")
             continue
-        if conns and not _clutch(unit, conns, config.stability):
+        ground = floor_y if floor_y is not None else max(structure.floor_y(), lowest_point(unit))
+        if outer and not _holds_alone(unit, outer, base_n, ground if standing else None, config.loads):
             verdicts[k] = Verdict(**base, clutch=False, reason="clutch")
             continue
-        if standing and (conns or len(structure) == 0):
-            verdicts[k] = Verdict(**base, clutch=True if conns else None)
-            pending.append((k, unit))
+        if standing and (outer or base_n == 0):
+            verdicts[k] = Verdict(**base, clutch=True if outer else None)
+            pending.append((k, list(unit), conns, ground))
         else:
             # Held in hand (a sub-assembly), or laid on the table beside the structure with no
             # connection yet: nothing joins it to the structure to fall with.
-            verdicts[k] = Verdict(**base, clutch=True if conns else None, stable=True)
+            verdicts[k] = Verdict(**base, clutch=True if outer else None, stable=True)
     if pending:
-        objs = []
-        base = MassAggregate.of(structure.placed)
-        for _, unit in pending:
-            ground = floor_y if floor_y is not None else Structure(structure.placed + list(unit)).floor_y()
-            objs.append(rigid_object(base + MassAggregate.of(list(unit)), ground, config.stability))
-        if backend == "mjx":
-            from factory.physics.mjx_backend import rollout_mjx
-
-            moves = rollout_mjx(objs, config.stability)
-        else:
-            moves = rollout_cpu(objs, config.stability)
-        for (k, _), move in zip(pending, moves):
+        links = list(structure.links) + [Link(l.a + base_n, l.b + base_n, l.point) for l in unit_links]
+        models = [load_model(structure.placed + unit, structure.connections + conns, ground,
+                             range(base_n, base_n + len(unit)), links, config.loads)
+                  for _, unit, conns, ground in pending]
+        results = judge_many(models, config.loads, _batch_solver(backend))
+        for (k, *_), lv in zip(pending, results):
             v = verdicts[k]
-            stable = bool(move <= config.stability.max_move_ldu)
-            verdicts[k] = Verdict(**{**v.__dict__, "stable": stable, "movement_ldu": round(float(move), 4),
-                                     "reason": None if stable else "unstable"})
+            verdicts[k] = replace(v, stable=lv.stands, load=None if lv.load is None else round(lv.load, 6),
+                                  failing=lv.failing, reason=lv.reason)
     return verdicts  # type: ignore[return-value]
+
+
+def _batch_solver(backend: str):
+    """None (HiGHS, one program at a time) for the CPU reference; the batched JAX solver for 'mjx'."""
+    if backend != "mjx":
+        return None
+    from factory.physics.lp_jax import solve_batch  # JAX is an optional dependency (the mjx extra)
+
+    return solve_batch
+
+
+def _holds_alone(unit: Sequence[Placed], outer, base_n: int, ground_y: float | None, cfg: LoadConfig) -> bool:
+    mass, weighted = 0.0, np.zeros(3)
+    for p in unit:
+        m, com, _ = part_mass_properties(p.part)
+        mass += m
+        weighted += m * p.pose.apply(com)
+    conns = [(a >= base_n, pos, axis) for a, b, pos, axis in outer]
+    ground = np.zeros((0, 3))
+    if ground_y is not None:
+        pts = [support_points(p, ground_y, cfg) for p in unit]
+        ground = np.concatenate(pts) if pts else ground
+    return holds_alone(mass, weighted / mass, conns, ground, cfg)
 
 
 _LAST_SCENE: list = []
@@ -176,17 +209,6 @@ def _collision_scene(structure: Structure, rel, floor: float) -> CollisionScene:
     scene = CollisionScene(structure, rel, floor)
     _LAST_SCENE[:] = [key, (list(structure.placed), [part for part, _ in rel]), scene]
     return scene
-
-
-def _clutch(unit: Sequence[Placed], conns, cfg: StabilityConfig) -> bool:
-    mass, weighted = 0.0, np.zeros(3)
-    for p in unit:
-        m, com, _ = part_mass_properties(p.part)
-        mass += m
-        weighted += m * p.pose.apply(com)
-    points = np.array([c[2] for c in conns])
-    hanging = all(c[1] == "socket" for c in conns)
-    return clutch_ok(mass, weighted / mass, points, hanging, cfg)
 
 
 def check(

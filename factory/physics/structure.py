@@ -53,12 +53,18 @@ def match(pos_a, axis_a, pos_b, axis_b, tol: float = MATCH_LDU) -> list[tuple[in
 
 @dataclass
 class Structure:
-    """Parts placed so far, with their world connection points and which are occupied."""
+    """Parts placed so far, with their world connection points, which are occupied, the stud
+    connections between them and the connections held rigid because the checker does not model
+    them (`links`: Technic, clips, hinges)."""
 
     placed: list[Placed] = field(default_factory=list)
 
     def __post_init__(self):
         parts, self.placed = self.placed, []
+        self.connections: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+        """(stud part, socket part, stud base, stud axis) of every stud connection."""
+        self.links: list = []
+        """`factory.physics.statics.Link`s: rigid connections the checker does not model."""
         self._stud_pos = np.zeros((0, 3))
         self._stud_axis = np.zeros((0, 3))
         self._stud_owner = np.zeros(0, np.int64)
@@ -68,11 +74,17 @@ class Structure:
         for p in parts:
             self.add(p)
 
-    def add(self, placed: Placed) -> None:
+    def add(self, placed: Placed, links=()) -> None:
+        """Place a part; `links` are rigid connections it makes that the checker does not model."""
         idx = len(self.placed)
         self.placed.append(placed)
         sp, sa = connectors(placed.part, placed.pose, "studs")
         kp, ka = connectors(placed.part, placed.pose, "sockets")
+        for i, _ in match(self._stud_pos, self._stud_axis, kp, ka):
+            self.connections.append((int(self._stud_owner[i]), idx, self._stud_pos[i], self._stud_axis[i]))
+        for i, j in match(sp, sa, self._sock_pos, self._sock_axis):
+            self.connections.append((idx, int(self._sock_owner[j]), sp[i], sa[i]))
+        self.links.extend(links)
         self._stud_pos = np.concatenate([self._stud_pos, sp])
         self._stud_axis = np.concatenate([self._stud_axis, sa])
         self._stud_owner = np.concatenate([self._stud_owner, np.full(len(sp), idx)])
@@ -117,9 +129,12 @@ class Structure:
 
     def floor_y(self) -> float:
         """The ground plane's height: the lowest point of the structure (LDraw y grows down)."""
-        if not self.placed:
-            return 0.0
-        return max(float(p.pose.apply(box_corners(p.part.bbox))[:, 1].max()) for p in self.placed)
+        return lowest_point(self.placed) if self.placed else 0.0
+
+
+def lowest_point(placed) -> float:
+    """The largest LDraw y of the placed parts' bounding boxes (y grows down)."""
+    return max(float(p.pose.apply(box_corners(p.part.bbox))[:, 1].max()) for p in placed)
 
 
 def align(b: np.ndarray, a: np.ndarray) -> np.ndarray:

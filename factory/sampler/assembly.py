@@ -60,7 +60,7 @@ class AssemblyStep:
             "feasible": self.feasible,
             "draws": self.draws,
             "density": self.density,
-            "movement_ldu": None if self.verdict is None else self.verdict.movement_ldu,
+            "load": None if self.verdict is None else self.verdict.load,
             "connections": None if self.verdict is None else self.verdict.connections,
         }
 

@@ -60,7 +60,7 @@ def _py(v):
     if isinstance(v, np.generic):
         v = v.item()
     if isinstance(v, float) and not np.isfinite(v):
-        return None  # JSON has no NaN; an unstable rollout's movement is "unknown"
+        return None  # JSON has no NaN or infinity
     if isinstance(v, np.ndarray):
         return _py(v.tolist())
     if isinstance(v, dict):
@@ -74,7 +74,7 @@ def verdict_json(verdict) -> dict | None:
     if verdict is None:
         return None
     keys = ("connected", "connections", "collision", "max_penetration_ldu", "touching", "clutch", "stable",
-            "movement_ldu", "reason")
+            "load", "reason")
     return {k: _py(getattr(verdict, k)) for k in keys}
 
 

@@ -1,0 +1,503 @@
+"""Whole-structure statics: can every part's weight be carried to the ground with every stud
+connection within its capacity?
+
+A merged rigid body on flat ground stands exactly when its centre of mass lies over its support
+polygon, so a rollout of the merged object adds nothing a point-in-polygon test does not give, and
+it never asks what the connections inside the structure must carry. This module asks it, as a
+linear program per structure (StableLego's formulation, as BrickGPT uses it, with our constants;
+docs/physics.md says why):
+
+- every part is a rigid body with its weight at its centre of mass;
+- every stud connection (a stud of part `a` in a socket of part `b`, stud base `p`, stud axis `n`
+  pointing from `a` into `b`) acts on `b` through four normal forces `g` along `n` at the stud's
+  rim (`p ± r e1`, `p ± r e2`, r = stud radius), a shear force `t` across `n` at `p` and a torsion
+  `tau` about `n`, and on `a` through the opposite. Compression (`g > 0`, pushing `b` away from
+  `a`) is free; tension is at most `clutch_n / 4` per rim point (the stud's clutch, split over its
+  rim, so one stud also holds a moment of `clutch_n * r`); `|t| <= shear_n` per axis;
+  `|tau| <= clutch_n * r`;
+- the ground only pushes: at each support point (a part's collision vertices within
+  `ground_tol_ldu` of the ground, reduced to their hull) a force inside the friction pyramid;
+- a connection the checker does not model (Technic, clips, hinges: `Link`) is rigid: a free force
+  and moment between the two parts.
+
+Minimising `s`, the largest share of any capacity used (all tension, shear and torsion limits
+scaled by `s`), gives the structure's load: it stands when `s <= 1`, and the connections at `s`
+are the ones that fail first. Before the program, the cheap rule: the candidate's component must
+have its centre of mass over its support polygon (else it tips, whatever the connections hold);
+that also makes every program feasible (with `s` large enough the connections are rigid), which a
+batched first-order solver needs.
+
+Only the component of the connection graph that holds the candidate is judged: loads elsewhere
+did not change when it was added.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import ConvexHull, QhullError
+
+from factory.connections import STUD_RADIUS
+from factory.physics.geometry import collision_shape
+from factory.physics.lp import LinearProgram, LPResult, solve_highs
+from factory.physics.mass import GRAVITY, part_mass_properties
+from factory.physics.structure import Placed
+
+LEVER_LDU = 20.0
+"""Moment rows are written in newton-studs (lever arms in units of 20 LDU), so that force and
+moment coefficients are of one size for the solver."""
+
+UP = np.array([0.0, -1.0, 0.0])
+"""LDraw's up (y grows downward): the ground pushes this way, gravity pulls the other."""
+
+
+@dataclass(frozen=True)
+class LoadConfig:
+    """Constants of the whole-structure load model (docs/physics.md: why these)."""
+
+    clutch_n: float = 1.0
+    """Tension one stud connection holds (N): StableLego and BrickGPT use 0.98 N per contact point,
+    one per stud; BrickSim's 3.5 N preload with friction 0.2 gives 0.7 N."""
+    shear_n: float = 10.0
+    """Shear one stud holds across its axis (N, per axis): the stud is boxed in by the socket's
+    walls and breaks rather than slips; ten times the clutch, so it binds only for studs that
+    point sideways and carry weight across their axis."""
+    friction: float = 0.8
+    """Ground friction coefficient (the pyramid's slope)."""
+    ground_tol_ldu: float = 0.5
+    """A part's collision vertices this close to the ground support it."""
+    support_points: int = 8
+    """At most this many support points per part on the ground (its footprint's hull, subsampled)."""
+    tolerance: float = 1e-6
+    """Relative slack on `s <= 1` and on the centre of mass over the support polygon (LDU)."""
+
+    @property
+    def torsion_nldu(self) -> float:
+        """Torsion one stud holds about its axis (N LDU): its clutch at its rim."""
+        return self.clutch_n * STUD_RADIUS
+
+
+@dataclass(frozen=True)
+class Link:
+    """A rigid connection the checker does not model (Technic, clip, hinge) between two parts."""
+
+    a: int
+    b: int
+    point: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class LoadModel:
+    """One structure's bodies, connections and supports as arrays (LDU, LDraw frame). Body `k` is
+    part `parts[k]` of the caller's numbering."""
+
+    parts: np.ndarray
+    mass: np.ndarray
+    """(nb,) kg."""
+    com: np.ndarray
+    """(nb, 3) centres of mass."""
+    conn_a: np.ndarray
+    """(nc,) body holding the stud."""
+    conn_b: np.ndarray
+    """(nc,) body holding the socket."""
+    conn_pos: np.ndarray
+    """(nc, 3) stud base."""
+    conn_axis: np.ndarray
+    """(nc, 3) unit stud axis, from `a` into `b`."""
+    ground_body: np.ndarray
+    ground_pos: np.ndarray
+    link_a: np.ndarray
+    link_b: np.ndarray
+    link_pos: np.ndarray
+
+    @property
+    def n_bodies(self) -> int:
+        return len(self.mass)
+
+
+@dataclass(frozen=True)
+class Failure:
+    """A connection at the model's largest load: the stud's part, the socket's part (caller's
+    numbering) and the stud's base (LDU)."""
+
+    stud_part: int
+    socket_part: int
+    stud: tuple[float, float, float]
+    load: float
+
+    def to_json(self) -> dict:
+        return {"stud_part": self.stud_part, "socket_part": self.socket_part,
+                "stud": [round(v, 3) for v in self.stud], "load": round(self.load, 4)}
+
+
+@dataclass(frozen=True)
+class LoadVerdict:
+    stands: bool
+    reason: str | None
+    """None, 'unstable' (the component tips: its centre of mass is not over its support polygon)
+    or 'overload' (some connection would carry more than its capacity)."""
+    load: float | None
+    """The largest share of a capacity used (None when it tips)."""
+    failing: tuple[Failure, ...] = field(default=())
+    rigid_links: int = 0
+    """Connections in the component held rigid because the checker does not model them."""
+
+
+# -- the model -------------------------------------------------------------------------------------
+_SUPPORT_CACHE: dict = {}
+
+
+def support_points(placed: Placed, floor_y: float, cfg: LoadConfig) -> np.ndarray:
+    """(k, 3) support points of a part on the ground at LDraw height floor_y (may be empty)."""
+    key = (id(placed), round(floor_y, 6), cfg.ground_tol_ldu, cfg.support_points)
+    hit = _SUPPORT_CACHE.get(key)
+    if hit is not None and hit[0] is placed:
+        return hit[1]
+    shape = collision_shape(placed.part)
+    verts = placed.pose.apply(np.concatenate(list(shape.body) + list(shape.studs)))
+    low = verts[verts[:, 1] >= floor_y - cfg.ground_tol_ldu]
+    if len(low):
+        xz = np.unique(np.round(low[:, [0, 2]], 6), axis=0)
+        xz = _hull_xz(xz)
+        if len(xz) > cfg.support_points:
+            xz = xz[np.linspace(0, len(xz), cfg.support_points, endpoint=False).astype(int)]
+        out = np.column_stack([xz[:, 0], np.full(len(xz), floor_y), xz[:, 1]])
+    else:
+        out = np.zeros((0, 3))
+    if len(_SUPPORT_CACHE) > 4096:
+        _SUPPORT_CACHE.clear()
+    _SUPPORT_CACHE[key] = (placed, out)
+    return out
+
+
+def _hull_xz(xz: np.ndarray) -> np.ndarray:
+    """The hull's corners in order; for a collinear set, its two ends."""
+    if len(xz) < 3:
+        return xz
+    try:
+        return xz[ConvexHull(xz).vertices]
+    except QhullError:
+        d = xz - xz.mean(0)
+        u = np.linalg.svd(d, full_matrices=False)[2][0]
+        proj = d @ u
+        return xz[[int(proj.argmin()), int(proj.argmax())]]
+
+
+def component(n: int, edges: Sequence[tuple[int, int]], seeds: Sequence[int]) -> np.ndarray:
+    """Sorted indices of the parts connected (through `edges`) to any of `seeds`."""
+    adj: list[list[int]] = [[] for _ in range(n)]
+    for a, b in edges:
+        adj[a].append(b)
+        adj[b].append(a)
+    seen = set(seeds)
+    stack = list(seeds)
+    while stack:
+        for j in adj[stack.pop()]:
+            if j not in seen:
+                seen.add(j)
+                stack.append(j)
+    return np.array(sorted(seen), dtype=np.int64)
+
+
+def load_model(placed: Sequence[Placed], connections: Sequence[tuple[int, int, np.ndarray, np.ndarray]],
+               floor_y: float, seeds: Sequence[int], links: Sequence[Link] = (),
+               cfg: LoadConfig = LoadConfig()) -> LoadModel:
+    """The component holding `seeds` (part indices) of the parts `placed`, with their stud
+    connections `(stud part, socket part, stud base, stud axis)`, rigid links and the ground at
+    LDraw height `floor_y`."""
+    edges = [(a, b) for a, b, _, _ in connections] + [(l.a, l.b) for l in links]
+    comp = component(len(placed), edges, seeds)
+    body = np.full(len(placed), -1, np.int64)
+    body[comp] = np.arange(len(comp))
+    mass, com = np.empty(len(comp)), np.empty((len(comp), 3))
+    gb, gp = [], []
+    for k, i in enumerate(comp):
+        m, c, _ = part_mass_properties(placed[i].part)
+        mass[k], com[k] = m, placed[i].pose.apply(c)
+        pts = support_points(placed[i], floor_y, cfg)
+        gb.extend([k] * len(pts))
+        gp.append(pts)
+    conns = [(body[a], body[b], p, n) for a, b, p, n in connections if body[a] >= 0]
+    lk = [(body[l.a], body[l.b], np.asarray(l.point, float)) for l in links if body[l.a] >= 0]
+    return LoadModel(
+        parts=comp, mass=mass, com=com,
+        conn_a=np.array([c[0] for c in conns], np.int64), conn_b=np.array([c[1] for c in conns], np.int64),
+        conn_pos=np.array([c[2] for c in conns], float).reshape(-1, 3),
+        conn_axis=np.array([c[3] for c in conns], float).reshape(-1, 3),
+        ground_body=np.array(gb, np.int64), ground_pos=np.concatenate(gp) if gp else np.zeros((0, 3)),
+        link_a=np.array([l[0] for l in lk], np.int64), link_b=np.array([l[1] for l in lk], np.int64),
+        link_pos=np.array([l[2] for l in lk], float).reshape(-1, 3),
+    )
+
+
+def tips(model: LoadModel, cfg: LoadConfig = LoadConfig()) -> bool:
+    """Whether the component's centre of mass lies outside its support polygon (or it has none)."""
+    if not len(model.ground_pos):
+        return True
+    c = (model.mass @ model.com / model.mass.sum())[[0, 2]]
+    xz = _hull_xz(np.unique(np.round(model.ground_pos[:, [0, 2]], 6), axis=0))
+    return not _inside(xz, c, cfg.tolerance)
+
+
+def _inside(poly: np.ndarray, c: np.ndarray, tol: float) -> bool:
+    if len(poly) == 1:
+        return bool(np.linalg.norm(c - poly[0]) <= tol)
+    if len(poly) == 2:
+        a, b = poly
+        ab = b - a
+        t = np.clip((c - a) @ ab / (ab @ ab), 0.0, 1.0)
+        return bool(np.linalg.norm(a + t * ab - c) <= tol)
+    # ConvexHull orders 2-D vertices counter-clockwise: inside is left of every edge.
+    e = np.roll(poly, -1, axis=0) - poly
+    d = c - poly
+    cross = e[:, 0] * d[:, 1] - e[:, 1] * d[:, 0]
+    return bool((cross >= -tol * np.linalg.norm(e, axis=1)).all())
+
+
+# -- the linear program ----------------------------------------------------------------------------
+def _basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors across each axis (nc, 3): x and z for a vertical axis."""
+    ref = np.where(np.abs(n[:, [0]]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]])
+    e1 = np.cross(n, ref)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(n, e1)
+    vertical = np.abs(n[:, 1]) > 0.999
+    e1[vertical], e2[vertical] = [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]
+    return e1, e2
+
+
+# Variables per connection: 4 rim forces, 2 shears, 1 torsion.
+PER_CONNECTION = 7
+PER_SUPPORT = 4
+PER_LINK = 6
+
+
+def layout(model: LoadModel) -> dict[str, slice]:
+    """Column ranges of the program's variables: `s`, then connections, supports, links."""
+    nc, ng, nl = len(model.conn_a), len(model.ground_body), len(model.link_a)
+    o1 = 1 + PER_CONNECTION * nc
+    o2 = o1 + PER_SUPPORT * ng
+    return {"s": slice(0, 1), "conn": slice(1, o1), "ground": slice(o1, o2), "link": slice(o2, o2 + PER_LINK * nl)}
+
+
+def to_lp(model: LoadModel, cfg: LoadConfig = LoadConfig()) -> LinearProgram:
+    """The minimax load program of a model (module docstring); `s` is variable 0."""
+    cols = layout(model)
+    n = cols["link"].stop
+    # Every column is a force `f` at point `p` (or a pure moment `m`) acting on body `on` with sign.
+    on, sign, col, force, point, moment = [], [], [], [], [], []
+
+    def add(bodies, signs, columns, f, p, m):
+        on.append(bodies), sign.append(signs), col.append(columns)
+        force.append(f), point.append(p), moment.append(m)
+
+    nc = len(model.conn_a)
+    if nc:
+        ax = model.conn_axis
+        e1, e2 = _basis(ax)
+        r = STUD_RADIUS
+        rims = [model.conn_pos + r * e1, model.conn_pos - r * e1, model.conn_pos + r * e2, model.conn_pos - r * e2]
+        base = cols["conn"].start + PER_CONNECTION * np.arange(nc)
+        z = np.zeros((nc, 3))
+        kinds = [(ax, rims[j], z) for j in range(4)] + [(e1, model.conn_pos, z), (e2, model.conn_pos, z), (z, model.conn_pos, ax)]
+        for j, (f, p, m) in enumerate(kinds):
+            for bodies, s in ((model.conn_b, 1.0), (model.conn_a, -1.0)):
+                add(bodies, np.full(nc, s), base + j, f, p, m)
+    ng = len(model.ground_body)
+    if ng:
+        base = cols["ground"].start + PER_SUPPORT * np.arange(ng)
+        z = np.zeros((ng, 3))
+        for j, d in enumerate(([1, 0, 0], [-1, 0, 0], [0, 0, 1], [0, 0, -1])):
+            f = np.tile(UP + cfg.friction * np.array(d, float), (ng, 1))
+            add(model.ground_body, np.ones(ng), base + j, f, model.ground_pos, z)
+    nl = len(model.link_a)
+    if nl:
+        base = cols["link"].start + PER_LINK * np.arange(nl)
+        z = np.zeros((nl, 3))
+        for j in range(6):
+            v = np.tile(np.eye(3)[j % 3], (nl, 1))
+            f, m = (v, z) if j < 3 else (z, v)
+            for bodies, s in ((model.link_b, 1.0), (model.link_a, -1.0)):
+                add(bodies, np.full(nl, s), base + j, f, model.link_pos, m)
+
+    rows, cc, vals = [], [], []
+    if on:
+        on_ = np.concatenate(on)
+        sg = np.concatenate(sign)
+        cl = np.concatenate(col)
+        f = np.concatenate(force)
+        p = np.concatenate(point)
+        m = np.concatenate(moment)
+        torque = (np.cross(p - model.com[on_], f) + m) / LEVER_LDU
+        for k in range(3):
+            rows += [6 * on_ + k, 6 * on_ + 3 + k]
+            cc += [cl, cl]
+            vals += [sg * f[:, k], sg * torque[:, k]]
+    a_eq = sp.csr_matrix((np.concatenate(vals) if vals else [], (np.concatenate(rows) if rows else [],
+                          np.concatenate(cc) if cc else [])), shape=(6 * model.n_bodies, n))
+    b_eq = np.zeros(6 * model.n_bodies)
+    b_eq[1::6] = -model.mass * GRAVITY  # contacts balance the weight, which pulls along +y (down)
+    # Capacities scaled by s: tension per rim point, shear per axis (both signs), torsion (both signs).
+    ub_rows, ub_cols, ub_vals, ub_cap = [], [], [], []
+    if nc:
+        base = cols["conn"].start + PER_CONNECTION * np.arange(nc)
+        specs = [(j, -1.0, cfg.clutch_n / 4) for j in range(4)]
+        specs += [(j, s, cfg.shear_n) for j in (4, 5) for s in (1.0, -1.0)]
+        specs += [(6, s, cfg.torsion_nldu) for s in (1.0, -1.0)]
+        for j, s, cap in specs:
+            ub_cols.append(base + j)
+            ub_vals.append(np.full(nc, s))
+            ub_cap.append(np.full(nc, cap))
+    k = sum(len(c) for c in ub_cols)
+    if k:
+        r = np.arange(k)
+        a_ub = sp.csr_matrix((np.concatenate([np.concatenate(ub_vals), -np.concatenate(ub_cap)]),
+                              (np.concatenate([r, r]), np.concatenate([np.concatenate(ub_cols), np.zeros(k, np.int64)]))),
+                             shape=(k, n))
+    else:
+        a_ub = sp.csr_matrix((0, n))
+    lower = np.full(n, -np.inf)
+    lower[0] = 0.0
+    lower[cols["ground"]] = 0.0
+    c = np.zeros(n)
+    c[0] = 1.0
+    return LinearProgram(c, a_eq, b_eq, a_ub, np.zeros(k), lower, np.full(n, np.inf))
+
+
+def connection_loads(model: LoadModel, x: np.ndarray, cfg: LoadConfig = LoadConfig()) -> np.ndarray:
+    """(nc,) the largest share of a capacity each connection uses in the solution x."""
+    nc = len(model.conn_a)
+    if not nc:
+        return np.zeros(0)
+    v = x[layout(model)["conn"]].reshape(nc, PER_CONNECTION)
+    tension = np.maximum(-v[:, :4], 0).max(axis=1) / (cfg.clutch_n / 4)
+    shear = np.abs(v[:, 4:6]).max(axis=1) / cfg.shear_n
+    torsion = np.abs(v[:, 6]) / cfg.torsion_nldu
+    return np.maximum(np.maximum(tension, shear), torsion)
+
+
+def judge(model: LoadModel, cfg: LoadConfig = LoadConfig(),
+          solve: Callable[[LinearProgram], LPResult] = solve_highs) -> LoadVerdict:
+    """The load verdict of one model: tips, overloaded (with the connections that fail) or stands."""
+    return verdict_of(model, None if tips(model, cfg) else solve(to_lp(model, cfg)), cfg)
+
+
+def verdict_of(model: LoadModel, result: LPResult | None, cfg: LoadConfig = LoadConfig()) -> LoadVerdict:
+    """A verdict from a solved program (None: the model tips and was not solved)."""
+    links = len(model.link_a)
+    if result is None or result.status == "infeasible":
+        return LoadVerdict(False, "unstable", None, rigid_links=links)
+    if result.status != "optimal":
+        raise RuntimeError(f"load program not solved: {result.status}")
+    s = max(float(result.objective), 0.0)
+    if s > 1.0 + cfg.tolerance:
+        return LoadVerdict(False, "overload", s, _failing(model, s, cfg), links)
+    return LoadVerdict(True, None, s, (), links)
+
+
+def _failing(model: LoadModel, s: float, cfg: LoadConfig) -> tuple[Failure, ...]:
+    """The connections that must carry the largest load `s` in every solution. The minimax optimum
+    is degenerate (a solver may leave any connection at `s` that could carry less), so a second
+    program gives each connection its own load variable, capped at `s`, and minimises their sum:
+    a connection still at `s` there cannot be relieved."""
+    lp = to_lp(model, cfg)
+    nc = len(model.conn_a)
+    coo = lp.a_ub.tocoo()
+    row_conn = np.arange(lp.a_ub.shape[0]) % nc  # capacity rows come in blocks of one per connection
+    col = np.where(coo.col == 0, lp.n + row_conn[coo.row], coo.col)
+    a_ub = sp.csr_matrix((coo.data, (coo.row, col)), shape=(lp.a_ub.shape[0], lp.n + nc))
+    a_eq = sp.hstack([lp.a_eq, sp.csr_matrix((lp.a_eq.shape[0], nc))]).tocsr()
+    c = np.concatenate([np.zeros(lp.n), np.ones(nc)])
+    lower = np.concatenate([lp.lower, np.zeros(nc)])
+    upper = np.concatenate([lp.upper, np.full(nc, s * (1 + 1e-9) + 1e-12)])
+    lower[0] = upper[0] = 0.0
+    res = solve_highs(LinearProgram(c, a_eq, lp.b_eq, a_ub, lp.b_ub, lower, upper))
+    if res.status != "optimal":
+        loads = np.full(nc, s)  # cannot happen for a solved minimax; keep every connection
+    else:
+        loads = res.x[lp.n:]
+    worst = np.flatnonzero(loads >= s * (1 - 1e-6))
+    return tuple(
+        Failure(int(model.parts[model.conn_a[k]]), int(model.parts[model.conn_b[k]]),
+                tuple(float(v) for v in model.conn_pos[k]), float(loads[k]))
+        for k in worst
+    )
+
+
+def judge_many(models: Sequence[LoadModel], cfg: LoadConfig = LoadConfig(),
+               solve_batch: Callable[[list[LinearProgram]], list[LPResult]] | None = None) -> list[LoadVerdict]:
+    """`judge` for many models; with `solve_batch` the programs of those that do not tip are solved
+    in one call (the batched solver), else one by one with HiGHS."""
+    tipping = [tips(m, cfg) for m in models]
+    todo = [k for k, t in enumerate(tipping) if not t]
+    lps = [to_lp(models[k], cfg) for k in todo]
+    results = solve_batch(lps) if solve_batch is not None else [solve_highs(lp) for lp in lps]
+    out: list[LPResult | None] = [None] * len(models)
+    for k, r in zip(todo, results):
+        out[k] = r
+    return [verdict_of(m, r, cfg) for m, r in zip(models, out)]
+
+
+# -- the new part alone ----------------------------------------------------------------------------
+def holds_alone(mass_kg: float, com: np.ndarray, conns: Sequence[tuple[bool, np.ndarray, np.ndarray]],
+                ground: np.ndarray = np.zeros((0, 3)), cfg: LoadConfig = LoadConfig()) -> bool:
+    """Whether a new part (or rigid unit) is held by its own connections with the rest fixed: the
+    same model as `to_lp` for one body, so it never rejects what the whole-structure program
+    accepts; the cheap rule that runs first. `conns`: (the part holds the stud, stud base, stud
+    axis) per connection; `ground`: its support points on the ground.
+
+    Where every connection is vertical (bricks and plates on and under each other), the program
+    has a closed form: the upward force at each rim point j is bounded on one side (at least
+    -C/4 where the part sits on the stud, at most C/4 where it hangs from it; at least 0 on the
+    ground), so with all bounded below, shifting by the bounds leaves nonnegative forces whose
+    resultant must pass through the part's "effective centre" (W c - sum lo_j x_j) / (W - sum lo_j):
+    that point must lie in the hull of the rim and ground points; all bounded above is the mirror
+    image. Mixed or sideways connections go to the program itself (6 rows)."""
+    weight = mass_kg * GRAVITY
+    if not conns and not len(ground):
+        return False
+    axes = np.array([n for _, _, n in conns]).reshape(-1, 3)
+    vertical = (np.abs(axes[:, 1]) > 0.999).all() if len(axes) else True
+    if vertical:
+        pts, lo_up, lo_down = [], [], []
+        for holds_stud, p, n in conns:
+            up = (n @ UP > 0) != holds_stud  # the stud pushes the part up when it sits on it
+            for q in _rim(p, n):
+                pts.append(q)
+                (lo_up if up else lo_down).append(len(pts) - 1)
+        bound = [-cfg.clutch_n / 4 if k in lo_up else cfg.clutch_n / 4 for k in range(len(pts))]
+        for q in ground:
+            pts.append(q)
+            lo_up.append(len(pts) - 1)
+            bound.append(0.0)
+        if not lo_down or not lo_up:
+            xz = np.array(pts)[:, [0, 2]]
+            b = np.array(bound)
+            sgn = 1.0 if not lo_down else -1.0  # all bounded below, or all above (mirrored)
+            total = sgn * weight - sgn * b.sum()
+            if total <= 0:
+                return False
+            centre = (sgn * weight * np.asarray(com)[[0, 2]] - sgn * (b[:, None] * xz).sum(0)) / total
+            return _inside(_hull_xz(np.unique(np.round(xz, 6), axis=0)), centre, cfg.tolerance)
+    model = LoadModel(
+        parts=np.array([0, -1]), mass=np.array([mass_kg, 0.0]),
+        com=np.stack([np.asarray(com, float), np.zeros(3)]),
+        conn_a=np.array([0 if h else 1 for h, _, _ in conns], np.int64),
+        conn_b=np.array([1 if h else 0 for h, _, _ in conns], np.int64),
+        conn_pos=np.array([p for _, p, _ in conns], float).reshape(-1, 3), conn_axis=axes,
+        ground_body=np.zeros(len(ground), np.int64), ground_pos=np.asarray(ground, float).reshape(-1, 3),
+        link_a=np.zeros(0, np.int64), link_b=np.zeros(0, np.int64), link_pos=np.zeros((0, 3)),
+    )
+    # Body 1 is the fixed rest of the structure: drop its rows.
+    lp = to_lp(model, cfg)
+    lp = LinearProgram(lp.c, lp.a_eq[:6], lp.b_eq[:6], lp.a_ub, lp.b_ub, lp.lower, lp.upper)
+    res = solve_highs(lp)
+    return res.status == "optimal" and res.objective <= 1.0 + cfg.tolerance
+
+
+def _rim(p: np.ndarray, n: np.ndarray) -> np.ndarray:
+    e1, e2 = _basis(np.asarray(n, float)[None])
+    return np.asarray(p) + STUD_RADIUS * np.stack([e1[0], -e1[0], e2[0], -e2[0]])
