@@ -25,6 +25,7 @@ from factory.cli import run_guarded
 from factory.ldraw import build_steps, get_reader
 from factory.parts import box_corners, load_part
 from factory.physics.check import BACKENDS, CheckConfig, Verdict, check_units
+from factory.physics.statics import Link
 from factory.physics.structure import Placed, Structure, canonical_key, connectors, match
 from factory.pose import Pose
 from factory.symmetry import rotation_about
@@ -46,6 +47,8 @@ def _record(verdict: Verdict, **extra) -> dict:
         "connected": verdict.connected,
         "connections": verdict.connections,
         "stable": verdict.stable,
+        "load": verdict.load,
+        "failing": [f.to_json() for f in verdict.failing],
         "reason": verdict.reason,
     }
 
@@ -92,6 +95,21 @@ def _faults(structure, local: Placed, backend, config, standing, step, index, fi
                                standing=standing)
             yield _record(v, step=step, index=index, part=local.part.name, color=local.colour,
                           fault=TURN_FINISHED)
+
+
+def _links(index: int, verdict: Verdict) -> list[Link]:
+    """Rigid links of a part placed at `index` that is held by connections the checker does not
+    model (its verdict's `held_by`), so the whole-structure loads carry it through them."""
+    return [Link(index, j, tuple(float(v) for v in verdict.pose.t)) for j in verdict.held_by]
+
+
+def _add_unit(structure: Structure, unit: list[Placed], inner_links, verdict: Verdict) -> None:
+    """Add a finished sub-assembly's parts to its parent, with its own rigid links (renumbered) and,
+    if the unit is held by an unmodelled connection, a link from its first part."""
+    base = len(structure)
+    for k, p in enumerate(unit):
+        structure.add(p, _links(base, verdict) if k == 0 else ())
+    structure.links.extend(Link(l.a + base, l.b + base, l.point) for l in inner_links)
 
 
 def _envelope(part, pose: Pose) -> np.ndarray:
@@ -150,11 +168,10 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
             unit = [Placed(p.part, p.colour, to_parent @ p.pose) for p in done.structure.placed]
             (v,) = check_units(parent.structure, [unit], backend, config,
                                require_connection=not _on_table(parent.structure, unit),
-                               standing=parent.tag == "main")
+                               standing=parent.tag == "main", unit_links=done.structure.links)
             yield _record(v, step=done.last_step, index=0, part=done.tag.rsplit("/", 1)[-1],
                           color=unit[0].colour, unit=True, assembly=done.tag)
-            for p in unit:
-                parent.structure.add(p)
+            _add_unit(parent.structure, unit, done.structure.links, v)
 
     for step in steps:
         yield from close_until(step.assembly)
@@ -176,12 +193,13 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
                 # Parts of one step go in together: a part may hang from one listed after it, and
                 # the step is judged standing once all its parts are in.
                 later = Structure(asm.structure.placed + locals_[index + 1 :])
+                later.links.extend(asm.structure.links)
                 (v,) = check_units(later, [[local]], backend, config, standing=standing)
             yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour)
             if faults and v.ok and v.connected:
                 yield from _faults(asm.structure, local, backend, config, standing, step.index, index,
                                    finished[asm.tag])
-            asm.structure.add(local)
+            asm.structure.add(local, _links(len(asm.structure), v))
     yield from close_until("")
 
 

@@ -123,7 +123,7 @@ def check_units(
     scene = _collision_scene(structure, rel, floor_y if floor_y is not None else 1e6)
     base_n = len(structure)
     verdicts: list[Verdict | None] = [None] * len(units)
-    pending: list[tuple[int, list[Placed], list, float]] = []
+    pending: list[tuple[int, list[Placed], list]] = []
     for k, unit in enumerate(units):
         pose = unit[0].pose
         world = [(p.part, p.pose) for p in unit]
@@ -154,16 +154,16 @@ def check_units(
             continue
         if standing and (outer or base_n == 0):
             verdicts[k] = Verdict(**base, clutch=True if outer else None)
-            pending.append((k, list(unit), conns, ground))
+            pending.append((k, list(unit), conns))
         else:
             # Held in hand (a sub-assembly), or laid on the table beside the structure with no
             # connection yet: nothing joins it to the structure to fall with.
             verdicts[k] = Verdict(**base, clutch=True if outer else None, stable=True)
     if pending:
         links = list(structure.links) + [Link(l.a + base_n, l.b + base_n, l.point) for l in unit_links]
-        models = [load_model(structure.placed + unit, structure.connections + conns, ground,
+        models = [load_model(structure.placed + unit, structure.connections + conns, floor_y,
                              range(base_n, base_n + len(unit)), links, config.loads)
-                  for _, unit, conns, ground in pending]
+                  for _, unit, conns in pending]
         results = judge_many(models, config.loads, _batch_solver(backend))
         for (k, *_), lv in zip(pending, results):
             v = verdicts[k]

@@ -44,7 +44,7 @@ from factory.connections import STUD_RADIUS
 from factory.physics.geometry import collision_shape
 from factory.physics.lp import LinearProgram, LPResult, solve_highs
 from factory.physics.mass import GRAVITY, part_mass_properties
-from factory.physics.structure import Placed
+from factory.physics.structure import Placed, lowest_point
 
 LEVER_LDU = 20.0
 """Moment rows are written in newton-studs (lever arms in units of 20 LDU), so that force and
@@ -203,13 +203,16 @@ def component(n: int, edges: Sequence[tuple[int, int]], seeds: Sequence[int]) ->
 
 
 def load_model(placed: Sequence[Placed], connections: Sequence[tuple[int, int, np.ndarray, np.ndarray]],
-               floor_y: float, seeds: Sequence[int], links: Sequence[Link] = (),
+               floor_y: float | None, seeds: Sequence[int], links: Sequence[Link] = (),
                cfg: LoadConfig = LoadConfig()) -> LoadModel:
     """The component holding `seeds` (part indices) of the parts `placed`, with their stud
     connections `(stud part, socket part, stud base, stud axis)`, rigid links and the ground at
-    LDraw height `floor_y`."""
+    LDraw height `floor_y`; None: the component rests on its own lowest point (a human build, where
+    parts laid on the table wait to be joined and a car body waits for its wheels)."""
     edges = [(a, b) for a, b, _, _ in connections] + [(l.a, l.b) for l in links]
     comp = component(len(placed), edges, seeds)
+    if floor_y is None:
+        floor_y = lowest_point([placed[i] for i in comp])
     body = np.full(len(placed), -1, np.int64)
     body[comp] = np.arange(len(comp))
     mass, com = np.empty(len(comp)), np.empty((len(comp), 3))
