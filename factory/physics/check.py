@@ -2,7 +2,8 @@
 
 For each candidate: (1) **connection** (numpy: does a stud meet a socket?), (2) **collision**
 (MuJoCo contacts between inset convex pieces, one `mj_fwdPosition`), (3) **clutch** (the
-candidate's own connections hold it with the rest fixed: `statics.holds_alone`), (4) **loads**
+candidate's own connections hold it with the rest fixed: `statics.holds_alone`), (4)
+**buildability** (it reaches its pose along its connection axis from clear space: `sweep`), (5) **loads**
 (the whole structure with it: nothing tips, every stud connection within its capacity, a linear
 program per structure: `statics`). A candidate that fails a cheap rule never reaches the
 expensive ones; its later fields are None (not evaluated).
@@ -11,7 +12,8 @@ Reasons, in the order they are reported: `unsupported-connection` (no stud conne
 candidate touches or overlaps a structure part that may hold it by a connection the checker does
 not model: Technic pins and axles, clips, hinges, tyres on rims; `factory.physics.unmodelled`
 says when), `collision`, `no-connection` (floating), `clutch` (its own connections cannot hold
-it), `unstable` (the part's component tips: its centre of mass is not over its support polygon),
+it), `clamped` (it sits on studs and under sockets at once: no approach reaches it), `blocked`
+(a part placed earlier is in the way of its approach), `unstable` (the part's component tips: its centre of mass is not over its support polygon),
 `overload` (some connection of the structure would carry more than its capacity).
 """
 
@@ -26,6 +28,7 @@ from factory.parts import Part
 from factory.physics.collide import CollisionScene
 from factory.physics.mass import part_mass_properties
 from factory.physics.statics import Failure, Link, LoadConfig, holds_alone, judge_many, load_model, support_points
+from factory.physics.sweep import sweep
 from factory.physics.structure import Placed, Structure, connectors, lowest_point, match
 from factory.physics.unmodelled import may_hold
 from factory.pose import Pose
@@ -57,6 +60,13 @@ class Verdict:
     """Whether the candidate's own connections hold it with the rest of the structure fixed."""
     stable: bool | None = None
     """Whether the whole structure stands with it: nothing tips, no connection overloaded."""
+    buildable: bool | None = None
+    """Whether it reaches its pose along its connection axis from clear space (`sweep.py`); None
+    where that is not judged: connections on two axes (`approach` says so) or no stud connection."""
+    approach: str | None = None
+    """Why buildability was not judged, or 'clamped'/'blocked' when it failed."""
+    blocked_by: tuple[int, ...] = ()
+    """Structure parts in the way of the approach."""
     load: float | None = None
     """The largest share of any connection's capacity used in the whole structure (<= 1 stands)."""
     failing: tuple[Failure, ...] = ()
@@ -152,6 +162,12 @@ def check_units(
         if outer and not _holds_alone(unit, outer, base_n, ground if standing else None, config.loads):
             verdicts[k] = Verdict(**base, clutch=False, reason="clutch")
             continue
+        built = sweep(scene, structure, world, touched, config.max_penetration_ldu) if outer else None
+        if built is not None:
+            base.update(buildable=built.buildable, approach=built.reason, blocked_by=built.blocked_by)
+            if built.buildable is False:
+                verdicts[k] = Verdict(**base, clutch=True, reason=built.reason)
+                continue
         if standing and (outer or base_n == 0):
             verdicts[k] = Verdict(**base, clutch=True if outer else None)
             pending.append((k, list(unit), conns))
