@@ -192,8 +192,11 @@ def _batch_solver(backend: str):
     """None (HiGHS, one program at a time) for the CPU reference; the batched JAX solver for 'mjx'."""
     if backend != "mjx":
         return None
-    from factory.physics.lp_jax import solve_batch  # JAX is an optional dependency (the mjx extra)
-
+    try:
+        from factory.physics.lp_jax import solve_batch  # JAX is an optional dependency (the mjx extra)
+    except ModuleNotFoundError as e:
+        raise RuntimeError(f"backend 'mjx' needs the batched load solver factory.physics.lp_jax and JAX "
+                           f"(pip install -e '.[mjx]'); not available: {e.name}") from None
     return solve_batch
 
 
