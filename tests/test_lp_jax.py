@@ -1,0 +1,168 @@
+"""The batched JAX LP solver (`factory.physics.lp_jax`) against HiGHS: random LPs with every kind of
+bound, load programs of the kind it is for, a cantilever worked by hand, batching and compiles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+pytest.importorskip("jax")
+
+from factory.physics import lp_jax  # noqa: E402
+from factory.physics.lp import LinearProgram, solve_highs  # noqa: E402
+
+
+def assert_agrees(lp: LinearProgram, res, ref) -> None:
+    """Same objective as HiGHS within 1e-5 * max(1, |objective|), and x feasible: equalities and
+    inequalities within 1e-6 of the right-hand side's size, bounds exact."""
+    assert ref.status == "optimal" and res.status == "optimal"
+    assert abs(res.objective - ref.objective) <= 1e-5 * max(1.0, abs(ref.objective))
+    eq, ub, bd = lp.residuals(res.x)
+    scale = 1 + np.linalg.norm(np.r_[lp.b_eq, lp.b_ub])
+    assert eq <= 1e-6 * scale and ub <= 1e-6 * scale and bd == 0
+
+
+def random_lp(rng: np.random.Generator, n: int = 40, m_eq: int = 12, m_ub: int = 20) -> LinearProgram:
+    """A feasible, bounded LP. Variables cycle through free, lower-bounded, upper-bounded, boxed
+    and fixed; x0 within the bounds satisfies every row (b_eq = A x0, b_ub = A_ub x0 + slack, half
+    the rows active), and c = A_eq^T u + A_ub^T v + lam with v <= 0 and lam of the bounds' signs is
+    dual feasible, so the optimum is finite. Two equality entries per column and three per
+    inequality row keep every such LP in one shape bucket."""
+    eq_at = (rng.integers(0, m_eq, 2 * n), np.repeat(np.arange(n), 2))
+    a_eq = sp.csr_matrix((rng.standard_normal(2 * n), eq_at), shape=(m_eq, n))
+    ub_at = (np.repeat(np.arange(m_ub), 3), rng.integers(0, n, 3 * m_ub))
+    a_ub = sp.csr_matrix((rng.standard_normal(3 * m_ub), ub_at), shape=(m_ub, n))
+    kind = np.arange(n) % 5
+    lower = np.where(np.isin(kind, (1, 3, 4)), rng.uniform(-2, 0, n), -np.inf)
+    upper = np.where(kind == 2, rng.uniform(0, 2, n), np.where(kind == 3, lower + rng.uniform(0.5, 2, n), np.inf))
+    upper = np.where(kind == 4, lower, upper)
+    lo, up = np.where(np.isfinite(lower), lower, 0.0), np.where(np.isfinite(upper), upper, 0.0)
+    x0 = np.select(
+        [kind == 0, kind == 1, kind == 2, kind == 3],
+        [rng.standard_normal(n), lo + rng.exponential(1, n), up - rng.exponential(1, n),
+         lo + rng.random(n) * (up - lo)],
+        lo,
+    )
+    active = rng.random(m_ub) < 0.5
+    b_ub = a_ub @ x0 + np.where(active, 0.0, rng.exponential(1, m_ub))
+    v = np.where(active, -rng.exponential(1, m_ub), 0.0)
+    lam = np.select([kind == 1, kind == 2, kind >= 3],
+                    [rng.exponential(1, n), -rng.exponential(1, n), rng.standard_normal(n)], 0.0)
+    c = a_eq.T @ rng.standard_normal(m_eq) + a_ub.T @ v + lam
+    return LinearProgram(c, a_eq, a_eq @ x0, a_ub, b_ub, lower, upper)
+
+
+@pytest.fixture(scope="module")
+def load_programs() -> list[LinearProgram]:
+    """Five load programs of ~150 variables from one shape bucket (several structures are drawn,
+    the largest same-bucket group kept: the file then compiles few shapes)."""
+    rng = np.random.default_rng(1)
+    lps = [lp_jax.statics_like_lp(rng, 150) for _ in range(16)]
+    buckets = [lp_jax.bucket_of(lp) for lp in lps]
+    common = max(set(buckets), key=buckets.count)
+    group = [lp for lp, b in zip(lps, buckets) if b == common]
+    assert len(group) >= 5 and len({lp.n for lp in group}) > 1
+    return group[:5]
+
+
+def test_random_lps_match_highs():
+    rng = np.random.default_rng(0)
+    lps = [random_lp(rng) for _ in range(8)]
+    assert len({lp_jax.bucket_of(lp) for lp in lps}) == 1
+    for lp, res, ref in zip(lps, lp_jax.solve_batch(lps), [solve_highs(lp) for lp in lps]):
+        assert_agrees(lp, res, ref)
+
+
+def test_load_programs_match_highs(load_programs):
+    results = lp_jax.solve_batch(load_programs[:4])
+    for lp, res in zip(load_programs, results):
+        assert_agrees(lp, res, solve_highs(lp))
+    # Both verdicts are among them: the structure holds (s <= 1) and is overloaded (s > 1).
+    assert min(r.objective for r in results) < 1 < max(r.objective for r in results)
+
+
+def test_load_programs_with_random_loads_match_highs(load_programs):
+    """The load programs' matrices and bounds with random right-hand sides: x0 within the bounds
+    (free forces, nonnegative ground forces and s), b_eq = A_eq x0, b_ub = A_ub x0 + slack (half the
+    rows active); minimising s >= 0 stays bounded."""
+    rng = np.random.default_rng(2)
+    lps = []
+    for lp in load_programs[:4]:
+        x0 = np.where(np.isfinite(lp.lower), np.abs(rng.normal(0, 0.1, lp.n)), rng.normal(0, 0.1, lp.n))
+        rows = lp.a_ub.shape[0]
+        slack = np.where(rng.random(rows) < 0.5, 0.0, rng.exponential(0.1, rows))
+        lps.append(LinearProgram(lp.c, lp.a_eq, lp.a_eq @ x0, lp.a_ub, lp.a_ub @ x0 + slack, lp.lower, lp.upper))
+    for lp, res in zip(lps, lp_jax.solve_batch(lps)):
+        assert_agrees(lp, res, solve_highs(lp))
+
+
+def cantilever(w_n: float = 1.5, x_c: float = 50.0, a: float = 20.0, clutch: float = 1.0,
+               shear: float = 10.0) -> LinearProgram:
+    """A beam (one rigid body, 2-D: x along it, y up) of weight w_n with its centre of mass at x_c,
+    on two studs at x = 0 and x = a. Each stud pushes up with f_i >= -s clutch (tension up to its
+    clutch, scaled by s) and holds shear |t_i| <= s shear. Variables: s, f1, f2, t1, t2; rows: the
+    horizontal and vertical balance, the moments about the first stud."""
+    a_eq = sp.csr_matrix([[0, 0, 0, 1, 1], [0, 1, 1, 0, 0], [0, 0, a, 0, 0]])
+    a_ub = sp.csr_matrix([
+        [-clutch, -1, 0, 0, 0], [-clutch, 0, -1, 0, 0],
+        [-shear, 0, 0, 1, 0], [-shear, 0, 0, -1, 0], [-shear, 0, 0, 0, 1], [-shear, 0, 0, 0, -1],
+    ])
+    lower = np.r_[0.0, np.full(4, -np.inf)]
+    b_eq = np.array([0.0, w_n, x_c * w_n])
+    return LinearProgram(np.eye(5)[0], a_eq, b_eq, a_ub, np.zeros(6), lower, np.full(5, np.inf))
+
+
+def test_cantilever_on_two_studs_by_hand():
+    """With x_c > a the first stud pulls. Balance: t_1 + t_2 = 0, f_1 + f_2 = W, a f_2 = x_c W, so
+    f_2 = W x_c / a and the first stud's tension is W (x_c - a) / a: s = W (x_c - a) / (a C)."""
+    w_n, x_c, a, clutch = 1.5, 50.0, 20.0, 1.0
+    lp = cantilever(w_n, x_c, a, clutch)
+    by_hand = w_n * (x_c - a) / (a * clutch)
+    (res,) = lp_jax.solve_batch([lp])
+    ref = solve_highs(lp)
+    assert by_hand == pytest.approx(2.25)
+    assert ref.objective == pytest.approx(by_hand, rel=1e-9)
+    assert_agrees(lp, res, ref)
+    assert res.x[1:3] == pytest.approx([-(x_c - a) / a * w_n, x_c / a * w_n], rel=1e-5)
+
+
+def test_dependent_and_empty_equality_rows():
+    """The moment balance written twice (once scaled) and an empty row: the same program."""
+    lp = cantilever()
+    a_eq = sp.vstack([lp.a_eq, 3 * lp.a_eq[2], sp.csr_matrix((1, lp.n))], format="csr")
+    doubled = LinearProgram(lp.c, a_eq, np.r_[lp.b_eq, 3 * lp.b_eq[2], 0.0], lp.a_ub, lp.b_ub, lp.lower, lp.upper)
+    (res,) = lp_jax.solve_batch([doubled])
+    assert_agrees(doubled, res, solve_highs(lp))
+
+
+def test_a_batch_solves_as_its_members_alone(load_programs):
+    """The same answers, to the solver's tolerance: a batch of 4 and a batch of 1 are different
+    compiled programs, whose reductions may round differently in the last bits, and such a
+    difference can move a restart or the last check by one interval of 64 iterations."""
+    together, its_together = lp_jax._solve(load_programs[:4], 1e-7, 100_000)
+    for lp, t, it in zip(load_programs, together, its_together):
+        (a,), (it_alone,) = lp_jax._solve([lp], 1e-7, 100_000)
+        assert t.status == a.status == "optimal"
+        assert abs(t.objective - a.objective) <= 1e-7 * max(1.0, abs(a.objective))
+        assert np.abs(t.x - a.x).max() <= 1e-5 * max(1.0, np.abs(a.x).max())
+        assert abs(it - it_alone) <= 2 * lp_jax.CHECK_EVERY
+
+
+def test_one_compile_per_bucket():
+    """Two calls with different problem counts (9, then 10: both padded to 10) and sizes
+    (40 and 44 variables) inside one shape bucket compile once; an iteration cap is a traced value
+    (no compile), and a member stopped by it is "error", not a guess."""
+    rng = np.random.default_rng(1)
+    first = [random_lp(rng) for _ in range(9)]
+    second = [random_lp(rng, n=44) for _ in range(10)]
+    assert len({lp_jax.bucket_of(lp) for lp in first + second}) == 1
+    before, cached = len(lp_jax.COMPILES), lp_jax._SOLVE._cache_size()
+    lp_jax.solve_batch(first)
+    assert len(lp_jax.COMPILES) == before + 1 and lp_jax._SOLVE._cache_size() == cached + 1
+    assert lp_jax.COMPILES[-1] == (10, *lp_jax.bucket_of(first[0]))
+    capped = lp_jax.solve_batch(second, max_iterations=lp_jax.CHECK_EVERY)
+    results = lp_jax.solve_batch(second)
+    assert len(lp_jax.COMPILES) == before + 1 and lp_jax._SOLVE._cache_size() == cached + 1
+    assert all(r.status == "optimal" for r in results)
+    assert any(r.status == "error" and r.x is None for r in capped)
