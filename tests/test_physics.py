@@ -186,7 +186,6 @@ def _random_candidates(rng, n):
 
 def test_mujoco_and_mjx_backends_agree_on_200_candidates():
     pytest.importorskip("jax")
-    pytest.importorskip("factory.physics.lp_jax", reason="the batched load solver is not in this revision")
     rng = np.random.default_rng(7)
     total, reasons = 0, set()
     for s, cand, poses in _random_candidates(rng, 24):
