@@ -99,5 +99,7 @@ def test_every_part_of_the_library_loads(real_reader):
         assert len(part.flat.triangles) > 0, name
         assert np.all(part.bbox[0] <= part.bbox[1]), name
         connected += bool(part.studs or part.sockets)
-    # 208 parts in the subset; Technic pins, axles, tyres and rims have no stud connections.
-    assert len(names) == 208 and connected >= 175
+    # The subset grows with the models it serves, so count what is there. Technic pins,
+    # axles, tyres, rims and minifig pieces have no stud connections; most parts do.
+    assert len(names) >= 200, f"only {len(names)} parts under {LDRAW / 'parts'}"
+    assert connected >= 0.8 * len(names), f"{connected} of {len(names)} parts have studs or sockets"
