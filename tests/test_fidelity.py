@@ -90,6 +90,18 @@ def test_a_wedge_fits_round_the_brick_in_its_notch(at):
     assert verdict(structure, at("4858", 10, 0, 0)).reason == "collision"
 
 
+def test_a_stud_in_a_hollow_it_does_not_connect_to_is_no_collision(at):
+    # The same wedge over the side studs of a bracket (LEGO Truck step 13): they stand in the
+    # wedge's hollow underside, which its collision pieces fill, without touching the wedge.
+    structure = [at("3710", 0, 24, 0), at("3004", 0, 0, 0), at("2436a", 0, 24, -40)]
+    v = verdict(structure, at("4858", 0, 0, 0))
+    assert v.reason is None, v
+    # A stud that meets a wall still collides: a 1x1 brick half a stud off, on a plate whose
+    # studs then stand in its walls.
+    v = verdict([at("3022", 0, 0, 0)], at("3005", 0, -24, -10))
+    assert v.reason == "collision" and v.max_penetration_ldu > 3, v
+
+
 def test_pieces_hold_only_the_part_and_its_cavities(real_reader):
     def inside(name, point):
         shape = collision_shape(load_part(real_reader, name))

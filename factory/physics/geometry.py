@@ -35,6 +35,8 @@ from factory.parts import Part
 
 INSET_LDU = 0.25
 """How far every face of a collision piece is moved inward (BrickNet insets meshes by 0.25 LDU)."""
+MIN_PIECE_LDU3 = 1e-3
+"""Body pieces smaller than this (LDU^3) are dropped (MuJoCo refuses meshes of almost no volume)."""
 
 
 @dataclass(frozen=True)
@@ -81,6 +83,8 @@ class CollisionShape:
     """How far the body pieces sit inside the part's surface (LDU)."""
     key: str
     """Content hash of the part geometry and settings: names the cache entry and the MJCF meshes."""
+    stud_at: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
+    """Each stud piece's base centre and axis, in the order of `studs`."""
 
 
 def inset_hull(points: np.ndarray, inset: float, clip: np.ndarray | None = None) -> np.ndarray | None:
@@ -402,11 +406,15 @@ def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()
         tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
         np.savez(tmp, n=len(body), inset=inset, **{f"p{i}": p for i, p in enumerate(body)})
         os.replace(tmp, path)
-    studs = []
+    studs, stud_at = [], []
     for s in part.studs:
         prism = inset_hull(stud_prism(s.pos, s.axis), cfg.inset_ldu)
         if prism is not None:
             studs.append(prism)
-    shape = CollisionShape(tuple(body), tuple(studs), inset, key)
+            stud_at.append((np.array(s.pos, dtype=np.float64), np.array(s.axis, dtype=np.float64)))
+    # A sliver left by a cut (a face just inside a cell's edge, inset) holds nothing a part could
+    # overlap by the tolerance, and MuJoCo refuses a mesh of almost no volume.
+    body = [p for p in body if _hull_volume(p) >= MIN_PIECE_LDU3]
+    shape = CollisionShape(tuple(body), tuple(studs), inset, key, tuple(stud_at))
     memo[cfg] = shape
     return shape
