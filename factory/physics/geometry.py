@@ -309,12 +309,14 @@ def _split_faithful(polys: list[np.ndarray], test: _Faithfulness, budget: list[i
     end = np.concatenate([np.roll(p, -1, axis=0) for p in polys])
     # Candidate cuts: planes holding a face of the part, inside this cell; where there is none,
     # the cell's middle (a curved concavity has no face to cut along: halving the cell shrinks
-    # what a hull can fill of it).
+    # what a hull can fill of it), but into halves no thinner than a sample spacing: a thinner
+    # cell may hold no sample point, and would pass the test whatever it fills.
     cuts = [(axis, at) for axis in range(3)
             for at in sorted({round(float(p[0, axis]), 3) for p in polys if np.ptp(p[:, axis]) < 1e-6})
             if lo[axis] + 0.5 < at < hi[axis] - 0.5]
     if not cuts:
-        cuts = [(axis, float(lo[axis] + hi[axis]) / 2) for axis in range(3) if hi[axis] - lo[axis] > 1.0]
+        cuts = [(axis, float(lo[axis] + hi[axis]) / 2) for axis in range(3)
+                if hi[axis] - lo[axis] >= 2 * test.pitch]
     best = None
     for axis, at in cuts:
         ca, cb = start[:, axis] - at, end[:, axis] - at
