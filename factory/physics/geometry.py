@@ -59,6 +59,9 @@ class DecompositionConfig:
     """A coacd piece is rebuilt from the part's vertices within this distance of it."""
     faithful_pitch_ldu: float = 1.5
     """Spacing of the points sampled inside a hull to test whether it is faithful."""
+    min_cut_ldu: float = 1.5
+    """Thinnest half of a cell halved through its middle: a thinner cell may hold no sample point
+    (at `faithful_pitch_ldu`) and would pass the test whatever it fills."""
     split_cells: int = 256
     """How many cells the split along the part's faces may examine before giving the body to coacd
     (a split into n faithful pieces examines 2n - 1)."""
@@ -293,7 +296,8 @@ def _hull_volume(points: np.ndarray) -> float:
         return 0.0
 
 
-def _split_faithful(polys: list[np.ndarray], test: _Faithfulness, budget: list[int]) -> list[np.ndarray] | None:
+def _split_faithful(polys: list[np.ndarray], test: _Faithfulness, min_cut: float,
+                    budget: list[int]) -> list[np.ndarray] | None:
     """Vertices of convex pieces covering the surface `polys`, each hull faithful (`test`),
     found by halving along the part's own axis-aligned faces (the cut that leaves the least hull
     volume first); None once `budget[0]` cells have been examined (coacd's case then)."""
@@ -309,14 +313,13 @@ def _split_faithful(polys: list[np.ndarray], test: _Faithfulness, budget: list[i
     end = np.concatenate([np.roll(p, -1, axis=0) for p in polys])
     # Candidate cuts: planes holding a face of the part, inside this cell; where there is none,
     # the cell's middle (a curved concavity has no face to cut along: halving the cell shrinks
-    # what a hull can fill of it), but into halves no thinner than a sample spacing: a thinner
-    # cell may hold no sample point, and would pass the test whatever it fills.
+    # what a hull can fill of it), into halves no thinner than `min_cut`.
     cuts = [(axis, at) for axis in range(3)
             for at in sorted({round(float(p[0, axis]), 3) for p in polys if np.ptp(p[:, axis]) < 1e-6})
             if lo[axis] + 0.5 < at < hi[axis] - 0.5]
     if not cuts:
         cuts = [(axis, float(lo[axis] + hi[axis]) / 2) for axis in range(3)
-                if hi[axis] - lo[axis] >= 2 * test.pitch]
+                if hi[axis] - lo[axis] >= 2 * min_cut]
     best = None
     for axis, at in cuts:
         ca, cb = start[:, axis] - at, end[:, axis] - at
@@ -333,7 +336,7 @@ def _split_faithful(polys: list[np.ndarray], test: _Faithfulness, budget: list[i
     for half in _cut(polys, best[1], best[2]):
         if not half:
             continue
-        sub = _split_faithful(half, test, budget)
+        sub = _split_faithful(half, test, min_cut, budget)
         if sub is None:
             return None
         pieces += sub
@@ -349,7 +352,7 @@ def _faithful_pieces(part: Part, cfg: DecompositionConfig) -> list[np.ndarray] |
         occluders = np.concatenate([occluders, _stud_caps(part)])
     floor = max((c.pos[1] for c in part.sockets), default=None)
     test = _Faithfulness(occluders, cfg.faithful_pitch_ldu, floor)
-    return _split_faithful(list(body), test, [cfg.split_cells])
+    return _split_faithful(list(body), test, cfg.min_cut_ldu, [cfg.split_cells])
 
 
 def _snap(piece: np.ndarray, verts: np.ndarray, snap: float) -> np.ndarray | None:
