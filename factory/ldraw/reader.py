@@ -37,6 +37,14 @@ def is_stud_primitive(name: str) -> bool:
     return _STUD.match(name) is not None
 
 
+_HOLLOW_STUD = re.compile(r"^(?:.*/)?stud(2|2a|6|6a)(-logo\d*)?\.dat$")
+"""Open (hollow) stud primitives ('Stud Open', with or without base edges, round 2x2 kin)."""
+
+
+def is_hollow_stud(name: str) -> bool:
+    return _HOLLOW_STUD.match(name) is not None
+
+
 @dataclass
 class Model:
     """A model file opened for reading: its MPD blocks (the first is the main model) and folder."""
@@ -79,6 +87,10 @@ class Flat:
     clip, click hinge, wheel pin), the two ends of the stretch of its axis that it spans and the
     unit axis. Kept with positions, not as a count, so the checker can tell whether two parts'
     connectors meet."""
+    bores: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    """(b, 3, 3) float64, like `other_connectors`: the bore of each hollow stud (its stretch of the
+    stud's axis). A bore holds a bar (a torch, an antenna, an exhaust pipe's pin), a connection
+    the checker does not model; unlike the other connectors it does not hold its own part up."""
 
 
 @dataclass
@@ -199,7 +211,7 @@ class Reader:
         if cached is not None:
             return cached
         self._check_stack(res, stack)
-        tris, cols, edges, studs, in_stud, others = [], [], [], [], [], []
+        tris, cols, edges, studs, in_stud, others, bores = [], [], [], [], [], [], []
         certified = res.file.certified
         for it in res.file.items:
             if isinstance(it, Poly):
@@ -229,6 +241,10 @@ class Reader:
                     others.append(place_connectors(axis_segment(it.name, child.triangles)[None], it.matrix, it.pos))
                 elif len(child.other_connectors):
                     others.append(place_connectors(child.other_connectors, it.matrix, it.pos))
+                if is_hollow_stud(it.name):
+                    bores.append(place_connectors(axis_segment(it.name, child.triangles)[None], it.matrix, it.pos))
+                elif len(child.bores):
+                    bores.append(place_connectors(child.bores, it.matrix, it.pos))
                 stud_ref = is_stud_primitive(it.name)
                 in_stud.append(np.ones(len(t), bool) if stud_ref else child.in_stud)
                 if stud_ref:
@@ -248,9 +264,10 @@ class Reader:
             certified=certified,
             in_stud=np.concatenate(in_stud) if in_stud else np.zeros(0, bool),
             other_connectors=_unique_connectors(np.concatenate(others)) if others else np.zeros((0, 3, 3)),
+            bores=_unique_connectors(np.concatenate(bores)) if bores else np.zeros((0, 3, 3)),
         )
         for arr in (flat.triangles, flat.colours, flat.edges, flat.studs, flat.in_stud,
-                    flat.other_connectors):
+                    flat.other_connectors, flat.bores):
             arr.setflags(write=False)
         self._flat[res.key] = flat
         return flat

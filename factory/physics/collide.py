@@ -3,7 +3,9 @@
 One MuJoCo model per (structure, candidate part type); each candidate pose costs one
 `mj_fwdPosition` (kinematics and collision, no dynamics). A contact between inset pieces is a real
 overlap; contacts between a stud and the part it is connected into are ignored (the coarse body
-pieces fill the hollow a connected stud sits in).
+pieces fill the hollow a connected stud sits in), and so is a stud of any other part that sits in
+such a hollow without touching the part's own surface (a bracket's side stud under a wedge's
+slope): only a stud that crosses a wall or a face of the other part collides.
 """
 
 from __future__ import annotations
@@ -58,6 +60,64 @@ class _GeomInfo:
     """Index of the structure part, -1 for the candidate, -2 for the floor."""
     stud: bool
     inset: float
+    member: int = 0
+    """Which part of the candidate unit (for the candidate's geoms)."""
+    stud_at: tuple | None = None
+    """A stud's base centre and axis in its part's frame."""
+
+
+STUD_PROBE_INSET_LDU = 0.5
+"""How far inside a stud's surface the probe segments run: a face the stud merely touches (a
+plate's underside on a stud's top, the tolerance) is not crossed."""
+
+
+def _segment_hits(tris: np.ndarray, a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether any segment a[i]-b[i] crosses any triangle (Moller-Trumbore, both faces)."""
+    if not len(tris):
+        return False
+    d = b - a
+    v0 = tris[:, 0][None]
+    e1, e2 = (tris[:, 1] - tris[:, 0])[None], (tris[:, 2] - tris[:, 0])[None]
+    p = np.cross(d[:, None], e2)
+    det = np.einsum("stk,stk->st", p, np.broadcast_to(e1, p.shape))
+    ok = np.abs(det) > 1e-12
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    o = a[:, None] - v0
+    u = np.einsum("stk,stk->st", o, p) * inv
+    q = np.cross(o, np.broadcast_to(e1, o.shape))
+    v = np.einsum("stk,stk->st", q, np.broadcast_to(d[:, None], q.shape)) * inv
+    t = np.einsum("stk,stk->st", q, np.broadcast_to(e2, q.shape)) * inv
+    return bool((ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t >= 0) & (t <= 1)).any())
+
+
+def stud_crosses(pos: np.ndarray, axis: np.ndarray, tris: np.ndarray) -> bool:
+    """Whether a stud (base centre, unit axis; world) crosses the surface `tris` (world): a wall or
+    face of another part cuts into it, as opposed to the stud standing in that part's hollow.
+    Probed by segments just inside the stud (its axis, 8 lines along its side, 8 radii of its top)
+    and by any vertex of the surface inside it."""
+    from factory.connections import STUD_HEIGHT, STUD_RADIUS
+
+    r, h0, h1 = STUD_RADIUS - STUD_PROBE_INSET_LDU, STUD_PROBE_INSET_LDU, STUD_HEIGHT - STUD_PROBE_INSET_LDU
+    centre = pos + axis * (STUD_HEIGHT / 2)
+    reach = STUD_RADIUS + STUD_HEIGHT
+    near = tris[np.all((tris.min(axis=1) < centre + reach) & (tris.max(axis=1) > centre - reach), axis=1)]
+    if not len(near):
+        return False
+    rel = near.reshape(-1, 3) - pos
+    along = rel @ axis
+    radial = np.linalg.norm(rel - along[:, None] * axis, axis=1)
+    if ((along > h0) & (along < h1) & (radial < r)).any():
+        return True
+    ref = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
+    u = np.cross(axis, ref)
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    ang = np.arange(8) * (np.pi / 4)
+    ring = r * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v)
+    base, top = pos + h0 * axis, pos + h1 * axis
+    a = np.concatenate([[base], base + ring, np.repeat([top], 8, axis=0)])
+    b = np.concatenate([[top], top + ring, top + ring])
+    return _segment_hits(near, a, b)
 
 
 NEAR_LDU = 1.0
@@ -75,7 +135,9 @@ class CollisionScene:
 
     def __init__(self, structure: Structure, unit: list[tuple[Part, Pose]], floor_y: float):
         self.structure = structure
+        self.unit = unit
         shapes = [collision_shape(p.part) for p in structure.placed]
+        self._world_tris: dict[int, np.ndarray] = {}
         meshes: dict[str, np.ndarray] = {}
         bodies = []
         info: list[_GeomInfo] = []
@@ -90,9 +152,9 @@ class CollisionScene:
         self._c_planes, self._c_piece, _, self._c_centre = _pieces(
             [(rel, collision_shape(part), -1) for part, rel in unit])
         cand_geoms = ""
-        for part, rel in unit:
+        for member, (part, rel) in enumerate(unit):
             pos, quat = rel.to_mujoco_quat()
-            inner = self._geoms(collision_shape(part), meshes, -1, info)
+            inner = self._geoms(collision_shape(part), meshes, -1, info, member)
             cand_geoms += f'<body pos="{_fmt(pos)}" quat="{_fmt(quat)}">{inner}</body>'
         floor_z = -floor_y * LDU_M
         template = (TEMPLATES / "collision.xml").read_text()
@@ -110,14 +172,16 @@ class CollisionScene:
         self.owner = np.full(self.model.ngeom, -2, np.int64)
         self.is_stud = np.zeros(self.model.ngeom, bool)
         self.inset = np.zeros(self.model.ngeom)
+        self.info: dict[int, _GeomInfo] = {}
         order = [g for g in range(self.model.ngeom) if g != floor_id]
         for g, gi in zip(order, info):
             self.owner[g] = gi.owner
             self.is_stud[g] = gi.stud
             self.inset[g] = gi.inset
+            self.info[g] = gi
 
     @staticmethod
-    def _geoms(shape: CollisionShape, meshes: dict, owner: int, info: list) -> str:
+    def _geoms(shape: CollisionShape, meshes: dict, owner: int, info: list, member: int = 0) -> str:
         out = []
         for kind, pieces in (("b", shape.body), ("s", shape.studs)):
             for i, verts in enumerate(pieces):
@@ -125,14 +189,47 @@ class CollisionScene:
                 meshes.setdefault(name, verts)
                 cls = "stud" if kind == "s" else "body"
                 out.append(f'<geom class="{cls}" mesh="{name}"/>')
-                info.append(_GeomInfo(owner, kind == "s", shape.body_inset if kind == "b" else INSET_LDU))
+                info.append(_GeomInfo(owner, kind == "s", shape.body_inset if kind == "b" else INSET_LDU,
+                                      member, shape.stud_at[i] if kind == "s" else None))
         return "".join(out)
+
+    def _stud_in_hollow(self, stud_g: int, body_g: int, pose: Pose, memo: dict) -> bool:
+        """Whether the stud of geom `stud_g` stands in a hollow of the part owning `body_g` (inside
+        its filled collision piece, crossing none of its walls or faces)."""
+        stud, body = self.info[stud_g], self.info[body_g]
+        key = (stud_g, body.owner, body.member)
+        if key not in memo:
+            pos, axis = stud.stud_at
+            part_pose = self._pose_of(stud, pose)
+            pos, axis = part_pose.apply(pos[None])[0], part_pose.R @ axis
+            tris_key = (body.owner, body.member)
+            if tris_key not in memo:
+                memo[tris_key] = self._triangles(body, pose)
+            memo[key] = not stud_crosses(pos, axis, memo[tris_key])
+        return memo[key]
+
+    def _pose_of(self, gi: _GeomInfo, pose: Pose) -> Pose:
+        if gi.owner >= 0:
+            return self.structure.placed[gi.owner].pose
+        return pose @ self.unit[gi.member][1]
+
+    def _triangles(self, gi: _GeomInfo, pose: Pose) -> np.ndarray:
+        """The surface of the part owning a geom, in the world (structure parts' kept)."""
+        if gi.owner >= 0:
+            if gi.owner not in self._world_tris:
+                placed = self.structure.placed[gi.owner]
+                self._world_tris[gi.owner] = placed.pose.apply(placed.part.flat.triangles.reshape(-1, 3)).reshape(-1, 3, 3)
+            return self._world_tris[gi.owner]
+        part = self.unit[gi.member][0]
+        return self._pose_of(gi, pose).apply(part.flat.triangles.reshape(-1, 3)).reshape(-1, 3, 3)
 
     def penetration(self, pose: Pose, connected: set[int]) -> tuple[float, set[int]]:
         """(Deepest overlap in LDU with the structure or the floor, structure parts it touches).
 
         Overlap = depth between inset pieces + both insets; 0 when no inset pieces touch. Stud
-        contacts with parts in `connected` are ignored. Touching = a real gap under NEAR_LDU.
+        contacts with parts in `connected` are ignored; a stud standing in another part's hollow
+        (crossing none of its faces) touches it without overlapping. Touching = a real gap under
+        NEAR_LDU.
         """
         pos, quat = pose.to_mujoco_quat()
         self.data.qpos[:3] = pos
@@ -140,6 +237,7 @@ class CollisionScene:
         mujoco.mj_fwdPosition(self.model, self.data)
         deepest = 0.0
         near: set[int] = set()
+        memo: dict = {}
         for c in self.data.contact[: self.data.ncon]:
             g1, g2 = c.geom1, c.geom2
             o1, o2 = self.owner[g1], self.owner[g2]
@@ -153,6 +251,10 @@ class CollisionScene:
             overlap = -c.dist / LDU_M + self.inset[g1] + self.inset[g2]
             if other >= 0 and other in connected:
                 overlap -= CONNECTED_SLACK_LDU
+            if overlap > 0 and other >= 0 and self.is_stud[g1] != self.is_stud[g2]:
+                stud_g, body_g = (g1, g2) if self.is_stud[g1] else (g2, g1)
+                if self._stud_in_hollow(stud_g, body_g, pose, memo):
+                    overlap = min(overlap, 0.0)  # touching, not overlapping
             if overlap > 0:
                 deepest = max(deepest, overlap)
             if other >= 0 and overlap > -NEAR_LDU:

@@ -7,7 +7,12 @@ A part's collision shape is two kinds of convex pieces, all in the part's LDraw 
   collide with the part they are connected into (see `factory.physics.collide`). So when the
   body's convex hull covers only the part and its bottom-open cavity (bricks, plates, tiles,
   slopes: every sampled point of the hull is roofed and walled in by the part), the hull is the
-  one body piece; otherwise (brackets, mudguards, hinges) coacd splits the body, coarsely.
+  one body piece. Otherwise the body is cut by planes along the part's own axis-aligned faces
+  (through the middle of a cell that has none, as along a curve) until every cell's hull is
+  faithful in the same sense (a round plate's narrow base below its wider top, a corner brick's
+  or a wedge's notch, a headlight brick's recess, a dish's dome below the stud it sits on): the
+  pieces then follow the part's surface. Only where that takes too many cells does coacd split
+  the body.
 
 Every piece is inset by `INSET_LDU` (its faces moved inward), so mated parts that touch are not
 penetrating and a penetration measured between inset pieces is a real overlap of at least
@@ -30,6 +35,8 @@ from factory.parts import Part
 
 INSET_LDU = 0.25
 """How far every face of a collision piece is moved inward (BrickNet insets meshes by 0.25 LDU)."""
+MIN_PIECE_LDU3 = 1e-3
+"""Body pieces smaller than this (LDU^3) are dropped (MuJoCo refuses meshes of almost no volume)."""
 
 
 @dataclass(frozen=True)
@@ -50,6 +57,17 @@ class DecompositionConfig:
     inset_ldu: float = INSET_LDU
     snap_ldu: float = 1.0
     """A coacd piece is rebuilt from the part's vertices within this distance of it."""
+    faithful_pitch_ldu: float = 1.5
+    """Spacing of the points sampled inside a hull to test whether it is faithful."""
+    min_cut_ldu: float = 1.5
+    """Thinnest half of a cell halved through its middle: a thinner cell may hold no sample point
+    (at `faithful_pitch_ldu`) and would pass the test whatever it fills."""
+    split_cells: int = 256
+    """How many cells the split along the part's faces may examine before giving the body to coacd
+    (a split into n faithful pieces examines 2n - 1)."""
+    stud_bores_roofed: bool = True
+    """Whether the faithfulness test counts a hollow stud's bore as roofed (the stud's collision
+    prism is solid, so filling the bore under it changes nothing)."""
 
 
 def cache_dir() -> Path:
@@ -68,6 +86,8 @@ class CollisionShape:
     """How far the body pieces sit inside the part's surface (LDU)."""
     key: str
     """Content hash of the part geometry and settings: names the cache entry and the MJCF meshes."""
+    stud_at: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
+    """Each stud piece's base centre and axis, in the order of `studs`."""
 
 
 def inset_hull(points: np.ndarray, inset: float, clip: np.ndarray | None = None) -> np.ndarray | None:
@@ -136,32 +156,203 @@ def _decompose(vertices: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig
     return [np.asarray(v, dtype=np.float64) for v, _ in pieces]
 
 
-_SIDES = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 0, 1.0], [0, 0, -1.0], [0, -1.0, 0]])
+_SIDES = ((0, 1.0), (0, -1.0), (2, 1.0), (2, -1.0), (1, -1.0))
+"""The directions a sample point must be closed in, as (axis, sign): sideways and up (-Y)."""
+_BUCKET_LDU = 4.0
+"""Cell size of the grid that sorts triangles for the axis-aligned ray casts."""
 
 
-def _hull_is_faithful(tris: np.ndarray, pitch: float = 3.0) -> bool:
-    """Whether every point of the body's hull lies under the part's roof and between its walls.
+def _blocked(points: np.ndarray, tris: np.ndarray, axis: int, sign: float) -> np.ndarray:
+    """For each point, whether a ray along +-`axis` from it meets one of the triangles.
 
-    A sample point in a bottom-open cavity passes (rays up and sideways all meet the part); a point
-    in an outside concavity (an L-bracket's inner corner, a wheel arch) has a ray that escapes.
+    Rays are axis-aligned, so a triangle can only be met by points inside its shadow on the plane
+    across the axis: triangles are sorted into a grid on that plane and each point is tested
+    against those of its own grid cell only.
     """
-    from factory.connections import first_hits
+    a, b = [k for k in range(3) if k != axis]
+    hit = np.zeros(len(points), bool)
+    if not len(points) or not len(tris):
+        return hit
+    p2 = points[:, [a, b]]
+    t2 = tris[:, :, [a, b]]
+    # Signed doubled area in the plane: triangles seen edge-on cannot be met.
+    area = ((t2[:, 1, 0] - t2[:, 0, 0]) * (t2[:, 2, 1] - t2[:, 0, 1])
+            - (t2[:, 2, 0] - t2[:, 0, 0]) * (t2[:, 1, 1] - t2[:, 0, 1]))
+    keep = np.abs(area) > 1e-9
+    t2, t3, area = t2[keep], tris[keep], area[keep]
+    origin = p2.min(0)
+    cell = np.floor((p2 - origin) / _BUCKET_LDU).astype(np.int64)
+    tlo = np.floor((t2.min(1) - origin) / _BUCKET_LDU).astype(np.int64)
+    thi = np.floor((t2.max(1) - origin) / _BUCKET_LDU).astype(np.int64)
+    cells: dict[tuple[int, int], list[int]] = {}
+    for i, c in enumerate(map(tuple, cell)):
+        cells.setdefault(c, []).append(i)
+    for (ca, cb), members in cells.items():
+        near = np.flatnonzero((tlo[:, 0] <= ca) & (thi[:, 0] >= ca) & (tlo[:, 1] <= cb) & (thi[:, 1] >= cb))
+        if not len(near):
+            continue
+        idx = np.array(members)
+        q = p2[idx][:, None, :]  # (points, 1, 2)
+        v0, v1, v2 = t2[near, 0][None], t2[near, 1][None], t2[near, 2][None]
+        # Barycentric coordinates of each point in each triangle's shadow.
+        w1 = ((q[..., 0] - v0[..., 0]) * (v2[..., 1] - v0[..., 1])
+              - (v2[..., 0] - v0[..., 0]) * (q[..., 1] - v0[..., 1])) / area[near][None]
+        w2 = ((v1[..., 0] - v0[..., 0]) * (q[..., 1] - v0[..., 1])
+              - (q[..., 0] - v0[..., 0]) * (v1[..., 1] - v0[..., 1])) / area[near][None]
+        w0 = 1.0 - w1 - w2
+        inside = (w0 >= -1e-7) & (w1 >= -1e-7) & (w2 >= -1e-7)
+        depth = (w0 * t3[near, 0, axis][None] + w1 * t3[near, 1, axis][None]
+                 + w2 * t3[near, 2, axis][None])
+        ahead = sign * (depth - points[idx, axis][:, None]) > 1e-6
+        hit[idx] = (inside & ahead).any(axis=1)
+    return hit
 
-    pts = tris.reshape(-1, 3)
+
+@dataclass
+class _Faithfulness:
+    """Whether a convex hull holds only the part, its bottom-open cavities and the bores under its
+    studs: no sample point inside it sees out of the part (a ray up or sideways meets none of the
+    `occluders`). A point in an outside concavity (an L-bracket's inner corner, a wheel arch, the
+    ring under a round plate's wider top) has a ray that escapes.
+
+    A stud fills only the hollow above a socket's opening; a cavity that goes on below the
+    sockets (a dish or a dome sitting on one stud) takes in the body of the part it sits on, so a
+    point below the lowest socket counts as inside only if the part closes it from below too."""
+
+    occluders: np.ndarray
+    pitch: float
+    socket_floor: float | None
+    """The lowest socket opening (largest LDraw y), None for a part without sockets."""
+
+    def escaping(self, points: np.ndarray) -> int:
+        """How many sample points inside the hull of `points` see out of the part."""
+        try:
+            hull = ConvexHull(points)
+        except (QhullError, ValueError):
+            return 0  # flat: holds no sample point
+        # Bin centres along each axis, so that a cell a few LDU thick (a plate's top, a flange)
+        # is sampled through its middle rather than skipped.
+        lo, hi = points.min(0), points.max(0)
+        axes = []
+        for a, b in zip(lo, hi):
+            n = max(1, int(round((b - a) / self.pitch)))
+            axes.append(a + (np.arange(n) + 0.5) * (b - a) / n)
+        grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        inside = np.all(grid @ hull.equations[:, :3].T + hull.equations[:, 3] < -0.5, axis=1)
+        grid = grid[inside]
+        escaped = np.zeros(len(grid), bool)
+        for axis, sign in _SIDES:
+            open_ = ~escaped
+            escaped[open_] = ~_blocked(grid[open_], self.occluders, axis, sign)
+        if self.socket_floor is not None:
+            below = ~escaped & (grid[:, 1] > self.socket_floor + 0.5)
+            escaped[below] = ~_blocked(grid[below], self.occluders, 1, 1.0)
+        return int(escaped.sum())
+
+
+def _stud_caps(part: Part, segments: int = 16) -> np.ndarray:
+    """A disc over each stud's top (triangles): a hollow stud's bore counts as roofed."""
+    out = []
+    for s in part.studs:
+        prism = stud_prism(s.pos, s.axis, segments)
+        top = prism[segments:]
+        centre = top.mean(axis=0)
+        out.append(np.stack([np.broadcast_to(centre, top.shape), top, np.roll(top, -1, axis=0)], axis=1))
+    return np.concatenate(out) if out else np.zeros((0, 3, 3))
+
+
+def _cut(polys: list[np.ndarray], axis: int, at: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Polygons split by the plane x[axis] = at into the parts below and above it."""
+    below, above = [], []
+    for poly in polys:
+        c = poly[:, axis] - at
+        if c.max() <= 1e-9:
+            below.append(poly)
+            continue
+        if c.min() >= -1e-9:
+            above.append(poly)
+            continue
+        lo, hi = [], []
+        for i in range(len(poly)):
+            a, b, ca, cb = poly[i], poly[(i + 1) % len(poly)], c[i], c[(i + 1) % len(poly)]
+            if ca <= 0:
+                lo.append(a)
+            if ca >= 0:
+                hi.append(a)
+            if (ca < 0 < cb) or (cb < 0 < ca):
+                x = a + (ca / (ca - cb)) * (b - a)
+                lo.append(x)
+                hi.append(x)
+        for side, pts in ((below, lo), (above, hi)):
+            if len(pts) >= 3:
+                side.append(np.array(pts))
+    return below, above
+
+
+def _hull_volume(points: np.ndarray) -> float:
     try:
-        hull = ConvexHull(pts)
+        return float(ConvexHull(points).volume)
     except (QhullError, ValueError):
-        return False
-    lo, hi = pts.min(0) + 0.5, pts.max(0) - 0.5
-    axes = [np.arange(a, b + 1e-9, pitch) if b > a else np.array([(a + b) / 2]) for a, b in zip(lo, hi)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    inside = np.all(grid @ hull.equations[:, :3].T + hull.equations[:, 3] < -0.5, axis=1)
-    grid = grid[inside]
-    for d in _SIDES:
-        for chunk in np.array_split(grid, max(1, len(grid) // 256)):
-            if len(chunk) and not np.isfinite(first_hits(tris, chunk, np.tile(d, (len(chunk), 1)))).all():
-                return False
-    return True
+        return 0.0
+
+
+def _split_faithful(polys: list[np.ndarray], test: _Faithfulness, min_cut: float,
+                    budget: list[int]) -> list[np.ndarray] | None:
+    """Vertices of convex pieces covering the surface `polys`, each hull faithful (`test`),
+    found by halving along the part's own axis-aligned faces (the cut that leaves the least hull
+    volume first); None once `budget[0]` cells have been examined (coacd's case then)."""
+    budget[0] -= 1
+    if budget[0] < 0:
+        return None
+    points = np.concatenate(polys)
+    if len(points) < 4 or test.escaping(points) == 0:
+        return [points]
+    lo, hi = points.min(0), points.max(0)
+    # Every polygon edge (start, end), to find the points on each side of a cut without cutting.
+    start = points
+    end = np.concatenate([np.roll(p, -1, axis=0) for p in polys])
+    # Candidate cuts: planes holding a face of the part, inside this cell; where there is none,
+    # the cell's middle (a curved concavity has no face to cut along: halving the cell shrinks
+    # what a hull can fill of it), into halves no thinner than `min_cut`.
+    cuts = [(axis, at) for axis in range(3)
+            for at in sorted({round(float(p[0, axis]), 3) for p in polys if np.ptp(p[:, axis]) < 1e-6})
+            if lo[axis] + 0.5 < at < hi[axis] - 0.5]
+    if not cuts:
+        cuts = [(axis, float(lo[axis] + hi[axis]) / 2) for axis in range(3)
+                if hi[axis] - lo[axis] >= 2 * min_cut]
+    best = None
+    for axis, at in cuts:
+        ca, cb = start[:, axis] - at, end[:, axis] - at
+        cross = ca * cb < 0
+        t = (ca[cross] / (ca[cross] - cb[cross]))[:, None]
+        on_cut = start[cross] + t * (end[cross] - start[cross])
+        volume = (_hull_volume(np.concatenate([start[ca <= 0], on_cut]))
+                  + _hull_volume(np.concatenate([start[ca >= 0], on_cut])))
+        if best is None or volume < best[0]:
+            best = (volume, axis, at)
+    if best is None:
+        return None
+    pieces = []
+    for half in _cut(polys, best[1], best[2]):
+        if not half:
+            continue
+        sub = _split_faithful(half, test, min_cut, budget)
+        if sub is None:
+            return None
+        pieces += sub
+    return pieces
+
+
+def _faithful_pieces(part: Part, cfg: DecompositionConfig) -> list[np.ndarray] | None:
+    """Point sets of the body's faithful convex pieces: its hull alone when that is faithful, else
+    the halves of `_split_faithful`; None where neither works (coacd's case)."""
+    body = part.flat.triangles[~part.flat.in_stud]
+    occluders = part.flat.triangles
+    if cfg.stud_bores_roofed and part.studs:
+        occluders = np.concatenate([occluders, _stud_caps(part)])
+    floor = max((c.pos[1] for c in part.sockets), default=None)
+    test = _Faithfulness(occluders, cfg.faithful_pitch_ldu, floor)
+    return _split_faithful(list(body), test, cfg.min_cut_ldu, [cfg.split_cells])
 
 
 def _snap(piece: np.ndarray, verts: np.ndarray, snap: float) -> np.ndarray | None:
@@ -207,10 +398,9 @@ def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()
             body = None  # a damaged entry is recomputed and replaced
     if body is None:
         inset = cfg.inset_ldu
-        if not len(faces):
-            body = []
-        elif _hull_is_faithful(part.flat.triangles[~part.flat.in_stud]):
-            body = [p for p in [inset_hull(verts, cfg.inset_ldu)] if p is not None]
+        faithful = _faithful_pieces(part, cfg) if len(faces) else []
+        if faithful is not None:
+            body = [p for p in (inset_hull(r, cfg.inset_ldu) for r in faithful) if p is not None]
         else:
             # coacd remeshes its input on a voxel grid, so its pieces bulge up to ~1 LDU out of
             # the part. Rebuild each piece as the hull of the part's own vertices it holds (within
@@ -221,11 +411,15 @@ def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()
         tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
         np.savez(tmp, n=len(body), inset=inset, **{f"p{i}": p for i, p in enumerate(body)})
         os.replace(tmp, path)
-    studs = []
+    studs, stud_at = [], []
     for s in part.studs:
         prism = inset_hull(stud_prism(s.pos, s.axis), cfg.inset_ldu)
         if prism is not None:
             studs.append(prism)
-    shape = CollisionShape(tuple(body), tuple(studs), inset, key)
+            stud_at.append((np.array(s.pos, dtype=np.float64), np.array(s.axis, dtype=np.float64)))
+    # A sliver left by a cut (a face just inside a cell's edge, inset) holds nothing a part could
+    # overlap by the tolerance, and MuJoCo refuses a mesh of almost no volume.
+    body = [p for p in body if _hull_volume(p) >= MIN_PIECE_LDU3]
+    shape = CollisionShape(tuple(body), tuple(studs), inset, key, tuple(stud_at))
     memo[cfg] = shape
     return shape

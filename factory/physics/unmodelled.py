@@ -37,15 +37,23 @@ def held_otherwise(part: Part) -> bool:
 
 
 def offers_other(part: Part) -> bool:
-    """Whether a placed part can hold another by more than studs: Technic or clip primitives, or
-    a side without studs or sockets (a hinge half, a tyre, a rim)."""
-    return len(part.flat.other_connectors) > 0 or not part.studs or not part.sockets
+    """Whether a placed part can hold another by more than studs: Technic or clip primitives, a
+    hollow stud's bore (a bar goes in), or a side without studs or sockets (a hinge half, a tyre,
+    a rim)."""
+    return len(part.flat.other_connectors) > 0 or len(part.flat.bores) > 0 or not part.studs or not part.sockets
+
+
+def _connectors(part: Part) -> np.ndarray:
+    """Every connector of a part with a position: its primitives and its hollow studs' bores."""
+    return np.concatenate([part.flat.other_connectors, part.flat.bores])
 
 
 def may_hold(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool:
     """Whether `placed` (touched by `new`) may hold `new` by a connection not modelled. When both
-    have connector primitives, their positions decide; otherwise the shapes (see the module)."""
-    a, b = new.flat.other_connectors, placed.flat.other_connectors
+    have connectors with a position, their positions decide; otherwise the shapes (see the
+    module). A hollow stud's bore counts as a position on either side, but not towards the new
+    part's shape: a round brick off its studs is not held by its own bore."""
+    a, b = _connectors(new), _connectors(placed)
     if len(a) and len(b):
         return connectors_meet(place_connectors(a, new_pose.R, new_pose.t),
                                place_connectors(b, placed_pose.R, placed_pose.t))

@@ -1,0 +1,142 @@
+"""Fidelity on real parts: round, curved and concave parts where people put them are accepted, the
+same parts moved off their studs are still rejected, and bars in hollow studs are left to the
+connections not modelled. Each structure is a few parts from the real LDraw subset, placed as in
+the real designs of `../shared/ldraw_models` (the step is named where one was taken from there)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import ConvexHull
+
+from factory.parts import load_part
+from factory.physics.check import check_units
+from factory.physics.geometry import collision_shape
+from factory.physics.structure import Placed, Structure
+from factory.pose import Pose
+
+I3 = np.eye(3)
+TURN = np.diag([-1.0, 1.0, -1.0])  # half a turn about the stud axis
+SIDE = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # studs along -Z (on a side stud)
+
+
+@pytest.fixture(scope="module")
+def at(real_reader):
+    def _at(name, x, y, z, R=I3):
+        return Placed(load_part(real_reader, name), 4, Pose(R, [x, y, z]))
+
+    return _at
+
+
+def verdict(structure, placed):
+    (v,) = check_units(Structure(list(structure)), [[placed]], standing=False)
+    return v
+
+
+# (structure, candidate): LDraw y grows downwards, a part's origin is its top face; a plate is
+# 8 LDU tall, a brick 24.
+PLACEMENTS = {
+    "round brick on a brick": lambda at: ([at("3005", 0, 0, 0)], at("3062b", 0, -24, 0)),
+    "round brick beside bricks": lambda at: (
+        [at("3020", 0, 0, 0), at("3005", -10, -24, -10), at("3005", 10, -24, -10), at("3004", 0, -24, 10)],
+        at("3062b", -30, -24, -10)),
+    "brick across round bricks": lambda at: (
+        [at("3020", 0, 0, 0), at("3062b", -10, -24, -10), at("3062b", 10, -24, -10)], at("3004", 0, -48, -10)),
+    "round plates side by side": lambda at: ([at("3020", 0, 0, 0), at("6141", -10, -8, -10)], at("6141", 10, -8, -10)),
+    # The plate comes last: a round plate pushed in under it would be clamped (not buildable).
+    "plate on a round plate": lambda at: (
+        [at("3020", 0, 0, 0), at("3024", -30, -8, -10), at("6141", -10, -8, -10)], at("3022", -20, -16, 0)),
+    "round plate on a headlight brick's side stud": lambda at: ([at("4070", 0, 0, 0)], at("6141", 0, 10, -14, SIDE)),
+    "cone on a round plate": lambda at: ([at("6141", 0, 0, 0)], at("4589", 0, -24, 0)),
+    "round tile beside a tile": lambda at: ([at("3020", 0, 0, 0), at("3068b", -20, -8, 0)], at("4150", 20, -8, 0)),
+    "tile beside a round tile": lambda at: ([at("3020", 0, 0, 0), at("4150", 20, -8, 0)], at("3068b", -20, -8, 0)),
+    "clip tile beside a tile": lambda at: ([at("3023", 0, 0, 0), at("3070b", -10, -8, 0)], at("15712", 10, -8, 0)),
+    # A dish hangs 8 LDU down round the top of the brick it sits on.
+    "dish on a 1x1 brick among plates": lambda at: (
+        [at("3031", 0, 0, 0), at("3005", -10, -24, -10), at("3024", 10, -8, 10)], at("43898", -10, -32, -10)),
+    "1x1 brick in a corner brick's notch": lambda at: (
+        [at("3022", 0, 0, 0), at("2357", -10, -24, -10)], at("3005", 10, -24, 10)),
+    "corner plate round a 1x1 plate": lambda at: (
+        [at("3022", 0, 0, 0), at("3024", 10, -8, 10)], at("2420", -10, -8, -10)),
+}
+
+
+@pytest.mark.parametrize("case", list(PLACEMENTS))
+def test_round_and_notched_parts_where_people_put_them_are_accepted(at, case):
+    structure, candidate = PLACEMENTS[case](at)
+    v = verdict(structure, candidate)
+    assert v.reason is None and v.connected, (case, v)
+
+
+@pytest.mark.parametrize("case", ["round brick beside bricks", "round plates side by side",
+                                  "cone on a round plate", "dish on a 1x1 brick among plates"])
+def test_round_parts_moved_off_their_studs_are_rejected(at, case):
+    structure, good = PLACEMENTS[case](at)
+    up = np.array([0.0, -1.0, 0.0])
+    for name, moved, reasons in [
+        ("shift", good.pose.t + [10.0, 0.0, 0.0], {"collision", "no-connection"}),
+        ("lift", good.pose.t + 8.0 * up, {"no-connection"}),
+    ]:
+        v = verdict(structure, Placed(good.part, good.colour, Pose(good.pose.R, moved)))
+        assert v.reason in reasons, (case, name, v)
+
+
+def test_a_wedge_fits_round_the_brick_in_its_notch(at):
+    # LEGO Truck step 13: a 4x4 wedge on a 1x4 plate, round the 1x2 brick standing in its notch.
+    # coacd's pieces of the wedge spanned the notch's corners (1.0 LDU into the brick); cut along
+    # the wedge's own faces they follow its walls.
+    structure = [at("3710", 0, 24, 0), at("3004", 0, 0, 0)]
+    v = verdict(structure, at("4858", 0, 0, 0))
+    assert v.reason is None and v.connections == 2, v
+    assert verdict(structure, at("4858", 10, 0, 0)).reason == "collision"
+
+
+def test_a_stud_in_a_hollow_it_does_not_connect_to_is_no_collision(at):
+    # The same wedge over the side studs of a bracket (LEGO Truck step 13): they stand in the
+    # wedge's hollow underside, which its collision pieces fill, without touching the wedge.
+    structure = [at("3710", 0, 24, 0), at("3004", 0, 0, 0), at("2436a", 0, 24, -40)]
+    v = verdict(structure, at("4858", 0, 0, 0))
+    assert v.reason is None, v
+    # A stud that meets a wall still collides: a 1x1 brick half a stud off, on a plate whose
+    # studs then stand in its walls.
+    v = verdict([at("3022", 0, 0, 0)], at("3005", 0, -24, -10))
+    assert v.reason == "collision" and v.max_penetration_ldu > 3, v
+
+
+def test_pieces_hold_only_the_part_and_its_cavities(real_reader):
+    def inside(name, point):
+        shape = collision_shape(load_part(real_reader, name))
+        return any(np.all(ConvexHull(p).equations @ np.append(point, 1.0) < 0) for p in shape.body)
+
+    # A round plate is two pieces: the disc on top and the narrower base under it, whose ring
+    # stays open; its stud's socket is filled.
+    assert len(collision_shape(load_part(real_reader, "6141")).body) == 2
+    assert not inside("6141", [9.0, 5.5, 0.0]) and inside("6141", [0.0, 6.0, 0.0])
+    # A corner brick's notch is empty, its underside cavity filled.
+    assert not inside("2357", [20.0, 12.0, 20.0]) and inside("2357", [0.0, 12.0, 0.0])
+    # A dish's dome below the stud it sits on holds the top of that stud's brick: left empty.
+    assert not inside("43898", [0.0, 12.0, 0.0]) and not inside("43898", [8.0, 12.0, 0.0])
+
+
+def test_a_bar_in_a_hollow_stud_is_a_connection_not_modelled(at, real_reader):
+    # LEGO Truck step 17: an exhaust pipe's bar in the open side stud of a headlight brick (the
+    # solid stud prism and the brick's body made it a 10 LDU collision).
+    v = verdict([at("4070", 0, 0, 0, TURN)], at("71137", 0, 10, 21))
+    assert v.reason == "unsupported-connection", v
+    # X1 Patrol Craft step 8: a torch in the open stud of a cone lying on its side (2.2 LDU).
+    cone = at("3942b", 0, -36, -56, SIDE)
+    v = verdict([cone], at("3959", 0, -36, -80, TURN))
+    assert v.reason == "unsupported-connection", v
+    # Off the stud's axis the bar is judged like any part.
+    assert verdict([cone], at("3959", 10, -36, -80, TURN)).reason == "collision"
+    # The bore is where the stud is hollow: a round brick's, not a plain stud's.
+    assert len(load_part(real_reader, "3062b").flat.bores) == 1
+    assert len(load_part(real_reader, "3005").flat.bores) == 0
+
+
+def test_a_part_shifted_beside_a_hollow_stud_is_still_judged(at):
+    # A hollow stud holds a bar, not any part that touches it: a brick shifted half a stud into a
+    # round brick still collides.
+    structure = [at("3020", 0, 0, 0), at("3062b", -10, -24, -10)]
+    v = verdict(structure, at("3005", 0, -24, -10))
+    assert v.reason == "collision", v
