@@ -49,6 +49,11 @@ def _record(verdict: Verdict, **extra) -> dict:
         "stable": verdict.stable,
         "load": verdict.load,
         "failing": [f.to_json() for f in verdict.failing],
+        # Buildability in the design's own order: None where not judged (rejected before the
+        # sweep, no stud connection, or connections on two axes: `approach` says which).
+        "buildable": verdict.buildable,
+        "approach": verdict.approach,
+        "blocked_by": list(verdict.blocked_by),
         "reason": verdict.reason,
     }
 
@@ -217,6 +222,11 @@ def summarize(records: list[dict]) -> dict:
         "accepted": sum(r["reason"] is None for r in judged),
         "fidelity": (sum(r["reason"] is None for r in judged) / len(judged)) if judged else None,
         "rejections": dict(Counter(r["reason"] for r in judged if r["reason"])),
+        # Steps a person built in this order that the sweep finds unbuildable, and those whose
+        # approach was not judged (connections on two axes).
+        "not_buildable": sum(r.get("buildable") is False for r in judged),
+        "approach_not_judged": dict(Counter(r["approach"] for r in judged
+                                            if r.get("buildable") is None and r.get("approach"))),
         "faults": {},
     }
     for name in (*FAULTS, TURN_FINISHED):

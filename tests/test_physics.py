@@ -207,11 +207,12 @@ def test_verify_command_on_the_example_model():
     lines = [json.loads(x) for x in out.stdout.splitlines()]
     plain = [r for r in lines if "fault" not in r and "summary" not in r]
     assert {"step", "index", "part", "color", "collision", "max_penetration_ldu", "connected",
-            "connections", "stable", "reason"} <= set(plain[0])
+            "connections", "stable", "buildable", "approach", "blocked_by", "reason"} <= set(plain[0])
+    assert all(r["buildable"] for r in plain[1:] if r["connected"] and not r.get("unit"))
     assert all(r["reason"] is None for r in plain)
     assert [r for r in plain if r.get("unit")][0]["part"] == "roof.ldr#1"
     summary = lines[-1]["summary"]
-    assert summary["fidelity"] == 1.0
+    assert summary["fidelity"] == 1.0 and summary["not_buildable"] == 0
     assert summary["faults"]["shift"]["rejected"] == 1.0
     assert summary["faults"]["lift"]["right_reason"] == 1.0
 

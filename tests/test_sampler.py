@@ -82,6 +82,8 @@ def test_sampled_objects_pass_the_checks_independently(objects, tmp_path):
         path = a.to_ldr(tmp_path / f"object_{a.index:05d}.ldr")
         records = list(verify_model(path))  # the project's own replay of a model file
         assert len(records) == len(a) and all(r["reason"] is None for r in records), records
+        # Every step after the first reaches its pose along its studs' axis from outside.
+        assert all(r["buildable"] is True for r in records[1:]), [r for r in records if not r["buildable"]]
         # And step by step on a fresh structure, ground fixed at the first part's lowest point.
         parts = [load_part(reader, s.part) for s in read_steps(path) for s in s.parts]
         placed = [Placed(p, s.colour, s.pose) for p, s in zip(parts, a.steps)]
