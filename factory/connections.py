@@ -135,6 +135,43 @@ def find_sockets(tris: np.ndarray) -> tuple[Connector, ...]:
     return tuple(sorted(found, key=lambda c: (c.pos[1], c.pos[0], c.pos[2])))
 
 
+def _turn_to_up(axis: np.ndarray) -> np.ndarray:
+    """A rotation (a signed permutation) taking a principal `axis` to UP."""
+    k = int(np.argmax(np.abs(axis)))
+    sign = float(np.sign(axis[k]))
+    if k == 1:
+        return np.diag([1.0, 1.0, 1.0]) if sign < 0 else np.diag([1.0, -1.0, -1.0])
+    r = np.zeros((3, 3))
+    r[1, k] = -sign  # axis -> -y (UP)
+    r[k, 1] = sign   # -y -> axis: a quarter turn in the (k, y) plane
+    r[3 - 1 - k, 3 - 1 - k] = 1.0  # the third axis stays (k is 0 or 2, so it is 2 or 0)
+    return r
+
+
+def sockets_facing(tris: np.ndarray, stud_axes) -> tuple[Connector, ...]:
+    """Sockets entered along UP (the underside, `find_sockets`) and, for every other principal
+    axis the part's own studs point along, the sockets entered along that axis: a part with studs
+    on a side (a bracket) has its sockets at the back of that side, as a brick has them under its
+    top. Other directions are not probed: a part has no reason to hold a stud there, and probing
+    every side of every part would cost five more probes per part."""
+    found = list(find_sockets(tris))
+    done = {tuple(UP)}
+    for a in stud_axes:
+        a = np.asarray(a, float)
+        k = int(np.argmax(np.abs(a)))
+        if abs(a[k]) < 0.999:
+            continue  # studs off the principal axes: no grid to probe on
+        key = tuple(np.sign(a[k]) * np.eye(3)[k])
+        if key in done:
+            continue
+        done.add(key)
+        r = _turn_to_up(np.array(key))
+        for c in find_sockets(tris @ r.T):
+            pos = r.T @ np.array(c.pos)
+            found.append(Connector(tuple(_r(v) for v in pos), tuple(_r(v) for v in key), c.kind))
+    return tuple(sorted(found, key=lambda c: (c.axis, c.pos[1], c.pos[0], c.pos[2])))
+
+
 def _probe(tris, centres, reach, rim, c) -> str | None:
     # A rim face at this level must touch the stud: the opening is the end of the material
     # around it (a ledge further from the stud, such as a rib inside a cavity, is not).

@@ -8,7 +8,7 @@ from functools import cached_property
 import numpy as np
 import trimesh
 
-from factory.connections import Connector, find_sockets, studs_from_flat
+from factory.connections import Connector, sockets_facing, studs_from_flat
 from factory.ldraw.reader import Flat, Reader
 from factory.symmetry import Symmetry, find_symmetry
 
@@ -76,7 +76,7 @@ class Part:
 
     @cached_property
     def sockets(self) -> tuple[Connector, ...]:
-        return find_sockets(self.flat.triangles)
+        return sockets_facing(self.flat.triangles, {c.axis for c in self.studs})
 
     @cached_property
     def symmetry(self) -> Symmetry:

@@ -140,3 +140,20 @@ def test_a_part_shifted_beside_a_hollow_stud_is_still_judged(at):
     structure = [at("3020", 0, 0, 0), at("3062b", -10, -24, -10)]
     v = verdict(structure, at("3005", 0, -24, -10))
     assert v.reason == "collision", v
+
+
+def test_a_part_pressed_onto_a_brackets_side_studs_connects_to_their_back(at, real_reader):
+    # X1 Patrol Craft, Propulsor step 1: a round support lies on its side, its studs in the holes
+    # at the back of a 2x2 bracket's side plate (sockets facing the way the bracket's side studs
+    # point), with a round brick pressed on its far end in the same step.
+    bracket = at("3956", 0, -16, 20)
+    sockets = [c for c in load_part(real_reader, "3956").sockets if c.axis == (0.0, 0.0, -1.0)]
+    assert len(sockets) == 4
+    support = at("3940b", 0, -36, 0, SIDE)
+    v = verdict([bracket], support)
+    assert v.reason is None and v.connections == 4 and v.buildable, v
+    # With the round brick already on its far end it could not go in: it would be clamped.
+    v = verdict([bracket, at("3941", 0, -36, 48, SIDE)], support)
+    assert v.reason == "clamped", v
+    # Lifted off the studs it is not connected.
+    assert verdict([bracket], at("3940b", 0, -36, 8, SIDE)).reason == "no-connection"
