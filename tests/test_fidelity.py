@@ -157,3 +157,16 @@ def test_a_part_pressed_onto_a_brackets_side_studs_connects_to_their_back(at, re
     assert v.reason == "clamped", v
     # Lifted off the studs it is not connected.
     assert verdict([bracket], at("3940b", 0, -36, 8, SIDE)).reason == "no-connection"
+
+
+def test_minifig_pieces_join_by_joints_not_modelled(at):
+    # X1 Patrol Craft's pilot, as its file builds him: helmet, then the head inside it, then the
+    # torso whose neck enters the head. Neither is a stud connection; the pieces overlap by design.
+    helmet = at("3842a", 0, -27, 0)
+    head = at("3626bp01", 0, -27, 0)
+    v = verdict([helmet], head)
+    assert v.reason == "unsupported-connection" and v.held_by == (0,), v
+    v = verdict([helmet, head], at("973p90", 0, 0, 0))
+    assert v.reason == "unsupported-connection", v
+    # A minifig head pushed into a brick is judged like any part.
+    assert verdict([at("3001", 0, -20, 0)], head).reason == "collision"

@@ -7,6 +7,7 @@ the part it touches (a pin in a hole, a hinge finger between the other half's fi
 drawn without such primitives can only be judged by its shape: a new part with no sockets cannot
 sit on studs (a hinge top, a tyre, a rim), a placed part without studs or sockets offers something
 else (a hinge base, a rim); there is no position to compare then, so touching is enough.
+Minifigure pieces hold one another by joints of their own (`is_minifig`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,12 @@ keeps the connectors on one line: only sliding past the end is caught."""
 PARALLEL_DEG = 10.0
 """Most angle between two connector axes that can still be one connection (mated: 0 degrees,
 a turned hinge plate: 90)."""
+
+
+def is_minifig(part: Part) -> bool:
+    """A minifigure piece (LDraw titles them "Minifig ...", "~Minifig ..." for sub-pieces): head,
+    headgear, torso, arms, hands, hips, legs and what they hold."""
+    return part.description.lstrip("~_=| ").startswith("Minifig")
 
 
 def held_otherwise(part: Part) -> bool:
@@ -53,6 +60,11 @@ def may_hold(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool
     have connectors with a position, their positions decide; otherwise the shapes (see the
     module). A hollow stud's bore counts as a position on either side, but not towards the new
     part's shape: a round brick off its studs is not held by its own bore."""
+    if is_minifig(new) and is_minifig(placed):
+        # Minifigure pieces join by their own joints (neck, shoulders, wrists, hips, headgear on
+        # the head's stud, which sits inside it), none of them a stud connection: the LDraw
+        # files place a head and a helmet, or a neck and a head, overlapping by design.
+        return True
     a, b = _connectors(new), _connectors(placed)
     if len(a) and len(b):
         return connectors_meet(place_connectors(a, new_pose.R, new_pose.t),
