@@ -305,6 +305,36 @@ def _launch(crosses: bool, ut, st, R, t, d, u, s, k, thr, thr_c) -> np.ndarray:
     return out
 
 
+def _intervals(uset: _Set, sset: _Set, R, t, d, k, u, s, thr, thr_c) -> np.ndarray:
+    """(pairs, 6) intervals of unit piece u[i] of candidate k[i] (pose R, t; direction d) against
+    structure piece s[i] (`_launch`), the pairs grouped by both pieces' buckets."""
+    res = np.empty((len(k), 6))
+    # Pairs of right prisms along one direction need no edge-edge axes (`_prism_axes`).
+    up = np.einsum("pij,pkj->pki", R[k], uset.prism[u])
+    aligned = (np.abs(np.einsum("pai,pbi->pab", up, sset.prism[s])) > 1 - 1e-9).any(axis=(1, 2))
+    group = (uset.bucket_of[u] * len(sset.buckets) + sset.bucket_of[s]) * 2 + ~aligned
+    kp = _pow2(len(R), MIN_ROWS)
+    Rp, tp, dp = (np.concatenate([x, np.repeat(x[:1], kp - len(x), 0)]) for x in (R, t, d))
+    for g in np.unique(group):
+        sel = np.flatnonzero(group == g)
+        bu, bs = divmod(int(g) // 2, len(sset.buckets))
+        res[sel] = _launch(bool(g % 2), uset.tables[bu], sset.tables[bs], Rp, tp, dp, uset.local[u[sel]],
+                           sset.local[s[sel]], k[sel], thr[sel], thr_c[sel])
+    return res
+
+
+def exact_intervals(a: Sequence[np.ndarray], b: Sequence[np.ndarray], d: np.ndarray, thr: np.ndarray) -> np.ndarray:
+    """(n, 2): for convex point sets a[i], b[i] (world), the open interval of s where the depth of
+    a[i] moved by -s d[i] into b[i] exceeds thr[i] >= 0 (empty: hi <= lo). For tests and checks."""
+    n = len(a)
+    ua = _Set([_piece(v, False, 0.0) for v in a], np.array([v.mean(0) for v in a]), np.arange(n), n)
+    sb = _Set([_piece(v, False, 0.0) for v in b], np.array([v.mean(0) for v in b]), np.arange(n), n)
+    idx = np.arange(n)
+    R, t = np.repeat(np.eye(3)[None], n, 0), np.zeros((n, 3))
+    res = _intervals(ua, sb, R, t, np.asarray(d, float), idx, idx, idx, np.asarray(thr, float), np.full(n, np.inf))
+    return res[:, :2]
+
+
 # --- The sweep -----------------------------------------------------------------------------------
 
 
@@ -410,18 +440,7 @@ def sweep_many(
     thr_c = np.where(is_conn, tol, np.inf)
     undecided = ~is_conn & (uset.stud[u] != sset.stud[s])
 
-    res = np.empty((len(k), 6))
-    # Pairs of right prisms along one direction need no edge-edge axes (`_prism_axes`).
-    up = np.einsum("pij,pkj->pki", R[k], uset.prism[u])
-    aligned = (np.abs(np.einsum("pai,pbi->pab", up, sset.prism[s])) > 1 - 1e-9).any(axis=(1, 2))
-    group = (uset.bucket_of[u] * len(sset.buckets) + sset.bucket_of[s]) * 2 + ~aligned
-    kp = _pow2(len(idx), MIN_ROWS)
-    Rp, tp, dp = (np.concatenate([x, np.repeat(x[:1], kp - len(x), 0)]) for x in (R, t, d))
-    for g in np.unique(group):
-        sel = np.flatnonzero(group == g)
-        bu, bs = divmod(int(g) // 2, len(sset.buckets))
-        res[sel] = _launch(bool(g % 2), uset.tables[bu], sset.tables[bs], Rp, tp, dp, uset.local[u[sel]],
-                           sset.local[s[sel]], k[sel], thr[sel], thr_c[sel])
+    res = _intervals(uset, sset, R, t, d, k, u, s, thr, thr_c)
 
     # Counted stretches of s > 0: (candidate, part, lo, hi, decided).
     hits = []
@@ -473,3 +492,60 @@ def sweep_many(
             COUNTS["device"] += 1
             results[i] = SweepResult(True, None, (), float("nan"), 0.0, 0)
     return results  # type: ignore[return-value]
+
+
+# --- Benchmark -----------------------------------------------------------------------------------
+
+
+def bench(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), cpu_max: int = 512, log=None) -> list[dict]:
+    """Sweep candidates per second, this path (default JAX device) and the CPU reference, on the
+    same candidates: 2x4 bricks on structures of 2x4 bricks grown by `pipelines.bench_physics.grow`,
+    the feasible attachments whose final pose the collision check accepts, drawn with replacement
+    to fill each batch. The reference runs on the first `cpu_max` of them (its cost is per
+    candidate), where the verdicts are compared too. Both are timed from the connections found
+    (as `check_units` has them), the reference from its own `approach`."""
+    import time
+
+    from factory import get_reader, load_part
+    from factory.physics.check import _unit_connections
+    from pipelines.bench_physics import candidates, grow
+
+    brick = load_part(get_reader(), "3001")
+    rows = []
+    for n in sizes:
+        s = grow(n)
+        scene = CollisionScene(s, [(brick, Pose.identity())], 1e6)
+        pool = []
+        for p in {tuple(np.round(q.t, 3)) + tuple(np.round(q.R, 3).ravel()): q for q in candidates(s, 4096)}.values():
+            world = [(brick, p)]
+            outer = [c for c in _unit_connections(s, world) if min(c[0], c[1]) < len(s)]
+            touched = {min(c[0], c[1]) for c in outer}
+            if scene.penetration(p, touched)[0] <= 0.5:
+                pool.append((world, touched, np.array([-c[3] if c[0] < len(s) else c[3] for c in outer]).reshape(-1, 3)))
+        rng = np.random.default_rng(0)
+        for batch in batches:
+            cases = [pool[i] for i in rng.integers(0, len(pool), batch)]
+            args = ([c[0] for c in cases], [c[1] for c in cases])
+            compiles = len(COMPILES)
+            t = time.perf_counter()
+            sweep_many(scene, s, *args, directions=[c[2] for c in cases])  # compiles this batch's shapes
+            first_s = time.perf_counter() - t
+            before = COUNTS.copy()
+            t = time.perf_counter()
+            got = sweep_many(scene, s, *args, directions=[c[2] for c in cases])
+            jax_s = time.perf_counter() - t
+            counts = COUNTS - before
+            sub = cases[:cpu_max]
+            t = time.perf_counter()
+            ref = [sweep(scene, s, w, c) for w, c, _ in sub]
+            cpu_s = time.perf_counter() - t
+            row = {"bricks": n, "batch": batch, "distinct_candidates": len(pool),
+                   "jax_per_s": round(batch / jax_s, 1), "cpu_per_s": round(len(sub) / cpu_s, 1),
+                   "speedup": round(batch / jax_s / (len(sub) / cpu_s), 2),
+                   "first_call_s": round(first_s, 2), "new_compiles": len(COMPILES) - compiles,
+                   "referred": counts["referred"], "blocked": sum(r.buildable is False for r in got),
+                   "cpu_compared": len(sub), "agree": sum(a.buildable == b.buildable for a, b in zip(ref, got))}
+            rows.append(row)
+            if log is not None:
+                log(row)
+    return rows
