@@ -1,7 +1,8 @@
 """Benchmark the physics checks: candidate checks per second by structure size, batch and backend.
 
 `python -m pipelines.bench_physics [--backends mujoco,mjx] [--sizes 10,30,60]
-[--batches 256,1024,4096] [--out FILE.json]`
+[--batches 256,1024,4096] [--out FILE.json]`; with `--sweep`, the buildability sweep alone
+(`factory.physics.sweep_jax.bench`: the batched exact JAX path against the CPU reference).
 
 Structures are grown from a seed with 2x4 bricks (embedded library) by the checker itself, so
 they are valid; candidates are feasible attachments of a 2x4 brick (drawn with replacement to fill
@@ -121,8 +122,21 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", default="10,30,60")
     ap.add_argument("--batches", default="256")
     ap.add_argument("--full-max", type=int, help="run full checks only for batches up to this size")
+    ap.add_argument("--sweep", action="store_true",
+                    help="measure the buildability sweep instead: the batched exact JAX path "
+                         "(factory.physics.sweep_jax.bench) against the CPU reference")
+    ap.add_argument("--cpu-max", type=int, default=512, help="with --sweep: candidates the CPU reference sweeps")
     ap.add_argument("--out")
     args = ap.parse_args(argv)
+    if args.sweep:
+        from factory.physics.sweep_jax import bench
+
+        rows = bench([int(x) for x in args.sizes.split(",")], [int(x) for x in args.batches.split(",")],
+                     args.cpu_max, log=lambda r: print(json.dumps(r), flush=True))
+        if args.out:
+            with open(args.out, "w") as fh:
+                json.dump({"machine": platform.node(), "processor": platform.processor(), "rows": rows}, fh, indent=1)
+        return 0
     rows = measure(args.backends.split(","), [int(x) for x in args.sizes.split(",")],
                    [int(x) for x in args.batches.split(",")], log=lambda r: print(json.dumps(r), flush=True),
                    full_max=args.full_max)

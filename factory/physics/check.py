@@ -134,6 +134,7 @@ def check_units(
     base_n = len(structure)
     verdicts: list[Verdict | None] = [None] * len(units)
     pending: list[tuple[int, list[Placed], list]] = []
+    to_sweep: list[tuple] = []
     for k, unit in enumerate(units):
         pose = unit[0].pose
         world = [(p.part, p.pose) for p in unit]
@@ -162,19 +163,22 @@ def check_units(
         if outer and not _holds_alone(unit, outer, base_n, ground if standing else None, config.loads):
             verdicts[k] = Verdict(**base, clutch=False, reason="clutch")
             continue
+        if outer and backend == "mjx":
+            # Swept below, all of the call's candidates at once on the device (`sweep_jax`).
+            to_sweep.append((k, base, unit, conns, world, touched,
+                             np.array([-c[3] if c[0] < base_n else c[3] for c in outer])))
+            continue
         built = sweep(scene, structure, world, touched, config.max_penetration_ldu) if outer else None
-        if built is not None:
-            base.update(buildable=built.buildable, approach=built.reason, blocked_by=built.blocked_by)
-            if built.buildable is False:
-                verdicts[k] = Verdict(**base, clutch=True, reason=built.reason)
-                continue
-        if standing and (outer or base_n == 0):
-            verdicts[k] = Verdict(**base, clutch=True if outer else None)
-            pending.append((k, list(unit), conns))
-        else:
-            # Held in hand (a sub-assembly), or laid on the table beside the structure with no
-            # connection yet: nothing joins it to the structure to fall with.
-            verdicts[k] = Verdict(**base, clutch=True if outer else None, stable=True)
+        _after_sweep(k, base, built, unit, conns, outer, standing, base_n, verdicts, pending)
+    if to_sweep:
+        from factory.physics.sweep_jax import sweep_many
+
+        # Seating directions read off the connections: as `sweep.seating_directions` finds them
+        # (down onto a structure stud, along the unit's own stud into a socket).
+        built_all = sweep_many(scene, structure, [x[4] for x in to_sweep], [x[5] for x in to_sweep],
+                               config.max_penetration_ldu, directions=[x[6] for x in to_sweep])
+        for (k, base, unit, conns, *_), built in zip(to_sweep, built_all):
+            _after_sweep(k, base, built, unit, conns, True, standing, base_n, verdicts, pending)
     if pending:
         links = list(structure.links) + [Link(l.a + base_n, l.b + base_n, l.point) for l in unit_links]
         models = [load_model(structure.placed + unit, structure.connections + conns, floor_y,
@@ -186,6 +190,23 @@ def check_units(
             verdicts[k] = replace(v, stable=lv.stands, load=None if lv.load is None else round(lv.load, 6),
                                   failing=lv.failing, reason=lv.reason)
     return verdicts  # type: ignore[return-value]
+
+
+def _after_sweep(k, base, built, unit, conns, outer, standing, base_n, verdicts, pending) -> None:
+    """The verdict after buildability (`built`: None where not swept), or the candidate queued for
+    the load check."""
+    if built is not None:
+        base.update(buildable=built.buildable, approach=built.reason, blocked_by=built.blocked_by)
+        if built.buildable is False:
+            verdicts[k] = Verdict(**base, clutch=True, reason=built.reason)
+            return
+    if standing and (outer or base_n == 0):
+        verdicts[k] = Verdict(**base, clutch=True if outer else None)
+        pending.append((k, list(unit), conns))
+    else:
+        # Held in hand (a sub-assembly), or laid on the table beside the structure with no
+        # connection yet: nothing joins it to the structure to fall with.
+        verdicts[k] = Verdict(**base, clutch=True if outer else None, stable=True)
 
 
 def _batch_solver(backend: str):

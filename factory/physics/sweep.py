@@ -114,7 +114,12 @@ def seating_directions(structure: Structure, unit: Sequence[tuple[Part, Pose]]) 
 
 def approach(structure: Structure, unit: Sequence[tuple[Part, Pose]]) -> Approach:
     """The unit's approach direction (module docstring), or 'clamped', 'two-axes', 'no-connection'."""
-    dirs = seating_directions(structure, unit)
+    return approach_from(seating_directions(structure, unit))
+
+
+def approach_from(dirs: np.ndarray) -> Approach:
+    """`approach` from the seating directions (k, 3) of the unit's stud connections (as
+    `seating_directions` gives them, or as read off `check._unit_connections`)."""
     if not len(dirs):
         return Approach(None, "no-connection")
     cos = dirs @ dirs.T

@@ -1,0 +1,551 @@
+"""Buildability sweeps of many candidates at once, exactly, in JAX (backend 'mjx').
+
+`sweep.sweep` asks MuJoCo for contacts at poses stepped along the approach. Here the same question
+is answered without stepping. Two convex pieces A and B overlap by depth = min over axes n of
+min(max A.n - min B.n, max B.n - min A.n), n over the separating-axis candidates (face normals of
+both, cross products of their edge directions): each value is how far A must move along +-n to
+clear B, any direction's value bounds the depth from above, and the Minkowski difference's facets
+have normals among these candidates, so the minimum is the penetration depth (the translation
+MuJoCo's EPA reports); where the pieces are apart some candidate separates them and the minimum is
+<= 0. Moving A back by s along d shifts A.n by -s (d.n): each of those values is linear in s, so
+{s : depth(s) > tau} = {s : every one of them > tau} is one open interval, found per piece pair in
+one pass (`_pair_interval`). Requires tau >= 0 (overlap = depth + both insets, so a tolerance of at
+least both insets, 0.5 LDU by default); with tau < 0 the minimum is not the distance, and the
+whole call is swept on the CPU instead.
+
+**Rules** (`CollisionScene.penetration`), per pair of a unit piece and a structure part's piece:
+- not connected, body-body or stud-stud: counted where depth + insets > tolerance; exact;
+- connected, body-body: depth + insets - CONNECTED_SLACK_LDU, and either piece's centre inside the
+  other deeper than the tolerance (the scene's coincidence test, which has no slack; for other
+  pairs it never exceeds the depth), both only on the stretches of s the CPU sweep queries at all
+  (where the unit's box overlaps a part it is not connected to: `sweep._overlap_intervals`);
+- connected, with a stud: never counted;
+- not connected, stud-body: the scene ignores a stud standing in the other part's hollow
+  (`collide.stud_crosses`, a probe of the real surface at each pose), which is not written here.
+  Such a pair is **undecided**: a candidate blocked by a decided pair is blocked whatever it does;
+  one that only an undecided pair could block is swept by `sweep.sweep` on the CPU (`COUNTS`).
+
+A unit is blocked when a counted interval meets s > 0 (s = 0, the final pose, is the collision
+check's). The blocking pose reported (`at_ldu`) is the outer end of the outermost interval, where
+the unit coming from outside first overlaps beyond the tolerance; `blocked_by` names the parts
+whose decided intervals hold a pose just inside it (`MIN_STEP_LDU` / 4 in, or the interval's middle
+if shorter). The depth there is not computed (`depth_ldu` is nan); no contact query is made.
+
+**Guarantee** vs the stepped reference: every pose on the path is judged, so every overlap beyond
+the tolerance is found, where the reference finds those beyond tolerance + `MIN_STEP_LDU` / 2 and
+may miss shallower ones between its poses; depths are those of the pieces' hulls in float64
+(MuJoCo's agree to its solver tolerance). Verdicts differ only where the deepest overlap on the path
+lies within that band of the tolerance, or where MuJoCo's depth and the exact one fall on two sides
+of it.
+
+**Device layout**: pieces are precomputed once per collision shape (hull vertices, unit face
+normals and edge directions, one per direction up to sign), placed in the world once per structure
+(kept for the last structure) and in the unit's frame once per call. Pairs are chosen on the host
+by boxes swept along d (parts' boxes with the reference's margin, then pieces' boxes), grouped by
+the size buckets of both pieces (vertices, normals, edges: powers of two), and each group runs in
+one jitted vmap over pairs, its counts padded to powers of two, at most `MAX_WORK` projections per
+launch: so a run compiles once per shape met (`COMPILES`), never per call.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from functools import partial
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from scipy.spatial import ConvexHull
+
+from factory.parts import Part
+from factory.physics.collide import CONNECTED_SLACK_LDU, CollisionScene
+from factory.physics.geometry import INSET_LDU, collision_shape
+from factory.physics.structure import Structure
+from factory.physics.sweep import (MIN_STEP_LDU, SweepResult, _boxes, _overlap_intervals, approach_from,
+                                   seating_directions, sweep)
+from factory.pose import Pose
+
+COMPILES: list[tuple[int, ...]] = []
+"""(pairs, unit table rows, structure table rows, candidates, and vertices, normals, edges of both
+pieces) of every launch shape compiled in this process."""
+COUNTS: Counter = Counter()
+"""Candidates by how they were judged: 'device', 'referred' (swept on the CPU: only an undecided
+stud-body pair could block them), 'not-judged' (no approach), 'cpu' (tolerance below the insets)."""
+LEVELS = ((8, 4, 4), (32, 16, 32), (64, 32, 64), (128, 64, 128))
+"""Padded piece sizes (vertices, normals, edges): boxes; studs (16-gon prisms), slopes and round
+cut pieces; larger cut pieces; coacd's."""
+MIN_ROWS = 256
+"""Smallest padded count of pairs, candidates and table rows per launch: fewer shapes to compile."""
+MAX_WORK = 1 << 25
+"""Vertex-axis projections per launch (memory: a few times this many floats)."""
+
+
+@dataclass(frozen=True)
+class _Piece:
+    """A convex piece (inset, as the scene's) ready for separating axes."""
+
+    verts: np.ndarray
+    normals: np.ndarray
+    """Unit face normals, one per direction up to sign."""
+    edges: np.ndarray
+    """Unit edge directions, one per direction up to sign."""
+    stud: bool
+    inset: float
+    prism: np.ndarray
+    """(3, 3): up to three directions along which the piece is a right prism (zero rows pad)."""
+
+    def moved(self, R: np.ndarray, t: np.ndarray) -> "_Piece":
+        return _Piece(self.verts @ R.T + t, self.normals @ R.T, self.edges @ R.T, self.stud, self.inset,
+                      self.prism @ R.T)
+
+    @property
+    def bucket(self) -> tuple[int, int, int]:
+        """Padded (vertices, normals, edges): the first of `LEVELS` that holds the piece, else
+        powers of two (few levels, few shapes to compile)."""
+        size = len(self.verts), len(self.normals), len(self.edges)
+        for level in LEVELS:
+            if all(n <= m for n, m in zip(size, level)):
+                return level
+        return tuple(_pow2(n, 1) for n in size)  # type: ignore[return-value]
+
+
+def _pow2(n: int, minimum: int) -> int:
+    return max(minimum, 1 << max(0, math.ceil(math.log2(max(n, 1)))))
+
+
+def _directions(v: np.ndarray) -> np.ndarray:
+    """Unit vectors, one per direction up to sign (near-duplicates may both stay: harmless)."""
+    v = v / np.linalg.norm(v, axis=1, keepdims=True)
+    lead = np.argmax(np.abs(v) > 1e-9, axis=1)
+    v = v * np.sign(v[np.arange(len(v)), lead])[:, None]
+    _, first = np.unique(np.round(v * 1e7).astype(np.int64), axis=0, return_index=True)
+    return v[np.sort(first)]
+
+
+def _piece(verts: np.ndarray, stud: bool, inset: float) -> _Piece:
+    hull = ConvexHull(verts)
+    normals = hull.equations[:, :3]
+    edges = []
+    for f, simplex in enumerate(hull.simplices):
+        for j in range(3):
+            nb = hull.neighbors[f][j]
+            # A triangle edge is an edge of the polytope only between facets of two planes.
+            if nb > f and normals[f] @ normals[nb] < 1 - 1e-9:
+                a, b = np.delete(simplex, j)
+                edges.append(hull.points[b] - hull.points[a])
+    normals, edges = _directions(normals), _directions(np.array(edges))
+    return _Piece(np.ascontiguousarray(hull.points[hull.vertices]), normals, edges, stud, inset,
+                  _prism_axes(normals, edges))
+
+
+def _prism_axes(normals: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Face normals a along which the piece is a right prism: every edge along a or across it, and
+    a x e a face normal for every edge e across it. Two pieces that are right prisms along one
+    direction need no edge-edge axis: a x a = 0, a x e is a side normal, e x e' lies along a, the
+    caps' normal (why most pairs, boxes, studs and slopes standing as built, skip them)."""
+    out = np.zeros((3, 3))
+    n = 0
+    for a in normals:
+        along = np.abs(edges @ a)
+        if not np.all((along > 1 - 1e-9) | (along < 1e-9)):
+            continue
+        side = np.cross(a, edges[along < 1e-9])
+        side /= np.linalg.norm(side, axis=1, keepdims=True)
+        if np.all(np.abs(side @ normals.T).max(axis=1) > 1 - 1e-9) and n < 3:
+            out[n] = a
+            n += 1
+    return out
+
+
+_SHAPES: dict[int, tuple] = {}
+
+
+def _pieces_of(part: Part) -> tuple[list[_Piece], np.ndarray]:
+    """The part's collision pieces (body, then studs), in its frame, and each piece's centre as
+    the scene's coincidence test takes it (the mean of its vertices)."""
+    shape = collision_shape(part)
+    if id(shape) not in _SHAPES:
+        pieces = [_piece(v, False, shape.body_inset) for v in shape.body]
+        pieces += [_piece(v, True, INSET_LDU) for v in shape.studs]
+        centres = np.array([v.mean(axis=0) for v in (*shape.body, *shape.studs)]).reshape(-1, 3)
+        _SHAPES[id(shape)] = (shape, pieces, centres)  # the shape is kept, so its id is not reused
+    return _SHAPES[id(shape)][1], _SHAPES[id(shape)][2]
+
+
+@dataclass
+class _Set:
+    """Placed pieces (world or unit frame) with their owner, grouped into padded bucket tables."""
+
+    pieces: list[_Piece]
+    centres: np.ndarray
+    owner: np.ndarray
+    """Index of the part (structure) or member (unit) owning each piece."""
+    owners: int
+
+    def __post_init__(self):
+        self.stud = np.array([p.stud for p in self.pieces], bool)
+        self.inset = np.array([p.inset for p in self.pieces])
+        self.prism = np.stack([p.prism for p in self.pieces]) if self.pieces else np.zeros((0, 3, 3))
+        v = [p.verts for p in self.pieces]
+        self.box = np.stack([[x.min(0), x.max(0)] for x in v]) if v else np.zeros((0, 2, 3))
+        self.start = np.searchsorted(self.owner, np.arange(self.owners + 1))  # pieces by owner
+        buckets = [p.bucket for p in self.pieces]
+        self.buckets = sorted(set(buckets))
+        self.bucket_of = np.array([self.buckets.index(b) for b in buckets], np.int64)
+        self.local = np.zeros(len(self.pieces), np.int64)
+        self.tables = []
+        for b, (nv, nf, ne) in enumerate(self.buckets):
+            idx = np.flatnonzero(self.bucket_of == b)
+            self.local[idx] = np.arange(len(idx))
+            rows = _pow2(len(idx), MIN_ROWS)
+            pick = np.concatenate([idx, np.full(rows - len(idx), idx[0])])
+            # Padding repeats a piece's first vertex, normal or edge: it changes no extreme value.
+            self.tables.append(tuple(np.stack([np.concatenate([a, np.repeat(a[:1], n - len(a), 0)])
+                                               for a in (getattr(self.pieces[i], name) for i in pick)])
+                                     for name, n in (("verts", nv), ("normals", nf), ("edges", ne)))
+                               + (self.centres[pick],))
+
+
+def _set_of(items: Sequence[tuple[Part, Pose]]) -> _Set:
+    pieces, centres, owner = [], [], []
+    for i, (part, pose) in enumerate(items):
+        ps, cs = _pieces_of(part)
+        pieces += [p.moved(pose.R, pose.t) for p in ps]
+        centres.append(pose.apply(cs) if len(cs) else np.zeros((0, 3)))
+        owner += [i] * len(ps)
+    return _Set(pieces, np.concatenate(centres) if centres else np.zeros((0, 3)), np.array(owner, np.int64),
+                len(items))
+
+
+_LAST_STRUCTURE: list = []
+
+
+def _structure_set(structure: Structure) -> tuple[_Set, np.ndarray]:
+    """The structure's pieces in the world and its parts' boxes, kept for the last structure."""
+    key = tuple(id(p) for p in structure.placed)
+    if not (_LAST_STRUCTURE and _LAST_STRUCTURE[0] == key):
+        items = [(p.part, p.pose) for p in structure.placed]
+        _LAST_STRUCTURE[:] = [key, list(structure.placed), (_set_of(items), _boxes(items))]
+    return _LAST_STRUCTURE[2]
+
+
+# --- The device part -----------------------------------------------------------------------------
+
+_KERNEL = None
+
+
+def _kernel():
+    """The jitted batch of pair intervals (JAX imported here: the 'mujoco' backend needs none)."""
+    global _KERNEL
+    if _KERNEL is None:
+        import jax
+        import jax.numpy as jnp
+
+        def interval(av, bv, axes, valid, d, thr):
+            """Open interval of s where every axis's two overlaps of (A - s d) and B exceed thr."""
+            pa, pb = av @ axes.T, bv @ axes.T
+            dn = axes @ d
+            c = jnp.concatenate([pa.max(0) - pb.min(0), pb.max(0) - pa.min(0)])
+            m = jnp.concatenate([-dn, dn])
+            ok = jnp.concatenate([valid, valid])
+            r = (thr - c) / jnp.where(m == 0, 1.0, m)  # c + m s > thr  <=>  s > r (m > 0), s < r (m < 0)
+            lo = jnp.max(jnp.where(ok & (m > 0), r, -jnp.inf))
+            hi = jnp.min(jnp.where(ok & (m < 0), r, jnp.inf))
+            flat_fails = jnp.any(ok & (m == 0) & (c <= thr))
+            return lo, jnp.where(flat_fails, -jnp.inf, hi)
+
+        def pair(crosses, ut, st, R, t, d, u, s, k, thr, thr_c):
+            uv, un, ue, uc = (x[u] for x in ut)
+            sv, sn, se, sc = (x[s] for x in st)
+            Rk, tk, dk = R[k], t[k], d[k]
+            av, an, ae, ac = uv @ Rk.T + tk, un @ Rk.T, ue @ Rk.T, uc @ Rk.T + tk
+            axes, valid = jnp.concatenate([an, sn]), jnp.ones(len(an) + len(sn), bool)
+            if crosses:
+                cross = jnp.cross(ae[:, None, :], se[None, :, :]).reshape(-1, 3)
+                size = jnp.linalg.norm(cross, axis=1)
+                ok = size > 1e-9  # parallel edges give no axis
+                axes = jnp.concatenate([axes, cross / jnp.where(ok, size, 1.0)[:, None]])
+                valid = jnp.concatenate([valid, ok])
+            lo, hi = interval(av, sv, axes, valid, dk, thr)
+            ones_s, ones_u = jnp.ones(len(sn), bool), jnp.ones(len(an), bool)
+            lo_a, hi_a = interval(ac[None], sv, sn, ones_s, dk, thr_c)  # the unit piece's centre in s
+            lo_b, hi_b = interval(av, sc[None], an, ones_u, dk, thr_c)  # the structure piece's in u
+            return jnp.stack([lo, hi, lo_a, hi_a, lo_b, hi_b])
+
+        def run(crosses, ut, st, R, t, d, u, s, k, thr, thr_c):
+            return jax.vmap(partial(pair, crosses), in_axes=(None, None, None, None, None, 0, 0, 0, 0, 0))(
+                ut, st, R, t, d, u, s, k, thr, thr_c)
+
+        _KERNEL = jax.jit(run, static_argnums=0)
+    return _KERNEL
+
+
+def _launch(crosses: bool, ut, st, R, t, d, u, s, k, thr, thr_c) -> np.ndarray:
+    """(n, 6) intervals of the pairs (lo, hi of the overlap, then of the two centre tests); edge-edge
+    axes only with `crosses`."""
+    import jax
+
+    n = len(u)
+    nv = ut[0].shape[1] + st[0].shape[1]
+    axes = ut[1].shape[1] + st[1].shape[1] + crosses * ut[2].shape[1] * st[2].shape[1]
+    chunk = max(256, 1 << int(math.log2(max(1, MAX_WORK // (nv * axes)))))
+    out = np.empty((n, 6))
+    with jax.enable_x64(True):
+        for a in range(0, n, chunk):
+            m = min(chunk, n - a)
+            rows = _pow2(m, MIN_ROWS)
+            pad = lambda x: np.concatenate([x[a:a + m], np.repeat(x[a:a + 1], rows - m, 0)])
+            shape = (int(crosses), rows, ut[0].shape[0], st[0].shape[0], len(R), *ut[0].shape[1:2], ut[1].shape[1],
+                     ut[2].shape[1], st[0].shape[1], st[1].shape[1], st[2].shape[1])
+            if shape not in COMPILES:
+                COMPILES.append(shape)
+            res = _kernel()(crosses, ut, st, R, t, d, pad(u), pad(s), pad(k), pad(thr), pad(thr_c))
+            out[a:a + m] = np.asarray(res)[:m]
+    return out
+
+
+def _intervals(uset: _Set, sset: _Set, R, t, d, k, u, s, thr, thr_c) -> np.ndarray:
+    """(pairs, 6) intervals of unit piece u[i] of candidate k[i] (pose R, t; direction d) against
+    structure piece s[i] (`_launch`), the pairs grouped by both pieces' buckets."""
+    res = np.empty((len(k), 6))
+    # Pairs of right prisms along one direction need no edge-edge axes (`_prism_axes`).
+    up = np.einsum("pij,pkj->pki", R[k], uset.prism[u])
+    aligned = (np.abs(np.einsum("pai,pbi->pab", up, sset.prism[s])) > 1 - 1e-9).any(axis=(1, 2))
+    group = (uset.bucket_of[u] * len(sset.buckets) + sset.bucket_of[s]) * 2 + ~aligned
+    kp = _pow2(len(R), MIN_ROWS)
+    Rp, tp, dp = (np.concatenate([x, np.repeat(x[:1], kp - len(x), 0)]) for x in (R, t, d))
+    for g in np.unique(group):
+        sel = np.flatnonzero(group == g)
+        bu, bs = divmod(int(g) // 2, len(sset.buckets))
+        res[sel] = _launch(bool(g % 2), uset.tables[bu], sset.tables[bs], Rp, tp, dp, uset.local[u[sel]],
+                           sset.local[s[sel]], k[sel], thr[sel], thr_c[sel])
+    return res
+
+
+def exact_intervals(a: Sequence[np.ndarray], b: Sequence[np.ndarray], d: np.ndarray, thr: np.ndarray) -> np.ndarray:
+    """(n, 2): for convex point sets a[i], b[i] (world), the open interval of s where the depth of
+    a[i] moved by -s d[i] into b[i] exceeds thr[i] >= 0 (empty: hi <= lo). For tests and checks."""
+    n = len(a)
+    ua = _Set([_piece(v, False, 0.0) for v in a], np.array([v.mean(0) for v in a]), np.arange(n), n)
+    sb = _Set([_piece(v, False, 0.0) for v in b], np.array([v.mean(0) for v in b]), np.arange(n), n)
+    idx = np.arange(n)
+    R, t = np.repeat(np.eye(3)[None], n, 0), np.zeros((n, 3))
+    res = _intervals(ua, sb, R, t, np.asarray(d, float), idx, idx, idx, np.asarray(thr, float), np.full(n, np.inf))
+    return res[:, :2]
+
+
+# --- The sweep -----------------------------------------------------------------------------------
+
+
+def _swept_boxes_meet(lo: np.ndarray, hi: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Whether some s > 0 has s d in (lo, hi) along every axis (last dimension)."""
+    moving = np.abs(d) > 1e-9
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, c = lo / d, hi / d
+    still = (lo < 0) & (hi > 0)
+    start = np.where(moving, np.minimum(a, c), np.where(still, -np.inf, np.inf)).max(axis=-1)
+    end = np.where(moving, np.maximum(a, c), np.where(still, np.inf, -np.inf)).min(axis=-1)
+    return np.maximum(start, 0.0) < end
+
+
+def sweep_many(
+    scene: CollisionScene | None,
+    structure: Structure,
+    units: Sequence[Sequence[tuple[Part, Pose]]],
+    connected: Sequence[set[int]],
+    max_penetration_ldu: float = 0.5,
+    directions: Sequence[np.ndarray] | None = None,
+) -> list[SweepResult]:
+    """`sweep.sweep` for every unit (module docstring for the method and what may differ).
+
+    The units share their parts and relative layout up to one rigid motion (as `check.check_units`
+    requires), each placed in world poses, its pose that of its first part; `scene` is their
+    collision scene as `check_units` builds it (None: built here if a candidate is referred to the
+    CPU). `directions`: each unit's seating directions (`sweep.seating_directions`), if known.
+    """
+    tol = max_penetration_ldu
+    results: list[SweepResult | None] = [None] * len(units)
+    if not units:
+        return []
+    dirs = []
+    for i, unit in enumerate(units):
+        found = approach_from(directions[i] if directions is not None else seating_directions(structure, unit))
+        if found.direction is None:
+            COUNTS["not-judged"] += 1
+            results[i] = SweepResult(False if found.reason == "clamped" else None, found.reason, (), 0.0, 0.0, 0)
+        else:
+            dirs.append((i, found.direction))
+    first = units[0]
+    anchor = first[0][1]
+    rel = [(part, anchor.inverse() @ pose) for part, pose in first]
+    scene_box: list = [scene]
+
+    def cpu(i: int) -> SweepResult:
+        if scene_box[0] is None:
+            scene_box[0] = CollisionScene(structure, rel, 1e6)
+        return sweep(scene_box[0], structure, units[i], connected[i], tol)
+
+    if not dirs:
+        return results  # type: ignore[return-value]
+    sset, sboxes = _structure_set(structure)
+    uset = _set_of(rel)
+    if tol < uset.inset.max(initial=0.0) + sset.inset.max(initial=0.0):
+        # Below both insets the separating-axis minimum is not the distance (module docstring).
+        for i, _ in dirs:
+            COUNTS["cpu"] += 1
+            results[i] = cpu(i)
+        return results  # type: ignore[return-value]
+    idx = np.array([i for i, _ in dirs])
+    d = np.array([v for _, v in dirs])
+    R = np.stack([units[i][0][1].R for i in idx])
+    t = np.stack([units[i][0][1].t for i in idx])
+    margin = min(tol, 2 * INSET_LDU)
+    # Parts: each member's box swept along d against each structure part's box (the reference's
+    # filter, with the parts it connects to kept: their pieces count too, with the slack).
+    mb = np.stack([part.bbox for part, _ in rel])
+    mR = np.stack([p.R for _, p in rel])
+    mt = np.stack([p.t for _, p in rel])
+    wR = np.einsum("kij,mjl->kmil", R, mR)
+    centre = np.einsum("kmij,mj->kmi", wR, mb.mean(axis=1)) + np.einsum("kij,mj->kmi", R, mt) + t[:, None]
+    half = np.einsum("kmij,mj->kmi", np.abs(wR), (mb[:, 1] - mb[:, 0]) / 2)
+    ub = np.stack([centre - half, centre + half], axis=2)  # (K, M, 2, 3)
+    lo = ub[:, :, None, 0] - sboxes[None, None, :, 1] + margin
+    hi = ub[:, :, None, 1] - sboxes[None, None, :, 0] - margin
+    kk, mm, jj = np.nonzero(_swept_boxes_meet(lo, hi, d[:, None, None]))
+    # Pieces: every piece of the member against every piece of the part, boxes swept again.
+    nu = np.diff(uset.start)[mm]
+    ns = np.diff(sset.start)[jj]
+    rep = np.repeat(np.arange(len(kk)), nu * ns)
+    local = np.arange(len(rep)) - np.repeat(np.cumsum(nu * ns) - nu * ns, nu * ns)
+    k = kk[rep]
+    u = uset.start[mm[rep]] + local // ns[rep]
+    s = sset.start[jj[rep]] + local % ns[rep]
+    j = jj[rep]
+    conn = np.zeros((len(idx), len(structure)), bool)
+    for row, i in enumerate(idx):
+        conn[row, list(connected[i])] = True
+    is_conn = conn[k, j]
+    keep = ~(is_conn & (uset.stud[u] | sset.stud[s]))  # studs never collide with connected parts
+    k, u, s, j, is_conn = k[keep], u[keep], s[keep], j[keep], is_conn[keep]
+    ubox = uset.box[u]
+    uc, uh = ubox.mean(axis=1), (ubox[:, 1] - ubox[:, 0]) / 2
+    Rk = R[k]
+    wc = np.einsum("pij,pj->pi", Rk, uc) + t[k]
+    wh = np.einsum("pij,pj->pi", np.abs(Rk), uh)
+    sb = sset.box[s]
+    near = _swept_boxes_meet(wc - wh - sb[:, 1], wc + wh - sb[:, 0], d[k])
+    k, u, s, j, is_conn = k[near], u[near], s[near], j[near], is_conn[near]
+    thr = tol - uset.inset[u] - sset.inset[s] + np.where(is_conn, CONNECTED_SLACK_LDU, 0.0)
+    thr_c = np.where(is_conn, tol, np.inf)
+    undecided = ~is_conn & (uset.stud[u] != sset.stud[s])
+
+    res = _intervals(uset, sset, R, t, d, k, u, s, thr, thr_c)
+
+    # Counted stretches of s > 0: (candidate, part, lo, hi, decided).
+    hits = []
+    for col in (0, 2, 4):
+        lo_, hi_ = np.maximum(res[:, col], 0.0), res[:, col + 1]
+        ok = hi_ > lo_
+        if col:
+            ok &= is_conn
+        hits.append((k[ok], j[ok], lo_[ok], hi_[ok], ~undecided[ok], is_conn[ok]))
+    hk, hj, hlo, hhi, hdec, hconn = (np.concatenate(x) for x in zip(*hits))
+    # Parts the unit is connected to count only where the reference queries at all: where its box
+    # overlaps a part it is not connected to. Rare (the unit backs away from them): a loop.
+    plain = ~hconn
+    clipped = []
+    for e in np.flatnonzero(hconn):
+        i = idx[hk[e]]
+        others = [q for q in range(len(structure)) if q not in connected[i]]
+        span = _overlap_intervals(_boxes(units[i]), sboxes[others], d[hk[e]], margin)
+        for a, b in span:
+            if min(b, hhi[e]) > max(a, hlo[e]):
+                clipped.append((hk[e], hj[e], max(a, hlo[e]), min(b, hhi[e])))
+    ck, cj, clo, chi = (np.array(x).reshape(-1) for x in zip(*clipped)) if clipped else [np.zeros(0)] * 4
+    dk = np.concatenate([hk[plain & hdec], ck.astype(np.int64)])
+    dj = np.concatenate([hj[plain & hdec], cj.astype(np.int64)])
+    dlo = np.concatenate([hlo[plain & hdec], clo])
+    dhi = np.concatenate([hhi[plain & hdec], chi])
+    top = np.full(len(idx), -np.inf)
+    np.maximum.at(top, dk, dhi)
+    # The pose just inside the outermost decided interval: who is in the way there.
+    outer = dhi >= top[dk]
+    floor_ = np.full(len(idx), -np.inf)
+    np.maximum.at(floor_, dk[outer], dlo[outer])
+    probe = np.maximum(top - MIN_STEP_LDU / 4, (top + floor_) / 2)
+    there = (dlo < probe[dk]) & (probe[dk] < dhi)
+    blockers: dict[int, set[int]] = {}
+    for a, b in zip(dk[there], dj[there]):
+        blockers.setdefault(int(a), set()).add(int(b))
+    maybe = np.zeros(len(idx), bool)
+    maybe[hk[~hdec & plain]] = True
+    for row, i in enumerate(idx):
+        if np.isfinite(top[row]):
+            COUNTS["device"] += 1
+            results[i] = SweepResult(False, "blocked", tuple(sorted(blockers.get(row, ()))), float("nan"),
+                                     round(float(top[row]), 4), 0)
+        elif maybe[row]:
+            COUNTS["referred"] += 1
+            results[i] = cpu(i)
+        else:
+            COUNTS["device"] += 1
+            results[i] = SweepResult(True, None, (), float("nan"), 0.0, 0)
+    return results  # type: ignore[return-value]
+
+
+# --- Benchmark -----------------------------------------------------------------------------------
+
+
+def bench(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), cpu_max: int = 512, log=None) -> list[dict]:
+    """Sweep candidates per second, this path (default JAX device) and the CPU reference, on the
+    same candidates: 2x4 bricks on structures of 2x4 bricks grown by `pipelines.bench_physics.grow`,
+    the feasible attachments whose final pose the collision check accepts, drawn with replacement
+    to fill each batch. The reference runs on the first `cpu_max` of them (its cost is per
+    candidate), where the verdicts are compared too. Both are timed from the connections found
+    (as `check_units` has them), the reference from its own `approach`."""
+    import time
+
+    from factory import get_reader, load_part
+    from factory.physics.check import _unit_connections
+    from pipelines.bench_physics import candidates, grow
+
+    brick = load_part(get_reader(), "3001")
+    rows = []
+    for n in sizes:
+        s = grow(n)
+        scene = CollisionScene(s, [(brick, Pose.identity())], 1e6)
+        pool = []
+        for p in {tuple(np.round(q.t, 3)) + tuple(np.round(q.R, 3).ravel()): q for q in candidates(s, 4096)}.values():
+            world = [(brick, p)]
+            outer = [c for c in _unit_connections(s, world) if min(c[0], c[1]) < len(s)]
+            touched = {min(c[0], c[1]) for c in outer}
+            if scene.penetration(p, touched)[0] <= 0.5:
+                pool.append((world, touched, np.array([-c[3] if c[0] < len(s) else c[3] for c in outer]).reshape(-1, 3)))
+        rng = np.random.default_rng(0)
+        for batch in batches:
+            cases = [pool[i] for i in rng.integers(0, len(pool), batch)]
+            args = ([c[0] for c in cases], [c[1] for c in cases])
+            compiles = len(COMPILES)
+            t = time.perf_counter()
+            sweep_many(scene, s, *args, directions=[c[2] for c in cases])  # compiles this batch's shapes
+            first_s = time.perf_counter() - t
+            before = COUNTS.copy()
+            t = time.perf_counter()
+            got = sweep_many(scene, s, *args, directions=[c[2] for c in cases])
+            jax_s = time.perf_counter() - t
+            counts = COUNTS - before
+            sub = cases[:cpu_max]
+            t = time.perf_counter()
+            ref = [sweep(scene, s, w, c) for w, c, _ in sub]
+            cpu_s = time.perf_counter() - t
+            row = {"bricks": n, "batch": batch, "distinct_candidates": len(pool),
+                   "jax_per_s": round(batch / jax_s, 1), "cpu_per_s": round(len(sub) / cpu_s, 1),
+                   "speedup": round(batch / jax_s / (len(sub) / cpu_s), 2),
+                   "first_call_s": round(first_s, 2), "new_compiles": len(COMPILES) - compiles,
+                   "referred": counts["referred"], "blocked": sum(r.buildable is False for r in got),
+                   "cpu_compared": len(sub), "agree": sum(a.buildable == b.buildable for a, b in zip(ref, got))}
+            rows.append(row)
+            if log is not None:
+                log(row)
+    return rows

@@ -1,0 +1,256 @@
+"""The batched exact sweep (`sweep_jax`, JAX on the CPU here) against the stepped CPU reference
+(`sweep.sweep`): the hand-built cases of test_sweep, verdict parity on over a thousand candidates of
+grown structures and of structures with off-grid blockers (overlaps near the tolerance), and the
+intervals themselves against dense stepping of an independent depth (the Minkowski difference's
+hull) for random convex pairs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import ConvexHull
+
+pytest.importorskip("jax")
+
+from conftest import LDRAW  # noqa: E402
+from factory import Pose, get_reader, load_part  # noqa: E402
+from factory.ldraw import Library, Reader  # noqa: E402
+from factory.physics import sweep_jax  # noqa: E402
+from factory.physics.attach import feasible_poses, lowest_y  # noqa: E402
+from factory.physics.check import CheckConfig, _unit_connections  # noqa: E402
+from factory.physics.collide import CollisionScene  # noqa: E402
+from factory.physics.geometry import stud_prism  # noqa: E402
+from factory.physics.structure import Placed, Structure  # noqa: E402
+from factory.physics.sweep import sweep  # noqa: E402
+from factory.symmetry import rotation_about  # noqa: E402
+from test_sweep import (COLUMN, DIAMOND, GAP_BRICK, GAP_WALLS, HANGING, ROOF, SLOT, TOPS, TOWER,  # noqa: E402
+                        at, scene_for)
+
+TOL = CheckConfig().max_penetration_ldu
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+def exact(parts, unit, floor_y=None):
+    structure = Structure(parts)
+    scene, world, touched = scene_for(structure, unit, floor_y)
+    return sweep_jax.sweep_many(scene, structure, [world], [touched], TOL)[0]
+
+
+# --- The hand-built cases of test_sweep -------------------------------------------------------------
+
+
+def test_the_hand_built_cases_give_the_reference_verdicts():
+    wall = [at("3001", -80, 0, 0), at("3001", 0, 0, 0), at("3001", 80, 0, 0),
+            at("3001", -40, -24, 0), at("3001", 40, -24, 0)]
+    assert exact(wall, [at("3001", 0, -48, 0)]).buildable
+    r = exact(GAP_WALLS + [ROOF], [GAP_BRICK])
+    # The roof, met where the brick's walls reach its top face (y = -56; the brick's inset bottom
+    # meets the roof's inset top 55.5 above the seat); its studs before that stand in the hollow.
+    assert r.buildable is False and r.reason == "blocked" and r.blocked_by == (5,)
+    assert r.at_ldu == pytest.approx(55.5, abs=1e-6)
+    assert exact(GAP_WALLS, [GAP_BRICK]).buildable
+    assert exact(GAP_WALLS + [GAP_BRICK], [ROOF]).buildable
+    r = exact(SLOT, [at("3068b", 20, -8, 0)])
+    assert r.buildable is False and r.blocked_by == (2,)
+    r = exact(SLOT, [at("3022", 20, -8, 0)])
+    assert r.buildable is False and r.reason == "clamped"
+    for floor_y in (None, 24.0):
+        assert exact(TOWER + [DIAMOND], [HANGING], floor_y).buildable
+    r = exact(TOWER + [at("3020", 40, 24, 0)], [HANGING])
+    assert r.buildable is False and r.blocked_by == (3,)
+    for top in TOPS.values():
+        r = exact(COLUMN + [top], [at("3003", 0, -24, 0)])
+        assert r.buildable is False and r.blocked_by == (8,) and 175 < r.at_ldu <= 180
+    assert exact(COLUMN, [at("3003", 0, -24, 0)]).buildable
+    side = rotation_about((0, 0, 1), 90)
+    parts = [at("3001", 0, 0, 0), at("3001", 200, 0, 0, R=side)]
+    r = exact(parts, [at("3001", 0, -24, 0), at("3001", 224, 0, 0, R=side)])
+    assert r.buildable is None and r.reason == "two-axes"
+
+
+# --- Verdict parity on real candidates --------------------------------------------------------------
+
+
+def _touched(s, world):
+    return {min(c[0], c[1]) for c in _unit_connections(s, world) if min(c[0], c[1]) < len(s)}
+
+
+def _grow(parts: dict, base, n: int, seed: int) -> Structure:
+    """n parts attached at random where the collision check lets them (loads are not the point)."""
+    rng = np.random.default_rng(seed)
+    s = Structure([Placed(base, 4, Pose.identity())])
+    floor = s.floor_y()
+    names = sorted(parts)
+    for _ in range(4 * n):
+        if len(s) >= n:
+            break
+        part = parts[names[rng.integers(len(names))]]
+        poses = [p for p in feasible_poses(s, part) if lowest_y(part, p.R[None], p.t[None])[0] <= floor + TOL]
+        if not poses:
+            continue
+        scene = CollisionScene(s, [(part, Pose.identity())], floor)
+        for i in rng.permutation(len(poses))[:12]:
+            if scene.penetration(poses[i], _touched(s, [(part, poses[i])]))[0] <= TOL:
+                s.add(Placed(part, 4, poses[i]))
+                break
+    return s
+
+
+def _with_blockers(plate, blockers: list, seed: int, n: int = 14) -> Structure:
+    """A plate with parts floating above it, off the grid, turned about the vertical or tilted: their
+    edges lie within about a unit of the lines the candidates' sides sweep along, so overlaps on the
+    way down fall on both sides of the tolerance (the reference's depths there are printed)."""
+    rng = np.random.default_rng(seed)
+    s = Structure([Placed(plate, 4, Pose.identity())])
+    for _ in range(n):
+        part = blockers[rng.integers(len(blockers))]
+        kind = rng.integers(3)
+        if kind == 0:
+            R = rotation_about((0, 1, 0), float(rng.choice([0, 90])))
+        elif kind == 1:
+            R = rotation_about((0, 1, 0), float(rng.uniform(0, 90)))
+        else:
+            R = rotation_about((1, 0, 0), float(rng.uniform(-30, 30))) @ rotation_about((0, 1, 0), float(rng.choice([0, 90])))
+        half = (part.bbox[1] - part.bbox[0]) / 2
+        x = 20 * rng.integers(-4, 5) + 10 * rng.integers(0, 2) + rng.normal(0, 0.6) + rng.choice([-1, 1]) * half[0]
+        z = 20 * rng.integers(-3, 4) + rng.normal(0, 0.6)
+        s.add(Placed(part, 4, Pose(R, [x, float(rng.uniform(-140, -40)), z])))
+    return s
+
+
+def _compare(s: Structure, part, limit: int, rng) -> list:
+    floor = s.floor_y()
+    poses = [p for p in feasible_poses(s, part) if lowest_y(part, p.R[None], p.t[None])[0] <= floor + TOL]
+    scene = CollisionScene(s, [(part, Pose.identity())], floor)
+    cases = []
+    for i in rng.permutation(len(poses)):
+        world = [(part, poses[i])]
+        touched = _touched(s, world)
+        if scene.penetration(poses[i], touched)[0] <= TOL:  # the sweep judges what collision accepts
+            cases.append((world, touched))
+        if len(cases) == limit:
+            break
+    if not cases:
+        return []
+    ref = [sweep(scene, s, w, c, TOL) for w, c in cases]
+    got = sweep_jax.sweep_many(scene, s, [w for w, _ in cases], [c for _, c in cases], TOL)
+    return [(part.name, w[0][1].t.round(2).tolist(), a, b) for (w, _), a, b in zip(cases, ref, got)]
+
+
+def test_verdicts_agree_with_the_stepped_reference_on_over_a_thousand_candidates(capsys):
+    reader = get_reader()
+    emb = {n: load_part(reader, n) for n in
+           ["3001", "3003", "3005", "3010", "3022", "3020", "3023", "3024", "3710", "3068b", "3069b",
+            "3039", "3040b", "3660", "3665"]}
+    round_ = {}
+    if (LDRAW / "parts").is_dir():  # round parts are not in the embedded library
+        real = Reader(Library.from_dir(LDRAW))
+        round_ = {n: load_part(real, n) for n in ["6141", "3062b", "98138", "3941"]}
+    rng = np.random.default_rng(0)
+    before = sweep_jax.COUNTS.copy()
+    rows = []
+    grown = _grow({**emb, **round_}, load_part(reader, "3958"), 30, seed=1)
+    for name in ["3001", "3003", "3022", "3068b", "3039", "3660", "3024", *round_]:
+        rows += _compare(grown, {**emb, **round_}[name], 50, rng)
+    near_start = len(rows)
+    blockers = [emb[n] for n in ["3024", "3005", "3023", "3040b", "3022"]]
+    for seed in range(3):
+        s = _with_blockers(load_part(reader, "3036"), blockers, seed)
+        for name in ["3005", "3003", "3024", "3023", "3039", "3040b", "3068b"]:
+            rows += _compare(s, emb[name], 40, rng)
+    judged = [r for r in rows if r[2].buildable is not None]
+    agree = sum(a.buildable == b.buildable for _, _, a, b in rows)
+    near = [r for r in rows[near_start:] if abs(r[2].depth_ldu - TOL) <= 0.25]
+    counts = sweep_jax.COUNTS - before
+    with capsys.disabled():
+        print(f"\n{len(rows)} candidates ({len(judged)} judged, {sum(r[2].buildable is False for r in rows)} "
+              f"blocked), {agree} same verdict; {len(near)} with the reference's depth within 0.25 LDU "
+              f"of the tolerance; judged by {dict(counts)}; compiles so far {len(sweep_jax.COMPILES)}")
+        for name, t, a, b in rows:
+            if a.buildable != b.buildable:
+                print(f"  differs: {name} at {t}: reference {a}, exact {b}")
+    assert len(judged) >= 1000 and len(near) >= 50
+    assert agree >= 0.999 * len(rows)
+
+
+# --- The intervals themselves -----------------------------------------------------------------------
+
+
+def _depth_line(a: np.ndarray, b: np.ndarray, d: np.ndarray):
+    """depth(s) of a moved by -s d into b from the facets of the Minkowski difference's hull (qhull):
+    min over facets of -(offset + s n.d); <= 0 when apart."""
+    hull = ConvexHull((a[:, None] - b[None]).reshape(-1, 3))
+    eq = hull.equations
+    return lambda s: np.min(-(eq[:, 3][None] + np.outer(s, eq[:, :3] @ d)), axis=1)
+
+
+def _random_pair(rng):
+    kind = rng.integers(4)
+    turn = rotation_about(rng.normal(size=3), float(rng.uniform(0, 360)))
+    if kind == 0:  # random convex clouds
+        a = rng.normal(size=(10, 3)) * rng.uniform(2, 12, 3)
+        b = rng.normal(size=(10, 3)) * rng.uniform(2, 12, 3) @ turn.T
+    elif kind == 1:  # boxes standing as built, the second turned about the vertical
+        box = lambda h: np.array([[x, y, z] for x in (-h[0], h[0]) for y in (-h[1], h[1]) for z in (-h[2], h[2])])
+        a = box(rng.uniform(2, 20, 3))
+        b = box(rng.uniform(2, 20, 3)) @ rotation_about((0, 1, 0), float(rng.uniform(0, 90))).T
+    elif kind == 2:  # a stud against a box, both upright (no edge-edge axes needed)
+        a = stud_prism([0, 0, 0], [0, -1, 0])
+        b = np.array([[x, y, z] for x in (-10, 10) for y in (0, 8) for z in (-10, 10)], float)
+    else:  # a stud against a tilted one
+        a = stud_prism([0, 0, 0], [0, -1, 0])
+        b = stud_prism([0, 0, 0], turn @ [0, -1, 0])
+    d = rng.normal(size=3) if rng.random() < 0.5 else np.array([0.0, 1.0, 0.0])
+    d /= np.linalg.norm(d)
+    # b near a's path: its centre about s0 back along d, off it by up to a few LDU.
+    b = b - b.mean(0) + a.mean(0) - rng.uniform(5, 40) * d + rng.normal(size=3) * 3
+    return a, b, d
+
+
+def test_intervals_match_dense_stepping_of_the_minkowski_depth():
+    rng = np.random.default_rng(3)
+    pairs = [_random_pair(rng) for _ in range(160)]
+    thr = rng.choice([0.0, 0.3, 1.5, 4.0], size=len(pairs))
+    got = sweep_jax.exact_intervals([p[0] for p in pairs], [p[1] for p in pairs], np.array([p[2] for p in pairs]), thr)
+    s = np.linspace(-20, 80, 20001)  # 0.005 LDU apart
+    nonempty = 0
+    for (a, b, d), th, (lo, hi) in zip(pairs, thr, got):
+        depth = _depth_line(a, b, d)(s)
+        inside = (s > lo) & (s < hi)
+        # Wherever the depth is not at thr itself, inside the interval <=> deeper than thr.
+        clear = np.abs(depth - th) > 1e-7
+        assert np.array_equal(inside[clear], (depth > th)[clear])
+        if hi > lo:
+            nonempty += 1
+            f = _depth_line(a, b, d)
+            for end in (lo, hi):
+                if -20 < end < 80:
+                    assert f(np.array([end]))[0] == pytest.approx(th, abs=1e-6)
+    assert nonempty >= 60
+
+
+def test_a_stud_reaching_into_the_path_is_referred_to_the_reference():
+    # A 1x1 brick on its side beside the 2x2 brick's way down, its stud 4 LDU into the path and its
+    # body clear of it: only a stud-body pair overlaps, which the device leaves to `sweep.sweep`
+    # (the stud crosses the brick's walls: blocked).
+    side = rotation_about((0, 0, 1), -90)
+    probe = Placed(load_part(get_reader(), "3005"), 4, Pose(side, [0, -70, 0]))
+    box = probe.pose.apply(np.array([[x, y, z] for x in probe.part.bbox[:, 0] for y in probe.part.bbox[:, 1]
+                                     for z in probe.part.bbox[:, 2]]))
+    assert np.isclose(box[:, 0].max() - box[:, 0].min(), 28)  # 24 of body and 4 of stud, along x
+    stud_at_low_x = probe.pose.apply(np.array([probe.part.studs[0].pos]))[0][0] < box[:, 0].mean()
+    shift = 16 - box[:, 0].min() if stud_at_low_x else -16 - box[:, 0].max()
+    blocker = Placed(probe.part, 4, Pose(side, [shift, -70, 0]))
+    parts = [at("3034", 0, 0, 0), blocker]
+    structure = Structure(parts)
+    scene, world, touched = scene_for(structure, [at("3003", 0, -24, 0)])
+    ref = sweep(scene, structure, world, touched, TOL)
+    before = sweep_jax.COUNTS["referred"]
+    got = sweep_jax.sweep_many(scene, structure, [world], [touched], TOL)[0]
+    assert sweep_jax.COUNTS["referred"] == before + 1
+    assert ref.buildable is False and ref.blocked_by == (1,)
+    assert got == ref
