@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import time
 
@@ -23,26 +24,57 @@ import numpy as np
 
 from factory import Pose, get_reader, load_part
 from factory.physics.check import CheckConfig, check
+from factory.physics.geometry import cache_dir
 from factory.physics.check import _unit_connections
 from factory.physics.statics import judge_many, load_model
 from factory.physics.attach import feasible_poses, lowest_y
 from factory.physics.structure import Placed, Structure
 
 
+GROWN_MAX = 90
+"""Bench structures are the first n bricks of one structure grown to this size."""
+
+
 def grow(n: int, seed: int = 0) -> Structure:
-    """A valid structure of n 2x4 bricks, grown compactly on the ground plane and upward."""
+    """A valid structure of n 2x4 bricks: the first n of one grown compactly to `GROWN_MAX` bricks
+    (a build's prefix is itself a valid build). Growing 90 bricks through the full checks takes
+    minutes, so the poses are cached (`geometry.cache_dir()/bench`, written atomically; delete the
+    file to grow again after the checks change)."""
+    brick = load_part(get_reader(), "3001")
+    total = max(n, GROWN_MAX)
+    path = cache_dir() / "bench" / f"grow_3001_{total}_seed{seed}.npy"
+    if path.exists():
+        poses = np.load(path)
+    else:
+        grown = _grow(total, seed)
+        poses = np.stack([np.concatenate([p.pose.R.ravel(), p.pose.t]) for p in grown.placed])
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp.npy")
+        np.save(tmp, poses)
+        os.replace(tmp, path)
+    return Structure([Placed(brick, 4, Pose(r[:9].reshape(3, 3), r[9:])) for r in poses[:n]])
+
+
+def _grow(n: int, seed: int) -> Structure:
+    """Grow n 2x4 bricks compactly on the ground plane and upward through the full checks."""
     rng = np.random.default_rng(seed)
     brick = load_part(get_reader(), "3001")
     s = Structure([Placed(brick, 4, Pose.identity())])
     while len(s) < n:
         poses = [p for p in feasible_poses(s, brick) if p.t[1] <= 0]  # on top, not hanging
         poses.sort(key=lambda p: (abs(p.t[0]) + abs(p.t[2]), -p.t[1]))
-        pick = poses[: max(8, len(poses) // 4)]
-        order = rng.permutation(len(pick))
-        verdicts = check(s, brick, [pick[i] for i in order[:16]], floor_y=24.0)
-        ok = [v for v in verdicts if v.ok]
-        if ok:
-            s.add(Placed(brick, 4, ok[0].pose))
+        # The most compact quarter first, shuffled; then the rest in order of compactness, 16 at a
+        # time, until one passes (every compact spot can be taken or unbuildable).
+        head = max(8, len(poses) // 4)
+        order = list(rng.permutation(head)) + list(range(head, len(poses)))
+        for start in range(0, len(order), 16):
+            verdicts = check(s, brick, [poses[i] for i in order[start:start + 16]], floor_y=24.0)
+            ok = [v for v in verdicts if v.ok]
+            if ok:
+                s.add(Placed(brick, 4, ok[0].pose))
+                break
+        else:
+            raise RuntimeError(f"no 2x4 brick can be added to the {len(s)}-brick structure (seed {seed})")
     return s
 
 
