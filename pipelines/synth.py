@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--candidates", type=int, help="feasible attachments checked per part draw")
     ap.add_argument("--parts", help="comma-separated part set (default: the sampler's)")
     ap.add_argument("--check-backend", choices=("mujoco", "mjx"), default="mujoco",
-                    help="physics rollouts on the CPU (mujoco) or batched with MJX (GPU)")
+                    help="physics checks one candidate at a time on the CPU (mujoco), or with the load programs and sweeps batched in JAX (mjx, for a GPU)")
     add_run_args(ap)
     args = ap.parse_args(argv)
     return guarded(lambda: run(config_from_args(args), args))

@@ -98,7 +98,7 @@ class SamplerConfig:
     check_batch: int = 8
     """Candidates sent to the checker at once, in decreasing order of softmax key, until a batch
     holds a survivor. Changes only the cost and the rejection counts, never the chosen placement
-    (see `Sampler`): small on the CPU (fewer rollouts), large (e.g. = candidates_per_step) for the
+    (see `Sampler`): small on the CPU (fewer checks past the first survivor), large (e.g. = candidates_per_step) for the
     'mjx' backend on a GPU."""
     max_redraws: int = 8
     """Part draws after the first in one step when no candidate of the drawn part survives; then
