@@ -25,7 +25,7 @@ iteration cap, `MAX_ITERATIONS`, is a bound, not a budget).
   scatter of A's columns' outer products, a batched Cholesky factorisation per iteration, the
   rank-one part by Sherman-Morrison. Predictor and corrector share the factorisation; each solve
   is refined twice against the full system.
-- Regularisation: rho = 1e-6 (scaled) on H, a proximal term: a free variable (a rigid link's
+- Regularisation: rho = 1e-4 (scaled) on H, a proximal term: a free variable (a rigid link's
   force) has an invertible block, and no variable strictly inside its rows weighs more than
   1 / rho in the normal matrix (`REG_PRIMAL` says what smaller values did). Equality rows that
   depend on earlier ones (a rotation no force resists) are found once, by the pivots of a
@@ -42,13 +42,14 @@ iteration cap, `MAX_ITERATIONS`, is a bound, not a budget).
 Every program of the load form is feasible once it does not tip (s can grow until every
 connection is rigid), so infeasibility is not detected: such a program would end at the cap.
 
-Shapes: each LP falls in a bucket (variables, equality rows, entries per column of A: quarter steps
-of powers of two; one-sided rows per variable: exact, 2 for the load programs); a launch holds the
+Shapes: each LP falls in a bucket (variables and entries per column of A: quarter steps of powers
+of two; equality rows: eighth steps; one-sided rows per variable: exact, 2 for the load programs); a launch holds the
 LPs with the same equality rows and rows per variable, padded to the largest variables and entries
 among them, their count padded to a quarter step (at most `MAX_BATCH` per launch, in equal
 chunks), so a run compiles once per shape met (`COMPILES`), never per call; tolerance and
-iteration cap are traced values. Memory per LP is dominated by the normal matrix, 8 m^2 bytes:
-1.1 MB at 366 rows (a 60-part structure), 2.2 MB at 546.
+iteration cap are traced values. Memory per LP is dominated by the normal matrix, 8 m^2 bytes for
+m padded rows: 1.2 MB at 384 (60 bricks: 366 rows), 2.7 MB at 576 (90 bricks: 546 rows); 4,096 of
+them, 11 GB.
 
 Measured (CPU; GPU numbers are the lead's to take with `pipelines.bench_physics --lp`): see
 docs/physics.md, Backends.
@@ -77,13 +78,13 @@ MAX_ITERATIONS = 80
 RUIZ_ITERATIONS = 8
 STEP_TO_BOUNDARY = 0.995
 """Fraction of the longest step that keeps the slacks and their duals positive."""
-REG_PRIMAL = 1e-6
+REG_PRIMAL = 1e-4
 """Added to the diagonal of the (scaled) primal Hessian, a proximal term on each step: a variable
 no row bounds (a rigid link's force) still has an invertible block, and a variable strictly
 inside its rows weighs at most 1 / REG_PRIMAL in the normal matrix. At 1e-9 the normal matrix of
 some real load programs (rows active to 1e-16 against free ones at 1e9) lost all accuracy near
-the optimum: 29 of 3,334 programs of an 8-brick structure stalled; at 1e-7, 2; at 1e-6 none, in 11
-iterations at most."""
+the optimum: 29 of 3,334 programs of an 8-brick structure stalled; at 1e-7, 2; at 1e-6 none, but
+5 of 64 of a 60-brick structure's did; at 1e-5 and 1e-4 none, in 12 and 10 iterations at most."""
 REG_DUAL = 1e-12
 """The normal matrix's diagonal is multiplied by (1 + this), so that its Cholesky factorisation
 completes where rounding makes it semidefinite; relative to each row, since rows differ by 10
@@ -187,10 +188,19 @@ def _quarter(v: int, minimum: int = MIN_BUCKET) -> int:
     return -(-v // step) * step
 
 
+def _eighth(v: int, minimum: int = MIN_BUCKET) -> int:
+    """As `_quarter`, in eighth steps (16, 18, 20, ..., 32, 36, ...): the equality rows' bucket,
+    whose cost grows with its cube (546 rows, 90 bricks, pad to 576, not 640)."""
+    if v <= minimum:
+        return minimum
+    step = 1 << max((v - 1).bit_length() - 4, 0)
+    return -(-v // step) * step
+
+
 def _bucket(p: _Parts) -> tuple[int, int, int, int]:
     per_column = int(np.diff(p.a.indptr).max(initial=1))
     per_var = int(np.bincount(p.var, minlength=1).max(initial=1))
-    return _quarter(p.a.shape[1]), _quarter(p.a.shape[0]), _quarter(per_column, 1), max(per_var, 1)
+    return _quarter(p.a.shape[1]), _eighth(p.a.shape[0]), _quarter(per_column, 1), max(per_var, 1)
 
 
 def bucket_of(lp: LinearProgram) -> tuple[int, int, int, int]:
