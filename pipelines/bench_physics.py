@@ -2,7 +2,11 @@
 
 `python -m pipelines.bench_physics [--backends mujoco,mjx] [--sizes 10,30,60]
 [--batches 256,1024,4096] [--out FILE.json]`; with `--sweep`, the buildability sweep alone
-(`factory.physics.sweep_jax.bench`: the batched exact JAX path against the CPU reference).
+(`measure_sweep`: the batched exact JAX path against the CPU reference).
+
+`python -m pipelines.bench_physics --lp --sizes 30,60,90 --batches 1024,4096,16384`: the batched
+load solver alone (`lp_jax.bench`) on the real load programs of each size's candidates (a pool
+of distinct ones, repeated to fill the batch), with HiGHS's time per program and the accuracy.
 
 Structures are grown from a seed with 2x4 bricks (embedded library) by the checker itself, so
 they are valid; candidates are feasible attachments of a 2x4 brick (drawn with replacement to fill
@@ -16,66 +20,85 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import platform
 import time
+from pathlib import Path
 
 import numpy as np
 
 from factory import Pose, get_reader, load_part
+from factory.parts import box_corners
 from factory.physics.check import CheckConfig, check
-from factory.physics.geometry import cache_dir
 from factory.physics.check import _unit_connections
 from factory.physics.statics import judge_many, load_model
 from factory.physics.attach import feasible_poses, lowest_y
 from factory.physics.structure import Placed, Structure
 
 
-GROWN_MAX = 90
-"""Bench structures are the first n bricks of one structure grown to this size."""
+GROWN = Path(__file__).with_name("grown_3001.json")
+"""The poses `grow(90, seed=0)` placed, in order (a structure of n bricks is the first n): growing
+90 takes minutes."""
+
+
+def grown(n: int, seed: int = 0) -> Structure:
+    """`grow(n, seed)`, from `GROWN` where it holds it."""
+    if seed == 0 and GROWN.exists():
+        poses = json.loads(GROWN.read_text())
+        if len(poses) >= n:
+            brick = load_part(get_reader(), "3001")
+            return Structure([Placed(brick, 4, Pose(np.array(p["R"]), np.array(p["t"]))) for p in poses[:n]])
+    return grow(n, seed)
 
 
 def grow(n: int, seed: int = 0) -> Structure:
-    """A valid structure of n 2x4 bricks: the first n of one grown compactly to `GROWN_MAX` bricks
-    (a build's prefix is itself a valid build). Growing 90 bricks through the full checks takes
-    minutes, so the poses are cached (`geometry.cache_dir()/bench`, written atomically; delete the
-    file to grow again after the checks change)."""
-    brick = load_part(get_reader(), "3001")
-    total = max(n, GROWN_MAX)
-    path = cache_dir() / "bench" / f"grow_3001_{total}_seed{seed}.npy"
-    if path.exists():
-        poses = np.load(path)
-    else:
-        grown = _grow(total, seed)
-        poses = np.stack([np.concatenate([p.pose.R.ravel(), p.pose.t]) for p in grown.placed])
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp.npy")
-        np.save(tmp, poses)
-        os.replace(tmp, path)
-    return Structure([Placed(brick, 4, Pose(r[:9].reshape(3, 3), r[9:])) for r in poses[:n]])
+    """A valid structure of n 2x4 bricks, grown compactly on the ground plane and upward.
 
-
-def _grow(n: int, seed: int) -> Structure:
-    """Grow n 2x4 bricks compactly on the ground plane and upward through the full checks."""
+    Each step checks 16 of the nearest quarter of the attachments; once a step finds none valid
+    (near 50 bricks almost every near attachment collides: 14 of 4,130 were valid at 48), the
+    attachments whose boxes overlap a placed brick's are left out first, and the rest checked 16
+    at a time until one is valid. Until a step fails 20 times in a row, the structure is the one
+    the plain rule grows."""
     rng = np.random.default_rng(seed)
     brick = load_part(get_reader(), "3001")
     s = Structure([Placed(brick, 4, Pose.identity())])
+    stalled, failed = False, 0
     while len(s) < n:
         poses = [p for p in feasible_poses(s, brick) if p.t[1] <= 0]  # on top, not hanging
         poses.sort(key=lambda p: (abs(p.t[0]) + abs(p.t[2]), -p.t[1]))
-        # The most compact quarter first, shuffled; then the rest in order of compactness, 16 at a
-        # time, until one passes (every compact spot can be taken or unbuildable).
-        head = max(8, len(poses) // 4)
-        order = list(rng.permutation(head)) + list(range(head, len(poses)))
-        for start in range(0, len(order), 16):
-            verdicts = check(s, brick, [poses[i] for i in order[start:start + 16]], floor_y=24.0)
+        if stalled:
+            poses = _clear_of(s, brick, poses)
+        pick = poses[: max(8, len(poses) // 4)] if not stalled else poses
+        order = rng.permutation(len(pick))
+        for start in range(0, len(order) if stalled else 1, 16):
+            verdicts = check(s, brick, [pick[i] for i in order[start:start + 16]], floor_y=24.0)
             ok = [v for v in verdicts if v.ok]
             if ok:
                 s.add(Placed(brick, 4, ok[0].pose))
+                failed = 0
                 break
         else:
-            raise RuntimeError(f"no 2x4 brick can be added to the {len(s)}-brick structure (seed {seed})")
+            if stalled:
+                raise RuntimeError(f"no valid attachment at {len(s)} bricks")
+            failed += 1
+            stalled = failed >= 20
     return s
+
+
+def _clear_of(s: Structure, brick, poses: list[Pose]) -> list[Pose]:
+    """The poses whose bounding box overlaps no placed brick's (by more than 1 LDU across, 4.5 LDU
+    in height: a brick's studs stand 4 LDU into the one above)."""
+    def box(p):
+        c = box_corners(brick.bbox) @ p.R.T + p.t
+        return c.min(0), c.max(0)
+
+    placed = np.array([box(q.pose) for q in s.placed])  # (k, 2, 3)
+    keep = []
+    for p in poses:
+        lo, hi = box(p)
+        overlap = np.minimum(hi, placed[:, 1]) - np.maximum(lo, placed[:, 0])
+        if not (overlap > [1.0, 4.5, 1.0]).all(axis=1).any():
+            keep.append(p)
+    return keep
 
 
 def candidates(s: Structure, batch: int, seed: int = 1) -> list[Pose]:
@@ -108,7 +131,7 @@ def measure(backends, sizes, batches, log=None, full_max: int | None = None,
     rows = []
     for n in sizes:
         t0 = time.perf_counter()
-        s = grow(n)
+        s = grown(n)
         grow_s = time.perf_counter() - t0
         for batch in batches:
             poses = candidates(s, batch)
@@ -148,6 +171,82 @@ def measure(backends, sizes, batches, log=None, full_max: int | None = None,
     return rows
 
 
+def measure_lp(sizes, batches, log=None, pool: int = 256, config: CheckConfig = CheckConfig()) -> list[dict]:
+    """One row per (size, batch): `lp_jax.bench` on the load programs of up to `pool` distinct
+    candidates of the size's structure (those that do not tip)."""
+    from factory.physics import lp_jax
+    from factory.physics.statics import tips, to_lp
+
+    rows = []
+    for n in sizes:
+        s = grown(n)
+        poses, seen = [], set()
+        for p in candidates(s, 4 * pool):
+            key = (p.R.round(6).tobytes(), p.t.round(6).tobytes())
+            if key not in seen and len(poses) < pool:
+                seen.add(key)
+                poses.append(p)
+        lps = [to_lp(m, config.loads) for m in load_models(s, poses, config) if not tips(m, config.loads)]
+        for batch in batches:
+            row = {"bricks": n, "batch": batch, **lp_jax.bench(batch, lps=lps)}
+            rows.append(row)
+            if log is not None:
+                log(row)
+    return rows
+
+
+def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), cpu_max: int = 512, log=None) -> list[dict]:
+    """Sweep candidates per second, the batched path (`sweep_jax`, default JAX device) and the CPU
+    reference (`sweep.sweep`), on the same candidates: 2x4 bricks on the structures of `grown`,
+    the feasible attachments whose final pose the collision check accepts, drawn with replacement
+    to fill each batch. The reference runs on the first `cpu_max` of them (its cost is per
+    candidate), where the verdicts are compared too. Both are timed from the connections found
+    (as `check_units` has them), the reference from its own `approach`."""
+    from factory.physics.collide import CollisionScene
+    from factory.physics.sweep import sweep
+    from factory.physics.sweep_jax import COMPILES, COUNTS, sweep_many
+
+    brick = load_part(get_reader(), "3001")
+    rows = []
+    for n in sizes:
+        s = grown(n)
+        scene = CollisionScene(s, [(brick, Pose.identity())], 1e6)
+        pool = []
+        for p in {tuple(np.round(q.t, 3)) + tuple(np.round(q.R, 3).ravel()): q for q in candidates(s, 4096)}.values():
+            world = [(brick, p)]
+            outer = [c for c in _unit_connections(s, world) if min(c[0], c[1]) < len(s)]
+            touched = {min(c[0], c[1]) for c in outer}
+            if scene.penetration(p, touched)[0] <= 0.5:
+                pool.append((world, touched, np.array([-c[3] if c[0] < len(s) else c[3] for c in outer]).reshape(-1, 3)))
+        rng = np.random.default_rng(0)
+        for batch in batches:
+            cases = [pool[i] for i in rng.integers(0, len(pool), batch)]
+            args = ([c[0] for c in cases], [c[1] for c in cases])
+            compiles = len(COMPILES)
+            t = time.perf_counter()
+            sweep_many(scene, s, *args, directions=[c[2] for c in cases])  # compiles this batch's shapes
+            first_s = time.perf_counter() - t
+            before = COUNTS.copy()
+            t = time.perf_counter()
+            got = sweep_many(scene, s, *args, directions=[c[2] for c in cases])
+            jax_s = time.perf_counter() - t
+            counts = COUNTS - before
+            sub = cases[:cpu_max]
+            t = time.perf_counter()
+            ref = [sweep(scene, s, w, c) for w, c, _ in sub]
+            cpu_s = time.perf_counter() - t
+            row = {"bricks": n, "batch": batch, "distinct_candidates": len(pool),
+                   "jax_per_s": round(batch / jax_s, 1), "cpu_per_s": round(len(sub) / cpu_s, 1),
+                   "speedup": round(batch / jax_s / (len(sub) / cpu_s), 2),
+                   "first_call_s": round(first_s, 2), "new_compiles": len(COMPILES) - compiles,
+                   "referred": counts["referred"], "blocked": sum(r.buildable is False for r in got),
+                   "cpu_compared": len(sub), "agree": sum(a.buildable == b.buildable for a, b in zip(ref, got))}
+            rows.append(row)
+            if log is not None:
+                log(row)
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m pipelines.bench_physics")
     ap.add_argument("--backends", default="mujoco")
@@ -156,22 +255,21 @@ def main(argv=None) -> int:
     ap.add_argument("--full-max", type=int, help="run full checks only for batches up to this size")
     ap.add_argument("--sweep", action="store_true",
                     help="measure the buildability sweep instead: the batched exact JAX path "
-                         "(factory.physics.sweep_jax.bench) against the CPU reference")
+                         "(factory.physics.sweep_jax) against the CPU reference (sweep.sweep)")
     ap.add_argument("--cpu-max", type=int, default=512, help="with --sweep: candidates the CPU reference sweeps")
     ap.add_argument("--out")
+    ap.add_argument("--lp", action="store_true", help="the batched load solver alone, on real load programs")
     args = ap.parse_args(argv)
     if args.sweep:
-        from factory.physics.sweep_jax import bench
-
-        rows = bench([int(x) for x in args.sizes.split(",")], [int(x) for x in args.batches.split(",")],
-                     args.cpu_max, log=lambda r: print(json.dumps(r), flush=True))
-        if args.out:
-            with open(args.out, "w") as fh:
-                json.dump({"machine": platform.node(), "processor": platform.processor(), "rows": rows}, fh, indent=1)
-        return 0
-    rows = measure(args.backends.split(","), [int(x) for x in args.sizes.split(",")],
-                   [int(x) for x in args.batches.split(",")], log=lambda r: print(json.dumps(r), flush=True),
-                   full_max=args.full_max)
+        rows = measure_sweep([int(x) for x in args.sizes.split(",")], [int(x) for x in args.batches.split(",")],
+                             args.cpu_max, log=lambda r: print(json.dumps(r), flush=True))
+    elif args.lp:
+        rows = measure_lp([int(x) for x in args.sizes.split(",")], [int(x) for x in args.batches.split(",")],
+                          log=lambda r: print(json.dumps(r), flush=True))
+    else:
+        rows = measure(args.backends.split(","), [int(x) for x in args.sizes.split(",")],
+                       [int(x) for x in args.batches.split(",")], log=lambda r: print(json.dumps(r), flush=True),
+                       full_max=args.full_max)
     if args.out:
         meta = {"machine": platform.node(), "processor": platform.processor(), "rows": rows}
         with open(args.out, "w") as fh:
