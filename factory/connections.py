@@ -144,7 +144,7 @@ def _turn_to_up(axis: np.ndarray) -> np.ndarray:
     r = np.zeros((3, 3))
     r[1, k] = -sign  # axis -> -y (UP)
     r[k, 1] = sign   # -y -> axis: a quarter turn in the (k, y) plane
-    r[3 - 1 - k, 3 - 1 - k] = 1.0  # the third axis stays (k is 0 or 2, so it is 2 or 0)
+    r[2 - k, 2 - k] = 1.0  # the third axis stays (k is 0 or 2, so it is 2 or 0)
     return r
 
 

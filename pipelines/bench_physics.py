@@ -27,12 +27,12 @@ from pathlib import Path
 import numpy as np
 
 from factory import Pose, get_reader, load_part
-from factory.parts import box_corners
 from factory.physics.check import CheckConfig, check
 from factory.physics.check import _unit_connections
 from factory.physics.statics import judge_many, load_model
 from factory.physics.attach import feasible_poses, lowest_y
 from factory.physics.structure import Placed, Structure
+from factory.physics.sweep import _boxes
 
 
 GROWN = Path(__file__).with_name("grown_3001.json")
@@ -87,18 +87,11 @@ def grow(n: int, seed: int = 0) -> Structure:
 def _clear_of(s: Structure, brick, poses: list[Pose]) -> list[Pose]:
     """The poses whose bounding box overlaps no placed brick's (by more than 1 LDU across, 4.5 LDU
     in height: a brick's studs stand 4 LDU into the one above)."""
-    def box(p):
-        c = box_corners(brick.bbox) @ p.R.T + p.t
-        return c.min(0), c.max(0)
-
-    placed = np.array([box(q.pose) for q in s.placed])  # (k, 2, 3)
-    keep = []
-    for p in poses:
-        lo, hi = box(p)
-        overlap = np.minimum(hi, placed[:, 1]) - np.maximum(lo, placed[:, 0])
-        if not (overlap > [1.0, 4.5, 1.0]).all(axis=1).any():
-            keep.append(p)
-    return keep
+    placed = _boxes([(q.part, q.pose) for q in s.placed])  # (k, 2, 3)
+    boxes = _boxes([(brick, p) for p in poses])
+    overlap = np.minimum(boxes[:, None, 1], placed[None, :, 1]) - np.maximum(boxes[:, None, 0], placed[None, :, 0])
+    clear = ~(overlap > [1.0, 4.5, 1.0]).all(axis=2).any(axis=1)
+    return [p for p, ok in zip(poses, clear) if ok]
 
 
 def candidates(s: Structure, batch: int, seed: int = 1) -> list[Pose]:
@@ -203,7 +196,7 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
     candidate), where the verdicts are compared too. Both are timed from the connections found
     (as `check_units` has them), the reference from its own `approach`."""
     from factory.physics.collide import CollisionScene
-    from factory.physics.sweep import sweep
+    from factory.physics.sweep import seating_from_connections, sweep
     from factory.physics.sweep_jax import COMPILES, COUNTS, sweep_many
 
     brick = load_part(get_reader(), "3001")
@@ -217,7 +210,7 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
             outer = [c for c in _unit_connections(s, world) if min(c[0], c[1]) < len(s)]
             touched = {min(c[0], c[1]) for c in outer}
             if scene.penetration(p, touched)[0] <= 0.5:
-                pool.append((world, touched, np.array([-c[3] if c[0] < len(s) else c[3] for c in outer]).reshape(-1, 3)))
+                pool.append((world, touched, seating_from_connections(outer, len(s))))
         rng = np.random.default_rng(0)
         for batch in batches:
             cases = [pool[i] for i in rng.integers(0, len(pool), batch)]
@@ -260,16 +253,14 @@ def main(argv=None) -> int:
     ap.add_argument("--out")
     ap.add_argument("--lp", action="store_true", help="the batched load solver alone, on real load programs")
     args = ap.parse_args(argv)
+    sizes, batches = [int(x) for x in args.sizes.split(",")], [int(x) for x in args.batches.split(",")]
+    log = lambda r: print(json.dumps(r), flush=True)
     if args.sweep:
-        rows = measure_sweep([int(x) for x in args.sizes.split(",")], [int(x) for x in args.batches.split(",")],
-                             args.cpu_max, log=lambda r: print(json.dumps(r), flush=True))
+        rows = measure_sweep(sizes, batches, args.cpu_max, log=log)
     elif args.lp:
-        rows = measure_lp([int(x) for x in args.sizes.split(",")], [int(x) for x in args.batches.split(",")],
-                          log=lambda r: print(json.dumps(r), flush=True))
+        rows = measure_lp(sizes, batches, log=log)
     else:
-        rows = measure(args.backends.split(","), [int(x) for x in args.sizes.split(",")],
-                       [int(x) for x in args.batches.split(",")], log=lambda r: print(json.dumps(r), flush=True),
-                       full_max=args.full_max)
+        rows = measure(args.backends.split(","), sizes, batches, log=log, full_max=args.full_max)
     if args.out:
         meta = {"machine": platform.node(), "processor": platform.processor(), "rows": rows}
         with open(args.out, "w") as fh:

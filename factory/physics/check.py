@@ -28,7 +28,7 @@ from factory.parts import Part
 from factory.physics.collide import CollisionScene
 from factory.physics.mass import part_mass_properties
 from factory.physics.statics import Failure, Link, LoadConfig, holds_alone, judge_many, load_model, support_points
-from factory.physics.sweep import sweep
+from factory.physics.sweep import seating_from_connections, sweep
 from factory.physics.structure import Placed, Structure, connectors, lowest_point, match
 from factory.physics.unmodelled import may_hold
 from factory.pose import Pose
@@ -163,18 +163,16 @@ def check_units(
         if outer and not _holds_alone(unit, outer, base_n, ground if standing else None, config.loads):
             verdicts[k] = Verdict(**base, clutch=False, reason="clutch")
             continue
+        dirs = seating_from_connections(outer, base_n)
         if outer and backend == "mjx":
             # Swept below, all of the call's candidates at once on the device (`sweep_jax`).
-            to_sweep.append((k, base, unit, conns, world, touched,
-                             np.array([-c[3] if c[0] < base_n else c[3] for c in outer])))
+            to_sweep.append((k, base, unit, conns, world, touched, dirs))
             continue
-        built = sweep(scene, structure, world, touched, config.max_penetration_ldu) if outer else None
+        built = sweep(scene, structure, world, touched, config.max_penetration_ldu, directions=dirs) if outer else None
         _after_sweep(k, base, built, unit, conns, outer, standing, base_n, verdicts, pending)
     if to_sweep:
         from factory.physics.sweep_jax import sweep_many
 
-        # Seating directions read off the connections: as `sweep.seating_directions` finds them
-        # (down onto a structure stud, along the unit's own stud into a socket).
         built_all = sweep_many(scene, structure, [x[4] for x in to_sweep], [x[5] for x in to_sweep],
                                config.max_penetration_ldu, directions=[x[6] for x in to_sweep])
         for (k, base, unit, conns, *_), built in zip(to_sweep, built_all):

@@ -350,7 +350,8 @@ def _faithful_pieces(part: Part, cfg: DecompositionConfig) -> list[np.ndarray] |
     occluders = part.flat.triangles
     if cfg.stud_bores_roofed and part.studs:
         occluders = np.concatenate([occluders, _stud_caps(part)])
-    floor = max((c.pos[1] for c in part.sockets), default=None)
+    # Sockets entered from below only: a bracket's sockets behind its side studs are no floor.
+    floor = max((c.pos[1] for c in part.sockets if c.axis == (0.0, -1.0, 0.0)), default=None)
     test = _Faithfulness(occluders, cfg.faithful_pitch_ldu, floor)
     return _split_faithful(list(body), test, cfg.min_cut_ldu, [cfg.split_cells])
 

@@ -51,8 +51,7 @@ iteration cap are traced values. Memory per LP is dominated by the normal matrix
 m padded rows: 1.2 MB at 384 (60 bricks: 366 rows), 2.7 MB at 576 (90 bricks: 546 rows); 4,096 of
 them, 11 GB.
 
-Measured (CPU; GPU numbers are the lead's to take with `pipelines.bench_physics --lp`): see
-docs/physics.md, Backends.
+Measured (CPU and one H200, `pipelines.bench_physics --lp`): docs/physics.md, Backends.
 
 Precision: float64, switched on only inside the call (`jax.enable_x64` as a context manager, so the
 global flag stays float32 for the rest of the project): the normal matrices' diagonals span 20
@@ -208,14 +207,6 @@ def bucket_of(lp: LinearProgram) -> tuple[int, int, int, int]:
     padded shape `lp` is solved in (after its general inequality rows and fixed variables became
     equality rows)."""
     return _bucket(_parts(lp))
-
-
-def pad_stack(lps: Sequence[LinearProgram], batch: int, n: int, m: int, w: int, k: int) -> dict[str, np.ndarray]:
-    """Stack LPs (at most `batch`, each within the bucket (n, m, w, k)) into the arrays the solver
-    takes: A by columns, `w` entries per column (row 0, value 0 where a column has fewer); the
-    one-sided rows by variable, `k` slots each (`mask` 0 where a variable has fewer). Padded
-    variables, rows and members are empty and converge at once."""
-    return _stack([_parts(lp) for lp in lps], batch, n, m, w, k)
 
 
 def _stack(parts: Sequence[_Parts], batch: int, n: int, m: int, w: int, k: int) -> dict[str, np.ndarray]:

@@ -112,6 +112,14 @@ def seating_directions(structure: Structure, unit: Sequence[tuple[Part, Pose]]) 
     return np.array(out).reshape(-1, 3)
 
 
+def seating_from_connections(connections, n_structure: int) -> np.ndarray:
+    """(k, 3): `seating_directions` read off the unit's stud connections with the structure, as
+    `check._unit_connections` gives them (stud part, socket part, stud base, stud axis; parts below
+    `n_structure` are the structure's), without matching connectors again."""
+    return np.array([-axis if stud < n_structure else axis
+                     for stud, _, _, axis in connections]).reshape(-1, 3)
+
+
 def approach(structure: Structure, unit: Sequence[tuple[Part, Pose]]) -> Approach:
     """The unit's approach direction (module docstring), or 'clamped', 'two-axes', 'no-connection'."""
     return approach_from(seating_directions(structure, unit))
@@ -143,6 +151,18 @@ def _boxes(items: Sequence[tuple[Part, Pose]]) -> np.ndarray:
     return np.stack([centre - half, centre + half], axis=1)
 
 
+def box_interval(lo: np.ndarray, hi: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(start, end): the interval of s >= 0 with s d in (lo, hi) along every axis (the last
+    dimension; broadcast), empty where start >= end. How far back along d two boxes overlap."""
+    moving = np.abs(d) > 1e-9
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, c = lo / d, hi / d
+    still = (lo < 0) & (hi > 0)
+    start = np.where(moving, np.minimum(a, c), np.where(still, -np.inf, np.inf)).max(axis=-1)
+    end = np.where(moving, np.maximum(a, c), np.where(still, np.inf, -np.inf)).min(axis=-1)
+    return np.maximum(start, 0.0), end
+
+
 def _overlap_intervals(unit_boxes: np.ndarray, boxes: np.ndarray, d: np.ndarray, margin: float) -> np.ndarray:
     """(k, 2) disjoint, sorted open intervals of s > 0 where some unit box moved by -s d overlaps
     some of `boxes` by more than `margin` along every axis.
@@ -153,14 +173,8 @@ def _overlap_intervals(unit_boxes: np.ndarray, boxes: np.ndarray, d: np.ndarray,
     u = unit_boxes[:, None]  # (m, 1, 2, 3) against (1, n, 2, 3)
     b = boxes[None]
     # Overlap along axis k > margin  <=>  s d_k in (lo, hi) below.
-    lo = u[..., 0, :] - b[..., 1, :] + margin
-    hi = u[..., 1, :] - b[..., 0, :] - margin
-    moving = np.abs(d) > 1e-9
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a, c = lo / d, hi / d
-    start = np.where(moving, np.minimum(a, c), np.where((lo < 0) & (hi > 0), -np.inf, np.inf))
-    end = np.where(moving, np.maximum(a, c), np.where((lo < 0) & (hi > 0), np.inf, -np.inf))
-    start, end = np.maximum(start.max(axis=-1), 0.0).ravel(), end.min(axis=-1).ravel()
+    start, end = box_interval(u[..., 0, :] - b[..., 1, :] + margin, u[..., 1, :] - b[..., 0, :] - margin, d)
+    start, end = start.ravel(), end.ravel()
     keep = start < end
     merged: list[list[float]] = []
     for s0, s1 in sorted(zip(start[keep], end[keep])):
@@ -190,6 +204,7 @@ def sweep(
     connected: set[int],
     max_penetration_ldu: float = 0.5,
     step_ldu: float = 2.0,
+    directions: np.ndarray | None = None,
 ) -> SweepResult:
     """Sweep the unit (parts in world poses) along its approach from clear space to its pose.
 
@@ -197,9 +212,10 @@ def sweep(
     relative to its first part) and `connected` the structure parts the unit connects to, as the
     collision check passes them: studs entering those parts are ignored on the way in. The first
     pose from outside that overlaps beyond the tolerance blocks the unit (module docstring for the
-    range, the steps and why the ground is left out).
+    range, the steps and why the ground is left out). `directions`: the unit's seating directions
+    where already known (`seating_from_connections`), else found here.
     """
-    found = approach(structure, unit)
+    found = approach(structure, unit) if directions is None else approach_from(directions)
     if found.direction is None:
         return SweepResult(False if found.reason == "clamped" else None, found.reason, (), 0.0, 0.0, 0)
     d = found.direction

@@ -63,7 +63,7 @@ from factory.physics.collide import CONNECTED_SLACK_LDU, CollisionScene
 from factory.physics.geometry import INSET_LDU, collision_shape
 from factory.physics.structure import Structure
 from factory.physics.sweep import (MIN_STEP_LDU, SweepResult, _boxes, _overlap_intervals, approach_from,
-                                   seating_directions, sweep)
+                                   box_interval, seating_directions, sweep)
 from factory.pose import Pose
 
 COMPILES: list[tuple[int, ...]] = []
@@ -340,13 +340,8 @@ def exact_intervals(a: Sequence[np.ndarray], b: Sequence[np.ndarray], d: np.ndar
 
 def _swept_boxes_meet(lo: np.ndarray, hi: np.ndarray, d: np.ndarray) -> np.ndarray:
     """Whether some s > 0 has s d in (lo, hi) along every axis (last dimension)."""
-    moving = np.abs(d) > 1e-9
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a, c = lo / d, hi / d
-    still = (lo < 0) & (hi > 0)
-    start = np.where(moving, np.minimum(a, c), np.where(still, -np.inf, np.inf)).max(axis=-1)
-    end = np.where(moving, np.maximum(a, c), np.where(still, np.inf, -np.inf)).min(axis=-1)
-    return np.maximum(start, 0.0) < end
+    start, end = box_interval(lo, hi, d)
+    return start < end
 
 
 def sweep_many(
