@@ -192,17 +192,20 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
         locals_ = locals_of[id(step)]
         for index, (placed, local) in enumerate(zip(step.parts, locals_)):
             standing = asm.tag == "main"
-            (v,) = check_units(asm.structure, [[local]], backend, config,
-                               require_connection=not _on_table(asm.structure, [local]), standing=standing)
+            judged_on = asm.structure
+            (v,) = check_units(judged_on, [[local]], backend, config,
+                               require_connection=not _on_table(judged_on, [local]), standing=standing)
             if v.reason in ("no-connection", "unstable") and index + 1 < len(locals_):
                 # Parts of one step go in together: a part may hang from one listed after it, and
                 # the step is judged standing once all its parts are in.
-                later = Structure(asm.structure.placed + locals_[index + 1 :])
-                later.links.extend(asm.structure.links)
-                (v,) = check_units(later, [[local]], backend, config, standing=standing)
+                judged_on = Structure(asm.structure.placed + locals_[index + 1 :])
+                judged_on.links.extend(asm.structure.links)
+                (v,) = check_units(judged_on, [[local]], backend, config, standing=standing)
             yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour)
             if faults and v.ok and v.connected:
-                yield from _faults(asm.structure, local, backend, config, standing, step.index, index,
+                # Faults move the part off the connections it was accepted on: those of the
+                # structure it was judged against (with the later parts of its step, if it hangs).
+                yield from _faults(judged_on, local, backend, config, standing, step.index, index,
                                    finished[asm.tag])
             asm.structure.add(local, _links(len(asm.structure), v))
     yield from close_until("")

@@ -217,6 +217,24 @@ def test_verify_command_on_the_example_model():
     assert summary["faults"]["lift"]["right_reason"] == 1.0
 
 
+def test_faults_of_a_part_hanging_from_a_later_part_of_its_step(tmp_path):
+    from pipelines.verify import verify_model
+
+    # Step 2 lists a 1x1 plate first: it hangs under the 2x4 plate listed after it in the same
+    # step (which sits on the 2x2 brick). Its faults move it off that plate's sockets.
+    model = tmp_path / "hang.ldr"
+    model.write_text("0 Hanging\n"
+                     "1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3003.dat\n0 STEP\n"
+                     "1 4 30 -24 10 1 0 0 0 1 0 0 0 1 3024.dat\n"
+                     "1 4 0 -32 0 1 0 0 0 1 0 0 0 1 3020.dat\n0 STEP\n")
+    records = list(verify_model(model, faults=True))
+    plain = [r for r in records if "fault" not in r]
+    assert [r["reason"] for r in plain] == [None, None, None]
+    top = [r for r in records if r.get("fault") and r["step"] == 1 and r["index"] == 0]
+    assert {r["fault"] for r in top} >= {"shift", "lift"}
+    assert all(r["reason"] is not None for r in top if r["fault"] in ("shift", "lift"))
+
+
 def test_turning_a_symmetric_part_is_no_fault():
     p = part("3003")
     pose = Pose(I3, [0, -24, 0])
