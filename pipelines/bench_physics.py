@@ -4,9 +4,9 @@
 [--batches 256,1024,4096] [--out FILE.json]`; with `--sweep`, the buildability sweep alone
 (`measure_sweep`: the batched exact JAX path against the CPU reference).
 
-`python -m pipelines.bench_physics --lp --sizes 30,60,90 --batches 1024,4096,16384`: the batched
-load solver alone (`lp_jax.bench`) on the real load programs of each size's candidates (a pool
-of distinct ones, repeated to fill the batch), with HiGHS's time per program and the accuracy.
+`python -m pipelines.bench_physics --lp --sizes 30,60,90 --batches 1024,4096,16384`: the load check
+alone from each candidate's pose (`load_stage`: model, tipping rule, program), the batched JAX
+solver against HiGHS (`--cpu-workers K`: the reference in K processes), verdicts compared.
 
 Structures are grown from a seed with 2x4 bricks (embedded library) by the checker itself, so
 they are valid; candidates are feasible attachments of a 2x4 brick (drawn with replacement to fill
@@ -132,13 +132,13 @@ def measure(backends, sizes, batches, log=None, full_max: int | None = None,
             for backend in backends:
                 compile_s, compiles = 0.0, 0
                 if backend == "mjx":
-                    from factory.physics.lp_jax import COMPILES, solve_batch
+                    from factory.physics.lp_jax import COMPILES, solve_loads
 
                     t = time.perf_counter()
-                    judge_many(models, cfg.loads, solve_batch)  # compile (and warm) this batch's bucket
+                    judge_many(models, cfg.loads, solve_loads)  # compile (and warm) this batch's bucket
                     compile_s = time.perf_counter() - t
                     t = time.perf_counter()
-                    loads = judge_many(models, cfg.loads, solve_batch)
+                    loads = judge_many(models, cfg.loads, solve_loads)
                     load_s = time.perf_counter() - t
                     compiles = len(COMPILES)
                 else:
@@ -164,39 +164,130 @@ def measure(backends, sizes, batches, log=None, full_max: int | None = None,
     return rows
 
 
-def measure_lp(sizes, batches, log=None, pool: int = 256, config: CheckConfig = CheckConfig()) -> list[dict]:
-    """One row per (size, batch): `lp_jax.bench` on the load programs of up to `pool` distinct
-    candidates of the size's structure (those that do not tip)."""
+def sweep_pool(s: Structure, scene) -> list[tuple]:
+    """The distinct feasible attachments of a 2x4 brick on `s` whose final pose the collision
+    check accepts, each as (unit, parts it connects to, seating directions), as `check_units`
+    hands them to the sweep."""
+    from factory.physics.sweep import seating_from_connections
+
+    brick = load_part(get_reader(), "3001")
+    pool = []
+    for p in {tuple(np.round(q.t, 3)) + tuple(np.round(q.R, 3).ravel()): q for q in candidates(s, 4096)}.values():
+        world = [(brick, p)]
+        outer = [c for c in _unit_connections(s, world) if min(c[0], c[1]) < len(s)]
+        touched = {min(c[0], c[1]) for c in outer}
+        if scene.penetration(p, touched)[0] <= 0.5:
+            pool.append((world, touched, seating_from_connections(outer, len(s))))
+    return pool
+
+
+def load_stage(s: Structure, poses: list[Pose], solve_loads=None, config: CheckConfig = CheckConfig()) -> list:
+    """The load check of each candidate from its pose, as `check_units` runs it: its connections,
+    its model (`statics.LoadBase`), the tipping rule and the programs (`solve_loads`: None for
+    HiGHS one at a time, `lp_jax.solve_loads` for the batched solver), failing connections not
+    sought (`explain=False`, as the sampler asks)."""
+    from factory.physics.statics import LoadBase
+
+    brick = load_part(get_reader(), "3001")
+    base = LoadBase(s.placed, s.connections, 24.0, s.links, config.loads)
+    models = [base.model([Placed(brick, 4, p)], _unit_connections(s, [(brick, p)])) for p in poses]
+    return judge_many(models, config.loads, solve_loads, explain=False)
+
+
+# The CPU reference in worker processes (`cpu_workers`): each builds its inputs once, from the
+# same seeds as the parent, so both time the same candidates.
+_CTX: dict = {}
+
+
+def _ctx_init(kind: str, n: int, batch: int) -> None:
+    from factory.physics.collide import CollisionScene
+
+    s = grown(n)
+    _CTX.update(kind=kind, s=s)
+    if kind == "loads":
+        _CTX["poses"] = candidates(s, batch)
+    else:
+        brick = load_part(get_reader(), "3001")
+        scene = CollisionScene(s, [(brick, Pose.identity())], 1e6)
+        pool = sweep_pool(s, scene)
+        rng = np.random.default_rng(0)
+        _CTX.update(scene=scene, cases=[pool[i] for i in rng.integers(0, len(pool), batch)])
+
+
+def _ctx_run(span: tuple[int, int]) -> list:
+    from factory.physics.sweep import sweep
+
+    a, b = span
+    if _CTX["kind"] == "loads":
+        return [(v.stands, v.reason) for v in load_stage(_CTX["s"], _CTX["poses"][a:b])]
+    return [sweep(_CTX["scene"], _CTX["s"], w, c).buildable for w, c, _ in _CTX["cases"][a:b]]
+
+
+def cpu_reference(kind: str, n: int, batch: int, count: int, workers: int) -> tuple[list, float]:
+    """(answers, seconds): the CPU reference on the first `count` of the batch's candidates, split
+    over `workers` processes (started and warmed before the clock starts)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    if workers <= 1:
+        _ctx_init(kind, n, batch)
+        _ctx_run((0, 1))
+        t = time.perf_counter()
+        out = _ctx_run((0, count))
+        return out, time.perf_counter() - t
+    spawn = multiprocessing.get_context("spawn")  # not fork: JAX's threads may hold locks
+    with ProcessPoolExecutor(workers, mp_context=spawn, initializer=_ctx_init, initargs=(kind, n, batch)) as pool:
+        list(pool.map(_ctx_run, [(0, 1)] * workers))  # every worker started and warm
+        step = -(-count // (4 * workers))
+        t = time.perf_counter()
+        parts = list(pool.map(_ctx_run, [(a, min(a + step, count)) for a in range(0, count, step)]))
+        seconds = time.perf_counter() - t
+    return [x for p in parts for x in p], seconds
+
+
+def measure_lp(sizes, batches, log=None, cpu_max: int = 128, cpu_workers: int = 1,
+               config: CheckConfig = CheckConfig()) -> list[dict]:
+    """Load checks per second from the candidate's pose (`load_stage`): the batched JAX solver
+    (default device) on each batch, the CPU reference (HiGHS) on its first `cpu_max` candidates in
+    `cpu_workers` processes; verdicts compared on those."""
     from factory.physics import lp_jax
-    from factory.physics.statics import tips, to_lp
 
     rows = []
     for n in sizes:
         s = grown(n)
-        poses, seen = [], set()
-        for p in candidates(s, 4 * pool):
-            key = (p.R.round(6).tobytes(), p.t.round(6).tobytes())
-            if key not in seen and len(poses) < pool:
-                seen.add(key)
-                poses.append(p)
-        lps = [to_lp(m, config.loads) for m in load_models(s, poses, config) if not tips(m, config.loads)]
         for batch in batches:
-            row = {"bricks": n, "batch": batch, **lp_jax.bench(batch, lps=lps)}
+            poses = candidates(s, batch)
+            compiles = len(lp_jax.COMPILES)
+            t = time.perf_counter()
+            load_stage(s, poses, lp_jax.solve_loads, config)  # compiles this batch's shapes
+            first_s = time.perf_counter() - t
+            fallbacks = lp_jax.FALLBACKS[0]
+            t = time.perf_counter()
+            got = load_stage(s, poses, lp_jax.solve_loads, config)
+            jax_s = time.perf_counter() - t
+            row = {"bricks": n, "batch": batch, "jax_per_s": round(batch / jax_s, 1),
+                   "first_call_s": round(first_s, 2), "new_compiles": len(lp_jax.COMPILES) - compiles,
+                   "fallbacks": lp_jax.FALLBACKS[0] - fallbacks, "tipping": sum(v.reason == "unstable" for v in got),
+                   "overloaded": sum(v.reason == "overload" for v in got)}
+            if cpu_max:
+                ref, cpu_s = cpu_reference("loads", n, batch, min(cpu_max, batch), cpu_workers)
+                row.update(cpu_workers=cpu_workers, cpu_per_s=round(len(ref) / cpu_s, 1),
+                           speedup=round(batch / jax_s / (len(ref) / cpu_s), 2), cpu_compared=len(ref),
+                           agree=sum(a == (b.stands, b.reason) for a, b in zip(ref, got)))
             rows.append(row)
             if log is not None:
                 log(row)
     return rows
 
 
-def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), cpu_max: int = 512, log=None) -> list[dict]:
+def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), cpu_max: int = 512, log=None,
+                  cpu_workers: int = 1) -> list[dict]:
     """Sweep candidates per second, the batched path (`sweep_jax`, default JAX device) and the CPU
-    reference (`sweep.sweep`), on the same candidates: 2x4 bricks on the structures of `grown`,
-    the feasible attachments whose final pose the collision check accepts, drawn with replacement
-    to fill each batch. The reference runs on the first `cpu_max` of them (its cost is per
-    candidate), where the verdicts are compared too. Both are timed from the connections found
-    (as `check_units` has them), the reference from its own `approach`."""
+    reference (`sweep.sweep`, in `cpu_workers` processes), on the same candidates: `sweep_pool`,
+    drawn with replacement to fill each batch. The reference runs on the first `cpu_max` of them
+    (its cost is per candidate), where the verdicts are compared too. Both are timed from the
+    connections found (as `check_units` has them), the reference from its own `approach`."""
     from factory.physics.collide import CollisionScene
-    from factory.physics.sweep import seating_from_connections, sweep
     from factory.physics.sweep_jax import COMPILES, COUNTS, sweep_many
 
     brick = load_part(get_reader(), "3001")
@@ -204,15 +295,9 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
     for n in sizes:
         s = grown(n)
         scene = CollisionScene(s, [(brick, Pose.identity())], 1e6)
-        pool = []
-        for p in {tuple(np.round(q.t, 3)) + tuple(np.round(q.R, 3).ravel()): q for q in candidates(s, 4096)}.values():
-            world = [(brick, p)]
-            outer = [c for c in _unit_connections(s, world) if min(c[0], c[1]) < len(s)]
-            touched = {min(c[0], c[1]) for c in outer}
-            if scene.penetration(p, touched)[0] <= 0.5:
-                pool.append((world, touched, seating_from_connections(outer, len(s))))
-        rng = np.random.default_rng(0)
+        pool = sweep_pool(s, scene)
         for batch in batches:
+            rng = np.random.default_rng(0)
             cases = [pool[i] for i in rng.integers(0, len(pool), batch)]
             args = ([c[0] for c in cases], [c[1] for c in cases])
             compiles = len(COMPILES)
@@ -224,16 +309,15 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
             got = sweep_many(scene, s, *args, directions=[c[2] for c in cases])
             jax_s = time.perf_counter() - t
             counts = COUNTS - before
-            sub = cases[:cpu_max]
-            t = time.perf_counter()
-            ref = [sweep(scene, s, w, c) for w, c, _ in sub]
-            cpu_s = time.perf_counter() - t
             row = {"bricks": n, "batch": batch, "distinct_candidates": len(pool),
-                   "jax_per_s": round(batch / jax_s, 1), "cpu_per_s": round(len(sub) / cpu_s, 1),
-                   "speedup": round(batch / jax_s / (len(sub) / cpu_s), 2),
+                   "jax_per_s": round(batch / jax_s, 1),
                    "first_call_s": round(first_s, 2), "new_compiles": len(COMPILES) - compiles,
-                   "referred": counts["referred"], "blocked": sum(r.buildable is False for r in got),
-                   "cpu_compared": len(sub), "agree": sum(a.buildable == b.buildable for a, b in zip(ref, got))}
+                   "referred": counts["referred"], "blocked": sum(r.buildable is False for r in got)}
+            if cpu_max:
+                ref, cpu_s = cpu_reference("sweep", n, batch, min(cpu_max, batch), cpu_workers)
+                row.update(cpu_workers=cpu_workers, cpu_per_s=round(len(ref) / cpu_s, 1),
+                           speedup=round(batch / jax_s / (len(ref) / cpu_s), 2), cpu_compared=len(ref),
+                           agree=sum(a == b.buildable for a, b in zip(ref, got)))
             rows.append(row)
             if log is not None:
                 log(row)
@@ -249,16 +333,20 @@ def main(argv=None) -> int:
     ap.add_argument("--sweep", action="store_true",
                     help="measure the buildability sweep instead: the batched exact JAX path "
                          "(factory.physics.sweep_jax) against the CPU reference (sweep.sweep)")
-    ap.add_argument("--cpu-max", type=int, default=512, help="with --sweep: candidates the CPU reference sweeps")
+    ap.add_argument("--cpu-max", type=int, help="with --sweep or --lp: candidates the CPU reference checks "
+                    "(0: none; default 512 for --sweep, 128 for --lp)")
+    ap.add_argument("--cpu-workers", type=int, default=1, help="with --sweep or --lp: processes the CPU reference runs in")
     ap.add_argument("--out")
     ap.add_argument("--lp", action="store_true", help="the batched load solver alone, on real load programs")
     args = ap.parse_args(argv)
     sizes, batches = [int(x) for x in args.sizes.split(",")], [int(x) for x in args.batches.split(",")]
     log = lambda r: print(json.dumps(r), flush=True)
     if args.sweep:
-        rows = measure_sweep(sizes, batches, args.cpu_max, log=log)
+        rows = measure_sweep(sizes, batches, 512 if args.cpu_max is None else args.cpu_max, log=log,
+                             cpu_workers=args.cpu_workers)
     elif args.lp:
-        rows = measure_lp(sizes, batches, log=log)
+        rows = measure_lp(sizes, batches, log=log, cpu_max=128 if args.cpu_max is None else args.cpu_max,
+                          cpu_workers=args.cpu_workers)
     else:
         rows = measure(args.backends.split(","), sizes, batches, log=log, full_max=args.full_max)
     if args.out:

@@ -229,9 +229,18 @@ def test_real_load_programs_and_their_verdicts_near_the_limit_match_highs(real_m
     assert near.sum() >= 500 and (np.abs(ref - 1) <= 2e-5).sum() >= 100
     assert ((got <= 1 + 1e-6) == (ref <= 1 + 1e-6)).all()
     assert iterations.max() <= 40
+    # The same programs written straight from the models (`solve_loads`), per load constants.
+    direct = np.full(len(programs), np.nan)
+    for cfg in {cfg for _, cfg in programs}:
+        at = [i for i, (_, c) in enumerate(programs) if c == cfg]
+        for i, r in zip(at, lp_jax.solve_loads([programs[i][0] for i in at], cfg, fallback=False)):
+            direct[i] = r.objective if r.status == "optimal" else np.nan
+    assert np.all(np.isfinite(direct)), f"{np.isnan(direct).sum()} not solved"
+    assert np.abs(direct - ref).max() <= 1e-7 * max(1.0, np.abs(ref).max())
+    assert ((direct <= 1 + 1e-6) == (ref <= 1 + 1e-6)).all()
     sample = programs[:: 7]
     for cfg in {cfg for _, cfg in sample}:
         models = [m for m, c in sample if c == cfg]
         a = judge_many(models, cfg)
-        b = judge_many(models, cfg, lp_jax.solve_batch)
+        b = judge_many(models, cfg, lp_jax.solve_loads)
         assert [(v.stands, v.reason) for v in a] == [(v.stands, v.reason) for v in b]

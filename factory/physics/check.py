@@ -27,7 +27,7 @@ import numpy as np
 from factory.parts import Part
 from factory.physics.collide import CollisionScene
 from factory.physics.mass import part_mass_properties
-from factory.physics.statics import Failure, Link, LoadConfig, holds_alone, judge_many, load_model, support_points
+from factory.physics.statics import Failure, Link, LoadBase, LoadConfig, holds_alone, judge_many, support_points
 from factory.physics.sweep import seating_from_connections, sweep
 from factory.physics.structure import Placed, Structure, connectors, lowest_point, match
 from factory.physics.unmodelled import may_hold
@@ -111,6 +111,7 @@ def check_units(
     floor_y: float | None = None,
     standing: bool = True,
     unit_links: Sequence[Link] = (),
+    explain: bool = True,
 ) -> list[Verdict]:
     """Check rigid units (each a list of placed parts, in world poses) against the structure.
 
@@ -122,6 +123,8 @@ def check_units(
     `standing=False` the structure is held in hand (a sub-assembly being built): only the clutch of
     the new connection is judged, not whether the whole stands. `unit_links`: rigid connections
     among a unit's own parts (numbered within the unit) that the checker does not model.
+    `explain=False` leaves `failing` empty on overloads (it costs a second program each; the
+    sampler only counts the reason of a candidate it rejects).
     """
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
@@ -178,11 +181,10 @@ def check_units(
         for (k, base, unit, conns, *_), built in zip(to_sweep, built_all):
             _after_sweep(k, base, built, unit, conns, True, standing, base_n, verdicts, pending)
     if pending:
-        links = list(structure.links) + [Link(l.a + base_n, l.b + base_n, l.point) for l in unit_links]
-        models = [load_model(structure.placed + unit, structure.connections + conns, floor_y,
-                             range(base_n, base_n + len(unit)), links, config.loads)
-                  for _, unit, conns in pending]
-        results = judge_many(models, config.loads, _batch_solver(backend))
+        loads = _load_base(structure, floor_y, config.loads)
+        links = [Link(l.a + base_n, l.b + base_n, l.point) for l in unit_links]
+        models = [loads.model(unit, conns, links) for _, unit, conns in pending]
+        results = judge_many(models, config.loads, _batch_solver(backend), explain=explain)
         for (k, *_), lv in zip(pending, results):
             v = verdicts[k]
             verdicts[k] = replace(v, stable=lv.stands, load=None if lv.load is None else round(lv.load, 6),
@@ -212,11 +214,11 @@ def _batch_solver(backend: str):
     if backend != "mjx":
         return None
     try:
-        from factory.physics.lp_jax import solve_batch  # JAX is an optional dependency (the mjx extra)
+        from factory.physics.lp_jax import solve_loads  # JAX is an optional dependency (the mjx extra)
     except ModuleNotFoundError as e:
         raise RuntimeError(f"backend 'mjx' needs the batched load solver factory.physics.lp_jax and JAX "
                            f"(pip install -e '.[mjx]'); not available: {e.name}") from None
-    return solve_batch
+    return solve_loads
 
 
 def _holds_alone(unit: Sequence[Placed], outer, base_n: int, ground_y: float | None, cfg: LoadConfig) -> bool:
@@ -247,6 +249,19 @@ def _collision_scene(structure: Structure, rel, floor: float) -> CollisionScene:
     scene = CollisionScene(structure, rel, floor)
     _LAST_SCENE[:] = [key, (list(structure.placed), [part for part, _ in rel]), scene]
     return scene
+
+
+_LAST_LOADS: list = []
+"""The last structure's `LoadBase`, kept as the collision scene is (`_LAST_SCENE`)."""
+
+
+def _load_base(structure: Structure, floor_y: float | None, cfg) -> LoadBase:
+    key = (tuple(id(p) for p in structure.placed), len(structure.links), floor_y, cfg)
+    if _LAST_LOADS and _LAST_LOADS[0] == key:
+        return _LAST_LOADS[1]
+    base = LoadBase(structure.placed, structure.connections, floor_y, structure.links, cfg)
+    _LAST_LOADS[:] = [key, base]
+    return base
 
 
 def check(

@@ -484,14 +484,19 @@ def _solve(lps: Sequence[LinearProgram], tol: float, max_iterations: int) -> tup
 
 
 def _launches(parts: Sequence[_Parts]) -> list[tuple[tuple[int, ...], list[int]]]:
-    """(shape, members) of each launch. Programs with the same equality rows' and slots' buckets
-    run together, in the largest of their variables' and entries' buckets: the cost is the normal
-    matrix (its rows squared and cubed), and one launch is cheaper than two. At most `MAX_BATCH`
-    per launch, in equal chunks (one batch size, one compile)."""
+    """(shape, members) of each launch (see `_group`)."""
+    return _group([_bucket(p) for p in parts])
+
+
+def _group(buckets: Sequence[tuple[int, int, int, int]]) -> list[tuple[tuple[int, ...], list[int]]]:
+    """(shape, members) of each launch, from each program's bucket. Programs with the same
+    equality rows' and slots' buckets run together, in the largest of their variables' and
+    entries' buckets: the cost is the normal matrix (its rows squared and cubed), and one launch
+    is cheaper than two. At most `MAX_BATCH` per launch, in equal chunks (one batch size, one
+    compile)."""
     groups: dict[tuple[int, int], list[int]] = {}
     size: dict[tuple[int, int], tuple[int, int]] = {}
-    for i, p in enumerate(parts):
-        n, m, w, k = _bucket(p)
+    for i, (n, m, w, k) in enumerate(buckets):
         groups.setdefault((m, k), []).append(i)
         size[(m, k)] = tuple(max(a, b) for a, b in zip(size.get((m, k), (0, 0)), (n, w)))
     out = []
@@ -503,6 +508,143 @@ def _launches(parts: Sequence[_Parts]) -> list[tuple[tuple[int, ...], list[int]]
             chunk = members[start : start + per]
             out.append(((_quarter(len(chunk), 1), n, m, w, k), chunk))
     return out
+
+
+# --- Load programs written straight into the solver's arrays -------------------------------------
+
+
+def _load_bucket(model) -> tuple[int, int, int, int]:
+    from factory.physics.statics import PER_CONNECTION, PER_LINK, PER_SUPPORT
+
+    n = 1 + PER_CONNECTION * len(model.conn_a) + PER_SUPPORT * len(model.ground_body) + PER_LINK * len(model.link_a)
+    w = 12 if len(model.conn_a) or len(model.link_a) else 6
+    return _quarter(n), _eighth(6 * model.n_bodies), _quarter(w, 1), 2
+
+
+def _load_arrays(models, cfg, batch: int, n: int, m: int, w: int, k: int) -> dict[str, np.ndarray]:
+    """`_stack` of the load programs `statics.to_lp` writes, built from the models directly and
+    for all of them at once (array operations over every connection of the launch, no program
+    per model): the same rows and columns as `to_lp` then `_parts` give, except that zero
+    entries are kept (they change nothing)."""
+    from factory.connections import STUD_RADIUS
+    from factory.physics.statics import LEVER_LDU, PER_CONNECTION, PER_LINK, PER_SUPPORT, UP, _basis
+    from factory.physics.mass import GRAVITY
+
+    out = {
+        "c": np.zeros((batch, n)), "b": np.zeros((batch, m)),
+        "a_rows": np.zeros((batch, n, w), np.int32), "a_vals": np.zeros((batch, n, w)),
+        "coef": np.zeros((batch, n, k)), "link": np.zeros((batch, n, k)), "rhs": np.ones((batch, n, k)),
+        "mask": np.zeros((batch, n, k)), "link_col": np.zeros(batch, np.int32),
+    }
+    rows_flat, vals_flat = out["a_rows"].reshape(-1), out["a_vals"].reshape(-1)
+    B = len(models)
+    nb = np.array([md.n_bodies for md in models])
+    nc = np.array([len(md.conn_a) for md in models])
+    ng = np.array([len(md.ground_body) for md in models])
+    nl = np.array([len(md.link_a) for md in models])
+    body_off = np.r_[0, np.cumsum(nb)[:-1]]
+    com = np.concatenate([md.com for md in models])
+    # The objective is s (column 0, the link column), s >= 0.
+    out["c"][:B, 0] = 1.0
+    out["coef"][:B, 0, 0], out["rhs"][:B, 0, 0], out["mask"][:B, 0, 0] = -1.0, 0.0, 1.0
+    mi = np.repeat(np.arange(B), nb)
+    local = np.arange(len(mi)) - np.repeat(body_off, nb)
+    out["b"][mi, 6 * local + 1] = -np.concatenate([md.mass for md in models]) * GRAVITY
+
+    def each(counts):
+        """Model and index within it of every item of the concatenation."""
+        owner = np.repeat(np.arange(B), counts)
+        return owner, np.arange(len(owner)) - np.repeat(np.r_[0, np.cumsum(counts)[:-1]], counts)
+
+    def put(owner, cols, bodies, sign, f, p, mom, first_slot):
+        """Six entries of each column (force, then moment in newton-studs) on one body."""
+        torque = (np.cross(p - com[body_off[owner] + bodies], f) + mom) / LEVER_LDU
+        at = ((owner * n + cols) * w + first_slot)[:, None] + np.arange(6)
+        rows_flat[at] = 6 * bodies[:, None] + np.arange(6)
+        vals_flat[at] = np.concatenate([f, torque], axis=1) * sign
+
+    def bound(owner, cols, slot, coef, link):
+        out["coef"][owner, cols, slot], out["link"][owner, cols, slot] = coef, link
+        out["rhs"][owner, cols, slot], out["mask"][owner, cols, slot] = 0.0, 1.0
+
+    if nc.sum():
+        owner, idx = each(nc)
+        a = np.concatenate([md.conn_a for md in models])
+        b = np.concatenate([md.conn_b for md in models])
+        pos = np.concatenate([md.conn_pos for md in models])
+        ax = np.concatenate([md.conn_axis for md in models])
+        e1, e2 = _basis(ax)
+        zero = np.zeros_like(pos)
+        r = STUD_RADIUS
+        kinds = [(ax, pos + r * e1, zero), (ax, pos - r * e1, zero), (ax, pos + r * e2, zero), (ax, pos - r * e2, zero),
+                 (e1, pos, zero), (e2, pos, zero), (zero, pos, ax)]
+        base = 1 + PER_CONNECTION * idx
+        for j, (f, p, mom) in enumerate(kinds):
+            put(owner, base + j, b, 1.0, f, p, mom, 0)
+            put(owner, base + j, a, -1.0, f, p, mom, 6)
+        for j in range(4):  # tension per rim point: -g <= s C / 4
+            bound(owner, base + j, 0, -1.0, -cfg.clutch_n / 4)
+        for j, cap in ((4, cfg.shear_n), (5, cfg.shear_n), (6, cfg.torsion_nldu)):  # |t| <= s cap
+            bound(owner, base + j, 0, 1.0, -cap)
+            bound(owner, base + j, 1, -1.0, -cap)
+    if ng.sum():
+        owner, idx = each(ng)
+        gb = np.concatenate([md.ground_body for md in models])
+        gp = np.concatenate([md.ground_pos for md in models])
+        base = 1 + PER_CONNECTION * nc[owner] + PER_SUPPORT * idx
+        zero = np.zeros_like(gp)
+        for j, d in enumerate(([1, 0, 0], [-1, 0, 0], [0, 0, 1], [0, 0, -1])):
+            f = np.broadcast_to(UP + cfg.friction * np.array(d, float), gp.shape)
+            put(owner, base + j, gb, 1.0, f, gp, zero, 0)
+            bound(owner, base + j, 0, -1.0, 0.0)  # the ground only pushes
+    if nl.sum():
+        owner, idx = each(nl)
+        la = np.concatenate([md.link_a for md in models])
+        lb = np.concatenate([md.link_b for md in models])
+        lp_ = np.concatenate([md.link_pos for md in models])
+        base = 1 + PER_CONNECTION * nc[owner] + PER_SUPPORT * ng[owner] + PER_LINK * idx
+        zero = np.zeros_like(lp_)
+        for j in range(6):  # free forces and moments: no rows
+            v = np.broadcast_to(np.eye(3)[j % 3], lp_.shape)
+            f, mom = (v, zero) if j < 3 else (zero, v)
+            put(owner, base + j, lb, 1.0, f, lp_, mom, 0)
+            put(owner, base + j, la, -1.0, f, lp_, mom, 6)
+    return out
+
+
+def solve_loads(models: Sequence, cfg=None, *, tol: float = 1e-8, max_iterations: int = MAX_ITERATIONS,
+                fallback: bool = True) -> list[LPResult]:
+    """The load program of each `statics.LoadModel` (as `statics.to_lp` writes it), all at once on
+    the default JAX device, written straight into the solver's arrays (`_load_arrays`); results as
+    `solve_batch` gives them for `to_lp`'s programs (x in `statics.layout`'s columns, objective s).
+    A member that does not converge goes to HiGHS with `fallback` (`FALLBACKS` counts them)."""
+    from factory.physics.statics import LoadConfig, PER_CONNECTION, PER_LINK, PER_SUPPORT, to_lp
+
+    cfg = cfg or LoadConfig()
+    results: list[LPResult] = [LPResult("error", None, float("nan"))] * len(models)
+    with jax.enable_x64(True):
+        for shape, chunk in _group([_load_bucket(md) for md in models]):
+            if shape not in COMPILES:
+                COMPILES.append(shape)
+            arrays = _load_arrays([models[i] for i in chunk], cfg, *shape)
+            x, status, _ = _SOLVE(*(arrays[key] for key in _ARRAYS), np.float64(tol), np.int32(max_iterations))
+            x, status = np.asarray(x), np.asarray(status)
+            for j, i in enumerate(chunk):
+                if status[j] != _OPTIMAL:
+                    continue
+                md = models[i]
+                nvar = 1 + PER_CONNECTION * len(md.conn_a) + PER_SUPPORT * len(md.ground_body) + PER_LINK * len(md.link_a)
+                xi = x[j, :nvar].copy()
+                xi[0] = max(xi[0], 0.0)  # bounds hold to tol; make them exact
+                g = slice(1 + PER_CONNECTION * len(md.conn_a), 1 + PER_CONNECTION * len(md.conn_a) + PER_SUPPORT * len(md.ground_body))
+                xi[g] = np.maximum(xi[g], 0.0)
+                results[i] = LPResult("optimal", xi, float(xi[0]))
+    if fallback:
+        for i, r in enumerate(results):
+            if r.status != "optimal":
+                FALLBACKS[0] += 1
+                results[i] = solve_highs(to_lp(models[i], cfg))
+    return results
 
 
 # --- Test problems and the benchmark ----------------------------------------------------------

@@ -236,6 +236,91 @@ def load_model(placed: Sequence[Placed], connections: Sequence[tuple[int, int, n
     )
 
 
+class LoadBase:
+    """A structure's parts as the load model needs them, computed once for every candidate of a
+    call (`check_units` judges hundreds against one structure): masses, centres of mass, support
+    points, its connections as arrays and its components. `model(unit, conns, unit_links)` then
+    gives exactly what `load_model(placed + unit, connections + conns, floor_y, unit's indices,
+    links + unit_links)` gives, in array operations instead of a walk over the whole structure."""
+
+    def __init__(self, placed: Sequence[Placed], connections, floor_y: float | None,
+                 links: Sequence[Link] = (), cfg: LoadConfig = LoadConfig()):
+        self.placed, self.floor_y, self.cfg = list(placed), floor_y, cfg
+        n = len(self.placed)
+        self.n = n
+        props = [part_mass_properties(p.part) for p in self.placed]
+        self.mass = np.array([m for m, _, _ in props], float)
+        self.com = np.array([p.pose.apply(c) for p, (_, c, _) in zip(self.placed, props)], float).reshape(-1, 3)
+        self.conn_a = np.array([c[0] for c in connections], np.int64)
+        self.conn_b = np.array([c[1] for c in connections], np.int64)
+        self.conn_pos = np.array([c[2] for c in connections], float).reshape(-1, 3)
+        self.conn_axis = np.array([c[3] for c in connections], float).reshape(-1, 3)
+        self.links = list(links)
+        self.link_a = np.array([l.a for l in links], np.int64)
+        self.link_b = np.array([l.b for l in links], np.int64)
+        self.link_pos = np.array([l.point for l in links], float).reshape(-1, 3)
+        # Components by union-find over connections and links.
+        parent = np.arange(n)
+
+        def root(i):
+            while parent[i] != i:
+                parent[i] = parent[parent[i]]
+                i = parent[i]
+            return i
+
+        for a, b in list(zip(self.conn_a, self.conn_b)) + list(zip(self.link_a, self.link_b)):
+            ra, rb = root(int(a)), root(int(b))
+            if ra != rb:
+                parent[max(ra, rb)] = min(ra, rb)
+        self.label = np.array([root(i) for i in range(n)], np.int64)
+        self._supports: dict[float, list[np.ndarray]] = {}
+        self._lowest = np.array([lowest_point([p]) for p in self.placed]) if n else np.zeros(0)
+
+    def _support(self, floor_y: float) -> list[np.ndarray]:
+        key = round(floor_y, 6)
+        if key not in self._supports:
+            self._supports[key] = [support_points(p, floor_y, self.cfg) for p in self.placed]
+        return self._supports[key]
+
+    def model(self, unit: Sequence[Placed], conns, unit_links: Sequence[Link] = ()) -> LoadModel:
+        """The load model of the component holding `unit` (numbered after the structure's parts),
+        with its connections `conns` (structure and unit, in that numbering) and `unit_links`
+        (rigid links, in that numbering)."""
+        n, k = self.n, len(unit)
+        new_a = np.array([c[0] for c in conns], np.int64)
+        new_b = np.array([c[1] for c in conns], np.int64)
+        ends = np.r_[new_a, new_b, [l.a for l in unit_links], [l.b for l in unit_links]].astype(np.int64)
+        # The unit's parts are all seeds: the component is them and the structure's components
+        # any new edge reaches (an edge between two unit parts reaches none).
+        touched = np.unique(self.label[ends[ends < n]])
+        member = np.isin(self.label, touched)
+        comp = np.r_[np.flatnonzero(member), n + np.arange(k)]
+        body = np.full(n + k, -1, np.int64)
+        body[comp] = np.arange(len(comp))
+        props = [part_mass_properties(p.part) for p in unit]
+        mass = np.r_[self.mass[member], [m for m, _, _ in props]]
+        com = np.concatenate([self.com[member], np.array([p.pose.apply(c) for p, (_, c, _) in zip(unit, props)]).reshape(-1, 3)])
+        floor_y = self.floor_y
+        if floor_y is None:  # the component rests on its own lowest point
+            floor_y = max([lowest_point(unit)] + ([float(self._lowest[member].max())] if member.any() else []))
+        base_pts = self._support(floor_y)
+        gp = [base_pts[i] for i in np.flatnonzero(member)] + [support_points(p, floor_y, self.cfg) for p in unit]
+        gb = np.repeat(np.arange(len(comp)), [len(g) for g in gp])
+        keep = member[self.conn_a] if len(self.conn_a) else np.zeros(0, bool)
+        lk = member[self.link_a] if len(self.link_a) else np.zeros(0, bool)
+        ul_a = np.array([l.a for l in unit_links], np.int64)
+        ul_b = np.array([l.b for l in unit_links], np.int64)
+        return LoadModel(
+            parts=comp, mass=mass, com=com,
+            conn_a=body[np.r_[self.conn_a[keep], new_a]], conn_b=body[np.r_[self.conn_b[keep], new_b]],
+            conn_pos=np.concatenate([self.conn_pos[keep], np.array([c[2] for c in conns], float).reshape(-1, 3)]),
+            conn_axis=np.concatenate([self.conn_axis[keep], np.array([c[3] for c in conns], float).reshape(-1, 3)]),
+            ground_body=gb.astype(np.int64), ground_pos=np.concatenate(gp) if gp else np.zeros((0, 3)),
+            link_a=body[np.r_[self.link_a[lk], ul_a]], link_b=body[np.r_[self.link_b[lk], ul_b]],
+            link_pos=np.concatenate([self.link_pos[lk], np.array([l.point for l in unit_links], float).reshape(-1, 3)]),
+        )
+
+
 def tips(model: LoadModel, cfg: LoadConfig = LoadConfig()) -> bool:
     """Whether the component's centre of mass lies outside its support polygon (or it has none)."""
     if not len(model.ground_pos):
@@ -388,8 +473,10 @@ def judge(model: LoadModel, cfg: LoadConfig = LoadConfig(),
     return verdict_of(model, None if tips(model, cfg) else solve(to_lp(model, cfg)), cfg)
 
 
-def verdict_of(model: LoadModel, result: LPResult | None, cfg: LoadConfig = LoadConfig()) -> LoadVerdict:
-    """A verdict from a solved program (None: the model tips and was not solved)."""
+def verdict_of(model: LoadModel, result: LPResult | None, cfg: LoadConfig = LoadConfig(),
+               explain: bool = True) -> LoadVerdict:
+    """A verdict from a solved program (None: the model tips and was not solved); `explain=False`
+    leaves `failing` empty (finding the failing connections costs a second program)."""
     links = len(model.link_a)
     if result is None or result.status == "infeasible":
         return LoadVerdict(False, "unstable", None, rigid_links=links)
@@ -397,7 +484,7 @@ def verdict_of(model: LoadModel, result: LPResult | None, cfg: LoadConfig = Load
         raise RuntimeError(f"load program not solved: {result.status}")
     s = max(float(result.objective), 0.0)
     if s > 1.0 + cfg.tolerance:
-        return LoadVerdict(False, "overload", s, _failing(model, s, cfg), links)
+        return LoadVerdict(False, "overload", s, _failing(model, s, cfg) if explain else (), links)
     return LoadVerdict(True, None, s, (), links)
 
 
@@ -430,18 +517,24 @@ def _failing(model: LoadModel, s: float, cfg: LoadConfig) -> tuple[Failure, ...]
     )
 
 
+def solve_loads_highs(models: Sequence[LoadModel], cfg: LoadConfig = LoadConfig()) -> list[LPResult]:
+    """The load program of each model, one at a time with HiGHS (the CPU reference)."""
+    return [solve_highs(to_lp(m, cfg)) for m in models]
+
+
 def judge_many(models: Sequence[LoadModel], cfg: LoadConfig = LoadConfig(),
-               solve_batch: Callable[[list[LinearProgram]], list[LPResult]] | None = None) -> list[LoadVerdict]:
-    """`judge` for many models; with `solve_batch` the programs of those that do not tip are solved
-    in one call (the batched solver), else one by one with HiGHS."""
+               solve_loads: Callable[[list[LoadModel], LoadConfig], list[LPResult]] | None = None,
+               explain: bool = True) -> list[LoadVerdict]:
+    """`judge` for many models: the programs of those that do not tip are solved in one
+    `solve_loads(models, cfg)` call (`lp_jax.solve_loads`: all at once on the JAX device), by
+    default one by one with HiGHS; `explain` as in `verdict_of`."""
     tipping = [tips(m, cfg) for m in models]
     todo = [k for k, t in enumerate(tipping) if not t]
-    lps = [to_lp(models[k], cfg) for k in todo]
-    results = solve_batch(lps) if solve_batch is not None else [solve_highs(lp) for lp in lps]
+    results = (solve_loads or solve_loads_highs)([models[k] for k in todo], cfg)
     out: list[LPResult | None] = [None] * len(models)
     for k, r in zip(todo, results):
         out[k] = r
-    return [verdict_of(m, r, cfg) for m, r in zip(models, out)]
+    return [verdict_of(m, r, cfg, explain) for m, r in zip(models, out)]
 
 
 # -- the new part alone ----------------------------------------------------------------------------

@@ -139,6 +139,29 @@ def approach_from(dirs: np.ndarray) -> Approach:
     return Approach(mean / np.linalg.norm(mean), None)
 
 
+def approaches_from(dirs: Sequence[np.ndarray]) -> list[Approach]:
+    """`approach_from` of many units at once (each (k_i, 3)): the same answers, the pairwise
+    cosines of all units in one padded array."""
+    counts = np.array([len(d) for d in dirs], np.int64)
+    out: list[Approach] = [Approach(None, "no-connection")] * len(dirs)
+    if not counts.any():
+        return out
+    k = int(counts.max())
+    pad = np.zeros((len(dirs), k, 3))
+    valid = np.arange(k)[None, :] < counts[:, None]
+    pad[valid] = np.concatenate([np.asarray(d, float).reshape(-1, 3) for d in dirs])
+    cos = np.einsum("uai,ubi->uab", pad, pad)
+    both = valid[:, :, None] & valid[:, None, :]
+    clamped = (both & (cos < -SAME_AXIS)).any(axis=(1, 2))
+    one_axis = (~both | (cos > SAME_AXIS)).all(axis=(1, 2))
+    mean = pad.sum(axis=1) / np.maximum(counts, 1)[:, None]
+    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
+    for i in np.flatnonzero(counts):
+        out[i] = (Approach(None, "clamped") if clamped[i] else
+                  Approach(None, "two-axes") if not one_axis[i] else Approach(mean[i], None))
+    return out
+
+
 def _boxes(items: Sequence[tuple[Part, Pose]]) -> np.ndarray:
     """(n, 2, 3) world axis-aligned boxes of placed parts (each part's box turned and re-boxed)."""
     if not items:

@@ -62,7 +62,7 @@ from factory.parts import Part
 from factory.physics.collide import CONNECTED_SLACK_LDU, CollisionScene
 from factory.physics.geometry import INSET_LDU, collision_shape
 from factory.physics.structure import Structure
-from factory.physics.sweep import (MIN_STEP_LDU, SweepResult, _boxes, _overlap_intervals, approach_from,
+from factory.physics.sweep import (MIN_STEP_LDU, SweepResult, _boxes, _overlap_intervals, approaches_from,
                                    box_interval, seating_directions, sweep)
 from factory.pose import Pose
 
@@ -221,6 +221,29 @@ def _set_of(items: Sequence[tuple[Part, Pose]]) -> _Set:
 _LAST_STRUCTURE: list = []
 
 
+_LAST_UNIT: list = []
+
+
+def _unit_set(rel: Sequence[tuple[Part, Pose]]) -> _Set:
+    """The unit's pieces in its own frame, kept for the last unit (the sampler checks one part in
+    several calls per step)."""
+    key = tuple((id(part), pose.R.tobytes(), pose.t.tobytes()) for part, pose in rel)
+    if not (_LAST_UNIT and _LAST_UNIT[0] == key):
+        _LAST_UNIT[:] = [key, [part for part, _ in rel], _set_of(rel)]
+    return _LAST_UNIT[2]
+
+
+def _part_piece_boxes(sset: _Set) -> np.ndarray:
+    """(parts, 2, 3): the box around each part's pieces (empty parts: an empty box)."""
+    if getattr(sset, "_part_boxes", None) is None:
+        out = np.empty((sset.owners, 2, 3))
+        out[:, 0], out[:, 1] = np.inf, -np.inf
+        np.minimum.at(out[:, 0], sset.owner, sset.box[:, 0])
+        np.maximum.at(out[:, 1], sset.owner, sset.box[:, 1])
+        sset._part_boxes = out
+    return sset._part_boxes
+
+
 def _structure_set(structure: Structure) -> tuple[_Set, np.ndarray]:
     """The structure's pieces in the world and its parts' boxes, kept for the last structure."""
     key = tuple(id(p) for p in structure.placed)
@@ -364,8 +387,9 @@ def sweep_many(
     if not units:
         return []
     dirs = []
-    for i, unit in enumerate(units):
-        found = approach_from(directions[i] if directions is not None else seating_directions(structure, unit))
+    found_all = approaches_from([directions[i] if directions is not None else seating_directions(structure, unit)
+                                 for i, unit in enumerate(units)])
+    for i, found in enumerate(found_all):
         if found.direction is None:
             COUNTS["not-judged"] += 1
             results[i] = SweepResult(False if found.reason == "clamped" else None, found.reason, (), 0.0, 0.0, 0)
@@ -384,7 +408,7 @@ def sweep_many(
     if not dirs:
         return results  # type: ignore[return-value]
     sset, sboxes = _structure_set(structure)
-    uset = _set_of(rel)
+    uset = _unit_set(rel)
     if tol < uset.inset.max(initial=0.0) + sset.inset.max(initial=0.0):
         # Below both insets the separating-axis minimum is not the distance (module docstring).
         for i, _ in dirs:
@@ -408,28 +432,30 @@ def sweep_many(
     lo = ub[:, :, None, 0] - sboxes[None, None, :, 1] + margin
     hi = ub[:, :, None, 1] - sboxes[None, None, :, 0] - margin
     kk, mm, jj = np.nonzero(_swept_boxes_meet(lo, hi, d[:, None, None]))
-    # Pieces: every piece of the member against every piece of the part, boxes swept again.
+    # Pieces: each piece of the member (its world box at each candidate, computed once per
+    # candidate and piece) against the box of all the part's pieces, then against each of them.
+    ubox = uset.box
+    wc = np.einsum("kij,uj->kui", R, ubox.mean(axis=1)) + t[:, None]
+    wh = np.einsum("kij,uj->kui", np.abs(R), (ubox[:, 1] - ubox[:, 0]) / 2)
     nu = np.diff(uset.start)[mm]
-    ns = np.diff(sset.start)[jj]
-    rep = np.repeat(np.arange(len(kk)), nu * ns)
-    local = np.arange(len(rep)) - np.repeat(np.cumsum(nu * ns) - nu * ns, nu * ns)
-    k = kk[rep]
-    u = uset.start[mm[rep]] + local // ns[rep]
-    s = sset.start[jj[rep]] + local % ns[rep]
-    j = jj[rep]
+    rep = np.repeat(np.arange(len(kk)), nu)
+    k, j = kk[rep], jj[rep]
+    u = uset.start[mm[rep]] + np.arange(len(rep)) - np.repeat(np.cumsum(nu) - nu, nu)
+    pbox = _part_piece_boxes(sset)
+    lo_u, hi_u = wc[k, u] - wh[k, u], wc[k, u] + wh[k, u]
+    near = _swept_boxes_meet(lo_u - pbox[j, 1], hi_u - pbox[j, 0], d[k])
+    k, j, u, lo_u, hi_u = k[near], j[near], u[near], lo_u[near], hi_u[near]
+    ns = np.diff(sset.start)[j]
+    rep = np.repeat(np.arange(len(k)), ns)
+    s = sset.start[j[rep]] + np.arange(len(rep)) - np.repeat(np.cumsum(ns) - ns, ns)
+    k, j, u, lo_u, hi_u = k[rep], j[rep], u[rep], lo_u[rep], hi_u[rep]
     conn = np.zeros((len(idx), len(structure)), bool)
-    for row, i in enumerate(idx):
-        conn[row, list(connected[i])] = True
+    sizes = [len(connected[i]) for i in idx]
+    conn[np.repeat(np.arange(len(idx)), sizes), np.fromiter((q for i in idx for q in connected[i]), np.int64, sum(sizes))] = True
     is_conn = conn[k, j]
-    keep = ~(is_conn & (uset.stud[u] | sset.stud[s]))  # studs never collide with connected parts
-    k, u, s, j, is_conn = k[keep], u[keep], s[keep], j[keep], is_conn[keep]
-    ubox = uset.box[u]
-    uc, uh = ubox.mean(axis=1), (ubox[:, 1] - ubox[:, 0]) / 2
-    Rk = R[k]
-    wc = np.einsum("pij,pj->pi", Rk, uc) + t[k]
-    wh = np.einsum("pij,pj->pi", np.abs(Rk), uh)
     sb = sset.box[s]
-    near = _swept_boxes_meet(wc - wh - sb[:, 1], wc + wh - sb[:, 0], d[k])
+    near = ~(is_conn & (uset.stud[u] | sset.stud[s]))  # studs never collide with connected parts
+    near &= _swept_boxes_meet(lo_u - sb[:, 1], hi_u - sb[:, 0], d[k])
     k, u, s, j, is_conn = k[near], u[near], s[near], j[near], is_conn[near]
     thr = tol - uset.inset[u] - sset.inset[s] + np.where(is_conn, CONNECTED_SLACK_LDU, 0.0)
     thr_c = np.where(is_conn, tol, np.inf)
