@@ -181,17 +181,25 @@ def sweep_pool(s: Structure, scene) -> list[tuple]:
     return pool
 
 
-def load_stage(s: Structure, poses: list[Pose], solve_loads=None, config: CheckConfig = CheckConfig()) -> list:
-    """The load check of each candidate from its pose, as `check_units` runs it: its connections,
-    its model (`statics.LoadBase`), the tipping rule and the programs (`solve_loads`: None for
-    HiGHS one at a time, `lp_jax.solve_loads` for the batched solver), failing connections not
-    sought (`explain=False`, as the sampler asks)."""
-    from factory.physics.statics import LoadBase
+def load_stage(s: Structure, poses: list[Pose], batched: bool = False, config: CheckConfig = CheckConfig(),
+               conns: list | None = None) -> list:
+    """The load check of each candidate from its connections (`conns`, found here if None), as
+    `check_units` runs it: the CPU reference builds each model (`statics.LoadBase.model`) and
+    solves its program with HiGHS (`judge_many`); the batched path (`batched`) judges them all on
+    the structure's shared columns (`judge_on_base` with `lp_jax.solve_on_base`). Failing
+    connections are not sought (`explain=False`, as the sampler asks)."""
+    from factory.physics.statics import LoadBase, judge_on_base
 
     brick = load_part(get_reader(), "3001")
+    if conns is None:
+        conns = [_unit_connections(s, [(brick, p)]) for p in poses]
     base = LoadBase(s.placed, s.connections, 24.0, s.links, config.loads)
-    models = [base.model([Placed(brick, 4, p)], _unit_connections(s, [(brick, p)])) for p in poses]
-    return judge_many(models, config.loads, solve_loads, explain=False)
+    units = [[Placed(brick, 4, p)] for p in poses]
+    if batched:
+        from factory.physics.lp_jax import solve_on_base
+
+        return judge_on_base(base, units, conns, config.loads, solve_on_base, explain=False)
+    return judge_many([base.model(u, c) for u, c in zip(units, conns)], config.loads, explain=False)
 
 
 # The CPU reference in worker processes (`cpu_workers`): each builds its inputs once, from the
@@ -205,7 +213,9 @@ def _ctx_init(kind: str, n: int, batch: int) -> None:
     s = grown(n)
     _CTX.update(kind=kind, s=s)
     if kind == "loads":
+        brick = load_part(get_reader(), "3001")
         _CTX["poses"] = candidates(s, batch)
+        _CTX["conns"] = [_unit_connections(s, [(brick, p)]) for p in _CTX["poses"]]
     else:
         brick = load_part(get_reader(), "3001")
         scene = CollisionScene(s, [(brick, Pose.identity())], 1e6)
@@ -219,7 +229,7 @@ def _ctx_run(span: tuple[int, int]) -> list:
 
     a, b = span
     if _CTX["kind"] == "loads":
-        return [(v.stands, v.reason) for v in load_stage(_CTX["s"], _CTX["poses"][a:b])]
+        return [(v.stands, v.reason) for v in load_stage(_CTX["s"], _CTX["poses"][a:b], conns=_CTX["conns"][a:b])]
     return [sweep(_CTX["scene"], _CTX["s"], w, c).buildable for w, c, _ in _CTX["cases"][a:b]]
 
 
@@ -246,34 +256,40 @@ def cpu_reference(kind: str, n: int, batch: int, count: int, workers: int) -> tu
 
 
 def measure_lp(sizes, batches, log=None, cpu_max: int = 128, cpu_workers: int = 1,
-               config: CheckConfig = CheckConfig()) -> list[dict]:
-    """Load checks per second from the candidate's pose (`load_stage`): the batched JAX solver
-    (default device) on each batch, the CPU reference (HiGHS) on its first `cpu_max` candidates in
-    `cpu_workers` processes; verdicts compared on those."""
+               config: CheckConfig = CheckConfig(), batched: bool = True) -> list[dict]:
+    """Load checks per second from the candidates' connections (`load_stage`; the sweep is timed
+    from them too): the batched path (default JAX device) on each batch, the CPU reference (HiGHS)
+    on its first `cpu_max` candidates in `cpu_workers` processes; verdicts compared on those.
+    `batched=False`: the reference alone."""
     from factory.physics import lp_jax
 
     rows = []
     for n in sizes:
         s = grown(n)
+        brick = load_part(get_reader(), "3001")
         for batch in batches:
             poses = candidates(s, batch)
-            compiles = len(lp_jax.COMPILES)
-            t = time.perf_counter()
-            load_stage(s, poses, lp_jax.solve_loads, config)  # compiles this batch's shapes
-            first_s = time.perf_counter() - t
-            fallbacks = lp_jax.FALLBACKS[0]
-            t = time.perf_counter()
-            got = load_stage(s, poses, lp_jax.solve_loads, config)
-            jax_s = time.perf_counter() - t
-            row = {"bricks": n, "batch": batch, "jax_per_s": round(batch / jax_s, 1),
-                   "first_call_s": round(first_s, 2), "new_compiles": len(lp_jax.COMPILES) - compiles,
-                   "fallbacks": lp_jax.FALLBACKS[0] - fallbacks, "tipping": sum(v.reason == "unstable" for v in got),
-                   "overloaded": sum(v.reason == "overload" for v in got)}
+            row = {"bricks": n, "batch": batch}
+            if batched:
+                conns = [_unit_connections(s, [(brick, p)]) for p in poses]
+                compiles = len(lp_jax.COMPILES)
+                t = time.perf_counter()
+                load_stage(s, poses, True, config, conns)  # compiles this batch's shapes
+                first_s = time.perf_counter() - t
+                fallbacks = lp_jax.FALLBACKS[0]
+                t = time.perf_counter()
+                got = load_stage(s, poses, True, config, conns)
+                jax_s = time.perf_counter() - t
+                row.update(jax_per_s=round(batch / jax_s, 1),
+                           first_call_s=round(first_s, 2), new_compiles=len(lp_jax.COMPILES) - compiles,
+                           fallbacks=lp_jax.FALLBACKS[0] - fallbacks, tipping=sum(v.reason == "unstable" for v in got),
+                           overloaded=sum(v.reason == "overload" for v in got))
             if cpu_max:
                 ref, cpu_s = cpu_reference("loads", n, batch, min(cpu_max, batch), cpu_workers)
-                row.update(cpu_workers=cpu_workers, cpu_per_s=round(len(ref) / cpu_s, 1),
-                           speedup=round(batch / jax_s / (len(ref) / cpu_s), 2), cpu_compared=len(ref),
-                           agree=sum(a == (b.stands, b.reason) for a, b in zip(ref, got)))
+                row.update(cpu_workers=cpu_workers, cpu_per_s=round(len(ref) / cpu_s, 1), cpu_compared=len(ref))
+                if batched:
+                    row.update(speedup=round(batch / jax_s / (len(ref) / cpu_s), 2),
+                               agree=sum(a == (b.stands, b.reason) for a, b in zip(ref, got)))
             rows.append(row)
             if log is not None:
                 log(row)
@@ -281,12 +297,13 @@ def measure_lp(sizes, batches, log=None, cpu_max: int = 128, cpu_workers: int = 
 
 
 def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), cpu_max: int = 512, log=None,
-                  cpu_workers: int = 1) -> list[dict]:
+                  cpu_workers: int = 1, batched: bool = True) -> list[dict]:
     """Sweep candidates per second, the batched path (`sweep_jax`, default JAX device) and the CPU
     reference (`sweep.sweep`, in `cpu_workers` processes), on the same candidates: `sweep_pool`,
     drawn with replacement to fill each batch. The reference runs on the first `cpu_max` of them
     (its cost is per candidate), where the verdicts are compared too. Both are timed from the
-    connections found (as `check_units` has them), the reference from its own `approach`."""
+    connections found (as `check_units` has them), the reference from its own `approach`.
+    `batched=False`: the reference alone."""
     from factory.physics.collide import CollisionScene
     from factory.physics.sweep_jax import COMPILES, COUNTS, sweep_many
 
@@ -299,6 +316,14 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
         for batch in batches:
             rng = np.random.default_rng(0)
             cases = [pool[i] for i in rng.integers(0, len(pool), batch)]
+            if not batched:
+                ref, cpu_s = cpu_reference("sweep", n, batch, min(cpu_max, batch), cpu_workers)
+                row = {"bricks": n, "batch": batch, "distinct_candidates": len(pool), "cpu_workers": cpu_workers,
+                       "cpu_per_s": round(len(ref) / cpu_s, 1), "cpu_compared": len(ref)}
+                rows.append(row)
+                if log is not None:
+                    log(row)
+                continue
             args = ([c[0] for c in cases], [c[1] for c in cases])
             compiles = len(COMPILES)
             t = time.perf_counter()
@@ -336,6 +361,7 @@ def main(argv=None) -> int:
     ap.add_argument("--cpu-max", type=int, help="with --sweep or --lp: candidates the CPU reference checks "
                     "(0: none; default 512 for --sweep, 128 for --lp)")
     ap.add_argument("--cpu-workers", type=int, default=1, help="with --sweep or --lp: processes the CPU reference runs in")
+    ap.add_argument("--reference-only", action="store_true", help="with --sweep or --lp: the CPU reference alone")
     ap.add_argument("--out")
     ap.add_argument("--lp", action="store_true", help="the batched load solver alone, on real load programs")
     args = ap.parse_args(argv)
@@ -343,10 +369,10 @@ def main(argv=None) -> int:
     log = lambda r: print(json.dumps(r), flush=True)
     if args.sweep:
         rows = measure_sweep(sizes, batches, 512 if args.cpu_max is None else args.cpu_max, log=log,
-                             cpu_workers=args.cpu_workers)
+                             cpu_workers=args.cpu_workers, batched=not args.reference_only)
     elif args.lp:
         rows = measure_lp(sizes, batches, log=log, cpu_max=128 if args.cpu_max is None else args.cpu_max,
-                          cpu_workers=args.cpu_workers)
+                          cpu_workers=args.cpu_workers, batched=not args.reference_only)
     else:
         rows = measure(args.backends.split(","), sizes, batches, log=log, full_max=args.full_max)
     if args.out:

@@ -244,3 +244,35 @@ def test_real_load_programs_and_their_verdicts_near_the_limit_match_highs(real_m
         a = judge_many(models, cfg)
         b = judge_many(models, cfg, lp_jax.solve_loads)
         assert [(v.stands, v.reason) for v in a] == [(v.stands, v.reason) for v in b]
+
+
+def test_candidates_judged_on_the_structures_shared_columns_match_highs():
+    """`judge_on_base` with `solve_on_base` (the structure's columns sent once, each candidate's
+    own joined on the device) gives `judge_many`'s HiGHS verdicts, loads and failing connections
+    for the distinct attachments of a 2x4 brick to a grown 30-brick structure, those on the ground
+    included, at the default clutch and at a weak one that overloads many."""
+    from pipelines.bench_physics import candidates, grown
+
+    from factory.physics.check import _unit_connections
+    from factory.physics.statics import LoadBase, LoadConfig, judge_many, judge_on_base
+    from factory.physics.structure import Placed
+
+    s = grown(30)
+    brick = s.placed[0].part
+    poses = list({(p.R.round(6).tobytes(), p.t.round(6).tobytes()): p for p in candidates(s, 400)}.values())[:160]
+    units = [[Placed(brick, 4, p)] for p in poses]
+    conns = [_unit_connections(s, [(brick, p)]) for p in poses]
+    assert any(p.t[1] == 0 for p in poses)  # some stand on the ground beside the first brick
+    for cfg in (LoadConfig(), LoadConfig(clutch_n=0.25)):
+        base = LoadBase(s.placed, s.connections, 24.0, s.links, cfg)
+        assert base.shared()
+        got = judge_on_base(base, units, conns, cfg, lp_jax.solve_on_base)
+        ref = judge_many([base.model(u, c) for u, c in zip(units, conns)], cfg)
+        assert [(v.stands, v.reason) for v in got] == [(v.stands, v.reason) for v in ref]
+        for a, b in zip(got, ref):
+            assert (a.load is None) == (b.load is None)
+            if a.load is not None:
+                assert abs(a.load - b.load) <= 1e-7 * max(1.0, b.load)
+            assert [(f.stud_part, f.socket_part) for f in a.failing] == [(f.stud_part, f.socket_part) for f in b.failing]
+        if cfg.clutch_n < 1:
+            assert sum(v.reason == "overload" for v in ref) >= 20

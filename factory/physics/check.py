@@ -27,7 +27,8 @@ import numpy as np
 from factory.parts import Part
 from factory.physics.collide import CollisionScene
 from factory.physics.mass import part_mass_properties
-from factory.physics.statics import Failure, Link, LoadBase, LoadConfig, holds_alone, judge_many, support_points
+from factory.physics.statics import (Failure, Link, LoadBase, LoadConfig, holds_alone, judge_many, judge_on_base,
+                                     support_points)
 from factory.physics.sweep import seating_from_connections, sweep
 from factory.physics.structure import Placed, Structure, connectors, lowest_point, match
 from factory.physics.unmodelled import may_hold
@@ -183,8 +184,16 @@ def check_units(
     if pending:
         loads = _load_base(structure, floor_y, config.loads)
         links = [Link(l.a + base_n, l.b + base_n, l.point) for l in unit_links]
-        models = [loads.model(unit, conns, links) for _, unit, conns in pending]
-        results = judge_many(models, config.loads, _batch_solver(backend), explain=explain)
+        solver = _batch_solver(backend)
+        if solver is not None and not links and loads.shared() and all(len(u) == 1 for _, u, _ in pending):
+            # One part on a connected structure: the structure's columns are sent once (`solve_on_base`).
+            from factory.physics.lp_jax import solve_on_base
+
+            results = judge_on_base(loads, [u for _, u, _ in pending], [c for *_, c in pending], config.loads,
+                                    solve_on_base, explain)
+        else:
+            models = [loads.model(unit, conns, links) for _, unit, conns in pending]
+            results = judge_many(models, config.loads, solver, explain=explain)
         for (k, *_), lv in zip(pending, results):
             v = verdicts[k]
             verdicts[k] = replace(v, stable=lv.stands, load=None if lv.load is None else round(lv.load, 6),

@@ -612,6 +612,107 @@ def _load_arrays(models, cfg, batch: int, n: int, m: int, w: int, k: int) -> dic
     return out
 
 
+def _base_block(base, cfg) -> tuple[dict, int]:
+    """The structure's own columns (connections, supports, links: the same in every candidate's
+    program), on the device, kept on `base`; and their count."""
+    key = ("_lp_jax_block", cfg)
+    hit = getattr(base, "_lp_jax_cache", None)
+    if hit is not None and hit[0] == key:
+        return hit[1], hit[2]
+    alone = base.alone()
+    n_own = _layout_size(alone)
+    m = 6 * (base.n + 1)
+    arrays = _load_arrays([alone], cfg, 1, n_own, m, 12, 2)
+    block = {key_: jnp.asarray(arrays[key_][0, 1:]) for key_ in ("a_rows", "a_vals", "coef", "link", "rhs", "mask")}
+    base._lp_jax_cache = (key, block, n_own - 1)
+    return block, n_own - 1
+
+
+def _layout_size(model) -> int:
+    from factory.physics.statics import PER_CONNECTION, PER_LINK, PER_SUPPORT
+
+    return 1 + PER_CONNECTION * len(model.conn_a) + PER_SUPPORT * len(model.ground_body) + PER_LINK * len(model.link_a)
+
+
+def _assemble_impl(n, block, new):
+    """Each candidate's arrays: its s column, the structure's columns, its own, then padding to n."""
+    out = {}
+    for key in ("a_rows", "a_vals", "coef", "link", "rhs", "mask"):
+        nn, bb = new[key], block[key]
+        full = jnp.concatenate([nn[:, :1], jnp.broadcast_to(bb, (nn.shape[0],) + bb.shape), nn[:, 1:]], axis=1)
+        widths = [(0, 0), (0, n - full.shape[1])] + [(0, 0)] * (full.ndim - 2)
+        out[key] = jnp.pad(full, widths, constant_values=1.0 if key == "rhs" else 0)
+    out["c"] = jnp.zeros((new["c"].shape[0], n)).at[:, 0].set(1.0)
+    out["b"], out["link_col"] = new["b"], new["link_col"]
+    return out
+
+
+_ASSEMBLE = jax.jit(_assemble_impl, static_argnums=0)
+
+
+def solve_on_base(base, units: Sequence, conns: Sequence, cfg=None, *, tol: float = 1e-8,
+                  max_iterations: int = MAX_ITERATIONS, fallback: bool = True) -> list[LPResult]:
+    """The load program of each one-part unit on a `statics.LoadBase` whose parts form one
+    component (`base.shared()`), as `solve_loads` of `base.model(unit, conns)` gives it, but with
+    the structure's columns written and sent to the device once (`_base_block`) and only each
+    candidate's own columns (its connections and ground supports) built per candidate; the device
+    joins them (`_ASSEMBLE`). x comes back in `statics.layout` order of that model."""
+    from factory.physics.mass import part_mass_properties
+    from factory.physics.statics import LoadConfig, LoadModel, PER_CONNECTION, PER_SUPPORT, support_points, to_lp
+
+    cfg = cfg or LoadConfig()
+    if not units:
+        return []
+    nb = base.n
+    results: list[LPResult] = [LPResult("error", None, float("nan"))] * len(units)
+    with jax.enable_x64(True):
+        block, n_block = _base_block(base, cfg)
+        own = []
+        for unit, cs in zip(units, conns):
+            placed = unit[0]
+            m, c, _ = part_mass_properties(placed.part)
+            pts = support_points(placed, base.floor_y, cfg)
+            own.append(LoadModel(
+                parts=None, mass=np.r_[base.mass, m], com=np.concatenate([base.com, placed.pose.apply(c)[None]]),
+                conn_a=np.array([x[0] for x in cs], np.int64), conn_b=np.array([x[1] for x in cs], np.int64),
+                conn_pos=np.array([x[2] for x in cs], float).reshape(-1, 3),
+                conn_axis=np.array([x[3] for x in cs], float).reshape(-1, 3),
+                ground_body=np.full(len(pts), nb, np.int64), ground_pos=pts,
+                link_a=np.zeros(0, np.int64), link_b=np.zeros(0, np.int64), link_pos=np.zeros((0, 3))))
+        sizes = np.array([_layout_size(md) for md in own])
+        width = int(sizes.max())
+        n = _quarter(n_block + width)
+        m = _eighth(6 * (nb + 1))
+        for shape, chunk in _group([(n, m, 12, 2)] * len(own)):
+            if shape not in COMPILES:
+                COMPILES.append(shape)
+            new = _load_arrays([own[i] for i in chunk], cfg, shape[0], width, shape[2], 12, 2)
+            for v in new.values():  # padding members copy the first: they converge with it
+                v[len(chunk):] = v[0]
+            arrays = _ASSEMBLE(n, block, {k: jnp.asarray(v) for k, v in new.items()})
+            x, status, _ = _SOLVE(*(arrays[k] for k in _ARRAYS), np.float64(tol), np.int32(max_iterations))
+            x, status = np.asarray(x), np.asarray(status)
+            ncb, ngb = len(base.conn_a), sum(len(g) for g in base._support(base.floor_y))
+            o_conn, o_ground, o_link = 1, 1 + PER_CONNECTION * ncb, 1 + PER_CONNECTION * ncb + PER_SUPPORT * ngb
+            for j, i in enumerate(chunk):
+                if status[j] != _OPTIMAL:
+                    continue
+                md = own[i]
+                o_new = 1 + n_block
+                nc = PER_CONNECTION * len(md.conn_a)
+                xi = np.concatenate([x[j, :1], x[j, o_conn:o_ground], x[j, o_new:o_new + nc],
+                                     x[j, o_ground:o_link], x[j, o_new + nc:o_new + sizes[i] - 1],
+                                     x[j, o_link:1 + n_block]])
+                xi[0] = max(xi[0], 0.0)
+                results[i] = LPResult("optimal", xi, float(xi[0]))
+    if fallback:
+        for i, r in enumerate(results):
+            if r.status != "optimal":
+                FALLBACKS[0] += 1
+                results[i] = solve_highs(to_lp(base.model(units[i], conns[i]), cfg))
+    return results
+
+
 def solve_loads(models: Sequence, cfg=None, *, tol: float = 1e-8, max_iterations: int = MAX_ITERATIONS,
                 fallback: bool = True) -> list[LPResult]:
     """The load program of each `statics.LoadModel` (as `statics.to_lp` writes it), all at once on

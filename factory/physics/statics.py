@@ -321,6 +321,67 @@ class LoadBase:
         )
 
 
+    # -- many one-part candidates on one connected structure --------------------------------------
+    def shared(self) -> bool:
+        """Whether every one-part candidate joined to the structure has the whole structure as its
+        component, on a fixed ground: then its load program is the structure's columns (the same
+        for all of them) plus its own, and `judge_on_base` takes the batched route."""
+        return self.floor_y is not None and self.n > 0 and bool((self.label == self.label[0]).all())
+
+    def alone(self) -> LoadModel:
+        """The structure's own model (all its parts, connections, supports and links)."""
+        pts = self._support(self.floor_y)
+        return LoadModel(
+            parts=np.arange(self.n), mass=self.mass, com=self.com, conn_a=self.conn_a, conn_b=self.conn_b,
+            conn_pos=self.conn_pos, conn_axis=self.conn_axis,
+            ground_body=np.repeat(np.arange(self.n), [len(g) for g in pts]).astype(np.int64),
+            ground_pos=np.concatenate(pts) if pts else np.zeros((0, 3)),
+            link_a=self.link_a, link_b=self.link_b, link_pos=self.link_pos)
+
+    def hull(self) -> np.ndarray:
+        """The structure's support polygon (xz), kept."""
+        if getattr(self, "_hull", None) is None:
+            g = self.alone().ground_pos
+            self._hull = _hull_xz(np.unique(np.round(g[:, [0, 2]], 6), axis=0)) if len(g) else np.zeros((0, 2))
+        return self._hull
+
+
+def judge_on_base(base: LoadBase, units: Sequence[Sequence[Placed]], conns: Sequence, cfg: LoadConfig,
+                  solve_on_base: Callable, explain: bool = True) -> list[LoadVerdict]:
+    """`judge_many` of `base.model(unit, conns)` for one-part units on a `base.shared()` structure,
+    without a model per candidate: the tipping rule for all at once (the structure's support
+    polygon, kept, where the part does not touch the ground), then `solve_on_base(base, units,
+    conns, cfg)` for those that stand (`lp_jax.solve_on_base`). Models are built only for the
+    failing connections of an overload (`explain`) and for parts on the ground."""
+    k = len(units)
+    masses = np.array([part_mass_properties(u[0].part)[0] for u in units])
+    coms = np.array([u[0].pose.apply(part_mass_properties(u[0].part)[1]) for u in units]).reshape(-1, 3)
+    total = base.mass.sum()
+    centre = (total * (base.mass @ base.com / total) + masses[:, None] * coms) / (total + masses)[:, None]
+    grounded = np.array([len(support_points(u[0], base.floor_y, cfg)) > 0 for u in units], bool)
+    hull = base.hull()
+    tipping = np.zeros(k, bool)
+    for i in range(k):
+        if grounded[i]:
+            tipping[i] = tips(base.model(units[i], conns[i]), cfg)
+        else:
+            tipping[i] = not len(hull) or not _inside(hull, centre[i, [0, 2]], cfg.tolerance)
+    todo = np.flatnonzero(~tipping)
+    results = solve_on_base(base, [units[i] for i in todo], [conns[i] for i in todo], cfg)
+    links = len(base.link_a)
+    out: list[LoadVerdict] = [LoadVerdict(False, "unstable", None, rigid_links=links)] * k
+    for i, r in zip(todo, results):
+        if r.status != "optimal":
+            raise RuntimeError(f"load program not solved: {r.status}")
+        load = max(float(r.objective), 0.0)
+        if load <= 1.0 + cfg.tolerance:
+            out[i] = LoadVerdict(True, None, load, (), links)
+        else:
+            failing = _failing(base.model(units[i], conns[i]), load, cfg) if explain else ()
+            out[i] = LoadVerdict(False, "overload", load, failing, links)
+    return out
+
+
 def tips(model: LoadModel, cfg: LoadConfig = LoadConfig()) -> bool:
     """Whether the component's centre of mass lies outside its support polygon (or it has none)."""
     if not len(model.ground_pos):

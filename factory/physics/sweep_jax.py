@@ -50,6 +50,7 @@ launch: so a run compiles once per shape met (`COMPILES`), never per call.
 from __future__ import annotations
 
 import math
+import os
 from collections import Counter
 from functools import partial
 from dataclasses import dataclass
@@ -367,6 +368,72 @@ def _swept_boxes_meet(lo: np.ndarray, hi: np.ndarray, d: np.ndarray) -> np.ndarr
     return start < end
 
 
+def _pairs(uset: _Set, sset: _Set, sboxes, rel, R, t, d, conn, tol: float, margin: float, a: int, b: int):
+    """The piece pairs of candidates a..b-1 whose boxes meet somewhere along the approach, with their
+    thresholds: (candidate, unit piece, structure piece, part, connected, thr, thr_c, undecided)."""
+    R, t, d, conn = R[a:b], t[a:b], d[a:b], conn[a:b]
+    # Parts: each member's box swept along d against each structure part's box (the reference's
+    # filter, with the parts it connects to kept: their pieces count too, with the slack).
+    mb = np.stack([part.bbox for part, _ in rel])
+    mR = np.stack([p.R for _, p in rel])
+    mt = np.stack([p.t for _, p in rel])
+    wR = np.einsum("kij,mjl->kmil", R, mR)
+    centre = np.einsum("kmij,mj->kmi", wR, mb.mean(axis=1)) + np.einsum("kij,mj->kmi", R, mt) + t[:, None]
+    half = np.einsum("kmij,mj->kmi", np.abs(wR), (mb[:, 1] - mb[:, 0]) / 2)
+    ub = np.stack([centre - half, centre + half], axis=2)  # (K, M, 2, 3)
+    lo = ub[:, :, None, 0] - sboxes[None, None, :, 1] + margin
+    hi = ub[:, :, None, 1] - sboxes[None, None, :, 0] - margin
+    kk, mm, jj = np.nonzero(_swept_boxes_meet(lo, hi, d[:, None, None]))
+    # Pieces: each piece of the member (its world box at each candidate, computed once per
+    # candidate and piece) against the box of all the part's pieces, then against each of them.
+    ubox = uset.box
+    wc = np.einsum("kij,uj->kui", R, ubox.mean(axis=1)) + t[:, None]
+    wh = np.einsum("kij,uj->kui", np.abs(R), (ubox[:, 1] - ubox[:, 0]) / 2)
+    nu = np.diff(uset.start)[mm]
+    rep = np.repeat(np.arange(len(kk)), nu)
+    k, j = kk[rep], jj[rep]
+    u = uset.start[mm[rep]] + np.arange(len(rep)) - np.repeat(np.cumsum(nu) - nu, nu)
+    pbox = _part_piece_boxes(sset)
+    lo_u, hi_u = wc[k, u] - wh[k, u], wc[k, u] + wh[k, u]
+    near = _swept_boxes_meet(lo_u - pbox[j, 1], hi_u - pbox[j, 0], d[k])
+    k, j, u, lo_u, hi_u = k[near], j[near], u[near], lo_u[near], hi_u[near]
+    ns = np.diff(sset.start)[j]
+    rep = np.repeat(np.arange(len(k)), ns)
+    s = sset.start[j[rep]] + np.arange(len(rep)) - np.repeat(np.cumsum(ns) - ns, ns)
+    k, j, u, lo_u, hi_u = k[rep], j[rep], u[rep], lo_u[rep], hi_u[rep]
+    is_conn = conn[k, j]
+    sb = sset.box[s]
+    near = ~(is_conn & (uset.stud[u] | sset.stud[s]))  # studs never collide with connected parts
+    near &= _swept_boxes_meet(lo_u - sb[:, 1], hi_u - sb[:, 0], d[k])
+    k, u, s, j, is_conn = k[near], u[near], s[near], j[near], is_conn[near]
+    thr = tol - uset.inset[u] - sset.inset[s] + np.where(is_conn, CONNECTED_SLACK_LDU, 0.0)
+    thr_c = np.where(is_conn, tol, np.inf)
+    undecided = ~is_conn & (uset.stud[u] != sset.stud[s])
+    return k + a, u, s, j, is_conn, thr, thr_c, undecided
+
+
+PAIR_CHUNK = 512
+"""Candidates per chunk of pair selection; chunks run on `PAIR_THREADS` threads (numpy releases
+the interpreter lock in its array operations, so a many-core host selects pairs in parallel
+while the device computes)."""
+PAIR_THREADS = min(8, os.cpu_count() or 1)
+
+
+def _pairs_threaded(uset, sset, sboxes, rel, R, t, d, conn, tol, margin):
+    """`_pairs` of all candidates, in chunks of `PAIR_CHUNK` over `PAIR_THREADS` threads, joined in
+    candidate order (the same arrays as one call gives)."""
+    spans = [(a, min(a + PAIR_CHUNK, len(R))) for a in range(0, len(R), PAIR_CHUNK)]
+    args = (uset, sset, sboxes, rel, R, t, d, conn, tol, margin)
+    if len(spans) == 1 or PAIR_THREADS <= 1:
+        parts = [_pairs(*args, a, b) for a, b in spans]
+    else:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(min(PAIR_THREADS, len(spans))) as pool:
+            parts = list(pool.map(lambda span: _pairs(*args, *span), spans))
+    return tuple(np.concatenate(x) for x in zip(*parts))
+
+
 def sweep_many(
     scene: CollisionScene | None,
     structure: Structure,
@@ -420,46 +487,10 @@ def sweep_many(
     R = np.stack([units[i][0][1].R for i in idx])
     t = np.stack([units[i][0][1].t for i in idx])
     margin = min(tol, 2 * INSET_LDU)
-    # Parts: each member's box swept along d against each structure part's box (the reference's
-    # filter, with the parts it connects to kept: their pieces count too, with the slack).
-    mb = np.stack([part.bbox for part, _ in rel])
-    mR = np.stack([p.R for _, p in rel])
-    mt = np.stack([p.t for _, p in rel])
-    wR = np.einsum("kij,mjl->kmil", R, mR)
-    centre = np.einsum("kmij,mj->kmi", wR, mb.mean(axis=1)) + np.einsum("kij,mj->kmi", R, mt) + t[:, None]
-    half = np.einsum("kmij,mj->kmi", np.abs(wR), (mb[:, 1] - mb[:, 0]) / 2)
-    ub = np.stack([centre - half, centre + half], axis=2)  # (K, M, 2, 3)
-    lo = ub[:, :, None, 0] - sboxes[None, None, :, 1] + margin
-    hi = ub[:, :, None, 1] - sboxes[None, None, :, 0] - margin
-    kk, mm, jj = np.nonzero(_swept_boxes_meet(lo, hi, d[:, None, None]))
-    # Pieces: each piece of the member (its world box at each candidate, computed once per
-    # candidate and piece) against the box of all the part's pieces, then against each of them.
-    ubox = uset.box
-    wc = np.einsum("kij,uj->kui", R, ubox.mean(axis=1)) + t[:, None]
-    wh = np.einsum("kij,uj->kui", np.abs(R), (ubox[:, 1] - ubox[:, 0]) / 2)
-    nu = np.diff(uset.start)[mm]
-    rep = np.repeat(np.arange(len(kk)), nu)
-    k, j = kk[rep], jj[rep]
-    u = uset.start[mm[rep]] + np.arange(len(rep)) - np.repeat(np.cumsum(nu) - nu, nu)
-    pbox = _part_piece_boxes(sset)
-    lo_u, hi_u = wc[k, u] - wh[k, u], wc[k, u] + wh[k, u]
-    near = _swept_boxes_meet(lo_u - pbox[j, 1], hi_u - pbox[j, 0], d[k])
-    k, j, u, lo_u, hi_u = k[near], j[near], u[near], lo_u[near], hi_u[near]
-    ns = np.diff(sset.start)[j]
-    rep = np.repeat(np.arange(len(k)), ns)
-    s = sset.start[j[rep]] + np.arange(len(rep)) - np.repeat(np.cumsum(ns) - ns, ns)
-    k, j, u, lo_u, hi_u = k[rep], j[rep], u[rep], lo_u[rep], hi_u[rep]
     conn = np.zeros((len(idx), len(structure)), bool)
     sizes = [len(connected[i]) for i in idx]
     conn[np.repeat(np.arange(len(idx)), sizes), np.fromiter((q for i in idx for q in connected[i]), np.int64, sum(sizes))] = True
-    is_conn = conn[k, j]
-    sb = sset.box[s]
-    near = ~(is_conn & (uset.stud[u] | sset.stud[s]))  # studs never collide with connected parts
-    near &= _swept_boxes_meet(lo_u - sb[:, 1], hi_u - sb[:, 0], d[k])
-    k, u, s, j, is_conn = k[near], u[near], s[near], j[near], is_conn[near]
-    thr = tol - uset.inset[u] - sset.inset[s] + np.where(is_conn, CONNECTED_SLACK_LDU, 0.0)
-    thr_c = np.where(is_conn, tol, np.inf)
-    undecided = ~is_conn & (uset.stud[u] != sset.stud[s])
+    k, u, s, j, is_conn, thr, thr_c, undecided = _pairs_threaded(uset, sset, sboxes, rel, R, t, d, conn, tol, margin)
 
     res = _intervals(uset, sset, R, t, d, k, u, s, thr, thr_c)
 
