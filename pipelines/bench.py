@@ -85,7 +85,23 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None) -
     batches = [256, 4096, 16384] if gpu else [256]
     rows = measure(backends, sizes, batches, log=lambda r: print(f"  physics {json.dumps(r)}", flush=True),
                    full_max=4096)
-    return {"backends": backends, "rows": rows,
+    # The two expensive checks alone at 30, 60 and 90 bricks: on a GPU the batched path (the CPU
+    # reference's rates come from a machine without one: docs/physics.md compares them); without
+    # one, the CPU reference in two processes.
+    from pipelines.bench_physics import measure_lp, measure_sweep
+
+    check_sizes = [30] if quick else [30, 60, 90]
+    log = lambda kind: (lambda r: print(f"  {kind} {json.dumps(r)}", flush=True))
+    if gpu:
+        loads = measure_lp(check_sizes, [1024, 4096, 16384], log=log("loads"), cpu_max=0)
+        sweeps = measure_sweep(check_sizes, [1024, 4096, 16384], cpu_max=0, log=log("sweep"))
+    else:
+        workers = 1 if quick else 2
+        loads = measure_lp(check_sizes, [1024], log=log("loads"), cpu_max=16 if quick else 128,
+                           cpu_workers=workers, batched=False)
+        sweeps = measure_sweep(check_sizes, [1024], cpu_max=32 if quick else 512, log=log("sweep"),
+                               cpu_workers=workers, batched=False)
+    return {"backends": backends, "rows": rows, "loads": loads, "sweeps": sweeps,
             "note": "candidates of a 2x4 brick on grown 2x4-brick structures; loads/s is the "
                     "whole-structure load program alone (HiGHS for mujoco, the batched JAX solver for mjx), "
                     "checks/s the whole check (connection, contacts, clutch, loads)"}
@@ -255,6 +271,15 @@ def markdown(report: dict) -> str:
                         [[r["backend"], r["bricks"], r["batch"], r.get("checks_per_s", "-"), r["loads_per_s"],
                           r.get("accepted", "-"), r["compile_s"]] for r in report["physics"]["rows"]])
         lines += ["", "![physics](physics.png)", ""]
+        for key, title in (("loads", "Load checks (from the candidates' connections)"),
+                           ("sweeps", "Buildability sweeps (from the candidates' connections)")):
+            rows = report["physics"].get(key) or []
+            if rows:
+                lines += [f"### {title}", "", "GPU: the batched path on the default JAX device; CPU: the "
+                          f"reference (HiGHS / `sweep.sweep`) in {rows[0].get('cpu_workers', '-')} process(es).", ""]
+                lines += _table(["bricks", "batch", "GPU per s", "CPU reference per s"],
+                                [[r["bricks"], r["batch"], r.get("jax_per_s", "-"), r.get("cpu_per_s", "-")] for r in rows])
+                lines += [""]
     if "render" in report:
         lines += ["## Renders", "", "Best of 3 passes over 7 views (6 orthographic, 1 isometric) at 256 px; "
                   "a step render is every image of one step except the catalog.", ""]

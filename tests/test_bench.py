@@ -17,6 +17,8 @@ def test_quick_bench_writes_report_and_plots(tmp_path):
     assert set(report["section_s"]) == {"physics", "render", "synth", "evaluation"}
     (phys,) = report["physics"]["rows"]
     assert phys["backend"] == "mujoco" and phys["checks_per_s"] > 0 and 0 < phys["accepted"] <= phys["batch"]
+    (loads,), (sweeps,) = report["physics"]["loads"], report["physics"]["sweeps"]
+    assert loads["bricks"] == sweeps["bricks"] == 30 and loads["cpu_per_s"] > 0 and sweeps["cpu_per_s"] > 0
     assert report["render"]["rows"][0]["rgb_views_per_s"] > 0
     synth = report["synth"]
     assert synth["objects"] == 5 and synth["steps"] >= 30 and synth["steps_per_s"] > 0

@@ -281,8 +281,9 @@ def check(
     config: CheckConfig = CheckConfig(),
     colour: int = 16,
     floor_y: float | None = None,
+    explain: bool = True,
 ) -> list[Verdict]:
     """Check one part type at many candidate poses against the structure (a batch); see
-    `check_units` for the ground (`floor_y`)."""
+    `check_units` for the ground (`floor_y`) and `explain`."""
     return check_units(structure, [[Placed(part, colour, p)] for p in poses], backend, config,
-                       floor_y=floor_y)
+                       floor_y=floor_y, explain=explain)

@@ -119,8 +119,9 @@ class Sampler:
                 for start in range(0, len(order), cfg.check_batch):
                     batch = order[start:start + cfg.check_batch]
                     t_check = time.perf_counter()
+                    # A rejected candidate's reason is counted, never its failing connections.
                     verdicts = check(structure, part, [poses[i] for i in batch], backend=cfg.backend,
-                                     config=cfg.check, colour=colour, floor_y=ground)
+                                     config=cfg.check, colour=colour, floor_y=ground, explain=False)
                     check_seconds += time.perf_counter() - t_check
                     for i, v in zip(batch, verdicts):
                         checked += 1
