@@ -29,7 +29,7 @@ import numpy as np
 from factory import Pose, get_reader, load_part
 from factory.physics.check import CheckConfig, check
 from factory.physics.check import _unit_connections
-from factory.physics.statics import judge_many, load_model
+from factory.physics.statics import LoadBase, judge_many
 from factory.physics.attach import feasible_poses, lowest_y
 from factory.physics.structure import Placed, Structure
 from factory.physics.sweep import _boxes
@@ -107,12 +107,8 @@ def candidates(s: Structure, batch: int, seed: int = 1) -> list[Pose]:
 def load_models(s: Structure, poses: list[Pose], config: CheckConfig = CheckConfig()) -> list:
     """The whole-structure load model of the structure with each candidate (as `check` builds it)."""
     brick = load_part(get_reader(), "3001")
-    out = []
-    for p in poses:
-        conns = _unit_connections(s, [(brick, p)])
-        out.append(load_model(s.placed + [Placed(brick, 4, p)], s.connections + conns, 24.0, [len(s)],
-                              s.links, config.loads))
-    return out
+    base = LoadBase(s.placed, s.connections, 24.0, s.links, config.loads)
+    return [base.model([Placed(brick, 4, p)], _unit_connections(s, [(brick, p)])) for p in poses]
 
 
 def measure(backends, sizes, batches, log=None, full_max: int | None = None,
@@ -188,7 +184,7 @@ def load_stage(s: Structure, poses: list[Pose], batched: bool = False, config: C
     solves its program with HiGHS (`judge_many`); the batched path (`batched`) judges them all on
     the structure's shared columns (`judge_on_base` with `lp_jax.solve_on_base`). Failing
     connections are not sought (`explain=False`, as the sampler asks)."""
-    from factory.physics.statics import LoadBase, judge_on_base
+    from factory.physics.statics import judge_on_base
 
     brick = load_part(get_reader(), "3001")
     if conns is None:

@@ -18,6 +18,29 @@ needs_ldraw = pytest.mark.skipif(
 )
 
 
+@pytest.fixture
+def isolated_cache(tmp_path_factory, monkeypatch):
+    """Collision decompositions cached in the test session's temporary folder, not the user's."""
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+def part(name: str):
+    """A part of the embedded library."""
+    from factory import get_reader, load_part
+
+    return load_part(get_reader(), name)
+
+
+def at(name: str, x: float, y: float, z: float, R=None, colour: int = 4):
+    """An embedded part placed at (x, y, z) LDU, turned by R (identity by default)."""
+    import numpy as np
+
+    from factory import Pose
+    from factory.physics.structure import Placed
+
+    return Placed(part(name), colour, Pose(np.eye(3) if R is None else R, [x, y, z]))
+
+
 @pytest.fixture(scope="session")
 def real_reader() -> Reader:
     if not (LDRAW / "parts").is_dir():

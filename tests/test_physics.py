@@ -11,29 +11,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from factory import Pose, get_reader, load_part
+from factory import Pose, load_part
 from factory.physics.check import CheckConfig, check, check_units
 from factory.physics.geometry import DecompositionConfig, cache_dir, collision_shape
 from factory.physics.statics import LoadConfig
 from factory.physics.attach import feasible_poses
 from factory.physics.structure import Placed, Structure, align, canonical_key
 from factory.symmetry import rotation_about
+from conftest import at, part
 
 ROOT = Path(__file__).resolve().parents[1]
 I3 = np.eye(3)
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
-
-
-def part(name):
-    return load_part(get_reader(), name)
-
-
-def at(name, x, y, z, R=I3, colour=4):
-    return Placed(part(name), colour, Pose(R, [x, y, z]))
+pytestmark = pytest.mark.usefixtures("isolated_cache")
 
 
 def test_enumeration_connects_every_pose_and_drops_symmetric_duplicates():

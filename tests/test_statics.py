@@ -7,28 +7,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from factory import Pose, get_reader, load_part
+from factory import Pose
 from factory.connections import STUD_RADIUS
 from factory.physics.check import CheckConfig, check, check_units
 from factory.physics.mass import GRAVITY, part_mass_properties
 from factory.physics.statics import LoadConfig, holds_alone, judge, load_model, to_lp
 from factory.physics.lp import solve_highs
-from factory.physics.structure import Placed, Structure
+from factory.physics.structure import Structure
+from conftest import at, part
 
 I3 = np.eye(3)
 
-
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
-
-
-def part(name):
-    return load_part(get_reader(), name)
-
-
-def at(name, x, y, z):
-    return Placed(part(name), 4, Pose(I3, [x, y, z]))
+pytestmark = pytest.mark.usefixtures("isolated_cache")
 
 
 def weight(name):
@@ -177,3 +167,24 @@ def test_program_is_feasible_whenever_the_component_does_not_tip():
     lp = to_lp(load_model(s.placed, s.connections, s.floor_y(), [len(s) - 1]))
     res = solve_highs(lp)
     assert res.status == "optimal" and max(lp.residuals(res.x)) < 1e-7
+
+
+@pytest.mark.parametrize("floor_y", [24.0, None])
+def test_a_units_model_from_the_structures_load_base_is_the_component_holding_it(floor_y):
+    """`LoadBase.model` (the new part's component found from its new connections) equals the model
+    `load_model` builds of the whole set of parts from the new part as seed: two towers standing
+    apart, a brick joining the second only, a brick bridging both, and a link from a brick
+    laid on the ground to the first tower."""
+    from factory.physics.check import _unit_connections
+    from factory.physics.statics import LoadBase, Link
+
+    s = Structure([at("3001", 0, 0, 0), at("3001", 0, -24, 0), at("3001", 200, 0, 0), at("3001", 200, -24, 0)])
+    base = LoadBase(s.placed, s.connections, floor_y, s.links)
+    for unit, links in (([at("3001", 200, -48, 10)], []), ([at("3008", 100, -48, 0)], []),
+                        ([at("3001", 100, 0, 100)], [Link(4, 0, (50.0, 0.0, 50.0))])):
+        conns = _unit_connections(s, [(p.part, p.pose) for p in unit])
+        got = base.model(unit, conns, links)
+        want = load_model(s.placed + unit, s.connections + conns, floor_y, [len(s)], links)
+        assert got.parts.tolist() == want.parts.tolist()
+        for field in want.__dataclass_fields__:
+            assert np.array_equal(getattr(got, field), getattr(want, field)), field

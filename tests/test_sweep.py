@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from factory import Pose, get_reader, load_part
+from factory import Pose
 from factory.parts import box_corners
 from factory.physics.attach import feasible_poses, lowest_y
 from factory.physics.check import CheckConfig, _unit_connections
@@ -18,22 +18,13 @@ from factory.physics.collide import CollisionScene
 from factory.physics.structure import Placed, Structure
 from factory.physics.sweep import SweepResult, approach, sweep
 from factory.symmetry import rotation_about
+from conftest import at, part
 
 I3 = np.eye(3)
 TOL = CheckConfig().max_penetration_ldu
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
-
-
-def part(name):
-    return load_part(get_reader(), name)
-
-
-def at(name, x, y, z, R=I3, colour=4):
-    return Placed(part(name), colour, Pose(R, [x, y, z]))
+pytestmark = pytest.mark.usefixtures("isolated_cache")
 
 
 def scene_for(structure: Structure, unit: list[Placed], floor_y: float | None = None):

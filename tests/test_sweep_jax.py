@@ -29,9 +29,7 @@ from test_sweep import (COLUMN, DIAMOND, GAP_BRICK, GAP_WALLS, HANGING, ROOF, SL
 TOL = CheckConfig().max_penetration_ldu
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+pytestmark = pytest.mark.usefixtures("isolated_cache")
 
 
 def exact(parts, unit, floor_y=None):

@@ -26,6 +26,7 @@ import numpy as np
 
 from factory.parts import Part
 from factory.physics.collide import CollisionScene
+from factory.physics.keep_last import KeepLast
 from factory.physics.mass import part_mass_properties
 from factory.physics.statics import (Failure, Link, LoadBase, LoadConfig, holds_alone, judge_many, judge_on_base,
                                      support_points)
@@ -184,16 +185,14 @@ def check_units(
     if pending:
         loads = _load_base(structure, floor_y, config.loads)
         links = [Link(l.a + base_n, l.b + base_n, l.point) for l in unit_links]
-        solver = _batch_solver(backend)
-        if solver is not None and not links and loads.shared() and all(len(u) == 1 for _, u, _ in pending):
+        lp_jax = _lp_jax(backend)
+        if lp_jax is not None and not links and loads.shared() and all(len(u) == 1 for _, u, _ in pending):
             # One part on a connected structure: the structure's columns are sent once (`solve_on_base`).
-            from factory.physics.lp_jax import solve_on_base
-
             results = judge_on_base(loads, [u for _, u, _ in pending], [c for *_, c in pending], config.loads,
-                                    solve_on_base, explain)
+                                    lp_jax.solve_on_base, explain)
         else:
             models = [loads.model(unit, conns, links) for _, unit, conns in pending]
-            results = judge_many(models, config.loads, solver, explain=explain)
+            results = judge_many(models, config.loads, lp_jax and lp_jax.solve_loads, explain=explain)
         for (k, *_), lv in zip(pending, results):
             v = verdicts[k]
             verdicts[k] = replace(v, stable=lv.stands, load=None if lv.load is None else round(lv.load, 6),
@@ -218,16 +217,17 @@ def _after_sweep(k, base, built, unit, conns, outer, standing, base_n, verdicts,
         verdicts[k] = Verdict(**base, clutch=True if outer else None, stable=True)
 
 
-def _batch_solver(backend: str):
-    """None (HiGHS, one program at a time) for the CPU reference; the batched JAX solver for 'mjx'."""
+def _lp_jax(backend: str):
+    """None for the CPU reference (HiGHS, one program at a time); the batched JAX solver's module
+    (`factory.physics.lp_jax`) for 'mjx'."""
     if backend != "mjx":
         return None
     try:
-        from factory.physics.lp_jax import solve_loads  # JAX is an optional dependency (the mjx extra)
+        from factory.physics import lp_jax  # JAX is an optional dependency (the mjx extra)
     except ModuleNotFoundError as e:
         raise RuntimeError(f"backend 'mjx' needs the batched load solver factory.physics.lp_jax and JAX "
                            f"(pip install -e '.[mjx]'); not available: {e.name}") from None
-    return solve_loads
+    return lp_jax
 
 
 def _holds_alone(unit: Sequence[Placed], outer, base_n: int, ground_y: float | None, cfg: LoadConfig) -> bool:
@@ -244,33 +244,27 @@ def _holds_alone(unit: Sequence[Placed], outer, base_n: int, ground_y: float | N
     return holds_alone(mass, weighted / mass, conns, ground, cfg)
 
 
-_LAST_SCENE: list = []
-"""The last collision scene with what it was built from (the placed parts themselves, so their ids
-cannot be reused while it is kept). The sampler checks one part against one structure in several
-calls per step (batches, redraws of the same part); building the scene is most of a call's time."""
+_SCENE = KeepLast()
+"""The last collision scene. The sampler checks one part against one structure in several calls
+per step (batches, redraws of the same part); building the scene is most of a call's time."""
+_LOADS = KeepLast()
+"""The last structure's `LoadBase`, for the same reason."""
+
+
+def _placed_key(structure: Structure, rel) -> tuple:
+    return (tuple(id(p) for p in structure.placed),
+            tuple((id(part), pose.R.tobytes(), pose.t.tobytes()) for part, pose in rel))
 
 
 def _collision_scene(structure: Structure, rel, floor: float) -> CollisionScene:
-    key = (tuple(id(p) for p in structure.placed),
-           tuple((id(part), pose.R.tobytes(), pose.t.tobytes()) for part, pose in rel), float(floor))
-    if _LAST_SCENE and _LAST_SCENE[0] == key:
-        return _LAST_SCENE[2]
-    scene = CollisionScene(structure, rel, floor)
-    _LAST_SCENE[:] = [key, (list(structure.placed), [part for part, _ in rel]), scene]
-    return scene
-
-
-_LAST_LOADS: list = []
-"""The last structure's `LoadBase`, kept as the collision scene is (`_LAST_SCENE`)."""
+    return _SCENE.get((_placed_key(structure, rel), float(floor)),
+                      (list(structure.placed), [part for part, _ in rel]),
+                      lambda: CollisionScene(structure, rel, floor))
 
 
 def _load_base(structure: Structure, floor_y: float | None, cfg) -> LoadBase:
-    key = (tuple(id(p) for p in structure.placed), len(structure.links), floor_y, cfg)
-    if _LAST_LOADS and _LAST_LOADS[0] == key:
-        return _LAST_LOADS[1]
-    base = LoadBase(structure.placed, structure.connections, floor_y, structure.links, cfg)
-    _LAST_LOADS[:] = [key, base]
-    return base
+    return _LOADS.get((_placed_key(structure, ()), len(structure.links), floor_y, cfg), list(structure.placed),
+                      lambda: LoadBase(structure.placed, structure.connections, floor_y, structure.links, cfg))
 
 
 def check(

@@ -71,6 +71,10 @@ import scipy.sparse as sp
 from jax import lax
 
 from factory.physics.lp import LinearProgram, LPResult, solve_highs
+from factory.physics.mass import GRAVITY, part_mass_properties
+from factory.physics.statics import (LEVER_LDU, PER_CONNECTION, PER_LINK, PER_SUPPORT, LoadBase, LoadConfig, LoadModel,
+                                     _connection_arrays, capacity_rows, connection_columns, layout, link_columns,
+                                     support_columns, support_points, to_lp)
 
 MAX_ITERATIONS = 80
 """Iterations after which a member that has not converged is "error" (or goes to HiGHS)."""
@@ -163,7 +167,6 @@ def _parts(lp: LinearProgram) -> _Parts:
     # Bounds: one row each.
     lo = np.flatnonzero(np.isfinite(lp.lower) & (lp.lower != lp.upper))
     up = np.flatnonzero(np.isfinite(lp.upper) & (lp.lower != lp.upper))
-    n = n0 + k
     var = np.r_[var, n0 + np.arange(k), lo, up].astype(np.int64)
     coef = np.r_[coef, np.ones(k), -np.ones(len(lo)), np.ones(len(up))]
     link = np.r_[link, np.zeros(k + len(lo) + len(up))]
@@ -516,23 +519,22 @@ def _group(buckets: Sequence[tuple[int, int, int, int]]) -> list[tuple[tuple[int
 # --- Load programs written straight into the solver's arrays -------------------------------------
 
 
-def _load_bucket(model) -> tuple[int, int, int, int]:
-    from factory.physics.statics import PER_CONNECTION, PER_LINK, PER_SUPPORT
-
-    n = 1 + PER_CONNECTION * len(model.conn_a) + PER_SUPPORT * len(model.ground_body) + PER_LINK * len(model.link_a)
-    w = 12 if len(model.conn_a) or len(model.link_a) else 6
-    return _quarter(n), _eighth(6 * model.n_bodies), _quarter(w, 1), 2
+def _n_vars(model: LoadModel) -> int:
+    return layout(model)["link"].stop
 
 
-def _load_arrays(models, cfg, batch: int, n: int, m: int, w: int, k: int) -> dict[str, np.ndarray]:
+def _load_bucket(model: LoadModel) -> tuple[int, int, int, int]:
+    w = 12 if len(model.conn_a) or len(model.link_a) else 6  # entries per column: two bodies or one
+    return _quarter(_n_vars(model)), _eighth(6 * model.n_bodies), _quarter(w, 1), 2
+
+
+def _load_arrays(models: Sequence[LoadModel], cfg: LoadConfig, batch: int, n: int, m: int, w: int,
+                 k: int) -> dict[str, np.ndarray]:
     """`_stack` of the load programs `statics.to_lp` writes, built from the models directly and
     for all of them at once (array operations over every connection of the launch, no program
-    per model): the same rows and columns as `to_lp` then `_parts` give, except that zero
-    entries are kept (they change nothing)."""
-    from factory.connections import STUD_RADIUS
-    from factory.physics.statics import LEVER_LDU, PER_CONNECTION, PER_LINK, PER_SUPPORT, UP, _basis
-    from factory.physics.mass import GRAVITY
-
+    per model), from the same columns (`statics.connection_columns`, ...): the same rows and
+    columns as `to_lp` then `_parts` give, except that zero entries are kept (they change
+    nothing). Members past the models copy the first (padding that converges with it)."""
     out = {
         "c": np.zeros((batch, n)), "b": np.zeros((batch, m)),
         "a_rows": np.zeros((batch, n, w), np.int32), "a_vals": np.zeros((batch, n, w)),
@@ -559,6 +561,9 @@ def _load_arrays(models, cfg, batch: int, n: int, m: int, w: int, k: int) -> dic
         owner = np.repeat(np.arange(B), counts)
         return owner, np.arange(len(owner)) - np.repeat(np.r_[0, np.cumsum(counts)[:-1]], counts)
 
+    def cat(name):
+        return np.concatenate([getattr(md, name) for md in models])
+
     def put(owner, cols, bodies, sign, f, p, mom, first_slot):
         """Six entries of each column (force, then moment in newton-studs) on one body."""
         torque = (np.cross(p - com[body_off[owner] + bodies], f) + mom) / LEVER_LDU
@@ -566,81 +571,102 @@ def _load_arrays(models, cfg, batch: int, n: int, m: int, w: int, k: int) -> dic
         rows_flat[at] = 6 * bodies[:, None] + np.arange(6)
         vals_flat[at] = np.concatenate([f, torque], axis=1) * sign
 
-    def bound(owner, cols, slot, coef, link):
-        out["coef"][owner, cols, slot], out["link"][owner, cols, slot] = coef, link
-        out["rhs"][owner, cols, slot], out["mask"][owner, cols, slot] = 0.0, 1.0
-
     if nc.sum():
         owner, idx = each(nc)
-        a = np.concatenate([md.conn_a for md in models])
-        b = np.concatenate([md.conn_b for md in models])
-        pos = np.concatenate([md.conn_pos for md in models])
-        ax = np.concatenate([md.conn_axis for md in models])
-        e1, e2 = _basis(ax)
-        zero = np.zeros_like(pos)
-        r = STUD_RADIUS
-        kinds = [(ax, pos + r * e1, zero), (ax, pos - r * e1, zero), (ax, pos + r * e2, zero), (ax, pos - r * e2, zero),
-                 (e1, pos, zero), (e2, pos, zero), (zero, pos, ax)]
+        a, b = cat("conn_a"), cat("conn_b")
         base = 1 + PER_CONNECTION * idx
-        for j, (f, p, mom) in enumerate(kinds):
+        for j, (f, p, mom) in enumerate(connection_columns(cat("conn_pos"), cat("conn_axis"))):
             put(owner, base + j, b, 1.0, f, p, mom, 0)
             put(owner, base + j, a, -1.0, f, p, mom, 6)
-        for j in range(4):  # tension per rim point: -g <= s C / 4
-            bound(owner, base + j, 0, -1.0, -cfg.clutch_n / 4)
-        for j, cap in ((4, cfg.shear_n), (5, cfg.shear_n), (6, cfg.torsion_nldu)):  # |t| <= s cap
-            bound(owner, base + j, 0, 1.0, -cap)
-            bound(owner, base + j, 1, -1.0, -cap)
+        slots = np.zeros(PER_CONNECTION, int)
+        for j, sign, cap in capacity_rows(cfg):  # sign * x_j <= s * cap, one slot per row
+            col, slot = base + j, slots[j]
+            out["coef"][owner, col, slot], out["link"][owner, col, slot] = sign, -cap
+            out["rhs"][owner, col, slot], out["mask"][owner, col, slot] = 0.0, 1.0
+            slots[j] += 1
     if ng.sum():
         owner, idx = each(ng)
-        gb = np.concatenate([md.ground_body for md in models])
-        gp = np.concatenate([md.ground_pos for md in models])
+        gb = cat("ground_body")
         base = 1 + PER_CONNECTION * nc[owner] + PER_SUPPORT * idx
-        zero = np.zeros_like(gp)
-        for j, d in enumerate(([1, 0, 0], [-1, 0, 0], [0, 0, 1], [0, 0, -1])):
-            f = np.broadcast_to(UP + cfg.friction * np.array(d, float), gp.shape)
-            put(owner, base + j, gb, 1.0, f, gp, zero, 0)
-            bound(owner, base + j, 0, -1.0, 0.0)  # the ground only pushes
+        for j, (f, p, mom) in enumerate(support_columns(cat("ground_pos"), cfg)):
+            put(owner, base + j, gb, 1.0, f, p, mom, 0)
+            # The ground only pushes: -x <= 0.
+            out["coef"][owner, base + j, 0], out["rhs"][owner, base + j, 0], out["mask"][owner, base + j, 0] = -1.0, 0.0, 1.0
     if nl.sum():
         owner, idx = each(nl)
-        la = np.concatenate([md.link_a for md in models])
-        lb = np.concatenate([md.link_b for md in models])
-        lp_ = np.concatenate([md.link_pos for md in models])
+        la, lb = cat("link_a"), cat("link_b")
         base = 1 + PER_CONNECTION * nc[owner] + PER_SUPPORT * ng[owner] + PER_LINK * idx
-        zero = np.zeros_like(lp_)
-        for j in range(6):  # free forces and moments: no rows
-            v = np.broadcast_to(np.eye(3)[j % 3], lp_.shape)
-            f, mom = (v, zero) if j < 3 else (zero, v)
-            put(owner, base + j, lb, 1.0, f, lp_, mom, 0)
-            put(owner, base + j, la, -1.0, f, lp_, mom, 6)
+        for j, (f, p, mom) in enumerate(link_columns(cat("link_pos"))):  # free: no rows
+            put(owner, base + j, lb, 1.0, f, p, mom, 0)
+            put(owner, base + j, la, -1.0, f, p, mom, 6)
+    for v in out.values():
+        v[B:] = v[0]
     return out
 
 
-def _base_block(base, cfg) -> tuple[dict, int]:
+def _run(arrays: dict, tol: float, max_iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """(x, status) of one launch."""
+    x, status, _ = _SOLVE(*(arrays[k] for k in _ARRAYS), np.float64(tol), np.int32(max_iterations))
+    return np.asarray(x), np.asarray(status)
+
+
+def _optimal(xi: np.ndarray, ground: slice) -> LPResult:
+    """A load program's result from its x in `layout` order (`ground`: the supports' columns);
+    s and the ground forces are >= 0 to tol: made exact."""
+    xi = xi.copy()
+    xi[0] = max(xi[0], 0.0)
+    xi[ground] = np.maximum(xi[ground], 0.0)
+    return LPResult("optimal", xi, float(xi[0]))
+
+
+def _fallback(results: list[LPResult], program, fallback: bool) -> list[LPResult]:
+    """Members that did not converge, solved by HiGHS (`program(i)`: the i-th `LinearProgram`)."""
+    if fallback:
+        for i, r in enumerate(results):
+            if r.status != "optimal":
+                FALLBACKS[0] += 1
+                results[i] = solve_highs(program(i))
+    return results
+
+
+def solve_loads(models: Sequence[LoadModel], cfg: LoadConfig | None = None, *, tol: float = 1e-8,
+                max_iterations: int = MAX_ITERATIONS, fallback: bool = True) -> list[LPResult]:
+    """The load program of each `statics.LoadModel` (as `statics.to_lp` writes it), all at once on
+    the default JAX device, written straight into the solver's arrays (`_load_arrays`); results as
+    `solve_batch` gives them for `to_lp`'s programs (x in `statics.layout`'s columns, objective s).
+    A member that does not converge goes to HiGHS with `fallback` (`FALLBACKS` counts them)."""
+    cfg = cfg or LoadConfig()
+    results: list[LPResult] = [LPResult("error", None, float("nan"))] * len(models)
+    with jax.enable_x64(True):
+        for shape, chunk in _group([_load_bucket(md) for md in models]):
+            if shape not in COMPILES:
+                COMPILES.append(shape)
+            x, status = _run(_load_arrays([models[i] for i in chunk], cfg, *shape), tol, max_iterations)
+            for j, i in enumerate(chunk):
+                if status[j] == _OPTIMAL:
+                    results[i] = _optimal(x[j, :_n_vars(models[i])], layout(models[i])["ground"])
+    return _fallback(results, lambda i: to_lp(models[i], cfg), fallback)
+
+
+def _base_block(base: LoadBase, cfg: LoadConfig) -> dict:
     """The structure's own columns (connections, supports, links: the same in every candidate's
-    program), on the device, kept on `base`; and their count."""
-    key = ("_lp_jax_block", cfg)
-    hit = getattr(base, "_lp_jax_cache", None)
-    if hit is not None and hit[0] == key:
-        return hit[1], hit[2]
-    alone = base.alone()
-    n_own = _layout_size(alone)
-    m = 6 * (base.n + 1)
-    arrays = _load_arrays([alone], cfg, 1, n_own, m, 12, 2)
-    block = {key_: jnp.asarray(arrays[key_][0, 1:]) for key_ in ("a_rows", "a_vals", "coef", "link", "rhs", "mask")}
-    base._lp_jax_cache = (key, block, n_own - 1)
-    return block, n_own - 1
+    program, without s), on the device, kept on `base` for its load constants."""
+    hit = getattr(base, "_lp_jax_block", None)
+    if hit is None or hit[0] != cfg:
+        alone = base.alone()
+        arrays = _load_arrays([alone], cfg, 1, _n_vars(alone), 6 * (base.n + 1), 12, 2)
+        hit = (cfg, {key: jnp.asarray(arrays[key][0, 1:]) for key in _ASSEMBLED})
+        base._lp_jax_block = hit
+    return hit[1]
 
 
-def _layout_size(model) -> int:
-    from factory.physics.statics import PER_CONNECTION, PER_LINK, PER_SUPPORT
-
-    return 1 + PER_CONNECTION * len(model.conn_a) + PER_SUPPORT * len(model.ground_body) + PER_LINK * len(model.link_a)
+_ASSEMBLED = ("a_rows", "a_vals", "coef", "link", "rhs", "mask")
 
 
 def _assemble_impl(n, block, new):
     """Each candidate's arrays: its s column, the structure's columns, its own, then padding to n."""
     out = {}
-    for key in ("a_rows", "a_vals", "coef", "link", "rhs", "mask"):
+    for key in _ASSEMBLED:
         nn, bb = new[key], block[key]
         full = jnp.concatenate([nn[:, :1], jnp.broadcast_to(bb, (nn.shape[0],) + bb.shape), nn[:, 1:]], axis=1)
         widths = [(0, 0), (0, n - full.shape[1])] + [(0, 0)] * (full.ndim - 2)
@@ -653,102 +679,54 @@ def _assemble_impl(n, block, new):
 _ASSEMBLE = jax.jit(_assemble_impl, static_argnums=0)
 
 
-def solve_on_base(base, units: Sequence, conns: Sequence, cfg=None, *, tol: float = 1e-8,
-                  max_iterations: int = MAX_ITERATIONS, fallback: bool = True) -> list[LPResult]:
+def solve_on_base(base: LoadBase, units: Sequence, conns: Sequence, cfg: LoadConfig | None = None, *,
+                  tol: float = 1e-8, max_iterations: int = MAX_ITERATIONS, fallback: bool = True) -> list[LPResult]:
     """The load program of each one-part unit on a `statics.LoadBase` whose parts form one
     component (`base.shared()`), as `solve_loads` of `base.model(unit, conns)` gives it, but with
     the structure's columns written and sent to the device once (`_base_block`) and only each
     candidate's own columns (its connections and ground supports) built per candidate; the device
     joins them (`_ASSEMBLE`). x comes back in `statics.layout` order of that model."""
-    from factory.physics.mass import part_mass_properties
-    from factory.physics.statics import LoadConfig, LoadModel, PER_CONNECTION, PER_SUPPORT, support_points, to_lp
-
     cfg = cfg or LoadConfig()
     if not units:
         return []
     nb = base.n
+    # Each candidate's own columns, as the model of the unit's connections and supports alone (the
+    # structure's bodies kept, for their rows and centres of mass).
+    own = []
+    for unit, cs in zip(units, conns):
+        m, c, _ = part_mass_properties(unit[0].part)
+        pts = support_points(unit[0], base.floor_y, cfg)
+        ca, cb, cp, cx = _connection_arrays(cs)
+        own.append(LoadModel(
+            parts=None, mass=np.r_[base.mass, m], com=np.concatenate([base.com, unit[0].pose.apply(c)[None]]),
+            conn_a=ca, conn_b=cb, conn_pos=cp, conn_axis=cx,
+            ground_body=np.full(len(pts), nb, np.int64), ground_pos=pts,
+            link_a=np.zeros(0, np.int64), link_b=np.zeros(0, np.int64), link_pos=np.zeros((0, 3))))
+    sizes = np.array([_n_vars(md) for md in own])
+    width = int(sizes.max())
+    shared = layout(base.alone())
+    n_block = shared["link"].stop - 1
+    n = _quarter(n_block + width)
     results: list[LPResult] = [LPResult("error", None, float("nan"))] * len(units)
     with jax.enable_x64(True):
-        block, n_block = _base_block(base, cfg)
-        own = []
-        for unit, cs in zip(units, conns):
-            placed = unit[0]
-            m, c, _ = part_mass_properties(placed.part)
-            pts = support_points(placed, base.floor_y, cfg)
-            own.append(LoadModel(
-                parts=None, mass=np.r_[base.mass, m], com=np.concatenate([base.com, placed.pose.apply(c)[None]]),
-                conn_a=np.array([x[0] for x in cs], np.int64), conn_b=np.array([x[1] for x in cs], np.int64),
-                conn_pos=np.array([x[2] for x in cs], float).reshape(-1, 3),
-                conn_axis=np.array([x[3] for x in cs], float).reshape(-1, 3),
-                ground_body=np.full(len(pts), nb, np.int64), ground_pos=pts,
-                link_a=np.zeros(0, np.int64), link_b=np.zeros(0, np.int64), link_pos=np.zeros((0, 3))))
-        sizes = np.array([_layout_size(md) for md in own])
-        width = int(sizes.max())
-        n = _quarter(n_block + width)
-        m = _eighth(6 * (nb + 1))
-        for shape, chunk in _group([(n, m, 12, 2)] * len(own)):
+        block = _base_block(base, cfg)
+        for shape, chunk in _group([(n, _eighth(6 * (nb + 1)), 12, 2)] * len(own)):
             if shape not in COMPILES:
                 COMPILES.append(shape)
             new = _load_arrays([own[i] for i in chunk], cfg, shape[0], width, shape[2], 12, 2)
-            for v in new.values():  # padding members copy the first: they converge with it
-                v[len(chunk):] = v[0]
-            arrays = _ASSEMBLE(n, block, {k: jnp.asarray(v) for k, v in new.items()})
-            x, status, _ = _SOLVE(*(arrays[k] for k in _ARRAYS), np.float64(tol), np.int32(max_iterations))
-            x, status = np.asarray(x), np.asarray(status)
-            ncb, ngb = len(base.conn_a), sum(len(g) for g in base._support(base.floor_y))
-            o_conn, o_ground, o_link = 1, 1 + PER_CONNECTION * ncb, 1 + PER_CONNECTION * ncb + PER_SUPPORT * ngb
+            x, status = _run(_ASSEMBLE(n, block, {k: jnp.asarray(v) for k, v in new.items()}), tol, max_iterations)
             for j, i in enumerate(chunk):
                 if status[j] != _OPTIMAL:
                     continue
-                md = own[i]
-                o_new = 1 + n_block
-                nc = PER_CONNECTION * len(md.conn_a)
-                xi = np.concatenate([x[j, :1], x[j, o_conn:o_ground], x[j, o_new:o_new + nc],
-                                     x[j, o_ground:o_link], x[j, o_new + nc:o_new + sizes[i] - 1],
-                                     x[j, o_link:1 + n_block]])
-                xi[0] = max(xi[0], 0.0)
-                results[i] = LPResult("optimal", xi, float(xi[0]))
-    if fallback:
-        for i, r in enumerate(results):
-            if r.status != "optimal":
-                FALLBACKS[0] += 1
-                results[i] = solve_highs(to_lp(base.model(units[i], conns[i]), cfg))
-    return results
-
-
-def solve_loads(models: Sequence, cfg=None, *, tol: float = 1e-8, max_iterations: int = MAX_ITERATIONS,
-                fallback: bool = True) -> list[LPResult]:
-    """The load program of each `statics.LoadModel` (as `statics.to_lp` writes it), all at once on
-    the default JAX device, written straight into the solver's arrays (`_load_arrays`); results as
-    `solve_batch` gives them for `to_lp`'s programs (x in `statics.layout`'s columns, objective s).
-    A member that does not converge goes to HiGHS with `fallback` (`FALLBACKS` counts them)."""
-    from factory.physics.statics import LoadConfig, PER_CONNECTION, PER_LINK, PER_SUPPORT, to_lp
-
-    cfg = cfg or LoadConfig()
-    results: list[LPResult] = [LPResult("error", None, float("nan"))] * len(models)
-    with jax.enable_x64(True):
-        for shape, chunk in _group([_load_bucket(md) for md in models]):
-            if shape not in COMPILES:
-                COMPILES.append(shape)
-            arrays = _load_arrays([models[i] for i in chunk], cfg, *shape)
-            x, status, _ = _SOLVE(*(arrays[key] for key in _ARRAYS), np.float64(tol), np.int32(max_iterations))
-            x, status = np.asarray(x), np.asarray(status)
-            for j, i in enumerate(chunk):
-                if status[j] != _OPTIMAL:
-                    continue
-                md = models[i]
-                nvar = 1 + PER_CONNECTION * len(md.conn_a) + PER_SUPPORT * len(md.ground_body) + PER_LINK * len(md.link_a)
-                xi = x[j, :nvar].copy()
-                xi[0] = max(xi[0], 0.0)  # bounds hold to tol; make them exact
-                g = slice(1 + PER_CONNECTION * len(md.conn_a), 1 + PER_CONNECTION * len(md.conn_a) + PER_SUPPORT * len(md.ground_body))
-                xi[g] = np.maximum(xi[g], 0.0)
-                results[i] = LPResult("optimal", xi, float(xi[0]))
-    if fallback:
-        for i, r in enumerate(results):
-            if r.status != "optimal":
-                FALLBACKS[0] += 1
-                results[i] = solve_highs(to_lp(models[i], cfg))
-    return results
+                # Columns here: s, the structure's (connections, supports, links), the unit's
+                # (connections, supports); `layout` wants connections, supports, links.
+                mine, xj = layout(own[i]), x[j]
+                own_conn, own_ground = (xj[n_block + c.start:n_block + c.stop] for c in (mine["conn"], mine["ground"]))
+                xi = np.concatenate([xj[:1], xj[shared["conn"]], own_conn, xj[shared["ground"]], own_ground,
+                                     xj[shared["link"]]])
+                start = shared["conn"].stop + len(own_conn)
+                results[i] = _optimal(xi, slice(start, start + len(own_ground) + shared["ground"].stop - shared["ground"].start))
+    return _fallback(results, lambda i: to_lp(base.model(units[i], conns[i]), cfg), fallback)
 
 
 # --- Test problems and the benchmark ----------------------------------------------------------

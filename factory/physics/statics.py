@@ -186,80 +186,23 @@ def _hull_xz(xz: np.ndarray) -> np.ndarray:
         return xz[[int(proj.argmin()), int(proj.argmax())]]
 
 
-def component(n: int, edges: Sequence[tuple[int, int]], seeds: Sequence[int]) -> np.ndarray:
-    """Sorted indices of the parts connected (through `edges`) to any of `seeds`."""
-    adj: list[list[int]] = [[] for _ in range(n)]
-    for a, b in edges:
-        adj[a].append(b)
-        adj[b].append(a)
-    seen = set(seeds)
-    stack = list(seeds)
-    while stack:
-        for j in adj[stack.pop()]:
-            if j not in seen:
-                seen.add(j)
-                stack.append(j)
-    return np.array(sorted(seen), dtype=np.int64)
-
-
-def load_model(placed: Sequence[Placed], connections: Sequence[tuple[int, int, np.ndarray, np.ndarray]],
-               floor_y: float | None, seeds: Sequence[int], links: Sequence[Link] = (),
-               cfg: LoadConfig = LoadConfig()) -> LoadModel:
-    """The component holding `seeds` (part indices) of the parts `placed`, with their stud
-    connections `(stud part, socket part, stud base, stud axis)`, rigid links and the ground at
-    LDraw height `floor_y`; None: the component rests on its own lowest point (a human build, where
-    parts laid on the table wait to be joined and a car body waits for its wheels)."""
-    edges = [(a, b) for a, b, _, _ in connections] + [(l.a, l.b) for l in links]
-    comp = component(len(placed), edges, seeds)
-    if floor_y is None:
-        floor_y = lowest_point([placed[i] for i in comp])
-    body = np.full(len(placed), -1, np.int64)
-    body[comp] = np.arange(len(comp))
-    mass, com = np.empty(len(comp)), np.empty((len(comp), 3))
-    gb, gp = [], []
-    for k, i in enumerate(comp):
-        m, c, _ = part_mass_properties(placed[i].part)
-        mass[k], com[k] = m, placed[i].pose.apply(c)
-        pts = support_points(placed[i], floor_y, cfg)
-        gb.extend([k] * len(pts))
-        gp.append(pts)
-    conns = [(body[a], body[b], p, n) for a, b, p, n in connections if body[a] >= 0]
-    lk = [(body[l.a], body[l.b], np.asarray(l.point, float)) for l in links if body[l.a] >= 0]
-    return LoadModel(
-        parts=comp, mass=mass, com=com,
-        conn_a=np.array([c[0] for c in conns], np.int64), conn_b=np.array([c[1] for c in conns], np.int64),
-        conn_pos=np.array([c[2] for c in conns], float).reshape(-1, 3),
-        conn_axis=np.array([c[3] for c in conns], float).reshape(-1, 3),
-        ground_body=np.array(gb, np.int64), ground_pos=np.concatenate(gp) if gp else np.zeros((0, 3)),
-        link_a=np.array([l[0] for l in lk], np.int64), link_b=np.array([l[1] for l in lk], np.int64),
-        link_pos=np.array([l[2] for l in lk], float).reshape(-1, 3),
-    )
-
-
 class LoadBase:
     """A structure's parts as the load model needs them, computed once for every candidate of a
     call (`check_units` judges hundreds against one structure): masses, centres of mass, support
-    points, its connections as arrays and its components. `model(unit, conns, unit_links)` then
-    gives exactly what `load_model(placed + unit, connections + conns, floor_y, unit's indices,
-    links + unit_links)` gives, in array operations instead of a walk over the whole structure."""
+    points, its connections and links as arrays and its components (union-find). `of(seeds)` is the
+    model of the component holding some of its parts (`load_model`); `model(unit, conns,
+    unit_links)` that of a unit added to it, in array operations instead of a walk over the whole
+    structure per candidate."""
 
     def __init__(self, placed: Sequence[Placed], connections, floor_y: float | None,
                  links: Sequence[Link] = (), cfg: LoadConfig = LoadConfig()):
         self.placed, self.floor_y, self.cfg = list(placed), floor_y, cfg
-        n = len(self.placed)
-        self.n = n
+        n = self.n = len(self.placed)
         props = [part_mass_properties(p.part) for p in self.placed]
         self.mass = np.array([m for m, _, _ in props], float)
         self.com = np.array([p.pose.apply(c) for p, (_, c, _) in zip(self.placed, props)], float).reshape(-1, 3)
-        self.conn_a = np.array([c[0] for c in connections], np.int64)
-        self.conn_b = np.array([c[1] for c in connections], np.int64)
-        self.conn_pos = np.array([c[2] for c in connections], float).reshape(-1, 3)
-        self.conn_axis = np.array([c[3] for c in connections], float).reshape(-1, 3)
-        self.links = list(links)
-        self.link_a = np.array([l.a for l in links], np.int64)
-        self.link_b = np.array([l.b for l in links], np.int64)
-        self.link_pos = np.array([l.point for l in links], float).reshape(-1, 3)
-        # Components by union-find over connections and links.
+        self.conn_a, self.conn_b, self.conn_pos, self.conn_axis = _connection_arrays(connections)
+        self.link_a, self.link_b, self.link_pos = _link_arrays(links)
         parent = np.arange(n)
 
         def root(i):
@@ -268,13 +211,13 @@ class LoadBase:
                 i = parent[i]
             return i
 
-        for a, b in list(zip(self.conn_a, self.conn_b)) + list(zip(self.link_a, self.link_b)):
+        for a, b in zip(np.r_[self.conn_a, self.link_a], np.r_[self.conn_b, self.link_b]):
             ra, rb = root(int(a)), root(int(b))
             if ra != rb:
                 parent[max(ra, rb)] = min(ra, rb)
         self.label = np.array([root(i) for i in range(n)], np.int64)
         self._supports: dict[float, list[np.ndarray]] = {}
-        self._lowest = np.array([lowest_point([p]) for p in self.placed]) if n else np.zeros(0)
+        self._hull: np.ndarray | None = None
 
     def _support(self, floor_y: float) -> list[np.ndarray]:
         key = round(floor_y, 6)
@@ -282,44 +225,46 @@ class LoadBase:
             self._supports[key] = [support_points(p, floor_y, self.cfg) for p in self.placed]
         return self._supports[key]
 
-    def model(self, unit: Sequence[Placed], conns, unit_links: Sequence[Link] = ()) -> LoadModel:
-        """The load model of the component holding `unit` (numbered after the structure's parts),
-        with its connections `conns` (structure and unit, in that numbering) and `unit_links`
-        (rigid links, in that numbering)."""
+    def _model(self, member: np.ndarray, unit: Sequence[Placed] = (), conns=(), unit_links: Sequence[Link] = ()) -> LoadModel:
+        """The structure's parts in `member` (a mask), then the unit's (numbered after the
+        structure's), with the connections and links among them and the new ones."""
         n, k = self.n, len(unit)
-        new_a = np.array([c[0] for c in conns], np.int64)
-        new_b = np.array([c[1] for c in conns], np.int64)
-        ends = np.r_[new_a, new_b, [l.a for l in unit_links], [l.b for l in unit_links]].astype(np.int64)
-        # The unit's parts are all seeds: the component is them and the structure's components
-        # any new edge reaches (an edge between two unit parts reaches none).
-        touched = np.unique(self.label[ends[ends < n]])
-        member = np.isin(self.label, touched)
-        comp = np.r_[np.flatnonzero(member), n + np.arange(k)]
+        comp = np.r_[np.flatnonzero(member), n + np.arange(k)].astype(np.int64)
         body = np.full(n + k, -1, np.int64)
         body[comp] = np.arange(len(comp))
         props = [part_mass_properties(p.part) for p in unit]
-        mass = np.r_[self.mass[member], [m for m, _, _ in props]]
-        com = np.concatenate([self.com[member], np.array([p.pose.apply(c) for p, (_, c, _) in zip(unit, props)]).reshape(-1, 3)])
         floor_y = self.floor_y
         if floor_y is None:  # the component rests on its own lowest point
-            floor_y = max([lowest_point(unit)] + ([float(self._lowest[member].max())] if member.any() else []))
+            floor_y = lowest_point([self.placed[i] for i in comp[comp < n]] + list(unit))
         base_pts = self._support(floor_y)
-        gp = [base_pts[i] for i in np.flatnonzero(member)] + [support_points(p, floor_y, self.cfg) for p in unit]
-        gb = np.repeat(np.arange(len(comp)), [len(g) for g in gp])
-        keep = member[self.conn_a] if len(self.conn_a) else np.zeros(0, bool)
-        lk = member[self.link_a] if len(self.link_a) else np.zeros(0, bool)
-        ul_a = np.array([l.a for l in unit_links], np.int64)
-        ul_b = np.array([l.b for l in unit_links], np.int64)
+        gp = [base_pts[i] for i in comp[comp < n]] + [support_points(p, floor_y, self.cfg) for p in unit]
+        keep, lk = member[self.conn_a], member[self.link_a]
+        new_a, new_b, new_pos, new_axis = _connection_arrays(conns)
+        ul_a, ul_b, ul_pos = _link_arrays(unit_links)
         return LoadModel(
-            parts=comp, mass=mass, com=com,
+            parts=comp, mass=np.r_[self.mass[member], [m for m, _, _ in props]],
+            com=np.concatenate([self.com[member], np.array([p.pose.apply(c) for p, (_, c, _) in zip(unit, props)]).reshape(-1, 3)]),
             conn_a=body[np.r_[self.conn_a[keep], new_a]], conn_b=body[np.r_[self.conn_b[keep], new_b]],
-            conn_pos=np.concatenate([self.conn_pos[keep], np.array([c[2] for c in conns], float).reshape(-1, 3)]),
-            conn_axis=np.concatenate([self.conn_axis[keep], np.array([c[3] for c in conns], float).reshape(-1, 3)]),
-            ground_body=gb.astype(np.int64), ground_pos=np.concatenate(gp) if gp else np.zeros((0, 3)),
+            conn_pos=np.concatenate([self.conn_pos[keep], new_pos]),
+            conn_axis=np.concatenate([self.conn_axis[keep], new_axis]),
+            ground_body=np.repeat(np.arange(len(comp)), [len(g) for g in gp]).astype(np.int64),
+            ground_pos=np.concatenate(gp) if gp else np.zeros((0, 3)),
             link_a=body[np.r_[self.link_a[lk], ul_a]], link_b=body[np.r_[self.link_b[lk], ul_b]],
-            link_pos=np.concatenate([self.link_pos[lk], np.array([l.point for l in unit_links], float).reshape(-1, 3)]),
+            link_pos=np.concatenate([self.link_pos[lk], ul_pos]),
         )
 
+    def of(self, seeds: Sequence[int]) -> LoadModel:
+        """The model of the component holding `seeds` (structure part indices)."""
+        return self._model(np.isin(self.label, self.label[np.asarray(seeds, np.int64)]))
+
+    def model(self, unit: Sequence[Placed], conns, unit_links: Sequence[Link] = ()) -> LoadModel:
+        """The model of the component holding `unit` (numbered after the structure's parts), with
+        its connections `conns` (structure and unit, in that numbering) and `unit_links` (rigid
+        links, in that numbering). The unit's parts are all seeds: the component is them and the
+        structure's components any new edge reaches (an edge between two unit parts reaches none)."""
+        ends = np.r_[[c[0] for c in conns], [c[1] for c in conns],
+                     [l.a for l in unit_links], [l.b for l in unit_links]].astype(np.int64)
+        return self._model(np.isin(self.label, self.label[ends[ends < self.n]]), unit, conns, unit_links)
 
     # -- many one-part candidates on one connected structure --------------------------------------
     def shared(self) -> bool:
@@ -330,46 +275,58 @@ class LoadBase:
 
     def alone(self) -> LoadModel:
         """The structure's own model (all its parts, connections, supports and links)."""
-        pts = self._support(self.floor_y)
-        return LoadModel(
-            parts=np.arange(self.n), mass=self.mass, com=self.com, conn_a=self.conn_a, conn_b=self.conn_b,
-            conn_pos=self.conn_pos, conn_axis=self.conn_axis,
-            ground_body=np.repeat(np.arange(self.n), [len(g) for g in pts]).astype(np.int64),
-            ground_pos=np.concatenate(pts) if pts else np.zeros((0, 3)),
-            link_a=self.link_a, link_b=self.link_b, link_pos=self.link_pos)
+        return self._model(np.ones(self.n, bool))
 
     def hull(self) -> np.ndarray:
-        """The structure's support polygon (xz), kept."""
-        if getattr(self, "_hull", None) is None:
+        """The structure's support polygon (xz) on its ground, kept."""
+        if self._hull is None:
             g = self.alone().ground_pos
             self._hull = _hull_xz(np.unique(np.round(g[:, [0, 2]], 6), axis=0)) if len(g) else np.zeros((0, 2))
         return self._hull
 
 
+def _connection_arrays(connections) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(stud part, socket part, stud base, stud axis) tuples as four arrays."""
+    return (np.array([c[0] for c in connections], np.int64), np.array([c[1] for c in connections], np.int64),
+            np.array([c[2] for c in connections], float).reshape(-1, 3),
+            np.array([c[3] for c in connections], float).reshape(-1, 3))
+
+
+def _link_arrays(links: Sequence[Link]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return (np.array([l.a for l in links], np.int64), np.array([l.b for l in links], np.int64),
+            np.array([l.point for l in links], float).reshape(-1, 3))
+
+
+def load_model(placed: Sequence[Placed], connections: Sequence[tuple[int, int, np.ndarray, np.ndarray]],
+               floor_y: float | None, seeds: Sequence[int], links: Sequence[Link] = (),
+               cfg: LoadConfig = LoadConfig()) -> LoadModel:
+    """The component holding `seeds` (part indices) of the parts `placed`, with their stud
+    connections `(stud part, socket part, stud base, stud axis)`, rigid links and the ground at
+    LDraw height `floor_y`; None: the component rests on its own lowest point (a human build, where
+    parts laid on the table wait to be joined and a car body waits for its wheels)."""
+    return LoadBase(placed, connections, floor_y, links, cfg).of(seeds)
+
+
 def judge_on_base(base: LoadBase, units: Sequence[Sequence[Placed]], conns: Sequence, cfg: LoadConfig,
                   solve_on_base: Callable, explain: bool = True) -> list[LoadVerdict]:
     """`judge_many` of `base.model(unit, conns)` for one-part units on a `base.shared()` structure,
-    without a model per candidate: the tipping rule for all at once (the structure's support
-    polygon, kept, where the part does not touch the ground), then `solve_on_base(base, units,
-    conns, cfg)` for those that stand (`lp_jax.solve_on_base`). Models are built only for the
-    failing connections of an overload (`explain`) and for parts on the ground."""
-    k = len(units)
-    masses = np.array([part_mass_properties(u[0].part)[0] for u in units])
-    coms = np.array([u[0].pose.apply(part_mass_properties(u[0].part)[1]) for u in units]).reshape(-1, 3)
-    total = base.mass.sum()
-    centre = (total * (base.mass @ base.com / total) + masses[:, None] * coms) / (total + masses)[:, None]
+    without a model per candidate: the tipping rule at once for those that do not touch the ground
+    (the structure's support polygon, kept), then `solve_on_base(base, units, conns, cfg)` for those
+    that stand (`lp_jax.solve_on_base`). Models are built only for parts on the ground and for the
+    failing connections of an overload (`explain`)."""
+    props = [part_mass_properties(u[0].part) for u in units]
+    masses = np.array([m for m, _, _ in props])
+    coms = np.array([u[0].pose.apply(c) for u, (_, c, _) in zip(units, props)]).reshape(-1, 3)
+    centre = (base.mass @ base.com + masses[:, None] * coms) / (base.mass.sum() + masses)[:, None]
     grounded = np.array([len(support_points(u[0], base.floor_y, cfg)) > 0 for u in units], bool)
     hull = base.hull()
-    tipping = np.zeros(k, bool)
-    for i in range(k):
-        if grounded[i]:
-            tipping[i] = tips(base.model(units[i], conns[i]), cfg)
-        else:
-            tipping[i] = not len(hull) or not _inside(hull, centre[i, [0, 2]], cfg.tolerance)
+    tipping = ~_inside_many(hull, centre[:, [0, 2]], cfg.tolerance) if len(hull) else np.ones(len(units), bool)
+    for i in np.flatnonzero(grounded):  # its own supports widen the polygon
+        tipping[i] = tips(base.model(units[i], conns[i]), cfg)
     todo = np.flatnonzero(~tipping)
     results = solve_on_base(base, [units[i] for i in todo], [conns[i] for i in todo], cfg)
     links = len(base.link_a)
-    out: list[LoadVerdict] = [LoadVerdict(False, "unstable", None, rigid_links=links)] * k
+    out: list[LoadVerdict] = [LoadVerdict(False, "unstable", None, rigid_links=links)] * len(units)
     for i, r in zip(todo, results):
         if r.status != "optimal":
             raise RuntimeError(f"load program not solved: {r.status}")
@@ -392,18 +349,24 @@ def tips(model: LoadModel, cfg: LoadConfig = LoadConfig()) -> bool:
 
 
 def _inside(poly: np.ndarray, c: np.ndarray, tol: float) -> bool:
+    return bool(_inside_many(poly, np.asarray(c)[None], tol)[0])
+
+
+def _inside_many(poly: np.ndarray, pts: np.ndarray, tol: float) -> np.ndarray:
+    """Whether each point (k, 2) lies in the convex polygon `poly` (counter-clockwise, as
+    `_hull_xz` gives it; a point or a segment when it has one or two corners), within tol."""
     if len(poly) == 1:
-        return bool(np.linalg.norm(c - poly[0]) <= tol)
+        return np.linalg.norm(pts - poly[0], axis=1) <= tol
     if len(poly) == 2:
         a, b = poly
         ab = b - a
-        t = np.clip((c - a) @ ab / (ab @ ab), 0.0, 1.0)
-        return bool(np.linalg.norm(a + t * ab - c) <= tol)
+        t = np.clip((pts - a) @ ab / (ab @ ab), 0.0, 1.0)
+        return np.linalg.norm(a + t[:, None] * ab - pts, axis=1) <= tol
     # ConvexHull orders 2-D vertices counter-clockwise: inside is left of every edge.
     e = np.roll(poly, -1, axis=0) - poly
-    d = c - poly
-    cross = e[:, 0] * d[:, 1] - e[:, 1] * d[:, 0]
-    return bool((cross >= -tol * np.linalg.norm(e, axis=1)).all())
+    d = pts[:, None, :] - poly[None]
+    cross = e[:, 0] * d[:, :, 1] - e[:, 1] * d[:, :, 0]
+    return (cross >= -tol * np.linalg.norm(e, axis=1)).all(axis=1)
 
 
 # -- the linear program ----------------------------------------------------------------------------
@@ -432,6 +395,37 @@ def layout(model: LoadModel) -> dict[str, slice]:
     return {"s": slice(0, 1), "conn": slice(1, o1), "ground": slice(o1, o2), "link": slice(o2, o2 + PER_LINK * nl)}
 
 
+def connection_columns(pos: np.ndarray, axis: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The 7 columns of each stud connection (nc, 3 each), as (force direction, point, moment)
+    acting on the socket's part: the four rim forces along the axis, two shears, the torsion."""
+    e1, e2 = _basis(axis)
+    r = STUD_RADIUS
+    z = np.zeros_like(pos)
+    rims = [(axis, pos + r * e1, z), (axis, pos - r * e1, z), (axis, pos + r * e2, z), (axis, pos - r * e2, z)]
+    return rims + [(e1, pos, z), (e2, pos, z), (z, pos, axis)]
+
+
+def capacity_rows(cfg: LoadConfig) -> list[tuple[int, float, float]]:
+    """(column of the connection, sign, capacity): each row sign * x[column] <= s * capacity."""
+    rows = [(j, -1.0, cfg.clutch_n / 4) for j in range(4)]  # tension per rim point
+    rows += [(j, sign, cfg.shear_n) for j in (4, 5) for sign in (1.0, -1.0)]
+    return rows + [(6, sign, cfg.torsion_nldu) for sign in (1.0, -1.0)]
+
+
+def support_columns(pos: np.ndarray, cfg: LoadConfig) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The 4 columns of each ground support point: the edges of its friction pyramid."""
+    z = np.zeros_like(pos)
+    return [(np.broadcast_to(UP + cfg.friction * np.array(d, float), pos.shape), pos, z)
+            for d in ([1, 0, 0], [-1, 0, 0], [0, 0, 1], [0, 0, -1])]
+
+
+def link_columns(pos: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The 6 columns of each rigid link: a free force, then a free moment, along x, y, z."""
+    z = np.zeros_like(pos)
+    axes = [np.broadcast_to(np.eye(3)[j], pos.shape) for j in range(3)]
+    return [(v, pos, z) for v in axes] + [(z, pos, v) for v in axes]
+
+
 def to_lp(model: LoadModel, cfg: LoadConfig = LoadConfig()) -> LinearProgram:
     """The minimax load program of a model (module docstring); `s` is variable 0."""
     cols = layout(model)
@@ -443,34 +437,15 @@ def to_lp(model: LoadModel, cfg: LoadConfig = LoadConfig()) -> LinearProgram:
         on.append(bodies), sign.append(signs), col.append(columns)
         force.append(f), point.append(p), moment.append(m)
 
-    nc = len(model.conn_a)
-    if nc:
-        ax = model.conn_axis
-        e1, e2 = _basis(ax)
-        r = STUD_RADIUS
-        rims = [model.conn_pos + r * e1, model.conn_pos - r * e1, model.conn_pos + r * e2, model.conn_pos - r * e2]
-        base = cols["conn"].start + PER_CONNECTION * np.arange(nc)
-        z = np.zeros((nc, 3))
-        kinds = [(ax, rims[j], z) for j in range(4)] + [(e1, model.conn_pos, z), (e2, model.conn_pos, z), (z, model.conn_pos, ax)]
-        for j, (f, p, m) in enumerate(kinds):
-            for bodies, s in ((model.conn_b, 1.0), (model.conn_a, -1.0)):
-                add(bodies, np.full(nc, s), base + j, f, p, m)
-    ng = len(model.ground_body)
-    if ng:
-        base = cols["ground"].start + PER_SUPPORT * np.arange(ng)
-        z = np.zeros((ng, 3))
-        for j, d in enumerate(([1, 0, 0], [-1, 0, 0], [0, 0, 1], [0, 0, -1])):
-            f = np.tile(UP + cfg.friction * np.array(d, float), (ng, 1))
-            add(model.ground_body, np.ones(ng), base + j, f, model.ground_pos, z)
-    nl = len(model.link_a)
-    if nl:
-        base = cols["link"].start + PER_LINK * np.arange(nl)
-        z = np.zeros((nl, 3))
-        for j in range(6):
-            v = np.tile(np.eye(3)[j % 3], (nl, 1))
-            f, m = (v, z) if j < 3 else (z, v)
-            for bodies, s in ((model.link_b, 1.0), (model.link_a, -1.0)):
-                add(bodies, np.full(nl, s), base + j, f, model.link_pos, m)
+    nc, ng, nl = len(model.conn_a), len(model.ground_body), len(model.link_a)
+    for j, (f, p, m) in enumerate(connection_columns(model.conn_pos, model.conn_axis) if nc else []):
+        for bodies, s in ((model.conn_b, 1.0), (model.conn_a, -1.0)):
+            add(bodies, np.full(nc, s), cols["conn"].start + PER_CONNECTION * np.arange(nc) + j, f, p, m)
+    for j, (f, p, m) in enumerate(support_columns(model.ground_pos, cfg) if ng else []):
+        add(model.ground_body, np.ones(ng), cols["ground"].start + PER_SUPPORT * np.arange(ng) + j, f, p, m)
+    for j, (f, p, m) in enumerate(link_columns(model.link_pos) if nl else []):
+        for bodies, s in ((model.link_b, 1.0), (model.link_a, -1.0)):
+            add(bodies, np.full(nl, s), cols["link"].start + PER_LINK * np.arange(nl) + j, f, p, m)
 
     rows, cc, vals = [], [], []
     if on:
@@ -490,13 +465,10 @@ def to_lp(model: LoadModel, cfg: LoadConfig = LoadConfig()) -> LinearProgram:
     b_eq = np.zeros(6 * model.n_bodies)
     b_eq[1::6] = -model.mass * GRAVITY  # contacts balance the weight, which pulls along +y (down)
     # Capacities scaled by s: tension per rim point, shear per axis (both signs), torsion (both signs).
-    ub_rows, ub_cols, ub_vals, ub_cap = [], [], [], []
+    ub_cols, ub_vals, ub_cap = [], [], []
     if nc:
         base = cols["conn"].start + PER_CONNECTION * np.arange(nc)
-        specs = [(j, -1.0, cfg.clutch_n / 4) for j in range(4)]
-        specs += [(j, s, cfg.shear_n) for j in (4, 5) for s in (1.0, -1.0)]
-        specs += [(6, s, cfg.torsion_nldu) for s in (1.0, -1.0)]
-        for j, s, cap in specs:
+        for j, s, cap in capacity_rows(cfg):
             ub_cols.append(base + j)
             ub_vals.append(np.full(nc, s))
             ub_cap.append(np.full(nc, cap))

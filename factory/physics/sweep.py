@@ -128,20 +128,13 @@ def approach(structure: Structure, unit: Sequence[tuple[Part, Pose]]) -> Approac
 def approach_from(dirs: np.ndarray) -> Approach:
     """`approach` from the seating directions (k, 3) of the unit's stud connections (as
     `seating_directions` gives them, or as read off `check._unit_connections`)."""
-    if not len(dirs):
-        return Approach(None, "no-connection")
-    cos = dirs @ dirs.T
-    if (cos < -SAME_AXIS).any():
-        return Approach(None, "clamped")
-    if not (cos > SAME_AXIS).all():
-        return Approach(None, "two-axes")
-    mean = dirs.mean(axis=0)
-    return Approach(mean / np.linalg.norm(mean), None)
+    return approaches_from([dirs])[0]
 
 
 def approaches_from(dirs: Sequence[np.ndarray]) -> list[Approach]:
-    """`approach_from` of many units at once (each (k_i, 3)): the same answers, the pairwise
-    cosines of all units in one padded array."""
+    """The approach of each unit from its seating directions (each (k_i, 3)): 'no-connection'
+    without any, 'clamped' where two point opposite ways, 'two-axes' unless all agree within
+    `SAME_AXIS`, else their mean direction. The pairwise cosines of all units in one padded array."""
     counts = np.array([len(d) for d in dirs], np.int64)
     out: list[Approach] = [Approach(None, "no-connection")] * len(dirs)
     if not counts.any():
@@ -158,7 +151,7 @@ def approaches_from(dirs: Sequence[np.ndarray]) -> list[Approach]:
     mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
     for i in np.flatnonzero(counts):
         out[i] = (Approach(None, "clamped") if clamped[i] else
-                  Approach(None, "two-axes") if not one_axis[i] else Approach(mean[i], None))
+                  Approach(None, "two-axes") if not one_axis[i] else Approach(mean[i].copy(), None))
     return out
 
 

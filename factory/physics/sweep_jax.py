@@ -62,6 +62,7 @@ from scipy.spatial import ConvexHull
 from factory.parts import Part
 from factory.physics.collide import CONNECTED_SLACK_LDU, CollisionScene
 from factory.physics.geometry import INSET_LDU, collision_shape
+from factory.physics.keep_last import KeepLast
 from factory.physics.structure import Structure
 from factory.physics.sweep import (MIN_STEP_LDU, SweepResult, _boxes, _overlap_intervals, approaches_from,
                                    box_interval, seating_directions, sweep)
@@ -191,6 +192,11 @@ class _Set:
         v = [p.verts for p in self.pieces]
         self.box = np.stack([[x.min(0), x.max(0)] for x in v]) if v else np.zeros((0, 2, 3))
         self.start = np.searchsorted(self.owner, np.arange(self.owners + 1))  # pieces by owner
+        # The box around each owner's pieces (an empty box where it has none).
+        self.owner_box = np.empty((self.owners, 2, 3))
+        self.owner_box[:, 0], self.owner_box[:, 1] = np.inf, -np.inf
+        np.minimum.at(self.owner_box[:, 0], self.owner, self.box[:, 0])
+        np.maximum.at(self.owner_box[:, 1], self.owner, self.box[:, 1])
         buckets = [p.bucket for p in self.pieces]
         self.buckets = sorted(set(buckets))
         self.bucket_of = np.array([self.buckets.index(b) for b in buckets], np.int64)
@@ -219,39 +225,24 @@ def _set_of(items: Sequence[tuple[Part, Pose]]) -> _Set:
                 len(items))
 
 
-_LAST_STRUCTURE: list = []
-
-
-_LAST_UNIT: list = []
+_STRUCTURE, _UNIT = KeepLast(), KeepLast()
+"""The last structure's and unit's pieces: the sampler checks one part against one structure in
+several calls per step."""
 
 
 def _unit_set(rel: Sequence[tuple[Part, Pose]]) -> _Set:
-    """The unit's pieces in its own frame, kept for the last unit (the sampler checks one part in
-    several calls per step)."""
+    """The unit's pieces in its own frame, kept for the last unit."""
     key = tuple((id(part), pose.R.tobytes(), pose.t.tobytes()) for part, pose in rel)
-    if not (_LAST_UNIT and _LAST_UNIT[0] == key):
-        _LAST_UNIT[:] = [key, [part for part, _ in rel], _set_of(rel)]
-    return _LAST_UNIT[2]
-
-
-def _part_piece_boxes(sset: _Set) -> np.ndarray:
-    """(parts, 2, 3): the box around each part's pieces (empty parts: an empty box)."""
-    if getattr(sset, "_part_boxes", None) is None:
-        out = np.empty((sset.owners, 2, 3))
-        out[:, 0], out[:, 1] = np.inf, -np.inf
-        np.minimum.at(out[:, 0], sset.owner, sset.box[:, 0])
-        np.maximum.at(out[:, 1], sset.owner, sset.box[:, 1])
-        sset._part_boxes = out
-    return sset._part_boxes
+    return _UNIT.get(key, [part for part, _ in rel], lambda: _set_of(rel))
 
 
 def _structure_set(structure: Structure) -> tuple[_Set, np.ndarray]:
     """The structure's pieces in the world and its parts' boxes, kept for the last structure."""
-    key = tuple(id(p) for p in structure.placed)
-    if not (_LAST_STRUCTURE and _LAST_STRUCTURE[0] == key):
+    def build():
         items = [(p.part, p.pose) for p in structure.placed]
-        _LAST_STRUCTURE[:] = [key, list(structure.placed), (_set_of(items), _boxes(items))]
-    return _LAST_STRUCTURE[2]
+        return _set_of(items), _boxes(items)
+
+    return _STRUCTURE.get(tuple(id(p) for p in structure.placed), list(structure.placed), build)
 
 
 # --- The device part -----------------------------------------------------------------------------
@@ -393,7 +384,7 @@ def _pairs(uset: _Set, sset: _Set, sboxes, rel, R, t, d, conn, tol: float, margi
     rep = np.repeat(np.arange(len(kk)), nu)
     k, j = kk[rep], jj[rep]
     u = uset.start[mm[rep]] + np.arange(len(rep)) - np.repeat(np.cumsum(nu) - nu, nu)
-    pbox = _part_piece_boxes(sset)
+    pbox = sset.owner_box
     lo_u, hi_u = wc[k, u] - wh[k, u], wc[k, u] + wh[k, u]
     near = _swept_boxes_meet(lo_u - pbox[j, 1], hi_u - pbox[j, 0], d[k])
     k, j, u, lo_u, hi_u = k[near], j[near], u[near], lo_u[near], hi_u[near]
