@@ -1,7 +1,7 @@
 """Sample physics-verified objects to LDraw files.
 
 `python -m pipelines.sample --n N --seed S --out DIR [--ldraw DIR] [--backend mujoco|mjx]
-[--start I] [--workers W] [--min-steps A --max-steps B --candidates K --check-batch C
+[--start I] [--workers W] [--batch B] [--min-steps A --max-steps B --candidates K --check-batch C
 --density-weight W --temperature T]`
 
 Writes `DIR/object_00000.ldr ...` (object i of seed S, the same whatever --start, --workers or the
@@ -21,6 +21,7 @@ import platform
 import sys
 import time
 from collections import Counter
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -38,10 +39,24 @@ def _init(config: SamplerConfig, ldraw: str | None) -> None:
     _SAMPLER = Sampler(config, ldraw)
 
 
-def _one(index: int):
+def _timed(indices: list[int], batch: int):
+    """The objects `indices`, `batch` grown together, each as it ends with the seconds since the one
+    before it ended (its share of the time)."""
     t0 = time.perf_counter()
-    a = _SAMPLER.sample(index)
-    return a, time.perf_counter() - t0
+    for a in _SAMPLER.grow(indices, batch):
+        t1 = time.perf_counter()
+        yield a, t1 - t0
+        t0 = t1
+
+
+def _chunk(indices: list[int], batch: int) -> list:
+    return list(_timed(indices, batch))
+
+
+def _chunks(indices: range, batch: int, workers: int) -> list[list[int]]:
+    """Consecutive chunks of `batch` objects (one chunk per worker when there are fewer objects)."""
+    size = batch if workers == 1 else max(1, min(batch, -(-len(indices) // workers)))
+    return [list(indices[a:a + size]) for a in range(0, len(indices), size)]
 
 
 def _stats(values) -> dict:
@@ -94,6 +109,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--backend", choices=BACKENDS, default=d.backend)
     ap.add_argument("--start", type=int, default=0, help="index of the first object (default 0)")
     ap.add_argument("--workers", type=int, default=1, help="processes (objects do not depend on it)")
+    ap.add_argument("--batch", type=int, default=1,
+                    help="objects grown together in lockstep per process, their checks asked in one call "
+                         "per step (objects do not depend on it; with mjx the device takes them together)")
     ap.add_argument("--min-steps", type=int, default=d.min_steps)
     ap.add_argument("--max-steps", type=int, default=d.max_steps)
     ap.add_argument("--candidates", type=int, default=d.candidates_per_step, help="candidates per step")
@@ -103,8 +121,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--temperature", type=float, default=d.temperature)
     ap.add_argument("--steps-json", action="store_true", help="also list every step in summary.json")
     args = ap.parse_args(argv)
-    if args.n < 0 or args.start < 0 or args.workers < 1:
-        ap.error("--n and --start must be >= 0, --workers >= 1")
+    if args.n < 0 or args.start < 0 or args.workers < 1 or args.batch < 1:
+        ap.error("--n and --start must be >= 0, --workers and --batch >= 1")
     check_batch = args.check_batch or (args.candidates if args.backend == "mjx" else d.check_batch)
 
     def body() -> int:
@@ -128,11 +146,12 @@ def _run(args, config: SamplerConfig) -> int:
     records: list[dict] = []
     t0 = time.perf_counter()
     pool = None
+    chunks = _chunks(indices, args.batch, args.workers)
     if args.workers > 1:
         pool = mp.get_context("fork").Pool(args.workers, initializer=_init, initargs=(config, args.ldraw))
-        results = pool.imap(_one, indices)
+        results = (x for done in pool.imap_unordered(partial(_chunk, batch=args.batch), chunks) for x in done)
     else:
-        results = map(_one, indices)
+        results = (x for c in chunks for x in _timed(c, args.batch))
     try:
         bar = tqdm(results, total=args.n, unit="obj", desc="sampling", dynamic_ncols=True)
         for assembly, seconds in bar:
@@ -145,7 +164,17 @@ def _run(args, config: SamplerConfig) -> int:
         if pool is not None:
             pool.terminate()
     wall = time.perf_counter() - t0
+    from factory.physics.check import STAGE_SECONDS
+
+    records.sort(key=lambda r: r["index"])
     summary = summarize(records, wall, config, _SAMPLER.reader.library.description, args.workers)
+    summary["batch"] = args.batch
+    if args.workers == 1:  # (worker processes keep their own counts)
+        summary["totals"]["check_stage_seconds"] = {k: round(v, 3) for k, v in sorted(STAGE_SECONDS.items())}
+        if config.backend == "mjx":
+            from factory.physics import lp_jax, sweep_jax
+
+            summary["totals"]["compiles"] = {"loads": len(lp_jax.COMPILES), "sweeps": len(sweep_jax.COMPILES)}
     write_atomic(out / "summary.json", (json.dumps(summary, indent=1, default=_json_default) + "\n").encode())
     t = summary["totals"]
     print(f"{t['objects']} objects, {t['steps']} steps, median density "

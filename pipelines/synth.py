@@ -1,4 +1,4 @@
-"""Synthetic step-wise data: `python -m pipelines.synth --n N --out OUT [--seed S] [--backend local|ray] [--workers W]`.
+"""Synthetic step-wise data: `python -m pipelines.synth --n N --out OUT [--seed S] [--backend local|ray] [--workers W] [--batch B]`.
 
 Samples N physics-verified objects (`factory.sampler`), renders every step and writes sharded
 Parquet under OUT (see docs/dataset.md). Re-running the same command resumes: finished shards are
@@ -41,6 +41,9 @@ def add_run_args(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--backend", choices=("local", "ray"), default="local",
                     help="local worker processes (default) or Ray tasks ($RAY_ADDRESS, else a local Ray)")
     ap.add_argument("--workers", type=int, default=1, help="parallel shards (default 1: this process)")
+    ap.add_argument("--batch", type=int, default=1,
+                    help="synthetic objects grown together in lockstep in this process while the workers "
+                         "render (default 1: each shard grows its own; the data is the same whatever it is)")
     ap.add_argument("--size", type=int, default=256, help="pixels per view (default 256)")
     ap.add_argument("--tile", type=int, default=128, help="pixels per catalog tile (default 128)")
     ap.add_argument("--objects-per-shard", type=int, default=4, help="objects per shard (default 4)")
@@ -52,11 +55,11 @@ def add_run_args(ap: argparse.ArgumentParser) -> None:
 def run(config, args) -> int:
     from pipelines.dataset import build, summary_line
 
-    if args.workers < 1:
-        print("error: --workers must be >= 1", file=sys.stderr)
+    if args.workers < 1 or getattr(args, "batch", 1) < 1:
+        print("error: --workers and --batch must be >= 1", file=sys.stderr)
         return 2
     summary = build(config, args.out, backend=args.backend, workers=args.workers,
-                    progress=not args.no_progress)
+                    progress=not args.no_progress, batch=getattr(args, "batch", 1))
     print(summary_line(summary), flush=True)
     return 0
 

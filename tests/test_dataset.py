@@ -328,3 +328,29 @@ def test_local_worker_processes_give_the_same_bytes(built, tmp_path):
     pids = {json.loads((out / "meta" / "shards" / f"{k:05d}.json").read_text())["pid"] for k in range(3)}
     assert os.getpid() not in pids
     _assert_identical(built, out)
+
+
+def test_lockstep_build_gives_the_same_bytes_and_keeps_grown_objects(built, tmp_path):
+    """Objects grown together in the main process while workers render (`--batch`) give the same
+    files; objects grown before a kill are taken from the spool, not grown again."""
+    from factory.sampler import Sampler
+    from pipelines.dataset import spool
+    from pipelines.dataset.sources import sampler_config_from_json
+
+    out = tmp_path / "lockstep"
+    s = build(_config(), out, workers=2, batch=3, progress=False)
+    assert s["shards_built"] == 3
+    _assert_identical(built, out)
+    assert not list((out / "meta" / "spool").glob("*"))  # each shard's grown objects dropped once it is done
+    # A build killed after growing object 1: the resumed one uses it (its seconds show it).
+    config = _config()
+    again = tmp_path / "resumed"
+    a = Sampler(sampler_config_from_json(config.sampler), config.ldraw).sample(1)
+    spool.put(again, 1, a, 1234.5)
+    assert spool.get(again, 1, config.seed)[1] == 1234.5 and spool.get(again, 1, config.seed + 1) is None
+    build(config, again, batch=2, progress=False)
+    _assert_identical(built, again)
+    marker = json.loads((again / "meta" / "shards" / "00001.json").read_text())
+    assert marker["seconds"]["sample"] + marker["seconds"]["check"] >= 1234.5
+    with pytest.raises(ValueError, match="batch must be an integer >= 1"):
+        build(config, tmp_path / "bad", batch=0, progress=False)

@@ -19,6 +19,8 @@ it), `clamped` (it sits on studs and under sockets at once: no approach reaches 
 
 from __future__ import annotations
 
+import time
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from typing import Sequence
 
@@ -132,89 +134,184 @@ def check_units(
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
     if not units:
         return []
-    first = units[0]
-    anchor = first[0].pose
-    rel = [(p.part, anchor.inverse() @ p.pose) for p in first]
-    scene = _collision_scene(structure, rel, floor_y if floor_y is not None else 1e6)
-    base_n = len(structure)
-    verdicts: list[Verdict | None] = [None] * len(units)
-    pending: list[tuple[int, list[Placed], list]] = []
-    to_sweep: list[tuple] = []
-    for k, unit in enumerate(units):
-        pose = unit[0].pose
-        world = [(p.part, p.pose) for p in unit]
-        conns = _unit_connections(structure, world)
-        outer = [c for c in conns if min(c[0], c[1]) < base_n]
-        connected = bool(outer) or (not require_connection) or base_n == 0
-        touched = {min(c[0], c[1]) for c in outer}
-        depth, near = scene.penetration(pose, touched)
-        collision = depth > config.max_penetration_ldu
-        base = dict(pose=pose, connected=bool(outer), connections=len(outer), collision=collision,
-                    max_penetration_ldu=round(depth, 4), touching=bool(near))
-        if not outer and near:
-            holders = tuple(sorted(i for i in near if any(
-                may_hold(p.part, p.pose, structure.placed[i].part, structure.placed[i].pose) for p in unit)))
-            if holders:
-                # Held by a connection we do not model (Technic, clip, hinge, tyre): not judged here.
-                verdicts[k] = Verdict(**base, held_by=holders, reason="unsupported-connection")
+    (verdicts,) = _run_calls([_Call(structure, units, backend, config, require_connection, floor_y, standing,
+                                    unit_links, explain)], backend)
+    return verdicts
+
+
+@dataclass(frozen=True)
+class CheckRequest:
+    """One object's question to the checker (`check_many`): one part type at candidate poses on
+    its structure, the ground at `floor_y` (the sampler's case of `check`)."""
+
+    structure: Structure
+    part: Part
+    poses: tuple[Pose, ...]
+    colour: int = 16
+    floor_y: float | None = None
+
+
+def check_many(requests: Sequence[CheckRequest], backend: str = "mujoco", config: CheckConfig = CheckConfig(),
+               explain: bool = True) -> list[list[Verdict]]:
+    """`check` of every request, each against its own structure (objects grown in lockstep:
+    `factory.sampler.lockstep`). The verdicts are those `check` gives each request alone; with
+    'mjx' the sweeps of all requests go to the device together, and so do their load programs."""
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
+    calls = [_Call(r.structure, [[Placed(r.part, r.colour, p)] for p in r.poses], backend, config,
+                   floor_y=r.floor_y, explain=explain) for r in requests if r.poses]
+    done = iter(_run_calls(calls, backend))
+    return [next(done) if r.poses else [] for r in requests]
+
+
+STAGE_SECONDS: Counter = Counter()
+"""Seconds spent in this process by stage of `check_units`/`check_many`: 'rules' (connection,
+collision, clutch, and the CPU sweep of the reference), 'sweep' (the batched sweeps), 'loads'."""
+
+
+def _run_calls(calls: "Sequence[_Call]", backend: str) -> list[list[Verdict]]:
+    """The sweeps, then the load programs, of every call: on the device for 'mjx' (the calls'
+    sweeps in one `sweep_jax.sweep_groups`, their load programs by `_judge_loads`)."""
+    t0 = time.perf_counter()
+    if backend == "mjx":
+        from factory.physics.sweep_jax import sweep_groups
+
+        todo = [(c, g) for c in calls if (g := c.sweep_group()) is not None]
+        for (c, _), built in zip(todo, sweep_groups([g for _, g in todo])):
+            c.swept(built)
+    t1 = time.perf_counter()
+    STAGE_SECONDS["sweep"] += t1 - t0
+    _judge_loads(calls, _lp_jax(backend))
+    STAGE_SECONDS["loads"] += time.perf_counter() - t1
+    return [c.verdicts for c in calls]  # type: ignore[misc]
+
+
+class _Call:
+    """One `check_units` call: the cheap rules at construction (and the CPU sweep for the
+    reference), then its sweeps (`sweep_group`, `swept`) and loads (`_judge_loads`) where many
+    calls can share the device."""
+
+    def __init__(self, structure: Structure, units: Sequence[Sequence[Placed]], backend: str, config: CheckConfig,
+                 require_connection: bool = True, floor_y: float | None = None, standing: bool = True,
+                 unit_links: Sequence[Link] = (), explain: bool = True):
+        t0 = time.perf_counter()
+        self.structure, self.config, self.floor_y = structure, config, floor_y
+        self.standing, self.unit_links, self.explain = standing, unit_links, explain
+        first = units[0]
+        anchor = first[0].pose
+        rel = [(p.part, anchor.inverse() @ p.pose) for p in first]
+        self.scene = scene = _collision_scene(structure, rel, floor_y if floor_y is not None else 1e6)
+        self.base_n = base_n = len(structure)
+        self.verdicts: list[Verdict | None] = [None] * len(units)
+        self.pending: list[tuple[int, list[Placed], list]] = []
+        self.to_sweep: list[tuple] = []
+        for k, unit in enumerate(units):
+            pose = unit[0].pose
+            world = [(p.part, p.pose) for p in unit]
+            conns = _unit_connections(structure, world)
+            outer = [c for c in conns if min(c[0], c[1]) < base_n]
+            connected = bool(outer) or (not require_connection) or base_n == 0
+            touched = {min(c[0], c[1]) for c in outer}
+            depth, near = scene.penetration(pose, touched)
+            collision = depth > config.max_penetration_ldu
+            base = dict(pose=pose, connected=bool(outer), connections=len(outer), collision=collision,
+                        max_penetration_ldu=round(depth, 4), touching=bool(near))
+            if not outer and near:
+                holders = tuple(sorted(i for i in near if any(
+                    may_hold(p.part, p.pose, structure.placed[i].part, structure.placed[i].pose) for p in unit)))
+                if holders:
+                    # Held by a connection we do not model (Technic, clip, hinge, tyre): not judged here.
+                    self.verdicts[k] = Verdict(**base, held_by=holders, reason="unsupported-connection")
+                    continue
+            if collision:
+                self.verdicts[k] = Verdict(**base, reason="collision")
                 continue
-        if collision:
-            verdicts[k] = Verdict(**base, reason="collision")
-            continue
-        if not connected:
-            verdicts[k] = Verdict(**base, reason="no-connection")
-            continue
-        ground = floor_y if floor_y is not None else max(structure.floor_y(), lowest_point(unit))
-        if outer and not _holds_alone(unit, outer, base_n, ground if standing else None, config.loads):
-            verdicts[k] = Verdict(**base, clutch=False, reason="clutch")
-            continue
-        dirs = seating_from_connections(outer, base_n)
-        if outer and backend == "mjx":
-            # Swept below, all of the call's candidates at once on the device (`sweep_jax`).
-            to_sweep.append((k, base, unit, conns, world, touched, dirs))
-            continue
-        built = sweep(scene, structure, world, touched, config.max_penetration_ldu, directions=dirs) if outer else None
-        _after_sweep(k, base, built, unit, conns, outer, standing, base_n, verdicts, pending)
-    if to_sweep:
-        from factory.physics.sweep_jax import sweep_many
+            if not connected:
+                self.verdicts[k] = Verdict(**base, reason="no-connection")
+                continue
+            ground = floor_y if floor_y is not None else max(structure.floor_y(), lowest_point(unit))
+            if outer and not _holds_alone(unit, outer, base_n, ground if standing else None, config.loads):
+                self.verdicts[k] = Verdict(**base, clutch=False, reason="clutch")
+                continue
+            dirs = seating_from_connections(outer, base_n)
+            if outer and backend == "mjx":
+                # Swept later, with every call's candidates at once on the device (`sweep_jax`).
+                self.to_sweep.append((k, base, unit, conns, world, touched, dirs))
+                continue
+            built = sweep(scene, structure, world, touched, config.max_penetration_ldu, directions=dirs) if outer else None
+            self._after_sweep(k, base, built, unit, conns, outer)
+        STAGE_SECONDS["rules"] += time.perf_counter() - t0
 
-        built_all = sweep_many(scene, structure, [x[4] for x in to_sweep], [x[5] for x in to_sweep],
-                               config.max_penetration_ldu, directions=[x[6] for x in to_sweep])
-        for (k, base, unit, conns, *_), built in zip(to_sweep, built_all):
-            _after_sweep(k, base, built, unit, conns, True, standing, base_n, verdicts, pending)
-    if pending:
-        loads = _load_base(structure, floor_y, config.loads)
-        links = [Link(l.a + base_n, l.b + base_n, l.point) for l in unit_links]
-        lp_jax = _lp_jax(backend)
-        if lp_jax is not None and not links and loads.shared() and all(len(u) == 1 for _, u, _ in pending):
-            # One part on a connected structure: the structure's columns are sent once (`solve_on_base`).
-            results = judge_on_base(loads, [u for _, u, _ in pending], [c for *_, c in pending], config.loads,
-                                    lp_jax.solve_on_base, explain)
+    def sweep_group(self):
+        """This call's sweeps for `sweep_jax.sweep_groups`, None if it has none."""
+        if not self.to_sweep:
+            return None
+        return (self.scene, self.structure, [x[4] for x in self.to_sweep], [x[5] for x in self.to_sweep],
+                self.config.max_penetration_ldu, [x[6] for x in self.to_sweep])
+
+    def swept(self, built_all) -> None:
+        for (k, base, unit, conns, *_), built in zip(self.to_sweep, built_all):
+            self._after_sweep(k, base, built, unit, conns, True)
+        self.to_sweep = []
+
+    def _after_sweep(self, k, base, built, unit, conns, outer) -> None:
+        """The verdict after buildability (`built`: None where not swept), or the candidate queued
+        for the load check."""
+        if built is not None:
+            base.update(buildable=built.buildable, approach=built.reason, blocked_by=built.blocked_by)
+            if built.buildable is False:
+                self.verdicts[k] = Verdict(**base, clutch=True, reason=built.reason)
+                return
+        if self.standing and (outer or self.base_n == 0):
+            self.verdicts[k] = Verdict(**base, clutch=True if outer else None)
+            self.pending.append((k, list(unit), conns))
         else:
-            models = [loads.model(unit, conns, links) for _, unit, conns in pending]
-            results = judge_many(models, config.loads, lp_jax and lp_jax.solve_loads, explain=explain)
-        for (k, *_), lv in zip(pending, results):
-            v = verdicts[k]
-            verdicts[k] = replace(v, stable=lv.stands, load=None if lv.load is None else round(lv.load, 6),
-                                  failing=lv.failing, reason=lv.reason)
-    return verdicts  # type: ignore[return-value]
+            # Held in hand (a sub-assembly), or laid on the table beside the structure with no
+            # connection yet: nothing joins it to the structure to fall with.
+            self.verdicts[k] = Verdict(**base, clutch=True if outer else None, stable=True)
+
+    def loaded(self, results) -> None:
+        for (k, *_), lv in zip(self.pending, results):
+            v = self.verdicts[k]
+            self.verdicts[k] = replace(v, stable=lv.stands, load=None if lv.load is None else round(lv.load, 6),
+                                       failing=lv.failing, reason=lv.reason)
+        self.pending = []
 
 
-def _after_sweep(k, base, built, unit, conns, outer, standing, base_n, verdicts, pending) -> None:
-    """The verdict after buildability (`built`: None where not swept), or the candidate queued for
-    the load check."""
-    if built is not None:
-        base.update(buildable=built.buildable, approach=built.reason, blocked_by=built.blocked_by)
-        if built.buildable is False:
-            verdicts[k] = Verdict(**base, clutch=True, reason=built.reason)
-            return
-    if standing and (outer or base_n == 0):
-        verdicts[k] = Verdict(**base, clutch=True if outer else None)
-        pending.append((k, list(unit), conns))
-    else:
-        # Held in hand (a sub-assembly), or laid on the table beside the structure with no
-        # connection yet: nothing joins it to the structure to fall with.
-        verdicts[k] = Verdict(**base, clutch=True if outer else None, stable=True)
+def _judge_loads(calls: Sequence[_Call], lp_jax) -> None:
+    """The load programs of every call's pending candidates: HiGHS one at a time for the reference;
+    with the batched solver, one-part candidates on a connected structure by its shared columns
+    (`judge_on_base`), the rest in one `judge_many`."""
+    general: list[tuple[_Call, list]] = []
+    for c in calls:
+        if not c.pending:
+            continue
+        cfg = c.config.loads
+        loads = _load_base(c.structure, c.floor_y, cfg)
+        links = [Link(l.a + c.base_n, l.b + c.base_n, l.point) for l in c.unit_links]
+        if lp_jax is not None and not links and loads.shared() and all(len(u) == 1 for _, u, _ in c.pending):
+            # One part on a connected structure: the structure's columns are sent once (`solve_on_base`).
+            c.loaded(judge_on_base(loads, [u for _, u, _ in c.pending], [cs for *_, cs in c.pending], cfg,
+                                   lp_jax.solve_on_base, c.explain))
+        else:
+            general.append((c, [loads.model(unit, conns, links) for _, unit, conns in c.pending]))
+    if not general:
+        return
+    if lp_jax is None:
+        for c, models in general:
+            c.loaded(judge_many(models, c.config.loads, None, explain=c.explain))
+        return
+    # The batched solver takes programs of any structures together; calls share one constant set
+    # and one `explain` when they come from one `check_many` (else each goes alone).
+    by_kind: dict = {}
+    for c, models in general:
+        by_kind.setdefault((c.config.loads, c.explain), []).append((c, models))
+    for (cfg, explain), members in by_kind.items():
+        results = judge_many([m for _, ms in members for m in ms], cfg, lp_jax.solve_loads, explain=explain)
+        at = 0
+        for c, models in members:
+            c.loaded(results[at:at + len(models)])
+            at += len(models)
 
 
 def _lp_jax(backend: str):

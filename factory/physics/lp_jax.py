@@ -103,6 +103,11 @@ the rows before it and is left out."""
 MIN_BUCKET = 16
 MAX_BATCH = 4096
 """LPs of one shape per launch; more run in chunks of this many."""
+MIN_LAUNCH = 64 if jax.default_backend() == "gpu" else 8
+"""Fewest members of a launch (powers of two above): on a GPU a few programs cost a launch of 64
+as much as one of 2, and every batch size met is a compile; on a CPU each member costs its own."""
+ROWS_FINE = 128
+"""Equality rows up to which their bucket is a power of two (`_rows`)."""
 
 COMPILES: list[tuple[int, ...]] = []
 """(batch, variables, equality rows, equality entries per column, one-sided rows per variable) of
@@ -200,6 +205,22 @@ def _eighth(v: int, minimum: int = MIN_BUCKET) -> int:
         return minimum
     step = 1 << max((v - 1).bit_length() - 4, 0)
     return -(-v // step) * step
+
+
+def _rows(v: int) -> int:
+    """The equality rows' bucket: powers of two up to `ROWS_FINE` (small programs cost little, so
+    padding them costs little), eighth steps above (`_eighth`: the cost grows with the rows' cube).
+    A growing object meets each bucket once: a bounded number of compiles per run."""
+    return _pow2(v) if v <= ROWS_FINE else _eighth(v)
+
+
+def _cols(v: int) -> int:
+    """The variables' bucket: powers of two and their halves between (16, 24, 32, 48, ...): the cost
+    grows about linearly with them."""
+    if v <= MIN_BUCKET:
+        return MIN_BUCKET
+    p = _pow2(v)
+    return p * 3 // 4 if v <= p * 3 // 4 else p
 
 
 def _bucket(p: _Parts) -> tuple[int, int, int, int]:
@@ -512,7 +533,7 @@ def _group(buckets: Sequence[tuple[int, int, int, int]]) -> list[tuple[tuple[int
         n, w = size[(m, k)]
         for start in range(0, len(members), per):
             chunk = members[start : start + per]
-            out.append(((_quarter(len(chunk), 1), n, m, w, k), chunk))
+            out.append(((_pow2(len(chunk), MIN_LAUNCH), n, m, w, k), chunk))
     return out
 
 
@@ -525,7 +546,7 @@ def _n_vars(model: LoadModel) -> int:
 
 def _load_bucket(model: LoadModel) -> tuple[int, int, int, int]:
     w = 12 if len(model.conn_a) or len(model.link_a) else 6  # entries per column: two bodies or one
-    return _quarter(_n_vars(model)), _eighth(6 * model.n_bodies), _quarter(w, 1), 2
+    return _cols(_n_vars(model)), _rows(6 * model.n_bodies), _quarter(w, 1), 2
 
 
 def _load_arrays(models: Sequence[LoadModel], cfg: LoadConfig, batch: int, n: int, m: int, w: int,
@@ -706,11 +727,11 @@ def solve_on_base(base: LoadBase, units: Sequence, conns: Sequence, cfg: LoadCon
     width = int(sizes.max())
     shared = layout(base.alone())
     n_block = shared["link"].stop - 1
-    n = _quarter(n_block + width)
+    n = _cols(n_block + width)
     results: list[LPResult] = [LPResult("error", None, float("nan"))] * len(units)
     with jax.enable_x64(True):
         block = _base_block(base, cfg)
-        for shape, chunk in _group([(n, _eighth(6 * (nb + 1)), 12, 2)] * len(own)):
+        for shape, chunk in _group([(n, _rows(6 * (nb + 1)), 12, 2)] * len(own)):
             if shape not in COMPILES:
                 COMPILES.append(shape)
             new = _load_arrays([own[i] for i in chunk], cfg, shape[0], width, shape[2], 12, 2)

@@ -322,20 +322,70 @@ def _launch(crosses: bool, ut, st, R, t, d, u, s, k, thr, thr_c) -> np.ndarray:
 
 def _intervals(uset: _Set, sset: _Set, R, t, d, k, u, s, thr, thr_c) -> np.ndarray:
     """(pairs, 6) intervals of unit piece u[i] of candidate k[i] (pose R, t; direction d) against
-    structure piece s[i] (`_launch`), the pairs grouped by both pieces' buckets."""
-    res = np.empty((len(k), 6))
-    # Pairs of right prisms along one direction need no edge-edge axes (`_prism_axes`).
-    up = np.einsum("pij,pkj->pki", R[k], uset.prism[u])
-    aligned = (np.abs(np.einsum("pai,pbi->pab", up, sset.prism[s])) > 1 - 1e-9).any(axis=(1, 2))
-    group = (uset.bucket_of[u] * len(sset.buckets) + sset.bucket_of[s]) * 2 + ~aligned
-    kp = _pow2(len(R), MIN_ROWS)
-    Rp, tp, dp = (np.concatenate([x, np.repeat(x[:1], kp - len(x), 0)]) for x in (R, t, d))
-    for g in np.unique(group):
-        sel = np.flatnonzero(group == g)
-        bu, bs = divmod(int(g) // 2, len(sset.buckets))
-        res[sel] = _launch(bool(g % 2), uset.tables[bu], sset.tables[bs], Rp, tp, dp, uset.local[u[sel]],
-                           sset.local[s[sel]], k[sel], thr[sel], thr_c[sel])
-    return res
+    structure piece s[i] (`_launch`)."""
+    return _intervals_many([(uset, sset, R, t, d, k, u, s, thr, thr_c)])[0]
+
+
+def _intervals_many(jobs) -> list[np.ndarray]:
+    """`_intervals` of many (unit set, structure set, R, t, d, k, u, s, thr, thr_c), in one launch
+    per group of pairs with the same piece buckets (and alignment) whatever job they come from: the
+    sets' tables of one bucket are stacked, each job's rows and candidates offset into them."""
+    out = [np.empty((len(j[5]), 6)) for j in jobs]
+    if not jobs:
+        return out
+    # Bucket shapes (vertices, normals, edges) of every set, and where each set's table of a bucket
+    # starts in the stacked table of that shape.
+    tables: dict[tuple, list] = {}
+    offset: dict[tuple[int, tuple], int] = {}
+
+    def place(the_set: _Set, side: str) -> None:
+        for b, shape in enumerate(the_set.buckets):
+            key = (id(the_set), side, shape)
+            if key not in offset:
+                rows = tables.setdefault((side, shape), [])
+                offset[key] = sum(len(t[0]) for t in rows)
+                rows.append(the_set.tables[b])
+
+    for uset, sset, *_ in jobs:
+        place(uset, "u")
+        place(sset, "s")
+    # Candidates of all jobs in one array; pairs labelled by their group.
+    k_start = np.cumsum([0] + [len(j[2]) for j in jobs])
+    kp = _pow2(int(k_start[-1]), MIN_ROWS)
+    Rs, ts, ds = (np.concatenate([j[i] for j in jobs]) for i in (2, 3, 4))
+    Rp, tp, dp = (np.concatenate([x, np.repeat(x[:1], kp - len(x), 0)]) for x in (Rs, ts, ds))
+    shapes: dict[tuple, int] = {}
+    per_job = []
+    for n, (uset, sset, R, t, d, k, u, s, thr, thr_c) in enumerate(jobs):
+        # Pairs of right prisms along one direction need no edge-edge axes (`_prism_axes`).
+        up = np.einsum("pij,pkj->pki", R[k], uset.prism[u])
+        aligned = (np.abs(np.einsum("pai,pbi->pab", up, sset.prism[s])) > 1 - 1e-9).any(axis=(1, 2))
+        ushape = [uset.buckets[b] for b in range(len(uset.buckets))]
+        sshape = [sset.buckets[b] for b in range(len(sset.buckets))]
+        codes = np.array([shapes.setdefault((us, ss, al), len(shapes))
+                          for us in ushape for ss in sshape for al in (False, True)], np.int64)
+        group = codes[(uset.bucket_of[u] * len(sshape) + sset.bucket_of[s]) * 2 + aligned]
+        uoff = np.array([offset[(id(uset), "u", sh)] for sh in ushape], np.int64)[uset.bucket_of[u]]
+        soff = np.array([offset[(id(sset), "s", sh)] for sh in sshape], np.int64)[sset.bucket_of[s]]
+        per_job.append((group, uset.local[u] + uoff, sset.local[s] + soff, k + k_start[n], thr, thr_c))
+    stacked: dict[tuple, tuple] = {}
+    for (us, ss, al), code in shapes.items():
+        sel = [np.flatnonzero(g[0] == code) for g in per_job]
+        if not sum(len(x) for x in sel):
+            continue
+        for side, sh in (("u", us), ("s", ss)):
+            if (side, sh) not in stacked:
+                parts = tables[(side, sh)]
+                cat = [np.concatenate([p[i] for p in parts]) for i in range(4)]
+                rows = _pow2(len(cat[0]), MIN_ROWS)
+                stacked[(side, sh)] = tuple(np.concatenate([x, np.repeat(x[:1], rows - len(x), 0)]) for x in cat)
+        gu, gs, gk, gthr, gthc = (np.concatenate([pj[i][x] for pj, x in zip(per_job, sel)]) for i in (1, 2, 3, 4, 5))
+        res = _launch(not al, stacked[("u", us)], stacked[("s", ss)], Rp, tp, dp, gu, gs, gk, gthr, gthc)
+        at = 0
+        for n, x in enumerate(sel):
+            out[n][x] = res[at:at + len(x)]
+            at += len(x)
+    return out
 
 
 def exact_intervals(a: Sequence[np.ndarray], b: Sequence[np.ndarray], d: np.ndarray, thr: np.ndarray) -> np.ndarray:
@@ -440,98 +490,122 @@ def sweep_many(
     collision scene as `check_units` builds it (None: built here if a candidate is referred to the
     CPU). `directions`: each unit's seating directions (`sweep.seating_directions`), if known.
     """
-    tol = max_penetration_ldu
-    results: list[SweepResult | None] = [None] * len(units)
-    if not units:
-        return []
-    dirs = []
-    found_all = approaches_from([directions[i] if directions is not None else seating_directions(structure, unit)
-                                 for i, unit in enumerate(units)])
-    for i, found in enumerate(found_all):
-        if found.direction is None:
-            COUNTS["not-judged"] += 1
-            results[i] = SweepResult(False if found.reason == "clamped" else None, found.reason, (), 0.0, 0.0, 0)
-        else:
-            dirs.append((i, found.direction))
-    first = units[0]
-    anchor = first[0][1]
-    rel = [(part, anchor.inverse() @ pose) for part, pose in first]
-    scene_box: list = [scene]
+    return sweep_groups([(scene, structure, units, connected, max_penetration_ldu, directions)])[0]
 
-    def cpu(i: int) -> SweepResult:
-        if scene_box[0] is None:
-            scene_box[0] = CollisionScene(structure, rel, 1e6)
-        return sweep(scene_box[0], structure, units[i], connected[i], tol)
 
-    if not dirs:
-        return results  # type: ignore[return-value]
-    sset, sboxes = _structure_set(structure)
-    uset = _unit_set(rel)
-    if tol < uset.inset.max(initial=0.0) + sset.inset.max(initial=0.0):
-        # Below both insets the separating-axis minimum is not the distance (module docstring).
-        for i, _ in dirs:
-            COUNTS["cpu"] += 1
-            results[i] = cpu(i)
-        return results  # type: ignore[return-value]
-    idx = np.array([i for i, _ in dirs])
-    d = np.array([v for _, v in dirs])
-    R = np.stack([units[i][0][1].R for i in idx])
-    t = np.stack([units[i][0][1].t for i in idx])
-    margin = min(tol, 2 * INSET_LDU)
-    conn = np.zeros((len(idx), len(structure)), bool)
-    sizes = [len(connected[i]) for i in idx]
-    conn[np.repeat(np.arange(len(idx)), sizes), np.fromiter((q for i in idx for q in connected[i]), np.int64, sum(sizes))] = True
-    k, u, s, j, is_conn, thr, thr_c, undecided = _pairs_threaded(uset, sset, sboxes, rel, R, t, d, conn, tol, margin)
+def sweep_groups(groups: Sequence[tuple]) -> list[list[SweepResult]]:
+    """`sweep_many(*group)` of every group (each its own structure: objects grown in lockstep),
+    with the pairs of all groups in one launch per piece-bucket shape (`_intervals_many`)."""
+    jobs = [_SweepJob(*g) for g in groups]
+    live = [j for j in jobs if j.pairs is not None]
+    for j, res in zip(live, _intervals_many([j.launch_args() for j in live])):
+        j.finish(res)
+    return [j.results for j in jobs]  # type: ignore[misc]
 
-    res = _intervals(uset, sset, R, t, d, k, u, s, thr, thr_c)
 
-    # Counted stretches of s > 0: (candidate, part, lo, hi, decided).
-    hits = []
-    for col in (0, 2, 4):
-        lo_, hi_ = np.maximum(res[:, col], 0.0), res[:, col + 1]
-        ok = hi_ > lo_
-        if col:
-            ok &= is_conn
-        hits.append((k[ok], j[ok], lo_[ok], hi_[ok], ~undecided[ok], is_conn[ok]))
-    hk, hj, hlo, hhi, hdec, hconn = (np.concatenate(x) for x in zip(*hits))
-    # Parts the unit is connected to count only where the reference queries at all: where its box
-    # overlaps a part it is not connected to. Rare (the unit backs away from them): a loop.
-    plain = ~hconn
-    clipped = []
-    for e in np.flatnonzero(hconn):
-        i = idx[hk[e]]
-        others = [q for q in range(len(structure)) if q not in connected[i]]
-        span = _overlap_intervals(_boxes(units[i]), sboxes[others], d[hk[e]], margin)
-        for a, b in span:
-            if min(b, hhi[e]) > max(a, hlo[e]):
-                clipped.append((hk[e], hj[e], max(a, hlo[e]), min(b, hhi[e])))
-    ck, cj, clo, chi = (np.array(x).reshape(-1) for x in zip(*clipped)) if clipped else [np.zeros(0)] * 4
-    dk = np.concatenate([hk[plain & hdec], ck.astype(np.int64)])
-    dj = np.concatenate([hj[plain & hdec], cj.astype(np.int64)])
-    dlo = np.concatenate([hlo[plain & hdec], clo])
-    dhi = np.concatenate([hhi[plain & hdec], chi])
-    top = np.full(len(idx), -np.inf)
-    np.maximum.at(top, dk, dhi)
-    # The pose just inside the outermost decided interval: who is in the way there.
-    outer = dhi >= top[dk]
-    floor_ = np.full(len(idx), -np.inf)
-    np.maximum.at(floor_, dk[outer], dlo[outer])
-    probe = np.maximum(top - MIN_STEP_LDU / 4, (top + floor_) / 2)
-    there = (dlo < probe[dk]) & (probe[dk] < dhi)
-    blockers: dict[int, set[int]] = {}
-    for a, b in zip(dk[there], dj[there]):
-        blockers.setdefault(int(a), set()).add(int(b))
-    maybe = np.zeros(len(idx), bool)
-    maybe[hk[~hdec & plain]] = True
-    for row, i in enumerate(idx):
-        if np.isfinite(top[row]):
-            COUNTS["device"] += 1
-            results[i] = SweepResult(False, "blocked", tuple(sorted(blockers.get(row, ()))), float("nan"),
-                                     round(float(top[row]), 4), 0)
-        elif maybe[row]:
-            COUNTS["referred"] += 1
-            results[i] = cpu(i)
-        else:
-            COUNTS["device"] += 1
-            results[i] = SweepResult(True, None, (), float("nan"), 0.0, 0)
-    return results  # type: ignore[return-value]
+class _SweepJob:
+    """One `sweep_many` call: approaches and piece pairs on the host at construction (`pairs` None
+    when nothing is left for the device), the intervals from the device, then `finish`."""
+
+    def __init__(self, scene, structure, units, connected, max_penetration_ldu=0.5, directions=None):
+        self.structure, self.units, self.connected = structure, units, connected
+        self.tol = tol = max_penetration_ldu
+        self.results: list[SweepResult | None] = [None] * len(units)
+        self.pairs = None
+        if not units:
+            return
+        dirs = []
+        found_all = approaches_from([directions[i] if directions is not None else seating_directions(structure, unit)
+                                     for i, unit in enumerate(units)])
+        for i, found in enumerate(found_all):
+            if found.direction is None:
+                COUNTS["not-judged"] += 1
+                self.results[i] = SweepResult(False if found.reason == "clamped" else None, found.reason, (), 0.0, 0.0, 0)
+            else:
+                dirs.append((i, found.direction))
+        first = units[0]
+        anchor = first[0][1]
+        self.rel = rel = [(part, anchor.inverse() @ pose) for part, pose in first]
+        self.scene = scene
+        if not dirs:
+            return
+        self.sset, self.sboxes = sset, sboxes = _structure_set(structure)
+        self.uset = uset = _unit_set(rel)
+        if tol < uset.inset.max(initial=0.0) + sset.inset.max(initial=0.0):
+            # Below both insets the separating-axis minimum is not the distance (module docstring).
+            for i, _ in dirs:
+                COUNTS["cpu"] += 1
+                self.results[i] = self.cpu(i)
+            return
+        self.idx = idx = np.array([i for i, _ in dirs])
+        self.d = d = np.array([v for _, v in dirs])
+        self.R = R = np.stack([units[i][0][1].R for i in idx])
+        self.t = t = np.stack([units[i][0][1].t for i in idx])
+        self.margin = margin = min(tol, 2 * INSET_LDU)
+        conn = np.zeros((len(idx), len(structure)), bool)
+        sizes = [len(connected[i]) for i in idx]
+        conn[np.repeat(np.arange(len(idx)), sizes), np.fromiter((q for i in idx for q in connected[i]), np.int64, sum(sizes))] = True
+        self.pairs = _pairs_threaded(uset, sset, sboxes, rel, R, t, d, conn, tol, margin)
+
+    def cpu(self, i: int) -> SweepResult:
+        if self.scene is None:
+            self.scene = CollisionScene(self.structure, self.rel, 1e6)
+        return sweep(self.scene, self.structure, self.units[i], self.connected[i], self.tol)
+
+    def launch_args(self) -> tuple:
+        k, u, s, j, is_conn, thr, thr_c, undecided = self.pairs
+        return (self.uset, self.sset, self.R, self.t, self.d, k, u, s, thr, thr_c)
+
+    def finish(self, res: np.ndarray) -> None:
+        structure, units, connected, idx, d = self.structure, self.units, self.connected, self.idx, self.d
+        k, u, s, j, is_conn, thr, thr_c, undecided = self.pairs
+        results = self.results
+        # Counted stretches of s > 0: (candidate, part, lo, hi, decided).
+        hits = []
+        for col in (0, 2, 4):
+            lo_, hi_ = np.maximum(res[:, col], 0.0), res[:, col + 1]
+            ok = hi_ > lo_
+            if col:
+                ok &= is_conn
+            hits.append((k[ok], j[ok], lo_[ok], hi_[ok], ~undecided[ok], is_conn[ok]))
+        hk, hj, hlo, hhi, hdec, hconn = (np.concatenate(x) for x in zip(*hits))
+        # Parts the unit is connected to count only where the reference queries at all: where its box
+        # overlaps a part it is not connected to. Rare (the unit backs away from them): a loop.
+        plain = ~hconn
+        clipped = []
+        for e in np.flatnonzero(hconn):
+            i = idx[hk[e]]
+            others = [q for q in range(len(structure)) if q not in connected[i]]
+            span = _overlap_intervals(_boxes(units[i]), self.sboxes[others], d[hk[e]], self.margin)
+            for a, b in span:
+                if min(b, hhi[e]) > max(a, hlo[e]):
+                    clipped.append((hk[e], hj[e], max(a, hlo[e]), min(b, hhi[e])))
+        ck, cj, clo, chi = (np.array(x).reshape(-1) for x in zip(*clipped)) if clipped else [np.zeros(0)] * 4
+        dk = np.concatenate([hk[plain & hdec], ck.astype(np.int64)])
+        dj = np.concatenate([hj[plain & hdec], cj.astype(np.int64)])
+        dlo = np.concatenate([hlo[plain & hdec], clo])
+        dhi = np.concatenate([hhi[plain & hdec], chi])
+        top = np.full(len(idx), -np.inf)
+        np.maximum.at(top, dk, dhi)
+        # The pose just inside the outermost decided interval: who is in the way there.
+        outer = dhi >= top[dk]
+        floor_ = np.full(len(idx), -np.inf)
+        np.maximum.at(floor_, dk[outer], dlo[outer])
+        probe = np.maximum(top - MIN_STEP_LDU / 4, (top + floor_) / 2)
+        there = (dlo < probe[dk]) & (probe[dk] < dhi)
+        blockers: dict[int, set[int]] = {}
+        for a, b in zip(dk[there], dj[there]):
+            blockers.setdefault(int(a), set()).add(int(b))
+        maybe = np.zeros(len(idx), bool)
+        maybe[hk[~hdec & plain]] = True
+        for row, i in enumerate(idx):
+            if np.isfinite(top[row]):
+                COUNTS["device"] += 1
+                results[i] = SweepResult(False, "blocked", tuple(sorted(blockers.get(row, ()))), float("nan"),
+                                         round(float(top[row]), 4), 0)
+            elif maybe[row]:
+                COUNTS["referred"] += 1
+                results[i] = self.cpu(i)
+            else:
+                COUNTS["device"] += 1
+                results[i] = SweepResult(True, None, (), float("nan"), 0.0, 0)

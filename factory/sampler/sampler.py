@@ -24,16 +24,15 @@ ground) and is checked like any other (it must stand on its own).
 from __future__ import annotations
 
 import os
-import time
 from collections import Counter
-from typing import Iterable, Iterator
+from typing import Generator, Iterable, Iterator
 
 import numpy as np
 
 from factory.ldraw import ColourTable, Reader, get_reader
 from factory.ldraw.colours import EDGE, MAIN
 from factory.parts import Part, load_part
-from factory.physics.check import check
+from factory.physics.check import CheckRequest
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
 from factory.sampler.assembly import Assembly, AssemblyStep
@@ -65,11 +64,39 @@ class Sampler:
     # -- public -----------------------------------------------------------------------------------
     def sample(self, index: int) -> Assembly:
         """Object `index` (an integer >= 0) of this configuration."""
-        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:
-            raise ValueError(f"object index must be an integer >= 0, got {index!r}")
+        return next(self.grow([index], batch=1))
+
+    def sample_many(self, indices: Iterable[int], batch: int = 1) -> Iterator[Assembly]:
+        """`sample(i)` for each index, in the given order (each object is independent of it and of
+        `batch`: objects grown together in lockstep, see `grow`)."""
+        indices = list(indices)
+        left = Counter(indices)
+        ready: dict[int, Assembly] = {}
+        at = 0
+        for a in self.grow(list(dict.fromkeys(indices)), batch):
+            ready[a.index] = a
+            while at < len(indices) and indices[at] in ready:
+                i = indices[at]
+                left[i] -= 1
+                yield ready[i] if left[i] else ready.pop(i)
+                at += 1
+
+    def grow(self, indices: Iterable[int], batch: int = 1) -> Iterator[Assembly]:
+        """Objects `indices`, `batch` of them grown together in lockstep (their checks of a step
+        asked in one `check_many` call), each yielded when it ends (a finished object's slot goes to
+        the next index). Every object is the one `sample` gives alone."""
+        from factory.sampler.lockstep import grow_together
+
+        for i in indices:
+            _index(i)
+        return grow_together(self, indices, batch)
+
+    def growth(self, index: int) -> Generator[CheckRequest, list, Assembly]:
+        """Object `index` as a coroutine: it yields each batch of candidates to check (a
+        `CheckRequest`), takes their verdicts back (`send`), and returns the `Assembly`. Every
+        random choice comes from the object's own stream, in a fixed order."""
         cfg = self.config
-        rng = np.random.default_rng([cfg.seed, int(index)])
-        check_seconds = 0.0
+        rng = np.random.default_rng([cfg.seed, _index(index)])
         target = int(rng.integers(cfg.min_steps, cfg.max_steps + 1))
         structure = Structure()
         tracker = DensityTracker()
@@ -118,11 +145,8 @@ class Sampler:
                 order = np.argsort(-key, kind="stable")
                 for start in range(0, len(order), cfg.check_batch):
                     batch = order[start:start + cfg.check_batch]
-                    t_check = time.perf_counter()
                     # A rejected candidate's reason is counted, never its failing connections.
-                    verdicts = check(structure, part, [poses[i] for i in batch], backend=cfg.backend,
-                                     config=cfg.check, colour=colour, floor_y=ground, explain=False)
-                    check_seconds += time.perf_counter() - t_check
+                    verdicts = yield CheckRequest(structure, part, tuple(poses[i] for i in batch), colour, ground)
                     for i, v in zip(batch, verdicts):
                         checked += 1
                         if v.ok:
@@ -148,13 +172,13 @@ class Sampler:
         return Assembly(
             steps=tuple(steps), density=tracker.density() if steps else 0.0, seed=cfg.seed,
             index=int(index), target_steps=target, end_reason=end, stuck_rejected=stuck,
-            check_seconds=check_seconds,
         )
 
-    def sample_many(self, indices: Iterable[int]) -> Iterator[Assembly]:
-        """`sample(i)` for each index, in the given order (each object is independent of it)."""
-        for i in indices:
-            yield self.sample(i)
+
+def _index(index) -> int:
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:
+        raise ValueError(f"object index must be an integer >= 0, got {index!r}")
+    return int(index)
 
 
 # -- validation against the library ----------------------------------------------------------------

@@ -124,21 +124,102 @@ def _run_ray(config, todo, out, workers, bar):
             ray.shutdown()
 
 
+def _run_grown(config, todo, out, workers, bar, batch: int, backend: str):
+    """A lockstep build: this process grows the objects of the missing shards `batch` at a time
+    (`Sampler.grow`; each kept in `spool` as it ends) while the shard function renders and encodes,
+    in worker processes (or Ray tasks), each shard whose objects are all grown: physics and
+    rendering overlap. Returns the failed shards as `_run_local` does."""
+    from factory.sampler import Sampler
+    from pipelines.dataset import spool
+    from pipelines.dataset.sources import sampler_config_from_json
+
+    sampler = Sampler(sampler_config_from_json(config.sampler), config.ldraw)
+    missing = {k: [i for i in config.shard_objects(k) if spool.get(out, i, config.seed) is None] for k in todo}
+    waiting = {k: set(v) for k, v in missing.items()}
+    shard_of = {i: k for k, v in missing.items() for i in v}
+    errors: list = []
+    if backend == "ray":
+        import ray
+
+        started = not ray.is_initialized()
+        if started:
+            address = os.environ.get("RAY_ADDRESS") or None
+            ray.init(address=address, include_dashboard=False, runtime_env={"env_vars": _worker_env()},
+                     **({} if address else {"num_cpus": max(1, workers)}))
+        task = ray.remote(num_cpus=1, max_retries=2)(build_shard)
+        submit, finish = (lambda k: task.remote(config.to_json(), k, str(out))), ray.get
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        pool = ProcessPoolExecutor(max_workers=max(1, workers), mp_context=multiprocessing.get_context("spawn"))
+        submit, finish = (lambda k: pool.submit(build_shard, config.to_json(), k, str(out))), (lambda f: f.result())
+    running: dict = {}
+
+    def collect(block: bool) -> None:
+        for k in [k for k, f in running.items() if block or _done(f)]:
+            try:
+                finish(running.pop(k))
+            except Exception as exc:  # noqa: BLE001 - reported with the shard number
+                errors.append((k, exc))
+            bar.update(len(config.shard_objects(k)))
+
+    try:
+        for k in todo:
+            if not waiting[k]:
+                running[k] = submit(k)
+        grown = sampler.grow([i for k in todo for i in missing[k]], batch)
+        t0 = time.perf_counter()
+        for a in grown:
+            t1 = time.perf_counter()
+            spool.put(out, a.index, a, t1 - t0)
+            t0 = t1
+            k = shard_of[a.index]
+            waiting[k].discard(a.index)
+            if not waiting[k]:
+                running[k] = submit(k)
+            collect(False)
+        collect(True)
+    finally:
+        if backend == "ray":
+            if started:
+                ray.shutdown()
+        else:
+            pool.shutdown(wait=True, cancel_futures=True)
+    return errors
+
+
+def _done(future) -> bool:
+    if hasattr(future, "done"):
+        return future.done()
+    import ray
+
+    return bool(ray.wait([future], timeout=0)[0])
+
+
 def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, progress: bool = True,
-          desc: str = "objects") -> dict:
-    """Build every missing shard of `config` into `out`, then the metadata; returns the summary."""
+          desc: str = "objects", batch: int = 1) -> dict:
+    """Build every missing shard of `config` into `out`, then the metadata; returns the summary.
+
+    `batch` > 1 (synthetic data): objects grown `batch` at a time in this process while workers
+    render (`_run_grown`); the data files are the same whatever `batch`."""
     from tqdm import tqdm
 
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
+        raise ValueError(f"batch must be an integer >= 1, got {batch!r}")
     t0 = time.perf_counter()
     out = prepare(config, out)
     todo = [k for k in range(config.num_shards) if read_marker(out, k, config) is None]
     done_objects = sum(len(config.shard_objects(k)) for k in range(config.num_shards) if k not in set(todo))
     with tqdm(total=config.n_objects, initial=done_objects, desc=desc, unit="obj", disable=not progress,
               file=sys.stderr, dynamic_ncols=True) as bar:
-        runner = _run_local if backend == "local" else _run_ray
-        errors = runner(config, todo, out, workers, bar) if todo else []
+        if batch > 1 and config.source == "synthetic":
+            errors = _run_grown(config, todo, out, workers, bar, batch, backend) if todo else []
+        else:
+            runner = _run_local if backend == "local" else _run_ray
+            errors = runner(config, todo, out, workers, bar) if todo else []
     if errors:
         k, exc = errors[0]
         raise ShardFailedError(f"{len(errors)} shard(s) failed (first: shard {k}: {type(exc).__name__}: {exc}); "

@@ -4,8 +4,9 @@
 this process, in a local worker process or as a Ray task:
 
 1. if `OUT/meta/shards/NNNNN.json` (the completion marker) exists for this config, return;
-2. for each object of the shard, in index order: make it (sampler or design), render and encode
-   every step, and append its rows to the temporary file of its split as one row group;
+2. for each object of the shard, in index order: make it (sampler or design; a synthetic object
+   grown ahead by a lockstep build is taken from `spool`), render and encode every step, and
+   append its rows to the temporary file of its split as one row group;
 3. `os.replace` both temporary files into `OUT/data/{train,test}-NNNNN-of-NNNNN.parquet` (a
    split with no object in this shard gets a file with the schema and no rows);
 4. write the marker (atomically): counts, rejection statistics, bytes, per-stage seconds.
@@ -26,6 +27,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from factory.atomic import write_atomic
+from pipelines.dataset import spool
 from pipelines.dataset.config import SPLITS, DatasetConfig, json_bytes
 from pipelines.dataset.schema import SCHEMA
 
@@ -109,7 +111,8 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
         for index in config.shard_objects(shard):
             oid = config.object_id(index)
             split = config.split(index)
-            obj = source.object(index, oid)
+            grown = spool.get(out, index, config.seed) if config.source == "synthetic" else None
+            obj = source.object(index, oid, grown) if grown is not None else source.object(index, oid)
             for k, v in obj.timings.items():
                 timings[k] = timings.get(k, 0.0) + v
             rows = object_rows(obj, config, split, timings)
@@ -156,4 +159,6 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
         "pid": os.getpid(),
     }
     write_atomic(marker, json_bytes(record))
+    if config.source == "synthetic":
+        spool.drop(out, config.shard_objects(shard))
     return marker

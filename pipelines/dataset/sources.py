@@ -105,10 +105,15 @@ class SyntheticSource:
 
         self.sampler = Sampler(sampler_config_from_json(sampler_json), ldraw)
 
-    def object(self, index: int, object_id: str) -> ObjectSpec:
-        t0 = time.perf_counter()
-        a = self.sampler.sample(index)
-        total = time.perf_counter() - t0
+    def object(self, index: int, object_id: str, grown=None) -> ObjectSpec:
+        """Object `index`, sampled here, or `grown` = (assembly, seconds) when it was grown ahead
+        (`spool`: the same object)."""
+        if grown is None:
+            t0 = time.perf_counter()
+            a = self.sampler.sample(index)
+            total = time.perf_counter() - t0
+        else:
+            a, total = grown
         check = a.check_seconds
         placed = [PlacedPart(s.part, s.colour, s.pose, f"sampler:{k}") for k, s in enumerate(a.steps)]
         scene = tuple(placed)
