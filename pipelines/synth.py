@@ -55,11 +55,11 @@ def add_run_args(ap: argparse.ArgumentParser) -> None:
 def run(config, args) -> int:
     from pipelines.dataset import build, summary_line
 
-    if args.workers < 1 or getattr(args, "batch", 1) < 1:
+    if args.workers < 1 or args.batch < 1:
         print("error: --workers and --batch must be >= 1", file=sys.stderr)
         return 2
     summary = build(config, args.out, backend=args.backend, workers=args.workers,
-                    progress=not args.no_progress, batch=getattr(args, "batch", 1))
+                    progress=not args.no_progress, batch=args.batch)
     print(summary_line(summary), flush=True)
     return 0
 

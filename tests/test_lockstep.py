@@ -32,14 +32,41 @@ def test_objects_are_byte_identical_whatever_the_batch(alone, batch, tmp_path):
     assert len(set(alone.values())) == 64  # 64 different objects, not one repeated
 
 
+def _rounds(s: Sampler, index: int) -> int:
+    """How many check requests object `index` makes (each answered by `check`, alone)."""
+    gen, n = s.growth(index), 0
+    req = next(gen)
+    while True:
+        n += 1
+        verdicts = check(req.structure, req.part, list(req.poses), s.config.backend, s.config.check,
+                         colour=req.colour, floor_y=req.floor_y, explain=False)
+        try:
+            req = gen.send(verdicts)
+        except StopIteration:
+            return n
+
+
 def test_a_finished_object_gives_its_slot_to_the_next_index():
     s = Sampler(SamplerConfig(seed=3, **{**TINY, "min_steps": 1, "max_steps": 6}))
+    rounds = {i: _rounds(s, i) for i in range(8)}
+    assert len(set(rounds.values())) > 1  # objects of different lengths, so the order says something
+    # Two slots: each round answers every live object; an object leaves after its last request and
+    # the next index joins at the end, so the order they end in follows from their request counts.
+    live, waiting, expected = [], list(range(8)), []
+    while live or waiting:
+        while len(live) < 2 and waiting:
+            i = waiting.pop(0)
+            live.append([i, rounds[i]])
+        for slot in live:
+            slot[1] -= 1
+        expected += [i for i, left in live if left == 0]
+        live = [slot for slot in live if slot[1] > 0]
     order = [a.index for a in s.grow(range(8), batch=2)]
-    assert sorted(order) == list(range(8))
-    sizes = {a.index: len(a) for a in s.sample_many(range(8))}
-    assert order != list(range(8)) or len(set(sizes.values())) == 1  # short objects leave early
+    assert order == expected and sorted(order) == list(range(8))
     # sample_many gives the caller's order whatever the batch.
     assert [a.index for a in s.sample_many([5, 1, 7, 1], batch=3)] == [5, 1, 7, 1]
+    # Indices may come from an iterator (read once).
+    assert sorted(a.index for a in s.grow(iter([2, 0]), batch=2)) == [0, 2]
 
 
 def test_batch_must_be_a_positive_integer():

@@ -169,7 +169,7 @@ def test_one_compile_per_bucket():
     before, cached = len(lp_jax.COMPILES), lp_jax._SOLVE._cache_size()
     lp_jax.solve_batch(first)
     assert len(lp_jax.COMPILES) == before + 1 and lp_jax._SOLVE._cache_size() == cached + 1
-    assert lp_jax.COMPILES[-1] == (lp_jax._pow2(10, lp_jax.MIN_LAUNCH), *(max(b[j] for b in buckets) for j in range(4)))
+    assert lp_jax.COMPILES[-1] == (lp_jax._pow2(10, lp_jax.min_launch()), *(max(b[j] for b in buckets) for j in range(4)))
     capped = lp_jax.solve_batch(second, max_iterations=2, fallback=False)
     fallen_back = lp_jax.FALLBACKS[0]
     rescued = lp_jax.solve_batch(second, max_iterations=2)

@@ -155,7 +155,8 @@ def check_many(requests: Sequence[CheckRequest], backend: str = "mujoco", config
                explain: bool = True) -> list[list[Verdict]]:
     """`check` of every request, each against its own structure (objects grown in lockstep:
     `factory.sampler.lockstep`). The verdicts are those `check` gives each request alone; with
-    'mjx' the sweeps of all requests go to the device together, and so do their load programs."""
+    'mjx' the sweeps of all requests go to the device together (their load programs still go one
+    launch group per structure, `judge_on_base`)."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
     calls = [_Call(r.structure, [[Placed(r.part, r.colour, p)] for p in r.poses], backend, config,

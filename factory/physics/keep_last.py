@@ -35,9 +35,6 @@ class KeepLast:
             self._entries.move_to_end(key)
         return entry[1]
 
-    def clear(self) -> None:
-        self._entries.clear()
-
 
 @contextmanager
 def widened(capacity: int):

@@ -60,6 +60,7 @@ orders of magnitude near the optimum.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections import Counter
 from typing import NamedTuple, Sequence
@@ -103,9 +104,10 @@ the rows before it and is left out."""
 MIN_BUCKET = 16
 MAX_BATCH = 4096
 """LPs of one shape per launch; more run in chunks of this many."""
-MIN_LAUNCH = 64 if jax.default_backend() == "gpu" else 8
-"""Fewest members of a launch (powers of two above): on a GPU a few programs cost a launch of 64
-as much as one of 2, and every batch size met is a compile; on a CPU each member costs its own."""
+MIN_LAUNCH = {"gpu": 64, "cpu": 8}
+"""Fewest members of a launch by JAX backend (powers of two above; `min_launch`): on a GPU a few
+programs cost a launch of 64 as much as one of 2, and every batch size met is a compile; on a CPU
+each member costs its own."""
 ROWS_FINE = 128
 """Equality rows up to which their bucket is a power of two (`_rows`)."""
 
@@ -214,9 +216,16 @@ def _rows(v: int) -> int:
     return _pow2(v) if v <= ROWS_FINE else _eighth(v)
 
 
+@functools.cache
+def min_launch() -> int:
+    """`MIN_LAUNCH` of the default JAX backend (asked at the first launch, not at import: that
+    starts the backend)."""
+    return MIN_LAUNCH.get(jax.default_backend(), MIN_LAUNCH["cpu"])
+
+
 def _cols(v: int) -> int:
-    """The variables' bucket: powers of two and their halves between (16, 24, 32, 48, ...): the cost
-    grows about linearly with them."""
+    """The variables' bucket: powers of two and the midpoints between them (16, 24, 32, 48, ...):
+    the cost grows about linearly with them."""
     if v <= MIN_BUCKET:
         return MIN_BUCKET
     p = _pow2(v)
@@ -533,7 +542,7 @@ def _group(buckets: Sequence[tuple[int, int, int, int]]) -> list[tuple[tuple[int
         n, w = size[(m, k)]
         for start in range(0, len(members), per):
             chunk = members[start : start + per]
-            out.append(((_pow2(len(chunk), MIN_LAUNCH), n, m, w, k), chunk))
+            out.append(((_pow2(len(chunk), min_launch()), n, m, w, k), chunk))
     return out
 
 

@@ -320,16 +320,12 @@ def _launch(crosses: bool, ut, st, R, t, d, u, s, k, thr, thr_c) -> np.ndarray:
     return out
 
 
-def _intervals(uset: _Set, sset: _Set, R, t, d, k, u, s, thr, thr_c) -> np.ndarray:
-    """(pairs, 6) intervals of unit piece u[i] of candidate k[i] (pose R, t; direction d) against
-    structure piece s[i] (`_launch`)."""
-    return _intervals_many([(uset, sset, R, t, d, k, u, s, thr, thr_c)])[0]
-
-
 def _intervals_many(jobs) -> list[np.ndarray]:
-    """`_intervals` of many (unit set, structure set, R, t, d, k, u, s, thr, thr_c), in one launch
-    per group of pairs with the same piece buckets (and alignment) whatever job they come from: the
-    sets' tables of one bucket are stacked, each job's rows and candidates offset into them."""
+    """For each job (unit set, structure set, R, t, d, k, u, s, thr, thr_c): the (pairs, 6)
+    intervals of unit piece u[i] of candidate k[i] (pose R, t; direction d) against structure piece
+    s[i] (`_launch`). One launch per group of pairs with the same piece buckets (and alignment)
+    whatever job they come from: the sets' tables of one bucket are stacked, each job's rows and
+    candidates offset into them."""
     out = [np.empty((len(j[5]), 6)) for j in jobs]
     if not jobs:
         return out
@@ -360,8 +356,7 @@ def _intervals_many(jobs) -> list[np.ndarray]:
         # Pairs of right prisms along one direction need no edge-edge axes (`_prism_axes`).
         up = np.einsum("pij,pkj->pki", R[k], uset.prism[u])
         aligned = (np.abs(np.einsum("pai,pbi->pab", up, sset.prism[s])) > 1 - 1e-9).any(axis=(1, 2))
-        ushape = [uset.buckets[b] for b in range(len(uset.buckets))]
-        sshape = [sset.buckets[b] for b in range(len(sset.buckets))]
+        ushape, sshape = uset.buckets, sset.buckets
         codes = np.array([shapes.setdefault((us, ss, al), len(shapes))
                           for us in ushape for ss in sshape for al in (False, True)], np.int64)
         group = codes[(uset.bucket_of[u] * len(sshape) + sset.bucket_of[s]) * 2 + aligned]
@@ -396,7 +391,8 @@ def exact_intervals(a: Sequence[np.ndarray], b: Sequence[np.ndarray], d: np.ndar
     sb = _Set([_piece(v, False, 0.0) for v in b], np.array([v.mean(0) for v in b]), np.arange(n), n)
     idx = np.arange(n)
     R, t = np.repeat(np.eye(3)[None], n, 0), np.zeros((n, 3))
-    res = _intervals(ua, sb, R, t, np.asarray(d, float), idx, idx, idx, np.asarray(thr, float), np.full(n, np.inf))
+    (res,) = _intervals_many([(ua, sb, R, t, np.asarray(d, float), idx, idx, idx, np.asarray(thr, float),
+                               np.full(n, np.inf))])
     return res[:, :2]
 
 
@@ -558,7 +554,7 @@ class _SweepJob:
 
     def finish(self, res: np.ndarray) -> None:
         structure, units, connected, idx, d = self.structure, self.units, self.connected, self.idx, self.d
-        k, u, s, j, is_conn, thr, thr_c, undecided = self.pairs
+        k, _, _, j, is_conn, _, _, undecided = self.pairs
         results = self.results
         # Counted stretches of s > 0: (candidate, part, lo, hi, decided).
         hits = []

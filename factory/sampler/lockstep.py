@@ -4,7 +4,7 @@ Each object is a coroutine (`Sampler.growth`) that yields a batch of candidates 
 their verdicts back; its random choices come from its own stream, so it grows the same whatever
 objects share its rounds. A round asks every live object's pending batch at once; an object that
 ends leaves and the next index takes its slot, so the batch stays full until the indices run out.
-With the 'mjx' backend the round's sweeps and load programs go to the device together.
+With the 'mjx' backend the round's sweeps go to the device together (`check.check_many`).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ def grow_together(sampler: "Sampler", indices: Iterable[int], batch: int = 1) ->
         raise ValueError(f"batch must be an integer >= 1, got {batch!r}")
     cfg = sampler.config
     todo = iter(indices)
-    live: list[list] = []  # [index, coroutine, pending request, check seconds]
+    live: list[list] = []  # [coroutine, pending request, check seconds]
 
     def admit() -> Iterator["Assembly"]:
         """Start objects until `batch` are waiting for verdicts (an object that ends without
@@ -40,7 +40,7 @@ def grow_together(sampler: "Sampler", indices: Iterable[int], batch: int = 1) ->
                 return
             gen = sampler.growth(index)
             try:
-                live.append([index, gen, next(gen), 0.0])
+                live.append([gen, next(gen), 0.0])
             except StopIteration as end:
                 yield end.value
 
@@ -49,16 +49,16 @@ def grow_together(sampler: "Sampler", indices: Iterable[int], batch: int = 1) ->
         yield from admit()
         while live:
             t0 = time.perf_counter()
-            answers = check_many([slot[2] for slot in live], cfg.backend, cfg.check, explain=False)
+            answers = check_many([slot[1] for slot in live], cfg.backend, cfg.check, explain=False)
             seconds = time.perf_counter() - t0
-            total = sum(len(slot[2].poses) for slot in live) or 1
+            total = sum(len(slot[1].poses) for slot in live) or 1
             still = []
             for slot, verdicts in zip(live, answers):
-                slot[3] += seconds * len(slot[2].poses) / total
+                slot[2] += seconds * len(slot[1].poses) / total
                 try:
-                    slot[2] = slot[1].send(verdicts)
+                    slot[1] = slot[0].send(verdicts)
                     still.append(slot)
                 except StopIteration as end:
-                    yield replace(end.value, check_seconds=slot[3])
+                    yield replace(end.value, check_seconds=slot[2])
             live[:] = still
             yield from admit()

@@ -87,9 +87,7 @@ class Sampler:
         the next index). Every object is the one `sample` gives alone."""
         from factory.sampler.lockstep import grow_together
 
-        for i in indices:
-            _index(i)
-        return grow_together(self, indices, batch)
+        return grow_together(self, [_index(i) for i in indices], batch)
 
     def growth(self, index: int) -> Generator[CheckRequest, list, Assembly]:
         """Object `index` as a coroutine: it yields each batch of candidates to check (a

@@ -12,6 +12,7 @@ import json
 import os
 import sys
 import time
+from contextlib import ExitStack, contextmanager
 from importlib import metadata
 from pathlib import Path
 
@@ -91,9 +92,11 @@ def _run_local(config, todo, out, workers, bar):
     return errors
 
 
-def _run_ray(config, todo, out, workers, bar):
-    """The same shard function as Ray tasks: a local Ray instance (`workers` CPUs), or the cluster
-    at `$RAY_ADDRESS` (then `out` must be a folder every node sees, e.g. a shared filesystem)."""
+@contextmanager
+def _ray_tasks(workers: int):
+    """`build_shard` as a Ray task, on the running Ray, else on a local instance (`workers` CPUs) or
+    the cluster at `$RAY_ADDRESS` (then `out` must be a folder every node sees, e.g. a shared
+    filesystem); a Ray started here is shut down after."""
     import ray
 
     started = False
@@ -105,7 +108,17 @@ def _run_ray(config, todo, out, workers, bar):
         ray.init(address=address, **kwargs)
         started = True
     try:
-        task = ray.remote(num_cpus=1, max_retries=2)(build_shard)
+        yield ray.remote(num_cpus=1, max_retries=2)(build_shard)
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _run_ray(config, todo, out, workers, bar):
+    """The same shard function as Ray tasks (`_ray_tasks`)."""
+    import ray
+
+    with _ray_tasks(workers) as task:
         refs = {task.remote(config.to_json(), k, str(out)): k for k in todo}
         errors = []
         pending = list(refs)
@@ -119,9 +132,6 @@ def _run_ray(config, todo, out, workers, bar):
                     errors.append((k, exc))
                 bar.update(len(config.shard_objects(k)))
         return errors
-    finally:
-        if started:
-            ray.shutdown()
 
 
 def _run_grown(config, todo, out, workers, bar, batch: int, backend: str):
@@ -134,43 +144,40 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str):
     from pipelines.dataset.sources import sampler_config_from_json
 
     sampler = Sampler(sampler_config_from_json(config.sampler), config.ldraw)
-    missing = {k: [i for i in config.shard_objects(k) if spool.get(out, i, config.seed) is None] for k in todo}
+    # (An unreadable or foreign spool entry counts as grown here; the shard function grows it.)
+    missing = {k: [i for i in config.shard_objects(k) if not spool.has(out, i)] for k in todo}
     waiting = {k: set(v) for k, v in missing.items()}
     shard_of = {i: k for k, v in missing.items() for i in v}
     errors: list = []
-    if backend == "ray":
-        import ray
-
-        started = not ray.is_initialized()
-        if started:
-            address = os.environ.get("RAY_ADDRESS") or None
-            ray.init(address=address, include_dashboard=False, runtime_env={"env_vars": _worker_env()},
-                     **({} if address else {"num_cpus": max(1, workers)}))
-        task = ray.remote(num_cpus=1, max_retries=2)(build_shard)
-        submit, finish = (lambda k: task.remote(config.to_json(), k, str(out))), ray.get
-    else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        pool = ProcessPoolExecutor(max_workers=max(1, workers), mp_context=multiprocessing.get_context("spawn"))
-        submit, finish = (lambda k: pool.submit(build_shard, config.to_json(), k, str(out))), (lambda f: f.result())
     running: dict = {}
+    with ExitStack() as stack:
+        if backend == "ray":
+            import ray
 
-    def collect(block: bool) -> None:
-        for k in [k for k, f in running.items() if block or _done(f)]:
-            try:
-                finish(running.pop(k))
-            except Exception as exc:  # noqa: BLE001 - reported with the shard number
-                errors.append((k, exc))
-            bar.update(len(config.shard_objects(k)))
+            task = stack.enter_context(_ray_tasks(workers))
+            submit, finish = (lambda k: task.remote(config.to_json(), k, str(out))), ray.get
+        else:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
 
-    try:
+            # spawn: a fresh interpreter per worker (no GL or MuJoCo state forked from this process).
+            pool = stack.enter_context(ProcessPoolExecutor(max_workers=max(1, workers),
+                                                           mp_context=multiprocessing.get_context("spawn")))
+            submit, finish = (lambda k: pool.submit(build_shard, config.to_json(), k, str(out))), (lambda f: f.result())
+
+        def collect(block: bool) -> None:
+            for k in [k for k, f in running.items() if block or _done(f)]:
+                try:
+                    finish(running.pop(k))
+                except Exception as exc:  # noqa: BLE001 - reported with the shard number
+                    errors.append((k, exc))
+                bar.update(len(config.shard_objects(k)))
+
         for k in todo:
             if not waiting[k]:
                 running[k] = submit(k)
-        grown = sampler.grow([i for k in todo for i in missing[k]], batch)
         t0 = time.perf_counter()
-        for a in grown:
+        for a in sampler.grow([i for k in todo for i in missing[k]], batch):
             t1 = time.perf_counter()
             spool.put(out, a.index, a, t1 - t0)
             t0 = t1
@@ -180,12 +187,6 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str):
                 running[k] = submit(k)
             collect(False)
         collect(True)
-    finally:
-        if backend == "ray":
-            if started:
-                ray.shutdown()
-        else:
-            pool.shutdown(wait=True, cancel_futures=True)
     return errors
 
 
