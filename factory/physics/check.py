@@ -167,7 +167,8 @@ def check_many(requests: Sequence[CheckRequest], backend: str = "mujoco", config
 
 STAGE_SECONDS: Counter = Counter()
 """Seconds spent in this process by stage of `check_units`/`check_many`: 'rules' (connection,
-collision, clutch, and the CPU sweep of the reference), 'sweep' (the batched sweeps), 'loads'."""
+clutch, and for the reference collision and the CPU sweep), 'collide' (the batched collision
+rule, `collide_jax`), 'sweep' (the batched sweeps), 'loads'."""
 
 
 def _run_calls(calls: "Sequence[_Call]", backend: str) -> list[list[Verdict]]:
@@ -175,7 +176,15 @@ def _run_calls(calls: "Sequence[_Call]", backend: str) -> list[list[Verdict]]:
     sweeps in one `sweep_jax.sweep_groups`, their load programs by `_judge_loads`)."""
     t0 = time.perf_counter()
     if backend == "mjx":
+        from factory.physics.collide_jax import penetrations
         from factory.physics.sweep_jax import sweep_groups
+
+        todo = [c for c in calls if c.to_collide]
+        found_all = penetrations([c.collide_group() for c in todo])
+        STAGE_SECONDS["collide"] += time.perf_counter() - t0
+        for c, found in zip(todo, found_all):
+            c.collided(found)  # counted as 'rules'
+        t0 = time.perf_counter()
 
         todo = [(c, g) for c in calls if (g := c.sweep_group()) is not None]
         for (c, _), built in zip(todo, sweep_groups([g for _, g in todo])):
@@ -188,32 +197,58 @@ def _run_calls(calls: "Sequence[_Call]", backend: str) -> list[list[Verdict]]:
 
 
 class _Call:
-    """One `check_units` call: the cheap rules at construction (and the CPU sweep for the
-    reference), then its sweeps (`sweep_group`, `swept`) and loads (`_judge_loads`) where many
-    calls can share the device."""
+    """One `check_units` call: each candidate's connections at construction, then collision (the
+    scene's contacts for the reference; for 'mjx' `collide_group`/`collided`, where many calls share
+    the device), the cheap rules after it (and the CPU sweep for the reference), then its sweeps
+    (`sweep_group`, `swept`) and loads (`_judge_loads`)."""
 
     def __init__(self, structure: Structure, units: Sequence[Sequence[Placed]], backend: str, config: CheckConfig,
                  require_connection: bool = True, floor_y: float | None = None, standing: bool = True,
                  unit_links: Sequence[Link] = (), explain: bool = True):
         t0 = time.perf_counter()
-        self.structure, self.config, self.floor_y = structure, config, floor_y
+        self.structure, self.config, self.floor_y, self.backend = structure, config, floor_y, backend
         self.standing, self.unit_links, self.explain = standing, unit_links, explain
+        self.require_connection = require_connection
         first = units[0]
         anchor = first[0].pose
-        rel = [(p.part, anchor.inverse() @ p.pose) for p in first]
-        self.scene = scene = _collision_scene(structure, rel, floor_y if floor_y is not None else 1e6)
+        self.rel = [(p.part, anchor.inverse() @ p.pose) for p in first]
+        self._scene: CollisionScene | None = None
         self.base_n = base_n = len(structure)
         self.verdicts: list[Verdict | None] = [None] * len(units)
         self.pending: list[tuple[int, list[Placed], list]] = []
         self.to_sweep: list[tuple] = []
+        self.to_collide: list[tuple] = []
         for k, unit in enumerate(units):
-            pose = unit[0].pose
             world = [(p.part, p.pose) for p in unit]
             conns = _unit_connections(structure, world)
             outer = [c for c in conns if min(c[0], c[1]) < base_n]
-            connected = bool(outer) or (not require_connection) or base_n == 0
-            touched = {min(c[0], c[1]) for c in outer}
-            depth, near = scene.penetration(pose, touched)
+            self.to_collide.append((k, unit, conns, outer, {min(c[0], c[1]) for c in outer}))
+        if backend != "mjx":
+            # The reference: MuJoCo's contacts, one candidate pose at a time.
+            self.collided([self.scene.penetration(unit[0].pose, touched) for _, unit, *_, touched in self.to_collide])
+        STAGE_SECONDS["rules"] += time.perf_counter() - t0
+
+    @property
+    def scene(self) -> CollisionScene:
+        """The MuJoCo collision scene (the reference's; for 'mjx' built only if a sweep is referred
+        to the CPU)."""
+        if self._scene is None:
+            self._scene = _collision_scene(self.structure, self.rel, self.floor_y if self.floor_y is not None else 1e6)
+        return self._scene
+
+    def collide_group(self):
+        """This call's candidates for `collide_jax.penetrations`."""
+        return (self.structure, self.rel, [unit[0].pose for _, unit, *_ in self.to_collide],
+                [touched for *_, touched in self.to_collide], self.floor_y)
+
+    def collided(self, found) -> None:
+        """The rules after collision, given each candidate's (depth, structure parts near)."""
+        t0 = time.perf_counter()
+        structure, config, floor_y, base_n = self.structure, self.config, self.floor_y, self.base_n
+        for (k, unit, conns, outer, touched), pen in zip(self.to_collide, found):
+            depth, near = pen if isinstance(pen, tuple) else (pen.depth, pen.near)
+            pose = unit[0].pose
+            connected = bool(outer) or (not self.require_connection) or base_n == 0
             collision = depth > config.max_penetration_ldu
             base = dict(pose=pose, connected=bool(outer), connections=len(outer), collision=collision,
                         max_penetration_ldu=round(depth, 4), touching=bool(near))
@@ -231,23 +266,25 @@ class _Call:
                 self.verdicts[k] = Verdict(**base, reason="no-connection")
                 continue
             ground = floor_y if floor_y is not None else max(structure.floor_y(), lowest_point(unit))
-            if outer and not _holds_alone(unit, outer, base_n, ground if standing else None, config.loads):
+            if outer and not _holds_alone(unit, outer, base_n, ground if self.standing else None, config.loads):
                 self.verdicts[k] = Verdict(**base, clutch=False, reason="clutch")
                 continue
             dirs = seating_from_connections(outer, base_n)
-            if outer and backend == "mjx":
+            world = [(p.part, p.pose) for p in unit]
+            if outer and self.backend == "mjx":
                 # Swept later, with every call's candidates at once on the device (`sweep_jax`).
                 self.to_sweep.append((k, base, unit, conns, world, touched, dirs))
                 continue
-            built = sweep(scene, structure, world, touched, config.max_penetration_ldu, directions=dirs) if outer else None
+            built = sweep(self.scene, structure, world, touched, config.max_penetration_ldu, directions=dirs) if outer else None
             self._after_sweep(k, base, built, unit, conns, outer)
+        self.to_collide = []
         STAGE_SECONDS["rules"] += time.perf_counter() - t0
 
     def sweep_group(self):
         """This call's sweeps for `sweep_jax.sweep_groups`, None if it has none."""
         if not self.to_sweep:
             return None
-        return (self.scene, self.structure, [x[4] for x in self.to_sweep], [x[5] for x in self.to_sweep],
+        return (lambda: self.scene, self.structure, [x[4] for x in self.to_sweep], [x[5] for x in self.to_sweep],
                 self.config.max_penetration_ldu, [x[6] for x in self.to_sweep])
 
     def swept(self, built_all) -> None:

@@ -71,28 +71,61 @@ STUD_PROBE_INSET_LDU = 0.5
 plate's underside on a stud's top, the tolerance) is not crossed."""
 
 
-def _segment_hits(tris: np.ndarray, a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether any segment a[i]-b[i] crosses any triangle (Moller-Trumbore, both faces)."""
-    if not len(tris):
-        return False
-    d = b - a
-    v0 = tris[:, 0][None]
-    e1, e2 = (tris[:, 1] - tris[:, 0])[None], (tris[:, 2] - tris[:, 0])[None]
-    p = np.cross(d[:, None], e2)
-    det = np.einsum("stk,stk->st", p, np.broadcast_to(e1, p.shape))
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b over the last axis (broadcast); np.cross's generality costs more than the product
+    itself at the sizes of a stud probe."""
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+
+
+@dataclass(frozen=True)
+class Surface:
+    """A part's triangles in its own frame, with what every stud probe needs of them."""
+
+    tris: np.ndarray
+    lo: np.ndarray
+    """(n, 3) per-triangle box corners."""
+    hi: np.ndarray
+    e1: np.ndarray
+    e2: np.ndarray
+
+    @classmethod
+    def of(cls, tris: np.ndarray) -> "Surface":
+        tris = np.asarray(tris, float).reshape(-1, 3, 3)
+        return cls(tris, tris.min(axis=1), tris.max(axis=1), tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+
+
+_SURFACES: dict[int, tuple[Part, Surface]] = {}
+"""Surfaces by part (the part is kept so that its id is not reused); a library has a few hundred."""
+
+
+def part_surface(part: Part) -> Surface:
+    hit = _SURFACES.get(id(part))
+    if hit is None or hit[0] is not part:
+        hit = _SURFACES[id(part)] = (part, Surface.of(part.flat.triangles))
+    return hit[1]
+
+
+def _segment_hits(surf: Surface, keep: np.ndarray, a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether any segment a[i]-b[i] crosses any kept triangle (Moller-Trumbore, both faces)."""
+    v0, e1, e2 = surf.tris[keep, 0][None], surf.e1[keep][None], surf.e2[keep][None]
+    d = (b - a)[:, None]
+    p = _cross(d, e2)
+    det = (p * e1).sum(-1)
     ok = np.abs(det) > 1e-12
     inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
     o = a[:, None] - v0
-    u = np.einsum("stk,stk->st", o, p) * inv
-    q = np.cross(o, np.broadcast_to(e1, o.shape))
-    v = np.einsum("stk,stk->st", q, np.broadcast_to(d[:, None], q.shape)) * inv
-    t = np.einsum("stk,stk->st", q, np.broadcast_to(e2, q.shape)) * inv
+    u = (o * p).sum(-1) * inv
+    q = _cross(o, e1)
+    v = (q * d).sum(-1) * inv
+    t = (q * e2).sum(-1) * inv
     return bool((ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t >= 0) & (t <= 1)).any())
 
 
-def stud_crosses(pos: np.ndarray, axis: np.ndarray, tris: np.ndarray) -> bool:
-    """Whether a stud (base centre, unit axis; world) crosses the surface `tris` (world): a wall or
-    face of another part cuts into it, as opposed to the stud standing in that part's hollow.
+def stud_crosses(pos: np.ndarray, axis: np.ndarray, surface: Surface) -> bool:
+    """Whether a stud (base centre, unit axis; in the surface's frame) crosses the surface: a wall
+    or face of another part cuts into it, as opposed to the stud standing in that part's hollow.
     Probed by segments just inside the stud (its axis, 8 lines along its side, 8 radii of its top)
     and by any vertex of the surface inside it."""
     from factory.connections import STUD_HEIGHT, STUD_RADIUS
@@ -100,24 +133,24 @@ def stud_crosses(pos: np.ndarray, axis: np.ndarray, tris: np.ndarray) -> bool:
     r, h0, h1 = STUD_RADIUS - STUD_PROBE_INSET_LDU, STUD_PROBE_INSET_LDU, STUD_HEIGHT - STUD_PROBE_INSET_LDU
     centre = pos + axis * (STUD_HEIGHT / 2)
     reach = STUD_RADIUS + STUD_HEIGHT
-    near = tris[np.all((tris.min(axis=1) < centre + reach) & (tris.max(axis=1) > centre - reach), axis=1)]
-    if not len(near):
+    keep = np.flatnonzero(((surface.lo < centre + reach) & (surface.hi > centre - reach)).all(axis=1))
+    if not len(keep):
         return False
-    rel = near.reshape(-1, 3) - pos
+    rel = surface.tris[keep].reshape(-1, 3) - pos
     along = rel @ axis
     radial = np.linalg.norm(rel - along[:, None] * axis, axis=1)
     if ((along > h0) & (along < h1) & (radial < r)).any():
         return True
     ref = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
-    u = np.cross(axis, ref)
+    u = _cross(axis, ref)
     u /= np.linalg.norm(u)
-    v = np.cross(axis, u)
+    v = _cross(axis, u)
     ang = np.arange(8) * (np.pi / 4)
     ring = r * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v)
     base, top = pos + h0 * axis, pos + h1 * axis
     a = np.concatenate([[base], base + ring, np.repeat([top], 8, axis=0)])
     b = np.concatenate([[top], top + ring, top + ring])
-    return _segment_hits(near, a, b)
+    return _segment_hits(surface, keep, a, b)
 
 
 NEAR_LDU = 1.0
@@ -137,7 +170,6 @@ class CollisionScene:
         self.structure = structure
         self.unit = unit
         shapes = [collision_shape(p.part) for p in structure.placed]
-        self._world_tris: dict[int, np.ndarray] = {}
         meshes: dict[str, np.ndarray] = {}
         bodies = []
         info: list[_GeomInfo] = []
@@ -195,33 +227,27 @@ class CollisionScene:
 
     def _stud_in_hollow(self, stud_g: int, body_g: int, pose: Pose, memo: dict) -> bool:
         """Whether the stud of geom `stud_g` stands in a hollow of the part owning `body_g` (inside
-        its filled collision piece, crossing none of its walls or faces)."""
+        its filled collision piece, crossing none of its walls or faces). Probed in the body
+        part's own frame: its surface is read once per part, never moved."""
         stud, body = self.info[stud_g], self.info[body_g]
         key = (stud_g, body.owner, body.member)
         if key not in memo:
             pos, axis = stud.stud_at
-            part_pose = self._pose_of(stud, pose)
-            pos, axis = part_pose.apply(pos[None])[0], part_pose.R @ axis
-            tris_key = (body.owner, body.member)
-            if tris_key not in memo:
-                memo[tris_key] = self._triangles(body, pose)
-            memo[key] = not stud_crosses(pos, axis, memo[tris_key])
+            body_pose, stud_pose = self._pose_of(body, pose), self._pose_of(stud, pose)
+            part = self.structure.placed[body.owner].part if body.owner >= 0 else self.unit[body.member][0]
+            if np.allclose(body_pose.R @ body_pose.R.T, np.eye(3), atol=1e-9):
+                rel = body_pose.inverse() @ stud_pose
+                surface = part_surface(part)
+            else:  # a scaled or sheared placement (rare in LDraw): its surface moved into the world
+                rel = stud_pose
+                surface = Surface.of(body_pose.apply(part.flat.triangles.reshape(-1, 3)))
+            memo[key] = not stud_crosses(rel.apply(pos[None])[0], rel.R @ axis, surface)
         return memo[key]
 
     def _pose_of(self, gi: _GeomInfo, pose: Pose) -> Pose:
         if gi.owner >= 0:
             return self.structure.placed[gi.owner].pose
         return pose @ self.unit[gi.member][1]
-
-    def _triangles(self, gi: _GeomInfo, pose: Pose) -> np.ndarray:
-        """The surface of the part owning a geom, in the world (structure parts' kept)."""
-        if gi.owner >= 0:
-            if gi.owner not in self._world_tris:
-                placed = self.structure.placed[gi.owner]
-                self._world_tris[gi.owner] = placed.pose.apply(placed.part.flat.triangles.reshape(-1, 3)).reshape(-1, 3, 3)
-            return self._world_tris[gi.owner]
-        part = self.unit[gi.member][0]
-        return self._pose_of(gi, pose).apply(part.flat.triangles.reshape(-1, 3)).reshape(-1, 3, 3)
 
     def penetration(self, pose: Pose, connected: set[int]) -> tuple[float, set[int]]:
         """(Deepest overlap in LDU with the structure or the floor, structure parts it touches).

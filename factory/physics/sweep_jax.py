@@ -68,9 +68,9 @@ from factory.physics.sweep import (MIN_STEP_LDU, SweepResult, _boxes, _overlap_i
                                    box_interval, seating_directions, sweep)
 from factory.pose import Pose
 
-COMPILES: list[tuple[int, ...]] = []
-"""(pairs, unit table rows, structure table rows, candidates, and vertices, normals, edges of both
-pieces) of every launch shape compiled in this process."""
+COMPILES: list[tuple] = []
+"""(kernel kind, edge axes or not, pairs, unit table rows, structure table rows, candidates, and
+vertices, normals, edges of both pieces) of every launch shape compiled in this process."""
 COUNTS: Counter = Counter()
 """Candidates by how they were judged: 'device', 'referred' (swept on the CPU: only an undecided
 stud-body pair could block them), 'not-judged' (no approach), 'cpu' (tolerance below the insets)."""
@@ -251,7 +251,8 @@ _KERNEL = None
 
 
 def _kernel():
-    """The jitted batch of pair intervals (JAX imported here: the 'mujoco' backend needs none)."""
+    """The jitted batches of pairs by kind: 'sweep' (intervals of s) and 'still' (depths at the
+    candidate's pose, `collide_jax`). JAX is imported here: the 'mujoco' backend needs none."""
     global _KERNEL
     if _KERNEL is None:
         import jax
@@ -288,45 +289,74 @@ def _kernel():
             lo_b, hi_b = interval(av, sc[None], an, ones_u, dk, thr_c)  # the structure piece's in u
             return jnp.stack([lo, hi, lo_a, hi_a, lo_b, hi_b])
 
-        def run(crosses, ut, st, R, t, d, u, s, k, thr, thr_c):
-            return jax.vmap(partial(pair, crosses), in_axes=(None, None, None, None, None, 0, 0, 0, 0, 0))(
+        def depth(a, b, axes, valid):
+            """Separating-axis depth of point sets a into b: > 0 overlap (exact), <= 0 apart."""
+            pa, pb = a @ axes.T, b @ axes.T
+            c = jnp.minimum(pa.max(0) - pb.min(0), pb.max(0) - pa.min(0))
+            return jnp.min(jnp.where(valid, c, jnp.inf))
+
+        def still(crosses, ut, st, R, t, d, u, s, k, thr, thr_c):
+            """At the candidate's pose (s = 0): the pieces' depth, then each centre's inside the other."""
+            uv, un, ue, uc = (x[u] for x in ut)
+            sv, sn, se, sc = (x[s] for x in st)
+            Rk, tk = R[k], t[k]
+            av, an, ae, ac = uv @ Rk.T + tk, un @ Rk.T, ue @ Rk.T, uc @ Rk.T + tk
+            axes, valid = jnp.concatenate([an, sn]), jnp.ones(len(an) + len(sn), bool)
+            if crosses:
+                cross = jnp.cross(ae[:, None, :], se[None, :, :]).reshape(-1, 3)
+                size = jnp.linalg.norm(cross, axis=1)
+                ok = size > 1e-9
+                axes = jnp.concatenate([axes, cross / jnp.where(ok, size, 1.0)[:, None]])
+                valid = jnp.concatenate([valid, ok])
+            ones_s, ones_u = jnp.ones(len(sn), bool), jnp.ones(len(an), bool)
+            return jnp.stack([depth(av, sv, axes, valid), depth(ac[None], sv, sn, ones_s),
+                              depth(av, sc[None], an, ones_u)])
+
+        def run(fn, crosses, ut, st, R, t, d, u, s, k, thr, thr_c):
+            return jax.vmap(partial(fn, crosses), in_axes=(None, None, None, None, None, 0, 0, 0, 0, 0))(
                 ut, st, R, t, d, u, s, k, thr, thr_c)
 
-        _KERNEL = jax.jit(run, static_argnums=0)
+        _KERNEL = {"sweep": jax.jit(partial(run, pair), static_argnums=0),
+                   "still": jax.jit(partial(run, still), static_argnums=0)}
     return _KERNEL
 
 
-def _launch(crosses: bool, ut, st, R, t, d, u, s, k, thr, thr_c) -> np.ndarray:
-    """(n, 6) intervals of the pairs (lo, hi of the overlap, then of the two centre tests); edge-edge
-    axes only with `crosses`."""
+WIDTH = {"sweep": 6, "still": 3}
+"""Values per pair of each kernel kind."""
+
+
+def _launch(crosses: bool, ut, st, R, t, d, u, s, k, thr, thr_c, kind: str = "sweep") -> np.ndarray:
+    """(n, 6) intervals of the pairs (lo, hi of the overlap, then of the two centre tests), or for
+    kind 'still' (n, 3) depths (of the pieces, of each centre in the other); edge-edge axes only
+    with `crosses`."""
     import jax
 
     n = len(u)
     nv = ut[0].shape[1] + st[0].shape[1]
     axes = ut[1].shape[1] + st[1].shape[1] + crosses * ut[2].shape[1] * st[2].shape[1]
     chunk = max(256, 1 << int(math.log2(max(1, MAX_WORK // (nv * axes)))))
-    out = np.empty((n, 6))
+    out = np.empty((n, WIDTH[kind]))
     with jax.enable_x64(True):
         for a in range(0, n, chunk):
             m = min(chunk, n - a)
             rows = _pow2(m, MIN_ROWS)
             pad = lambda x: np.concatenate([x[a:a + m], np.repeat(x[a:a + 1], rows - m, 0)])
-            shape = (int(crosses), rows, ut[0].shape[0], st[0].shape[0], len(R), *ut[0].shape[1:2], ut[1].shape[1],
+            shape = (kind, int(crosses), rows, ut[0].shape[0], st[0].shape[0], len(R), *ut[0].shape[1:2], ut[1].shape[1],
                      ut[2].shape[1], st[0].shape[1], st[1].shape[1], st[2].shape[1])
             if shape not in COMPILES:
                 COMPILES.append(shape)
-            res = _kernel()(crosses, ut, st, R, t, d, pad(u), pad(s), pad(k), pad(thr), pad(thr_c))
+            res = _kernel()[kind](crosses, ut, st, R, t, d, pad(u), pad(s), pad(k), pad(thr), pad(thr_c))
             out[a:a + m] = np.asarray(res)[:m]
     return out
 
 
-def _intervals_many(jobs) -> list[np.ndarray]:
+def _intervals_many(jobs, kind: str = "sweep") -> list[np.ndarray]:
     """For each job (unit set, structure set, R, t, d, k, u, s, thr, thr_c): the (pairs, 6)
     intervals of unit piece u[i] of candidate k[i] (pose R, t; direction d) against structure piece
-    s[i] (`_launch`). One launch per group of pairs with the same piece buckets (and alignment)
+    s[i] (`_launch`; with kind 'still' their depths at the pose). One launch per group of pairs with the same piece buckets (and alignment)
     whatever job they come from: the sets' tables of one bucket are stacked, each job's rows and
     candidates offset into them."""
-    out = [np.empty((len(j[5]), 6)) for j in jobs]
+    out = [np.empty((len(j[5]), WIDTH[kind])) for j in jobs]
     if not jobs:
         return out
     # Bucket shapes (vertices, normals, edges) of every set, and where each set's table of a bucket
@@ -375,7 +405,7 @@ def _intervals_many(jobs) -> list[np.ndarray]:
                 rows = _pow2(len(cat[0]), MIN_ROWS)
                 stacked[(side, sh)] = tuple(np.concatenate([x, np.repeat(x[:1], rows - len(x), 0)]) for x in cat)
         gu, gs, gk, gthr, gthc = (np.concatenate([pj[i][x] for pj, x in zip(per_job, sel)]) for i in (1, 2, 3, 4, 5))
-        res = _launch(not al, stacked[("u", us)], stacked[("s", ss)], Rp, tp, dp, gu, gs, gk, gthr, gthc)
+        res = _launch(not al, stacked[("u", us)], stacked[("s", ss)], Rp, tp, dp, gu, gs, gk, gthr, gthc, kind)
         at = 0
         for n, x in enumerate(sel):
             out[n][x] = res[at:at + len(x)]
@@ -483,8 +513,8 @@ def sweep_many(
 
     The units share their parts and relative layout up to one rigid motion (as `check.check_units`
     requires), each placed in world poses, its pose that of its first part; `scene` is their
-    collision scene as `check_units` builds it (None: built here if a candidate is referred to the
-    CPU). `directions`: each unit's seating directions (`sweep.seating_directions`), if known.
+    collision scene as `check_units` builds it, or a function building it on first need (None: built
+    here if a candidate is referred to the CPU). `directions`: each unit's seating directions (`sweep.seating_directions`), if known.
     """
     return sweep_groups([(scene, structure, units, connected, max_penetration_ldu, directions)])[0]
 
@@ -546,6 +576,8 @@ class _SweepJob:
     def cpu(self, i: int) -> SweepResult:
         if self.scene is None:
             self.scene = CollisionScene(self.structure, self.rel, 1e6)
+        elif not isinstance(self.scene, CollisionScene):
+            self.scene = self.scene()  # built on first need
         return sweep(self.scene, self.structure, self.units[i], self.connected[i], self.tol)
 
     def launch_args(self) -> tuple:

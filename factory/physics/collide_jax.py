@@ -1,0 +1,184 @@
+"""The collision rule of many candidates at once, on the device (backend 'mjx').
+
+`CollisionScene.penetration` asks MuJoCo for the contacts of one candidate pose at a time and
+walks them in Python. Here every candidate of every request of a lockstep round is judged
+together: the piece pairs near each candidate are picked on the host by boxes, and one jitted
+vmap per piece-bucket shape (`sweep_jax`, kind 'still') gives each pair's separating-axis depth and
+the depth of each piece's centre inside the other. The rule applied to them is the scene's:
+
+- a stud piece and a part the candidate is stud-connected to never collide;
+- overlap = depth + both insets, less `CONNECTED_SLACK_LDU` for a connected part; the deepest
+  positive overlap, or a body piece's centre inside another's (the scene's coincidence test), is
+  the candidate's penetration; the ground counts by the lowest vertex of its pieces;
+- a stud crossing into another part's body (not connected) is probed against that part's real
+  surface (`collide.stud_crosses`, on the host, once per stud and part): a stud standing in the
+  part's hollow touches it without overlapping;
+- a structure part with overlap > -`NEAR_LDU` touches the candidate.
+
+**What may differ from MuJoCo.** Where pieces overlap, the separating-axis minimum is the
+penetration depth (`sweep_jax`'s docstring), MuJoCo's to its solver tolerance. Where they are
+apart, it bounds the gap from below: a part whose closest features are two vertices or a vertex
+and an edge may count as touching here at a gap MuJoCo measures just over `NEAR_LDU`. Touching
+decides a verdict only for a candidate with no stud connection (`unsupported-connection` against
+`no-connection`); the sampler checks candidates at connection points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from factory.parts import Part
+from factory.physics.collide import CONNECTED_SLACK_LDU, NEAR_LDU, part_surface, stud_crosses
+from factory.physics.geometry import collision_shape
+from factory.physics.structure import Structure
+from factory.physics.sweep_jax import _Set, _intervals_many, _structure_set, _unit_set
+from factory.pose import Pose
+
+MARGIN_LDU = NEAR_LDU + 0.5
+"""Pieces farther apart than this (their boxes, along some axis) are not paired: the scene's
+contact margin."""
+
+
+@dataclass(frozen=True)
+class Penetration:
+    """One candidate's collision facts, as `CollisionScene.penetration` gives them."""
+
+    depth: float
+    """Deepest overlap (LDU) with the structure or the ground; 0 where nothing overlaps."""
+    near: frozenset[int]
+    """Structure parts it touches or overlaps."""
+
+
+class _Job:
+    """One request: a unit (its parts in its own frame) at candidate poses against a structure."""
+
+    def __init__(self, structure: Structure, rel: Sequence[tuple[Part, Pose]], poses: Sequence[Pose],
+                 connected: Sequence[set[int]], floor_y: float | None):
+        self.structure, self.rel, self.poses, self.connected = structure, list(rel), list(poses), connected
+        self.floor_y = floor_y
+        self.uset: _Set = _unit_set(self.rel)
+        self.sset, sboxes = _structure_set(structure)
+        K = len(poses)
+        self.R = np.stack([p.R for p in poses])
+        self.t = np.stack([p.t for p in poses])
+        conn = np.zeros((K, len(structure)), bool)
+        for i, c in enumerate(connected):
+            conn[i, list(c)] = True
+        self.pairs = _pairs_at(self.uset, self.sset, sboxes, self.rel, self.R, self.t, conn)
+
+    def launch_args(self) -> tuple:
+        k, u, s, _, _ = self.pairs
+        zero = np.zeros(len(k))
+        return (self.uset, self.sset, self.R, self.t, np.zeros_like(self.t), k, u, s, zero, zero)
+
+    def finish(self, res: np.ndarray) -> list[Penetration]:
+        uset, sset, K = self.uset, self.sset, len(self.poses)
+        k, u, s, j, conn = self.pairs
+        overlap = res[:, 0] + uset.inset[u] + sset.inset[s] - np.where(conn, CONNECTED_SLACK_LDU, 0.0)
+        # A stud in another part's body, not connected: probed against that part's real surface.
+        probe = (overlap > 0) & (uset.stud[u] != sset.stud[s])
+        if probe.any():
+            memo: dict = {}
+            for e in np.flatnonzero(probe):
+                key = (int(k[e]), int(u[e]) if uset.stud[u[e]] else -1 - int(s[e]), int(j[e]))
+                if key not in memo:
+                    memo[key] = self._in_hollow(int(k[e]), int(u[e]), int(s[e]))
+                if memo[key]:
+                    overlap[e] = min(overlap[e], 0.0)
+        deepest = np.zeros(K)
+        np.maximum.at(deepest, k, np.maximum(overlap, 0.0))
+        # Coincidence: a body piece's centre inside another body piece (no slack, no insets).
+        body = ~uset.stud[u] & ~sset.stud[s]
+        centre = np.where(body, np.maximum(res[:, 1], res[:, 2]), -np.inf)
+        np.maximum.at(deepest, k, np.maximum(centre, 0.0))
+        if self.floor_y is not None:
+            deepest = np.maximum(deepest, self._below_ground())
+        touching = (overlap > -NEAR_LDU) | (centre > 0)
+        near: list[set[int]] = [set() for _ in range(K)]
+        for a, b in zip(k[touching], j[touching]):
+            near[a].add(int(b))
+        return [Penetration(float(deepest[i]), frozenset(near[i])) for i in range(K)]
+
+    def _below_ground(self) -> np.ndarray:
+        """Per candidate: how far its pieces (plus their inset) reach below the ground."""
+        uset = self.uset
+        if not uset.pieces:
+            return np.zeros(len(self.poses))
+        verts = np.concatenate([p.verts for p in uset.pieces])
+        inset = np.repeat(uset.inset, [len(p.verts) for p in uset.pieces])
+        y = np.einsum("kj,vj->kv", self.R[:, 1], verts) + self.t[:, 1:2]  # LDraw y points down
+        return np.maximum((y - self.floor_y + inset).max(axis=1), 0.0)
+
+    def _in_hollow(self, k: int, u: int, s: int) -> bool:
+        """Whether the stud of the pair (unit piece u or structure piece s) stands in the other
+        part's hollow at candidate k (`collide.stud_crosses` in the body part's frame)."""
+        uset, sset, pose = self.uset, self.sset, self.poses[k]
+        m, j = int(uset.owner[u]), int(sset.owner[s])
+        unit_part, unit_pose = self.rel[m][0], pose @ self.rel[m][1]
+        placed = self.structure.placed[j]
+        if uset.stud[u]:
+            stud_part, stud_pose, index = unit_part, unit_pose, u - uset.start[m]
+            body_part, body_pose = placed.part, placed.pose
+        else:
+            stud_part, stud_pose, index = placed.part, placed.pose, s - sset.start[j]
+            body_part, body_pose = unit_part, unit_pose
+        shape = collision_shape(stud_part)
+        pos, axis = shape.stud_at[index - len(shape.body)]
+        if np.allclose(body_pose.R @ body_pose.R.T, np.eye(3), atol=1e-9):
+            rel, surface = body_pose.inverse() @ stud_pose, part_surface(body_part)
+        else:  # a scaled or sheared placement: its surface moved into the world
+            from factory.physics.collide import Surface
+
+            rel, surface = stud_pose, Surface.of(body_pose.apply(body_part.flat.triangles.reshape(-1, 3)))
+        return not stud_crosses(rel.apply(np.asarray(pos)[None])[0], rel.R @ np.asarray(axis), surface)
+
+
+def _pairs_at(uset: _Set, sset: _Set, sboxes: np.ndarray, rel, R, t, conn):
+    """Piece pairs within `MARGIN_LDU` of each other by their boxes at each candidate's pose, the
+    stud pieces of connected parts left out: (candidate, unit piece, structure piece, part,
+    connected)."""
+    empty = (np.zeros(0, np.int64),) * 4 + (np.zeros(0, bool),)
+    if not len(sboxes) or not len(uset.pieces):
+        return empty
+    mb = np.stack([part.bbox for part, _ in rel])
+    mR = np.stack([p.R for _, p in rel])
+    mt = np.stack([p.t for _, p in rel])
+    wR = np.einsum("kij,mjl->kmil", R, mR)
+    centre = np.einsum("kmij,mj->kmi", wR, mb.mean(axis=1)) + np.einsum("kij,mj->kmi", R, mt) + t[:, None]
+    half = np.einsum("kmij,mj->kmi", np.abs(wR), (mb[:, 1] - mb[:, 0]) / 2)
+    meet = ((centre[:, :, None] - half[:, :, None] < sboxes[None, None, :, 1] + MARGIN_LDU)
+            & (centre[:, :, None] + half[:, :, None] > sboxes[None, None, :, 0] - MARGIN_LDU)).all(axis=-1)
+    kk, mm, jj = np.nonzero(meet)
+    ubox = uset.box
+    wc = np.einsum("kij,uj->kui", R, ubox.mean(axis=1)) + t[:, None]
+    wh = np.einsum("kij,uj->kui", np.abs(R), (ubox[:, 1] - ubox[:, 0]) / 2)
+    nu = np.diff(uset.start)[mm]
+    rep = np.repeat(np.arange(len(kk)), nu)
+    k, j = kk[rep], jj[rep]
+    u = uset.start[mm[rep]] + np.arange(len(rep)) - np.repeat(np.cumsum(nu) - nu, nu)
+    lo_u, hi_u = wc[k, u] - wh[k, u], wc[k, u] + wh[k, u]
+    pbox = sset.owner_box[j]
+    keep = ((lo_u < pbox[:, 1] + MARGIN_LDU) & (hi_u > pbox[:, 0] - MARGIN_LDU)).all(axis=1)
+    k, j, u, lo_u, hi_u = k[keep], j[keep], u[keep], lo_u[keep], hi_u[keep]
+    ns = np.diff(sset.start)[j]
+    rep = np.repeat(np.arange(len(k)), ns)
+    s = sset.start[j[rep]] + np.arange(len(rep)) - np.repeat(np.cumsum(ns) - ns, ns)
+    k, j, u, lo_u, hi_u = k[rep], j[rep], u[rep], lo_u[rep], hi_u[rep]
+    is_conn = conn[k, j]
+    sb = sset.box[s]
+    keep = ~(is_conn & (uset.stud[u] | sset.stud[s]))  # studs never collide with connected parts
+    keep &= ((lo_u < sb[:, 1] + MARGIN_LDU) & (hi_u > sb[:, 0] - MARGIN_LDU)).all(axis=1)
+    return k[keep], u[keep], s[keep], j[keep], is_conn[keep]
+
+
+def penetrations(requests: Sequence[tuple]) -> list[list[Penetration]]:
+    """For each request (structure, unit parts in the unit's frame, candidate poses of the unit,
+    each candidate's connected structure parts, ground height or None): each candidate's
+    `Penetration`, all requests' pairs in one launch per piece-bucket shape."""
+    jobs = [_Job(*r) for r in requests]
+    live = [j for j in jobs if len(j.pairs[0])]
+    results = dict(zip(map(id, live), _intervals_many([j.launch_args() for j in live], "still")))
+    return [j.finish(results.get(id(j), np.zeros((0, 3)))) for j in jobs]
