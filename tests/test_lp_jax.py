@@ -277,3 +277,40 @@ def test_candidates_judged_on_the_structures_shared_columns_match_highs():
             assert [(f.stud_part, f.socket_part) for f in a.failing] == [(f.stud_part, f.socket_part) for f in b.failing]
         if cfg.clutch_n < 1:
             assert sum(v.reason == "overload" for v in ref) >= 20
+
+
+def test_programs_of_several_structures_share_launches_and_match_highs(monkeypatch):
+    """`judge_on_bases` (objects grown in lockstep): the candidates of three structures (12, 20 and
+    30 bricks of one grown object) solved together give each structure's HiGHS verdicts and
+    loads; the 12- and 20-brick programs (equality rows 78 and 126, one bucket) share a launch."""
+    from pipelines.bench_physics import candidates, grown
+
+    from factory.physics.check import _unit_connections
+    from factory.physics.statics import LoadBase, LoadConfig, judge_many, judge_on_bases
+    from factory.physics.structure import Placed, Structure
+
+    full = grown(30)
+    brick = full.placed[0].part
+    cfg = LoadConfig(clutch_n=0.25)
+    groups, refs = [], []
+    for size in (12, 20, 30):
+        s = Structure(list(full.placed[:size]))
+        poses = list({(p.R.round(6).tobytes(), p.t.round(6).tobytes()): p for p in candidates(s, 200)}.values())[:40]
+        units = [[Placed(brick, 4, p)] for p in poses]
+        conns = [_unit_connections(s, [(brick, p)]) for p in poses]
+        base = LoadBase(s.placed, s.connections, 24.0, s.links, cfg)
+        assert base.shared()
+        groups.append((base, units, conns))
+        refs.append(judge_many([base.model(u, c) for u, c in zip(units, conns)], cfg))
+    launches = []
+    run = lp_jax._run
+    monkeypatch.setattr(lp_jax, "_run", lambda arrays, *a: launches.append(arrays["b"].shape) or run(arrays, *a))
+    got = judge_on_bases(groups, cfg, lp_jax.solve_on_bases)
+    assert sorted(m for _, m in launches) == [128, 192]
+    for g, r in zip(got, refs):
+        assert [(v.stands, v.reason) for v in g] == [(v.stands, v.reason) for v in r]
+        for a, b in zip(g, r):
+            assert (a.load is None) == (b.load is None)
+            if a.load is not None:
+                assert abs(a.load - b.load) <= 1e-7 * max(1.0, b.load)
+    assert {v.reason for r in refs for v in r} >= {None, "overload"}

@@ -30,7 +30,7 @@ from factory.parts import Part
 from factory.physics.collide import CollisionScene
 from factory.physics.keep_last import KeepLast
 from factory.physics.mass import part_mass_properties
-from factory.physics.statics import (Failure, Link, LoadBase, LoadConfig, holds_alone, judge_many, judge_on_base,
+from factory.physics.statics import (Failure, Link, LoadBase, LoadConfig, holds_alone, judge_many, judge_on_bases,
                                      support_points)
 from factory.physics.sweep import seating_from_connections, sweep
 from factory.physics.structure import Placed, Structure, connectors, lowest_point, match
@@ -155,8 +155,8 @@ def check_many(requests: Sequence[CheckRequest], backend: str = "mujoco", config
                explain: bool = True) -> list[list[Verdict]]:
     """`check` of every request, each against its own structure (objects grown in lockstep:
     `factory.sampler.lockstep`). The verdicts are those `check` gives each request alone; with
-    'mjx' the sweeps of all requests go to the device together (their load programs still go one
-    launch group per structure, `judge_on_base`)."""
+    'mjx' the collision rule, the sweeps and the load programs of all requests go to the device
+    together (`collide_jax`, `sweep_jax`, `lp_jax.solve_on_bases`)."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
     calls = [_Call(r.structure, [[Placed(r.part, r.colour, p)] for p in r.poses], backend, config,
@@ -319,8 +319,9 @@ class _Call:
 def _judge_loads(calls: Sequence[_Call], lp_jax) -> None:
     """The load programs of every call's pending candidates: HiGHS one at a time for the reference;
     with the batched solver, one-part candidates on a connected structure by its shared columns
-    (`judge_on_base`), the rest in one `judge_many`."""
+    (`judge_on_bases`: the programs of every call in shared launches), the rest in one `judge_many`."""
     general: list[tuple[_Call, list]] = []
+    on_base: dict = {}
     for c in calls:
         if not c.pending:
             continue
@@ -328,11 +329,15 @@ def _judge_loads(calls: Sequence[_Call], lp_jax) -> None:
         loads = _load_base(c.structure, c.floor_y, cfg)
         links = [Link(l.a + c.base_n, l.b + c.base_n, l.point) for l in c.unit_links]
         if lp_jax is not None and not links and loads.shared() and all(len(u) == 1 for _, u, _ in c.pending):
-            # One part on a connected structure: the structure's columns are sent once (`solve_on_base`).
-            c.loaded(judge_on_base(loads, [u for _, u, _ in c.pending], [cs for *_, cs in c.pending], cfg,
-                                   lp_jax.solve_on_base, c.explain))
+            # One part on a connected structure: its columns written once per structure, the
+            # programs of every such call in shared launches (`solve_on_bases`).
+            on_base.setdefault((cfg, c.explain), []).append((c, loads))
         else:
             general.append((c, [loads.model(unit, conns, links) for _, unit, conns in c.pending]))
+    for (cfg, explain), members in on_base.items():
+        groups = [(loads, [u for _, u, _ in c.pending], [cs for *_, cs in c.pending]) for c, loads in members]
+        for (c, _), results in zip(members, judge_on_bases(groups, cfg, lp_jax.solve_on_bases, explain)):
+            c.loaded(results)
     if not general:
         return
     if lp_jax is None:

@@ -680,12 +680,12 @@ def solve_loads(models: Sequence[LoadModel], cfg: LoadConfig | None = None, *, t
 
 def _base_block(base: LoadBase, cfg: LoadConfig) -> dict:
     """The structure's own columns (connections, supports, links: the same in every candidate's
-    program, without s), on the device, kept on `base` for its load constants."""
+    program, without s), kept on `base` for its load constants."""
     hit = getattr(base, "_lp_jax_block", None)
     if hit is None or hit[0] != cfg:
         alone = base.alone()
         arrays = _load_arrays([alone], cfg, 1, _n_vars(alone), 6 * (base.n + 1), 12, 2)
-        hit = (cfg, {key: jnp.asarray(arrays[key][0, 1:]) for key in _ASSEMBLED})
+        hit = (cfg, {key: arrays[key][0, 1:] for key in _ASSEMBLED})
         base._lp_jax_block = hit
     return hit[1]
 
@@ -693,70 +693,95 @@ def _base_block(base: LoadBase, cfg: LoadConfig) -> dict:
 _ASSEMBLED = ("a_rows", "a_vals", "coef", "link", "rhs", "mask")
 
 
-def _assemble_impl(n, block, new):
-    """Each candidate's arrays: its s column, the structure's columns, its own, then padding to n."""
-    out = {}
-    for key in _ASSEMBLED:
-        nn, bb = new[key], block[key]
-        full = jnp.concatenate([nn[:, :1], jnp.broadcast_to(bb, (nn.shape[0],) + bb.shape), nn[:, 1:]], axis=1)
-        widths = [(0, 0), (0, n - full.shape[1])] + [(0, 0)] * (full.ndim - 2)
-        out[key] = jnp.pad(full, widths, constant_values=1.0 if key == "rhs" else 0)
-    out["c"] = jnp.zeros((new["c"].shape[0], n)).at[:, 0].set(1.0)
-    out["b"], out["link_col"] = new["b"], new["link_col"]
-    return out
-
-
-_ASSEMBLE = jax.jit(_assemble_impl, static_argnums=0)
+def _own_model(base: LoadBase, unit, conns, cfg: LoadConfig) -> LoadModel:
+    """The model of a one-part unit's own columns on `base`: its connections and ground supports
+    alone, the structure's bodies kept (for their rows and centres of mass)."""
+    m, c, _ = part_mass_properties(unit[0].part)
+    pts = support_points(unit[0], base.floor_y, cfg)
+    ca, cb, cp, cx = _connection_arrays(conns)
+    return LoadModel(parts=None, mass=np.r_[base.mass, m], com=np.concatenate([base.com, unit[0].pose.apply(c)[None]]),
+                     conn_a=ca, conn_b=cb, conn_pos=cp, conn_axis=cx,
+                     ground_body=np.full(len(pts), base.n, np.int64), ground_pos=pts,
+                     link_a=np.zeros(0, np.int64), link_b=np.zeros(0, np.int64), link_pos=np.zeros((0, 3)))
 
 
 def solve_on_base(base: LoadBase, units: Sequence, conns: Sequence, cfg: LoadConfig | None = None, *,
                   tol: float = 1e-8, max_iterations: int = MAX_ITERATIONS, fallback: bool = True) -> list[LPResult]:
     """The load program of each one-part unit on a `statics.LoadBase` whose parts form one
-    component (`base.shared()`), as `solve_loads` of `base.model(unit, conns)` gives it, but with
-    the structure's columns written and sent to the device once (`_base_block`) and only each
-    candidate's own columns (its connections and ground supports) built per candidate; the device
-    joins them (`_ASSEMBLE`). x comes back in `statics.layout` order of that model."""
+    component (`base.shared()`), as `solve_loads` of `base.model(unit, conns)` gives it (x in
+    `statics.layout` order of that model): `solve_on_bases` of one base."""
+    return solve_on_bases([(base, units, conns)], cfg, tol=tol, max_iterations=max_iterations, fallback=fallback)[0]
+
+
+def solve_on_bases(groups: Sequence[tuple], cfg: LoadConfig | None = None, *, tol: float = 1e-8,
+                   max_iterations: int = MAX_ITERATIONS, fallback: bool = True) -> list[list[LPResult]]:
+    """`solve_on_base(base, units, conns)` of every group (each its own structure: objects grown in
+    lockstep), in shared launches. Each structure's columns are written once (`_base_block`),
+    each candidate's own columns (its connections and ground supports) per candidate, and the two
+    are joined on the host; programs of every structure with the same equality rows' bucket run in
+    one launch, padded to the largest of their variables (`_group`)."""
     cfg = cfg or LoadConfig()
-    if not units:
-        return []
-    nb = base.n
-    # Each candidate's own columns, as the model of the unit's connections and supports alone (the
-    # structure's bodies kept, for their rows and centres of mass).
-    own = []
-    for unit, cs in zip(units, conns):
-        m, c, _ = part_mass_properties(unit[0].part)
-        pts = support_points(unit[0], base.floor_y, cfg)
-        ca, cb, cp, cx = _connection_arrays(cs)
-        own.append(LoadModel(
-            parts=None, mass=np.r_[base.mass, m], com=np.concatenate([base.com, unit[0].pose.apply(c)[None]]),
-            conn_a=ca, conn_b=cb, conn_pos=cp, conn_axis=cx,
-            ground_body=np.full(len(pts), nb, np.int64), ground_pos=pts,
-            link_a=np.zeros(0, np.int64), link_b=np.zeros(0, np.int64), link_pos=np.zeros((0, 3))))
-    sizes = np.array([_n_vars(md) for md in own])
-    width = int(sizes.max())
-    shared = layout(base.alone())
-    n_block = shared["link"].stop - 1
-    n = _cols(n_block + width)
-    results: list[LPResult] = [LPResult("error", None, float("nan"))] * len(units)
+    out: list[list[LPResult]] = [[LPResult("error", None, float("nan"))] * len(g[1]) for g in groups]
+    # Per group: the candidates' own models, the structure's layout and block, and each program's
+    # bucket (variables: the structure's columns, s and the widest candidate's own).
+    members, buckets, info = [], [], []
+    for gi, (base, units, conns) in enumerate(groups):
+        if not len(units):
+            info.append(None)
+            continue
+        own = [_own_model(base, u, c, cfg) for u, c in zip(units, conns)]
+        shared = layout(base.alone())
+        n_block = shared["link"].stop - 1
+        width = max(_n_vars(md) for md in own)
+        info.append((own, shared, n_block, width, _base_block(base, cfg)))
+        for i in range(len(own)):
+            members.append((gi, i))
+            buckets.append((_cols(n_block + width), _rows(6 * (base.n + 1)), 12, 2))
     with jax.enable_x64(True):
-        block = _base_block(base, cfg)
-        for shape, chunk in _group([(n, _rows(6 * (nb + 1)), 12, 2)] * len(own)):
+        for shape, chunk in _group(buckets):
             if shape not in COMPILES:
                 COMPILES.append(shape)
-            new = _load_arrays([own[i] for i in chunk], cfg, shape[0], width, shape[2], 12, 2)
-            x, status = _run(_ASSEMBLE(n, block, {k: jnp.asarray(v) for k, v in new.items()}), tol, max_iterations)
-            for j, i in enumerate(chunk):
-                if status[j] != _OPTIMAL:
+            batch, n, m = shape[0], shape[1], shape[2]
+            arrays = {"c": np.zeros((batch, n)), "b": np.zeros((batch, m)),
+                      "a_rows": np.zeros((batch, n, 12), np.int32), "a_vals": np.zeros((batch, n, 12)),
+                      "coef": np.zeros((batch, n, 2)), "link": np.zeros((batch, n, 2)), "rhs": np.ones((batch, n, 2)),
+                      "mask": np.zeros((batch, n, 2)), "link_col": np.zeros(batch, np.int32)}
+            arrays["c"][:, 0] = 1.0
+            # The chunk's members by group, each group's candidates written together.
+            rows_of: dict[int, list[tuple[int, int]]] = {}
+            for row, e in enumerate(chunk):
+                gi, i = members[e]
+                rows_of.setdefault(gi, []).append((row, i))
+            for gi, pairs in rows_of.items():
+                own, _, n_block, width, block = info[gi]
+                rows = np.array([r for r, _ in pairs])
+                new = _load_arrays([own[i] for _, i in pairs], cfg, len(pairs), width, m, 12, 2)
+                # Columns: s, the structure's (connections, supports, links), the candidate's own.
+                for key in _ASSEMBLED:
+                    arrays[key][rows, :1] = new[key][:, :1]
+                    arrays[key][rows, 1:1 + n_block] = block[key]
+                    arrays[key][rows, 1 + n_block:n_block + width] = new[key][:, 1:]
+                arrays["b"][rows] = new["b"]
+                arrays["link_col"][rows] = new["link_col"]
+            for key, v in arrays.items():  # padding members copy the first (they converge with it)
+                v[len(chunk):] = v[0]
+            x, status = _run(arrays, tol, max_iterations)
+            for row, e in enumerate(chunk):
+                if status[row] != _OPTIMAL:
                     continue
-                # Columns here: s, the structure's (connections, supports, links), the unit's
-                # (connections, supports); `layout` wants connections, supports, links.
-                mine, xj = layout(own[i]), x[j]
+                gi, i = members[e]
+                own, shared, n_block, _, _ = info[gi]
+                # `layout` wants s, connections (the structure's, the unit's), supports (the same),
+                # links.
+                mine, xj = layout(own[i]), x[row]
                 own_conn, own_ground = (xj[n_block + c.start:n_block + c.stop] for c in (mine["conn"], mine["ground"]))
                 xi = np.concatenate([xj[:1], xj[shared["conn"]], own_conn, xj[shared["ground"]], own_ground,
                                      xj[shared["link"]]])
                 start = shared["conn"].stop + len(own_conn)
-                results[i] = _optimal(xi, slice(start, start + len(own_ground) + shared["ground"].stop - shared["ground"].start))
-    return _fallback(results, lambda i: to_lp(base.model(units[i], conns[i]), cfg), fallback)
+                out[gi][i] = _optimal(xi, slice(start, start + len(own_ground) + shared["ground"].stop - shared["ground"].start))
+    for gi, (base, units, conns) in enumerate(groups):
+        out[gi] = _fallback(out[gi], lambda i: to_lp(base.model(units[i], conns[i]), cfg), fallback)
+    return out
 
 
 # --- Test problems and the benchmark ----------------------------------------------------------

@@ -314,29 +314,44 @@ def judge_on_base(base: LoadBase, units: Sequence[Sequence[Placed]], conns: Sequ
     (the structure's support polygon, kept), then `solve_on_base(base, units, conns, cfg)` for those
     that stand (`lp_jax.solve_on_base`). Models are built only for parts on the ground and for the
     failing connections of an overload (`explain`)."""
-    props = [part_mass_properties(u[0].part) for u in units]
-    masses = np.array([m for m, _, _ in props])
-    coms = np.array([u[0].pose.apply(c) for u, (_, c, _) in zip(units, props)]).reshape(-1, 3)
-    centre = (base.mass @ base.com + masses[:, None] * coms) / (base.mass.sum() + masses)[:, None]
-    grounded = np.array([len(support_points(u[0], base.floor_y, cfg)) > 0 for u in units], bool)
-    hull = base.hull()
-    tipping = ~_inside_many(hull, centre[:, [0, 2]], cfg.tolerance) if len(hull) else np.ones(len(units), bool)
-    for i in np.flatnonzero(grounded):  # its own supports widen the polygon
-        tipping[i] = tips(base.model(units[i], conns[i]), cfg)
-    todo = np.flatnonzero(~tipping)
-    results = solve_on_base(base, [units[i] for i in todo], [conns[i] for i in todo], cfg)
-    links = len(base.link_a)
-    out: list[LoadVerdict] = [LoadVerdict(False, "unstable", None, rigid_links=links)] * len(units)
-    for i, r in zip(todo, results):
-        if r.status != "optimal":
-            raise RuntimeError(f"load program not solved: {r.status}")
-        load = max(float(r.objective), 0.0)
-        if load <= 1.0 + cfg.tolerance:
-            out[i] = LoadVerdict(True, None, load, (), links)
-        else:
-            failing = _failing(base.model(units[i], conns[i]), load, cfg) if explain else ()
-            out[i] = LoadVerdict(False, "overload", load, failing, links)
-    return out
+    return judge_on_bases([(base, units, conns)], cfg,
+                          lambda groups, c: [solve_on_base(*g, c) for g in groups], explain)[0]
+
+
+def judge_on_bases(groups: Sequence[tuple], cfg: LoadConfig, solve_on_bases: Callable,
+                   explain: bool = True) -> list[list[LoadVerdict]]:
+    """`judge_on_base` of every (base, units, conns) group, the programs of all groups solved in one
+    `solve_on_bases(groups, cfg)` call (`lp_jax.solve_on_bases`: objects grown in lockstep)."""
+    todo_all, tipping_all = [], []
+    for base, units, conns in groups:
+        props = [part_mass_properties(u[0].part) for u in units]
+        masses = np.array([m for m, _, _ in props])
+        coms = np.array([u[0].pose.apply(c) for u, (_, c, _) in zip(units, props)]).reshape(-1, 3)
+        centre = (base.mass @ base.com + masses[:, None] * coms) / (base.mass.sum() + masses)[:, None]
+        grounded = np.array([len(support_points(u[0], base.floor_y, cfg)) > 0 for u in units], bool)
+        hull = base.hull()
+        tipping = ~_inside_many(hull, centre[:, [0, 2]], cfg.tolerance) if len(hull) else np.ones(len(units), bool)
+        for i in np.flatnonzero(grounded):  # its own supports widen the polygon
+            tipping[i] = tips(base.model(units[i], conns[i]), cfg)
+        todo_all.append(np.flatnonzero(~tipping))
+        tipping_all.append(tipping)
+    solved = solve_on_bases([(base, [units[i] for i in todo], [conns[i] for i in todo])
+                             for (base, units, conns), todo in zip(groups, todo_all)], cfg)
+    out_all = []
+    for (base, units, conns), todo, results in zip(groups, todo_all, solved):
+        links = len(base.link_a)
+        out: list[LoadVerdict] = [LoadVerdict(False, "unstable", None, rigid_links=links)] * len(units)
+        for i, r in zip(todo, results):
+            if r.status != "optimal":
+                raise RuntimeError(f"load program not solved: {r.status}")
+            load = max(float(r.objective), 0.0)
+            if load <= 1.0 + cfg.tolerance:
+                out[i] = LoadVerdict(True, None, load, (), links)
+            else:
+                failing = _failing(base.model(units[i], conns[i]), load, cfg) if explain else ()
+                out[i] = LoadVerdict(False, "overload", load, failing, links)
+        out_all.append(out)
+    return out_all
 
 
 def tips(model: LoadModel, cfg: LoadConfig = LoadConfig()) -> bool:
