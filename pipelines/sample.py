@@ -111,7 +111,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="processes (objects do not depend on it)")
     ap.add_argument("--batch", type=int, default=1,
                     help="objects grown together in lockstep per process, their checks asked in one call "
-                         "per step (objects do not depend on it; with mjx the round's sweeps go to the device together)")
+                         "per step (objects do not depend on it; with mjx the round's collision tests, sweeps and load "
+                         "programs go to the device together)")
     ap.add_argument("--min-steps", type=int, default=d.min_steps)
     ap.add_argument("--max-steps", type=int, default=d.max_steps)
     ap.add_argument("--candidates", type=int, default=d.candidates_per_step, help="candidates per step")

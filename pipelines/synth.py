@@ -25,6 +25,11 @@ def config_from_args(args):
     from pipelines.dataset import DatasetConfig
     from pipelines.dataset.sources import sampler_config_json
 
+    if args.check_backend == "auto":
+        from factory.physics.check import auto_backend
+
+        args.check_backend, why = auto_backend()
+        print(f"physics: {args.check_backend}, {why}", file=sys.stderr, flush=True)
     kw = dict(seed=args.seed, min_steps=args.min_steps, max_steps=args.max_steps,
               backend=args.check_backend)
     if args.candidates is not None:
@@ -37,13 +42,20 @@ def config_from_args(args):
                          ldraw=_ldraw(args.ldraw), **({"dataset_id": args.dataset_id} if args.dataset_id else {}))
 
 
+DEFAULT_GPU_BATCH = 16
+"""Objects grown together per grower with the batched checks (`--batch`'s default with mjx)."""
+
+
 def add_run_args(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--backend", choices=("local", "ray"), default="local",
                     help="local worker processes (default) or Ray tasks ($RAY_ADDRESS, else a local Ray)")
     ap.add_argument("--workers", type=int, default=1, help="parallel shards (default 1: this process)")
-    ap.add_argument("--batch", type=int, default=1,
-                    help="synthetic objects grown together in lockstep in this process while the workers "
-                         "render (default 1: each shard grows its own; the data is the same whatever it is)")
+    ap.add_argument("--batch", type=int, default=None,
+                    help="synthetic objects grown together in lockstep per grower while the other workers "
+                         "render (default: 16 with the mjx checks, else 1: each shard grows its own; the data "
+                         "is the same whatever it is)")
+    ap.add_argument("--growers", type=int, default=None,
+                    help="with --batch > 1: workers that grow objects (default two thirds of --workers)")
     ap.add_argument("--size", type=int, default=256, help="pixels per view (default 256)")
     ap.add_argument("--tile", type=int, default=128, help="pixels per catalog tile (default 128)")
     ap.add_argument("--objects-per-shard", type=int, default=4, help="objects per shard (default 4)")
@@ -54,12 +66,19 @@ def add_run_args(ap: argparse.ArgumentParser) -> None:
 
 def run(config, args) -> int:
     from pipelines.dataset import build, summary_line
+    from pipelines.dataset.build import growers_of
 
-    if args.workers < 1 or args.batch < 1:
-        print("error: --workers and --batch must be >= 1", file=sys.stderr)
+    synthetic = config.source == "synthetic"
+    if args.batch is None:
+        args.batch = DEFAULT_GPU_BATCH if synthetic and config.sampler.get("backend") == "mjx" else 1
+    if args.workers < 1 or args.batch < 1 or (args.growers is not None and args.growers < 1):
+        print("error: --workers, --batch and --growers must be >= 1", file=sys.stderr)
         return 2
+    if args.batch > 1 and synthetic:
+        print(f"growth: {args.batch} objects at a time in each of {growers_of(args.workers, args.growers)} "
+              f"growers; {args.workers} workers", file=sys.stderr, flush=True)
     summary = build(config, args.out, backend=args.backend, workers=args.workers,
-                    progress=not args.no_progress, batch=args.batch)
+                    progress=not args.no_progress, batch=args.batch, growers=args.growers)
     print(summary_line(summary), flush=True)
     return 0
 
@@ -82,8 +101,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-steps", type=int, default=90, help="most parts per object (default 90)")
     ap.add_argument("--candidates", type=int, help="feasible attachments checked per part draw")
     ap.add_argument("--parts", help="comma-separated part set (default: the sampler's)")
-    ap.add_argument("--check-backend", choices=("mujoco", "mjx"), default="mujoco",
-                    help="physics checks one candidate at a time on the CPU (mujoco), or with the load programs and sweeps batched in JAX (mjx, for a GPU)")
+    ap.add_argument("--check-backend", choices=("auto", "mujoco", "mjx"), default="auto",
+                    help="physics checks one candidate at a time on the CPU (mujoco), or batched in JAX: collision, "
+                         "sweeps and load programs (mjx, for a GPU); auto (default): mjx where JAX sees a CUDA GPU")
     add_run_args(ap)
     args = ap.parse_args(argv)
     return guarded(lambda: run(config_from_args(args), args))

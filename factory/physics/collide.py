@@ -107,50 +107,70 @@ def part_surface(part: Part) -> Surface:
     return hit[1]
 
 
-def _segment_hits(surf: Surface, keep: np.ndarray, a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether any segment a[i]-b[i] crosses any kept triangle (Moller-Trumbore, both faces)."""
-    v0, e1, e2 = surf.tris[keep, 0][None], surf.e1[keep][None], surf.e2[keep][None]
-    d = (b - a)[:, None]
+def _segments_hit(surf: Surface, tri: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """For each row i: whether any segment a[i, j]-b[i, j] crosses triangle tri[i] (Moller-Trumbore,
+    both faces)."""
+    v0, e1, e2 = surf.tris[tri, 0][:, None], surf.e1[tri][:, None], surf.e2[tri][:, None]
+    d = b - a
     p = _cross(d, e2)
     det = (p * e1).sum(-1)
     ok = np.abs(det) > 1e-12
     inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-    o = a[:, None] - v0
+    o = a - v0
     u = (o * p).sum(-1) * inv
     q = _cross(o, e1)
     v = (q * d).sum(-1) * inv
     t = (q * e2).sum(-1) * inv
-    return bool((ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t >= 0) & (t <= 1)).any())
+    return (ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t >= 0) & (t <= 1)).any(axis=1)
 
 
-def stud_crosses(pos: np.ndarray, axis: np.ndarray, surface: Surface) -> bool:
-    """Whether a stud (base centre, unit axis; in the surface's frame) crosses the surface: a wall
-    or face of another part cuts into it, as opposed to the stud standing in that part's hollow.
-    Probed by segments just inside the stud (its axis, 8 lines along its side, 8 radii of its top)
-    and by any vertex of the surface inside it."""
+PROBE_PAIRS = 1 << 16
+"""(stud, triangle) pairs tested at once by `studs_cross` (memory: about 2 kB each)."""
+
+
+def studs_cross(pos: np.ndarray, axis: np.ndarray, surface: Surface) -> np.ndarray:
+    """For each stud (base centre (n, 3), unit axis (n, 3); in the surface's frame): whether it
+    crosses the surface: a wall or face of another part cuts into it, as opposed to the stud
+    standing in that part's hollow. Probed by segments just inside the stud (its axis, 8 lines
+    along its side, 8 radii of its top) and by any vertex of the surface inside it, against the
+    triangles near the stud."""
     from factory.connections import STUD_HEIGHT, STUD_RADIUS
 
+    pos, axis = np.asarray(pos, float).reshape(-1, 3), np.asarray(axis, float).reshape(-1, 3)
     r, h0, h1 = STUD_RADIUS - STUD_PROBE_INSET_LDU, STUD_PROBE_INSET_LDU, STUD_HEIGHT - STUD_PROBE_INSET_LDU
     centre = pos + axis * (STUD_HEIGHT / 2)
     reach = STUD_RADIUS + STUD_HEIGHT
-    keep = np.flatnonzero(((surface.lo < centre + reach) & (surface.hi > centre - reach)).all(axis=1))
-    if not len(keep):
-        return False
-    rel = surface.tris[keep].reshape(-1, 3) - pos
-    along = rel @ axis
-    radial = np.linalg.norm(rel - along[:, None] * axis, axis=1)
-    if ((along > h0) & (along < h1) & (radial < r)).any():
-        return True
-    ref = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
+    near = ((surface.lo[None] < (centre + reach)[:, None]) & (surface.hi[None] > (centre - reach)[:, None])).all(axis=2)
+    stud, tri = np.nonzero(near)
+    out = np.zeros(len(pos), bool)
+    if not len(stud):
+        return out
+    # Any vertex of a near triangle inside the stud.
+    rel = surface.tris[tri] - pos[stud][:, None]
+    along = (rel * axis[stud][:, None]).sum(-1)
+    radial = np.linalg.norm(rel - along[..., None] * axis[stud][:, None], axis=-1)
+    out[stud[((along > h0) & (along < h1) & (radial < r)).any(axis=1)]] = True
+    # Segments just inside each stud not yet known to cross.
+    ref = np.where((np.abs(axis[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0])
     u = _cross(axis, ref)
-    u /= np.linalg.norm(u)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
     v = _cross(axis, u)
     ang = np.arange(8) * (np.pi / 4)
-    ring = r * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v)
-    base, top = pos + h0 * axis, pos + h1 * axis
-    a = np.concatenate([[base], base + ring, np.repeat([top], 8, axis=0)])
-    b = np.concatenate([[top], top + ring, top + ring])
-    return _segment_hits(surface, keep, a, b)
+    ring = r * (np.cos(ang)[None, :, None] * u[:, None] + np.sin(ang)[None, :, None] * v[:, None])  # (n, 8, 3)
+    base, top = (pos + h0 * axis)[:, None], (pos + h1 * axis)[:, None]
+    a = np.concatenate([base, base + ring, np.repeat(top, 8, axis=1)], axis=1)  # (n, 17, 3)
+    b = np.concatenate([top, top + ring, top + ring], axis=1)
+    left = ~out[stud]
+    stud, tri = stud[left], tri[left]
+    for at in range(0, len(stud), PROBE_PAIRS):
+        s_, t_ = stud[at:at + PROBE_PAIRS], tri[at:at + PROBE_PAIRS]
+        out[s_[_segments_hit(surface, t_, a[s_], b[s_])]] = True
+    return out
+
+
+def stud_crosses(pos: np.ndarray, axis: np.ndarray, surface: Surface) -> bool:
+    """`studs_cross` of one stud."""
+    return bool(studs_cross(pos[None], axis[None], surface)[0])
 
 
 NEAR_LDU = 1.0

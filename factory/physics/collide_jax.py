@@ -31,7 +31,7 @@ from typing import Sequence
 import numpy as np
 
 from factory.parts import Part
-from factory.physics.collide import CONNECTED_SLACK_LDU, NEAR_LDU, part_surface, stud_crosses
+from factory.physics.collide import CONNECTED_SLACK_LDU, NEAR_LDU, Surface, part_surface, studs_cross
 from factory.physics.geometry import collision_shape
 from factory.physics.structure import Structure
 from factory.physics.sweep_jax import _Set, _intervals_many, _structure_set, _unit_set
@@ -79,15 +79,16 @@ class _Job:
         k, u, s, j, conn = self.pairs
         overlap = res[:, 0] + uset.inset[u] + sset.inset[s] - np.where(conn, CONNECTED_SLACK_LDU, 0.0)
         # A stud in another part's body, not connected: probed against that part's real surface.
-        probe = (overlap > 0) & (uset.stud[u] != sset.stud[s])
-        if probe.any():
-            memo: dict = {}
-            for e in np.flatnonzero(probe):
-                key = (int(k[e]), int(u[e]) if uset.stud[u[e]] else -1 - int(s[e]), int(j[e]))
-                if key not in memo:
-                    memo[key] = self._in_hollow(int(k[e]), int(u[e]), int(s[e]))
-                if memo[key]:
-                    overlap[e] = min(overlap[e], 0.0)
+        probe = np.flatnonzero((overlap > 0) & (uset.stud[u] != sset.stud[s]))
+        if len(probe):
+            # One probe per stud and part (whichever of the part's pieces it meets), all of them
+            # against each part's surface at once.
+            stud_piece = np.where(uset.stud[u[probe]], u[probe], -1 - s[probe])
+            keys, which = np.unique(np.stack([k[probe], stud_piece, j[probe], uset.owner[u[probe]]], axis=1), axis=0,
+                                    return_inverse=True)
+            crossing = self._studs_cross(keys)
+            in_hollow = ~crossing[which.reshape(-1)]
+            overlap[probe[in_hollow]] = np.minimum(overlap[probe[in_hollow]], 0.0)
         deepest = np.zeros(K)
         np.maximum.at(deepest, k, np.maximum(overlap, 0.0))
         # Coincidence: a body piece's centre inside another body piece (no slack, no insets).
@@ -112,28 +113,36 @@ class _Job:
         y = np.einsum("kj,vj->kv", self.R[:, 1], verts) + self.t[:, 1:2]  # LDraw y points down
         return np.maximum((y - self.floor_y + inset).max(axis=1), 0.0)
 
-    def _in_hollow(self, k: int, u: int, s: int) -> bool:
-        """Whether the stud of the pair (unit piece u or structure piece s) stands in the other
-        part's hollow at candidate k (`collide.stud_crosses` in the body part's frame)."""
-        uset, sset, pose = self.uset, self.sset, self.poses[k]
-        m, j = int(uset.owner[u]), int(sset.owner[s])
-        unit_part, unit_pose = self.rel[m][0], pose @ self.rel[m][1]
-        placed = self.structure.placed[j]
-        if uset.stud[u]:
-            stud_part, stud_pose, index = unit_part, unit_pose, u - uset.start[m]
-            body_part, body_pose = placed.part, placed.pose
-        else:
-            stud_part, stud_pose, index = placed.part, placed.pose, s - sset.start[j]
-            body_part, body_pose = unit_part, unit_pose
-        shape = collision_shape(stud_part)
-        pos, axis = shape.stud_at[index - len(shape.body)]
-        if np.allclose(body_pose.R @ body_pose.R.T, np.eye(3), atol=1e-9):
-            rel, surface = body_pose.inverse() @ stud_pose, part_surface(body_part)
-        else:  # a scaled or sheared placement: its surface moved into the world
-            from factory.physics.collide import Surface
-
-            rel, surface = stud_pose, Surface.of(body_pose.apply(body_part.flat.triangles.reshape(-1, 3)))
-        return not stud_crosses(rel.apply(np.asarray(pos)[None])[0], rel.R @ np.asarray(axis), surface)
+    def _studs_cross(self, keys: np.ndarray) -> np.ndarray:
+        """For each (candidate, stud piece: unit piece u, or -1 - structure piece s, structure part,
+        unit member):
+        whether the stud crosses the other part's surface (`collide.studs_cross`, in the body
+        part's frame; a stud that does not stands in its hollow)."""
+        uset, sset = self.uset, self.sset
+        by_surface: dict[int, list] = {}
+        for row, (k, piece, j, m) in enumerate(keys):
+            pose = self.poses[k]
+            placed = self.structure.placed[j]
+            if piece >= 0:
+                stud_part, stud_pose, index = self.rel[m][0], pose @ self.rel[m][1], piece - uset.start[m]
+                body_part, body_pose = placed.part, placed.pose
+            else:
+                stud_part, stud_pose, index = placed.part, placed.pose, -1 - piece - sset.start[j]
+                body_part, body_pose = self.rel[m][0], pose @ self.rel[m][1]
+            shape = collision_shape(stud_part)
+            pos, axis = shape.stud_at[index - len(shape.body)]
+            if np.allclose(body_pose.R @ body_pose.R.T, np.eye(3), atol=1e-9):
+                rel, surface = body_pose.inverse() @ stud_pose, part_surface(body_part)
+            else:  # a scaled or sheared placement: its surface moved into the world
+                rel, surface = stud_pose, Surface.of(body_pose.apply(body_part.flat.triangles.reshape(-1, 3)))
+            entry = by_surface.setdefault(id(surface), [surface, [], [], []])
+            entry[1].append(row)
+            entry[2].append(rel.apply(np.asarray(pos)[None])[0])
+            entry[3].append(rel.R @ np.asarray(axis))
+        out = np.zeros(len(keys), bool)
+        for surface, rows, pos, axis in by_surface.values():
+            out[rows] = studs_cross(np.array(pos), np.array(axis), surface)
+        return out
 
 
 def _pairs_at(uset: _Set, sset: _Set, sboxes: np.ndarray, rel, R, t, conn):

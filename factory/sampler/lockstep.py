@@ -4,7 +4,8 @@ Each object is a coroutine (`Sampler.growth`) that yields a batch of candidates 
 their verdicts back; its random choices come from its own stream, so it grows the same whatever
 objects share its rounds. A round asks every live object's pending batch at once; an object that
 ends leaves and the next index takes its slot, so the batch stays full until the indices run out.
-With the 'mjx' backend the round's sweeps go to the device together (`check.check_many`).
+With the 'mjx' backend the round's collision tests, sweeps and load programs go to the device
+together (`check.check_many`).
 """
 
 from __future__ import annotations

@@ -134,20 +134,26 @@ def _run_ray(config, todo, out, workers, bar):
         return errors
 
 
-def _run_grown(config, todo, out, workers, bar, batch: int, backend: str):
-    """A lockstep build: this process grows the objects of the missing shards `batch` at a time
-    (`Sampler.grow`; each kept in `spool` as it ends) while the shard function renders and encodes,
-    in worker processes (or Ray tasks), each shard whose objects are all grown: physics and
-    rendering overlap. Returns the failed shards as `_run_local` does."""
-    from factory.sampler import Sampler
-    from pipelines.dataset import spool
-    from pipelines.dataset.sources import sampler_config_from_json
+def growers_of(workers: int, growers: int | None = None) -> int:
+    """Grower tasks of a lockstep build: `growers` (at most the workers), by default two thirds of
+    the workers (growing a step costs about twice its renders, measured on one H200)."""
+    return min(max(1, workers), growers or max(1, (2 * workers) // 3))
 
-    sampler = Sampler(sampler_config_from_json(config.sampler), config.ldraw)
+
+def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, growers: int | None = None):
+    """A lockstep build: `growers` tasks (default two thirds of the workers) grow the objects of the
+    missing shards, each every G-th object in shard order `batch` at a time (`spool.grow`: each
+    kept in `spool` as it ends), while the other workers render and encode each shard whose objects
+    are all grown (the shard function): physics and rendering overlap, and every grower's checks go
+    to the device. Returns the failed shards as `_run_local` does."""
+    from pipelines.dataset import spool
+
+    workers = max(1, workers)
+    growers = growers_of(workers, growers)
     # (An unreadable or foreign spool entry counts as grown here; the shard function grows it.)
     missing = {k: [i for i in config.shard_objects(k) if not spool.has(out, i)] for k in todo}
+    indices = [i for k in todo for i in missing[k]]
     waiting = {k: set(v) for k, v in missing.items()}
-    shard_of = {i: k for k, v in missing.items() for i in v}
     errors: list = []
     running: dict = {}
     with ExitStack() as stack:
@@ -155,15 +161,22 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str):
             import ray
 
             task = stack.enter_context(_ray_tasks(workers))
-            submit, finish = (lambda k: task.remote(config.to_json(), k, str(out))), ray.get
+            grow_task = ray.remote(num_cpus=1, max_retries=2)(spool.grow)
+            submit = lambda k: task.remote(config.to_json(), k, str(out))  # noqa: E731
+            submit_grow = lambda part: grow_task.remote(config.to_json(), part, str(out), batch)  # noqa: E731
+            finish = ray.get
         else:
             import multiprocessing
             from concurrent.futures import ProcessPoolExecutor
 
             # spawn: a fresh interpreter per worker (no GL or MuJoCo state forked from this process).
-            pool = stack.enter_context(ProcessPoolExecutor(max_workers=max(1, workers),
+            # Growers are submitted first: they hold `growers` of the workers while they run.
+            pool = stack.enter_context(ProcessPoolExecutor(max_workers=workers,
                                                            mp_context=multiprocessing.get_context("spawn")))
-            submit, finish = (lambda k: pool.submit(build_shard, config.to_json(), k, str(out))), (lambda f: f.result())
+            submit = lambda k: pool.submit(build_shard, config.to_json(), k, str(out))  # noqa: E731
+            submit_grow = lambda part: pool.submit(spool.grow, config.to_json(), part, str(out), batch)  # noqa: E731
+            finish = lambda f: f.result()  # noqa: E731
+        grow_jobs = [submit_grow(indices[g::growers]) for g in range(growers) if indices[g::growers]]
 
         def collect(block: bool) -> None:
             for k in [k for k, f in running.items() if block or _done(f)]:
@@ -173,19 +186,23 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str):
                     errors.append((k, exc))
                 bar.update(len(config.shard_objects(k)))
 
-        for k in todo:
-            if not waiting[k]:
-                running[k] = submit(k)
-        t0 = time.perf_counter()
-        for a in sampler.grow([i for k in todo for i in missing[k]], batch):
-            t1 = time.perf_counter()
-            spool.put(out, a.index, a, t1 - t0)
-            t0 = t1
-            k = shard_of[a.index]
-            waiting[k].discard(a.index)
-            if not waiting[k]:
-                running[k] = submit(k)
+        while waiting:
+            growing = [f for f in grow_jobs if not _done(f)]
+            for f in [f for f in grow_jobs if f not in growing]:
+                try:
+                    finish(f)
+                except Exception as exc:  # noqa: BLE001 - the shards then grow their objects themselves
+                    print(f"warning: a grower failed ({type(exc).__name__}: {exc}); its shards grow their "
+                          f"own objects", file=sys.stderr)
+            grow_jobs = growing
+            for k in list(waiting):
+                waiting[k] = {i for i in waiting[k] if not spool.has(out, i)}
+                if not waiting[k] or not grow_jobs:
+                    del waiting[k]
+                    running[k] = submit(k)
             collect(False)
+            if waiting:
+                time.sleep(0.2)
         collect(True)
     return errors
 
@@ -199,17 +216,20 @@ def _done(future) -> bool:
 
 
 def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, progress: bool = True,
-          desc: str = "objects", batch: int = 1) -> dict:
+          desc: str = "objects", batch: int = 1, growers: int | None = None) -> dict:
     """Build every missing shard of `config` into `out`, then the metadata; returns the summary.
 
-    `batch` > 1 (synthetic data): objects grown `batch` at a time in this process while workers
-    render (`_run_grown`); the data files are the same whatever `batch`."""
+    `batch` > 1 (synthetic data): objects grown `batch` at a time by `growers` of the workers
+    (default two thirds) while the others render (`_run_grown`); the data files are the same
+    whatever `batch` and `growers`."""
     from tqdm import tqdm
 
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
         raise ValueError(f"batch must be an integer >= 1, got {batch!r}")
+    if growers is not None and (isinstance(growers, bool) or not isinstance(growers, int) or growers < 1):
+        raise ValueError(f"growers must be an integer >= 1, got {growers!r}")
     t0 = time.perf_counter()
     out = prepare(config, out)
     todo = [k for k in range(config.num_shards) if read_marker(out, k, config) is None]
@@ -217,7 +237,7 @@ def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, 
     with tqdm(total=config.n_objects, initial=done_objects, desc=desc, unit="obj", disable=not progress,
               file=sys.stderr, dynamic_ncols=True) as bar:
         if batch > 1 and config.source == "synthetic":
-            errors = _run_grown(config, todo, out, workers, bar, batch, backend) if todo else []
+            errors = _run_grown(config, todo, out, workers, bar, batch, backend, growers) if todo else []
         else:
             runner = _run_local if backend == "local" else _run_ray
             errors = runner(config, todo, out, workers, bar) if todo else []

@@ -1,8 +1,9 @@
 """Objects grown ahead of their shards: the producer's side of a lockstep build.
 
-`build(..., batch=B)` grows the synthetic objects of every missing shard B at a time in one process
-(`Sampler.grow`: their checks of a step in one call, on the device with the 'mjx' backend) while
-worker processes render and encode the shards whose objects are all grown. Each grown object is
+`build(..., batch=B)` grows the synthetic objects of every missing shard in grower tasks (`grow`:
+each takes every G-th object in shard order and grows them B at a time, `Sampler.grow`: their
+checks of a step in one call, on the device with the 'mjx' backend) while the other workers render
+and encode the shards whose objects are all grown. Each grown object is
 written here at once, atomically (`OUT/meta/spool/NNNNNNN.pkl`: the `Assembly` and its seconds),
 so a killed build loses no grown object: the resumed one takes them from here. A shard's files
 are removed once its completion marker is written. The shard function reads an object from here
@@ -14,9 +15,13 @@ from __future__ import annotations
 
 import os
 import pickle
+import time
 from pathlib import Path
 
 from factory.atomic import write_atomic
+from factory.sampler import Sampler
+from pipelines.dataset.config import DatasetConfig
+from pipelines.dataset.sources import sampler_config_from_json
 
 SPOOL_VERSION = 1
 """Bumped when what is written here changes; an entry of another version is grown again."""
@@ -55,3 +60,18 @@ def drop(out, indices) -> None:
             os.unlink(spool_path(out, i))
         except FileNotFoundError:
             pass
+
+
+def grow(config_json: dict, indices: list[int], out, batch: int) -> int:
+    """Grow objects `indices` of a synthetic dataset config (`DatasetConfig.to_json()`) `batch` at a
+    time and keep each here as it ends (a grower task of a lockstep build; runs in a worker process
+    or a Ray task). Objects already here are not grown again. Returns how many it grew."""
+    config = DatasetConfig.from_json(config_json)
+    todo = [i for i in indices if not has(out, i)]
+    sampler = Sampler(sampler_config_from_json(config.sampler), config.ldraw)
+    t0 = time.perf_counter()
+    for a in sampler.grow(todo, batch):
+        t1 = time.perf_counter()
+        put(out, a.index, a, t1 - t0)
+        t0 = t1
+    return len(todo)
