@@ -52,7 +52,7 @@ from __future__ import annotations
 import math
 import os
 from collections import Counter
-from functools import partial
+from functools import cache, partial
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -114,6 +114,26 @@ class _Piece:
 
 def _pow2(n: int, minimum: int) -> int:
     return max(minimum, 1 << max(0, math.ceil(math.log2(max(n, 1)))))
+
+
+@cache
+def _on_gpu() -> bool:
+    """Whether JAX's default device is a GPU (asked at the first launch, not at import)."""
+    import jax
+
+    return jax.default_backend() == "gpu"
+
+
+_HIGH: dict[tuple, int] = {}
+"""The largest padded size met so far in this process per kind of array (`_grown`)."""
+
+
+def _grown(key: tuple, n: int, minimum: int = MIN_ROWS) -> int:
+    """`_pow2(n)`, or the largest size met before for `key` if larger: a padded size only grows
+    during a run, so objects finishing (fewer tables stacked, fewer candidates) meet no new shape."""
+    size = max(_pow2(n, minimum), _HIGH.get(key, 0))
+    _HIGH[key] = size
+    return size
 
 
 def _directions(v: np.ndarray) -> np.ndarray:
@@ -339,7 +359,10 @@ def _launch(crosses: bool, ut, st, R, t, d, u, s, k, thr, thr_c, kind: str = "sw
     with jax.enable_x64(True):
         for a in range(0, n, chunk):
             m = min(chunk, n - a)
-            rows = _pow2(m, MIN_ROWS)
+            dims = (kind, crosses, *ut[0].shape[1:], *st[0].shape[1:], ut[1].shape[1], st[1].shape[1])
+            # On a GPU a launch of a few pairs costs about what one of thousands does: pairs are
+            # padded to the most met, so the pair counts of a run compile once per piece shape.
+            rows = min(chunk, _grown(("pairs", *dims), m)) if _on_gpu() else _pow2(m, MIN_ROWS)
             pad = lambda x: np.concatenate([x[a:a + m], np.repeat(x[a:a + 1], rows - m, 0)])
             shape = (kind, int(crosses), rows, ut[0].shape[0], st[0].shape[0], len(R), *ut[0].shape[1:2], ut[1].shape[1],
                      ut[2].shape[1], st[0].shape[1], st[1].shape[1], st[2].shape[1])
@@ -377,7 +400,7 @@ def _intervals_many(jobs, kind: str = "sweep") -> list[np.ndarray]:
         place(sset, "s")
     # Candidates of all jobs in one array; pairs labelled by their group.
     k_start = np.cumsum([0] + [len(j[2]) for j in jobs])
-    kp = _pow2(int(k_start[-1]), MIN_ROWS)
+    kp = _grown(("candidates",), int(k_start[-1]))
     Rs, ts, ds = (np.concatenate([j[i] for j in jobs]) for i in (2, 3, 4))
     Rp, tp, dp = (np.concatenate([x, np.repeat(x[:1], kp - len(x), 0)]) for x in (Rs, ts, ds))
     shapes: dict[tuple, int] = {}
@@ -402,7 +425,7 @@ def _intervals_many(jobs, kind: str = "sweep") -> list[np.ndarray]:
             if (side, sh) not in stacked:
                 parts = tables[(side, sh)]
                 cat = [np.concatenate([p[i] for p in parts]) for i in range(4)]
-                rows = _pow2(len(cat[0]), MIN_ROWS)
+                rows = _grown((side, sh), len(cat[0]))
                 stacked[(side, sh)] = tuple(np.concatenate([x, np.repeat(x[:1], rows - len(x), 0)]) for x in cat)
         gu, gs, gk, gthr, gthc = (np.concatenate([pj[i][x] for pj, x in zip(per_job, sel)]) for i in (1, 2, 3, 4, 5))
         res = _launch(not al, stacked[("u", us)], stacked[("s", ss)], Rp, tp, dp, gu, gs, gk, gthr, gthc, kind)
