@@ -251,7 +251,7 @@ class _Call:
     def collide_group(self):
         """This call's candidates for `collide_jax.penetrations`."""
         return (self.structure, self.rel, [unit[0].pose for _, unit, *_ in self.to_collide],
-                [touched for *_, touched in self.to_collide], self.floor_y)
+                [touched for *_, touched in self.to_collide], self.floor_y, self.config.max_penetration_ldu)
 
     def collided(self, found) -> None:
         """The rules after collision, given each candidate's (depth, structure parts near)."""

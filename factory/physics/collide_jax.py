@@ -11,8 +11,9 @@ the depth of each piece's centre inside the other. The rule applied to them is t
   positive overlap, or a body piece's centre inside another's (the scene's coincidence test), is
   the candidate's penetration; the ground counts by the lowest vertex of its pieces;
 - a stud crossing into another part's body (not connected) is probed against that part's real
-  surface (`collide.stud_crosses`, on the host, once per stud and part): a stud standing in the
-  part's hollow touches it without overlapping;
+  surface (`collide.studs_cross`, on the host, once per stud and part, all of a round at once; only
+  where it can deepen the candidate's overlap, and not for a candidate already colliding by
+  another pair): a stud standing in the part's hollow touches it without overlapping;
 - a structure part with overlap > -`NEAR_LDU` touches the candidate.
 
 **What may differ from MuJoCo.** Where pieces overlap, the separating-axis minimum is the
@@ -56,9 +57,9 @@ class _Job:
     """One request: a unit (its parts in its own frame) at candidate poses against a structure."""
 
     def __init__(self, structure: Structure, rel: Sequence[tuple[Part, Pose]], poses: Sequence[Pose],
-                 connected: Sequence[set[int]], floor_y: float | None):
+                 connected: Sequence[set[int]], floor_y: float | None, tol: float | None = None):
         self.structure, self.rel, self.poses, self.connected = structure, list(rel), list(poses), connected
-        self.floor_y = floor_y
+        self.floor_y, self.tol = floor_y, tol
         self.uset: _Set = _unit_set(self.rel)
         self.sset, sboxes = _structure_set(structure)
         K = len(poses)
@@ -78,25 +79,31 @@ class _Job:
         uset, sset, K = self.uset, self.sset, len(self.poses)
         k, u, s, j, conn = self.pairs
         overlap = res[:, 0] + uset.inset[u] + sset.inset[s] - np.where(conn, CONNECTED_SLACK_LDU, 0.0)
-        # A stud in another part's body, not connected: probed against that part's real surface.
-        probe = np.flatnonzero((overlap > 0) & (uset.stud[u] != sset.stud[s]))
+        # Coincidence: a body piece's centre inside another body piece (no slack, no insets).
+        body = ~uset.stud[u] & ~sset.stud[s]
+        centre = np.where(body, np.maximum(res[:, 1], res[:, 2]), -np.inf)
+        # A stud in another part's body, not connected, is undecided until probed against that
+        # part's real surface; the rest decide the depth at once.
+        undecided = (overlap > 0) & (uset.stud[u] != sset.stud[s])
+        deepest = np.zeros(K)
+        np.maximum.at(deepest, k, np.where(undecided, 0.0, np.maximum(overlap, 0.0)))
+        np.maximum.at(deepest, k, np.maximum(centre, 0.0))
+        if self.floor_y is not None:
+            deepest = np.maximum(deepest, self._below_ground())
+        # Probed: only where it can change the depth, and (with `tol`) not for a candidate that
+        # collides by a decided pair already (its depth is then the deepest decided overlap).
+        need = undecided & (overlap > deepest[k])
+        if self.tol is not None:
+            need &= deepest[k] <= self.tol
+        probe = np.flatnonzero(need)
         if len(probe):
             # One probe per stud and part (whichever of the part's pieces it meets), all of them
             # against each part's surface at once.
             stud_piece = np.where(uset.stud[u[probe]], u[probe], -1 - s[probe])
             keys, which = np.unique(np.stack([k[probe], stud_piece, j[probe], uset.owner[u[probe]]], axis=1), axis=0,
                                     return_inverse=True)
-            crossing = self._studs_cross(keys)
-            in_hollow = ~crossing[which.reshape(-1)]
-            overlap[probe[in_hollow]] = np.minimum(overlap[probe[in_hollow]], 0.0)
-        deepest = np.zeros(K)
-        np.maximum.at(deepest, k, np.maximum(overlap, 0.0))
-        # Coincidence: a body piece's centre inside another body piece (no slack, no insets).
-        body = ~uset.stud[u] & ~sset.stud[s]
-        centre = np.where(body, np.maximum(res[:, 1], res[:, 2]), -np.inf)
-        np.maximum.at(deepest, k, np.maximum(centre, 0.0))
-        if self.floor_y is not None:
-            deepest = np.maximum(deepest, self._below_ground())
+            crossing = self._studs_cross(keys)[which.reshape(-1)]
+            np.maximum.at(deepest, k[probe[crossing]], overlap[probe[crossing]])
         touching = (overlap > -NEAR_LDU) | (centre > 0)
         near: list[set[int]] = [set() for _ in range(K)]
         for a, b in zip(k[touching], j[touching]):
@@ -185,8 +192,10 @@ def _pairs_at(uset: _Set, sset: _Set, sboxes: np.ndarray, rel, R, t, conn):
 
 def penetrations(requests: Sequence[tuple]) -> list[list[Penetration]]:
     """For each request (structure, unit parts in the unit's frame, candidate poses of the unit,
-    each candidate's connected structure parts, ground height or None): each candidate's
-    `Penetration`, all requests' pairs in one launch per piece-bucket shape."""
+    each candidate's connected structure parts, ground height or None, and optionally the
+    collision tolerance): each candidate's `Penetration`, all requests' pairs in one launch per
+    piece-bucket shape. With a tolerance, a candidate deeper than it by a pair that needs no
+    probe is not probed further: its depth is that pair's (at most MuJoCo's)."""
     jobs = [_Job(*r) for r in requests]
     live = [j for j in jobs if len(j.pairs[0])]
     results = dict(zip(map(id, live), _intervals_many([j.launch_args() for j in live], "still")))

@@ -142,7 +142,7 @@ def growers_of(workers: int, growers: int | None = None) -> int:
 
 def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, growers: int | None = None):
     """A lockstep build: `growers` tasks (default two thirds of the workers) grow the objects of the
-    missing shards, each every G-th object in shard order `batch` at a time (`spool.grow`: each
+    missing shards, each the objects of every G-th shard `batch` at a time (`spool.grow`: each
     kept in `spool` as it ends), while the other workers render and encode each shard whose objects
     are all grown (the shard function): physics and rendering overlap, and every grower's checks go
     to the device. Returns the failed shards as `_run_local` does."""
@@ -152,7 +152,9 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, grower
     growers = growers_of(workers, growers)
     # (An unreadable or foreign spool entry counts as grown here; the shard function grows it.)
     missing = {k: [i for i in config.shard_objects(k) if not spool.has(out, i)] for k in todo}
-    indices = [i for k in todo for i in missing[k]]
+    # Each grower takes whole shards (every G-th, in order), so a shard's objects end together and
+    # its render starts as soon as they have.
+    parts = [[i for k in todo[g::growers] for i in missing[k]] for g in range(growers)]
     waiting = {k: set(v) for k, v in missing.items()}
     errors: list = []
     running: dict = {}
@@ -176,7 +178,7 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, grower
             submit = lambda k: pool.submit(build_shard, config.to_json(), k, str(out))  # noqa: E731
             submit_grow = lambda part: pool.submit(spool.grow, config.to_json(), part, str(out), batch)  # noqa: E731
             finish = lambda f: f.result()  # noqa: E731
-        grow_jobs = [submit_grow(indices[g::growers]) for g in range(growers) if indices[g::growers]]
+        grow_jobs = [submit_grow(part) for part in parts if part]
 
         def collect(block: bool) -> None:
             for k in [k for k, f in running.items() if block or _done(f)]:

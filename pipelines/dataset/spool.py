@@ -1,7 +1,7 @@
 """Objects grown ahead of their shards: the producer's side of a lockstep build.
 
 `build(..., batch=B)` grows the synthetic objects of every missing shard in grower tasks (`grow`:
-each takes every G-th object in shard order and grows them B at a time, `Sampler.grow`: their
+each takes the objects of every G-th shard and grows them B at a time, `Sampler.grow`: their
 checks of a step in one call, on the device with the 'mjx' backend) while the other workers render
 and encode the shards whose objects are all grown. Each grown object is
 written here at once, atomically (`OUT/meta/spool/NNNNNNN.pkl`: the `Assembly` and its seconds),
