@@ -61,8 +61,21 @@ def prepare(config: DatasetConfig, out) -> Path:
     return out
 
 
+ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+"""Numeric libraries' threads per worker process, unless the user set them: the workers fill the
+cores, and a pool per process oversubscribes them (16 samplers on 16 cores of an H200 machine:
+980 steps in 58.7 s with the libraries' default threads, 45.4 s with one each)."""
+
+
+def _one_thread_each() -> None:
+    """Worker processes started from now on use one numeric thread each (`ONE_THREAD`)."""
+    for k, v in ONE_THREAD.items():
+        os.environ.setdefault(k, v)
+
+
 def _worker_env() -> dict[str, str]:
-    return {k: os.environ[k] for k in ENV_FOR_WORKERS if k in os.environ}
+    _one_thread_each()
+    return {k: os.environ[k] for k in (*ENV_FOR_WORKERS, *ONE_THREAD) if k in os.environ}
 
 
 def _run_local(config, todo, out, workers, bar):
@@ -80,6 +93,7 @@ def _run_local(config, todo, out, workers, bar):
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     # spawn: a fresh interpreter per worker (no GL or MuJoCo state forked from this process).
+    _one_thread_each()
     with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         futures = {pool.submit(build_shard, config.to_json(), k, str(out)): k for k in todo}
         for fut in as_completed(futures):
@@ -173,6 +187,7 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, grower
 
             # spawn: a fresh interpreter per worker (no GL or MuJoCo state forked from this process).
             # Growers are submitted first: they hold `growers` of the workers while they run.
+            _one_thread_each()
             pool = stack.enter_context(ProcessPoolExecutor(max_workers=workers,
                                                            mp_context=multiprocessing.get_context("spawn")))
             submit = lambda k: pool.submit(build_shard, config.to_json(), k, str(out))  # noqa: E731
