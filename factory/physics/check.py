@@ -27,7 +27,7 @@ from typing import Sequence
 import numpy as np
 
 from factory.parts import Part
-from factory.physics.collide import CollisionScene
+from factory.physics.collide import CollisionScene, Penetration
 from factory.physics.keep_last import KeepLast
 from factory.physics.mass import part_mass_properties
 from factory.physics.statics import (Failure, Link, LoadBase, LoadConfig, holds_alone, judge_many, judge_on_bases,
@@ -184,8 +184,9 @@ rule, `collide_jax`), 'sweep' (the batched sweeps), 'loads'."""
 
 
 def _run_calls(calls: "Sequence[_Call]", backend: str) -> list[list[Verdict]]:
-    """The sweeps, then the load programs, of every call: on the device for 'mjx' (the calls'
-    sweeps in one `sweep_jax.sweep_groups`, their load programs by `_judge_loads`)."""
+    """Collision (for 'mjx'; the reference's ran at construction), the sweeps, then the load
+    programs of every call: for 'mjx' on the device, each stage of all calls together
+    (`collide_jax.penetrations`, `sweep_jax.sweep_groups`, `_judge_loads`)."""
     t0 = time.perf_counter()
     if backend == "mjx":
         from factory.physics.collide_jax import penetrations
@@ -234,11 +235,17 @@ class _Call:
             world = [(p.part, p.pose) for p in unit]
             conns = _unit_connections(structure, world)
             outer = [c for c in conns if min(c[0], c[1]) < base_n]
-            self.to_collide.append((k, unit, conns, outer, {min(c[0], c[1]) for c in outer}))
+            self.to_collide.append((k, unit, world, conns, outer, {min(c[0], c[1]) for c in outer}))
+        STAGE_SECONDS["rules"] += time.perf_counter() - t0
         if backend != "mjx":
             # The reference: MuJoCo's contacts, one candidate pose at a time.
-            self.collided([self.scene.penetration(unit[0].pose, touched) for _, unit, *_, touched in self.to_collide])
-        STAGE_SECONDS["rules"] += time.perf_counter() - t0
+            t0 = time.perf_counter()
+            found = []
+            for _, unit, *_, touched in self.to_collide:
+                depth, near = self.scene.penetration(unit[0].pose, touched)
+                found.append(Penetration(depth, frozenset(near)))
+            STAGE_SECONDS["rules"] += time.perf_counter() - t0
+            self.collided(found)
 
     @property
     def scene(self) -> CollisionScene:
@@ -253,12 +260,12 @@ class _Call:
         return (self.structure, self.rel, [unit[0].pose for _, unit, *_ in self.to_collide],
                 [touched for *_, touched in self.to_collide], self.floor_y, self.config.max_penetration_ldu)
 
-    def collided(self, found) -> None:
-        """The rules after collision, given each candidate's (depth, structure parts near)."""
+    def collided(self, found: Sequence[Penetration]) -> None:
+        """The rules after collision, given each candidate's `Penetration`."""
         t0 = time.perf_counter()
         structure, config, floor_y, base_n = self.structure, self.config, self.floor_y, self.base_n
-        for (k, unit, conns, outer, touched), pen in zip(self.to_collide, found):
-            depth, near = pen if isinstance(pen, tuple) else (pen.depth, pen.near)
+        for (k, unit, world, conns, outer, touched), pen in zip(self.to_collide, found):
+            depth, near = pen.depth, pen.near
             pose = unit[0].pose
             connected = bool(outer) or (not self.require_connection) or base_n == 0
             collision = depth > config.max_penetration_ldu
@@ -282,7 +289,6 @@ class _Call:
                 self.verdicts[k] = Verdict(**base, clutch=False, reason="clutch")
                 continue
             dirs = seating_from_connections(outer, base_n)
-            world = [(p.part, p.pose) for p in unit]
             if outer and self.backend == "mjx":
                 # Swept later, with every call's candidates at once on the device (`sweep_jax`).
                 self.to_sweep.append((k, base, unit, conns, world, touched, dirs))

@@ -125,7 +125,8 @@ def _segments_hit(surf: Surface, tri: np.ndarray, a: np.ndarray, b: np.ndarray) 
 
 
 PROBE_PAIRS = 1 << 16
-"""(stud, triangle) pairs tested at once by `studs_cross` (memory: about 2 kB each)."""
+"""(stud, triangle) pairs tested at once by `studs_cross` (each holds a dozen arrays of its 17
+segments' vectors, about 3 kB in float64)."""
 
 
 def studs_cross(pos: np.ndarray, axis: np.ndarray, surface: Surface) -> np.ndarray:
@@ -171,6 +172,30 @@ def studs_cross(pos: np.ndarray, axis: np.ndarray, surface: Surface) -> np.ndarr
 def stud_crosses(pos: np.ndarray, axis: np.ndarray, surface: Surface) -> bool:
     """`studs_cross` of one stud."""
     return bool(studs_cross(pos[None], axis[None], surface)[0])
+
+
+def probe_frame(stud_at, stud_pose: Pose, body_part: Part, body_pose: Pose) -> tuple[np.ndarray, np.ndarray, Surface]:
+    """(stud base, stud axis, surface) for `studs_cross`: a stud (base and axis in its part's frame,
+    `CollisionShape.stud_at`) of a part at `stud_pose` against `body_part` at `body_pose`, in the
+    body part's own frame (its surface read once per part, `part_surface`); a scaled or sheared
+    placement (rare in LDraw) has its surface moved into the world instead."""
+    pos, axis = (np.asarray(v, float) for v in stud_at)
+    if np.allclose(body_pose.R @ body_pose.R.T, np.eye(3), atol=1e-9):
+        rel, surface = body_pose.inverse() @ stud_pose, part_surface(body_part)
+    else:
+        rel, surface = stud_pose, Surface.of(body_pose.apply(body_part.flat.triangles.reshape(-1, 3)))
+    return rel.apply(pos[None])[0], rel.R @ axis, surface
+
+
+@dataclass(frozen=True)
+class Penetration:
+    """One candidate pose's collision facts (`CollisionScene.penetration`, or `collide_jax` for
+    many at once)."""
+
+    depth: float
+    """Deepest overlap (LDU) with the structure or the ground; 0 where nothing overlaps."""
+    near: frozenset[int]
+    """Structure parts it touches or overlaps."""
 
 
 NEAR_LDU = 1.0
@@ -247,21 +272,13 @@ class CollisionScene:
 
     def _stud_in_hollow(self, stud_g: int, body_g: int, pose: Pose, memo: dict) -> bool:
         """Whether the stud of geom `stud_g` stands in a hollow of the part owning `body_g` (inside
-        its filled collision piece, crossing none of its walls or faces). Probed in the body
-        part's own frame: its surface is read once per part, never moved."""
+        its filled collision piece, crossing none of its walls or faces)."""
         stud, body = self.info[stud_g], self.info[body_g]
         key = (stud_g, body.owner, body.member)
         if key not in memo:
-            pos, axis = stud.stud_at
-            body_pose, stud_pose = self._pose_of(body, pose), self._pose_of(stud, pose)
             part = self.structure.placed[body.owner].part if body.owner >= 0 else self.unit[body.member][0]
-            if np.allclose(body_pose.R @ body_pose.R.T, np.eye(3), atol=1e-9):
-                rel = body_pose.inverse() @ stud_pose
-                surface = part_surface(part)
-            else:  # a scaled or sheared placement (rare in LDraw): its surface moved into the world
-                rel = stud_pose
-                surface = Surface.of(body_pose.apply(part.flat.triangles.reshape(-1, 3)))
-            memo[key] = not stud_crosses(rel.apply(pos[None])[0], rel.R @ axis, surface)
+            pos, axis, surface = probe_frame(stud.stud_at, self._pose_of(stud, pose), part, self._pose_of(body, pose))
+            memo[key] = not stud_crosses(pos, axis, surface)
         return memo[key]
 
     def _pose_of(self, gi: _GeomInfo, pose: Pose) -> Pose:

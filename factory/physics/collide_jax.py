@@ -26,31 +26,20 @@ decides a verdict only for a candidate with no stud connection (`unsupported-con
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from factory.parts import Part
-from factory.physics.collide import CONNECTED_SLACK_LDU, NEAR_LDU, Surface, part_surface, studs_cross
+from factory.physics.collide import CONNECTED_SLACK_LDU, NEAR_LDU, Penetration, probe_frame, studs_cross
 from factory.physics.geometry import collision_shape
 from factory.physics.structure import Structure
-from factory.physics.sweep_jax import _Set, _intervals_many, _structure_set, _unit_set
+from factory.physics.sweep_jax import _Set, _intervals_many, _structure_set, _unit_set, near_pairs
 from factory.pose import Pose
 
 MARGIN_LDU = NEAR_LDU + 0.5
 """Pieces farther apart than this (their boxes, along some axis) are not paired: the scene's
 contact margin."""
-
-
-@dataclass(frozen=True)
-class Penetration:
-    """One candidate's collision facts, as `CollisionScene.penetration` gives them."""
-
-    depth: float
-    """Deepest overlap (LDU) with the structure or the ground; 0 where nothing overlaps."""
-    near: frozenset[int]
-    """Structure parts it touches or overlaps."""
 
 
 class _Job:
@@ -137,15 +126,11 @@ class _Job:
                 stud_part, stud_pose, index = placed.part, placed.pose, -1 - piece - sset.start[j]
                 body_part, body_pose = self.rel[m][0], pose @ self.rel[m][1]
             shape = collision_shape(stud_part)
-            pos, axis = shape.stud_at[index - len(shape.body)]
-            if np.allclose(body_pose.R @ body_pose.R.T, np.eye(3), atol=1e-9):
-                rel, surface = body_pose.inverse() @ stud_pose, part_surface(body_part)
-            else:  # a scaled or sheared placement: its surface moved into the world
-                rel, surface = stud_pose, Surface.of(body_pose.apply(body_part.flat.triangles.reshape(-1, 3)))
+            pos, axis, surface = probe_frame(shape.stud_at[index - len(shape.body)], stud_pose, body_part, body_pose)
             entry = by_surface.setdefault(id(surface), [surface, [], [], []])
             entry[1].append(row)
-            entry[2].append(rel.apply(np.asarray(pos)[None])[0])
-            entry[3].append(rel.R @ np.asarray(axis))
+            entry[2].append(pos)
+            entry[3].append(axis)
         out = np.zeros(len(keys), bool)
         for surface, rows, pos, axis in by_surface.values():
             out[rows] = studs_cross(np.array(pos), np.array(axis), surface)
@@ -153,41 +138,12 @@ class _Job:
 
 
 def _pairs_at(uset: _Set, sset: _Set, sboxes: np.ndarray, rel, R, t, conn):
-    """Piece pairs within `MARGIN_LDU` of each other by their boxes at each candidate's pose, the
-    stud pieces of connected parts left out: (candidate, unit piece, structure piece, part,
-    connected)."""
-    empty = (np.zeros(0, np.int64),) * 4 + (np.zeros(0, bool),)
+    """Piece pairs within `MARGIN_LDU` of each other by their boxes at each candidate's pose
+    (`sweep_jax.near_pairs` with no motion), the stud pieces of connected parts left out:
+    (candidate, unit piece, structure piece, part, connected)."""
     if not len(sboxes) or not len(uset.pieces):
-        return empty
-    mb = np.stack([part.bbox for part, _ in rel])
-    mR = np.stack([p.R for _, p in rel])
-    mt = np.stack([p.t for _, p in rel])
-    wR = np.einsum("kij,mjl->kmil", R, mR)
-    centre = np.einsum("kmij,mj->kmi", wR, mb.mean(axis=1)) + np.einsum("kij,mj->kmi", R, mt) + t[:, None]
-    half = np.einsum("kmij,mj->kmi", np.abs(wR), (mb[:, 1] - mb[:, 0]) / 2)
-    meet = ((centre[:, :, None] - half[:, :, None] < sboxes[None, None, :, 1] + MARGIN_LDU)
-            & (centre[:, :, None] + half[:, :, None] > sboxes[None, None, :, 0] - MARGIN_LDU)).all(axis=-1)
-    kk, mm, jj = np.nonzero(meet)
-    ubox = uset.box
-    wc = np.einsum("kij,uj->kui", R, ubox.mean(axis=1)) + t[:, None]
-    wh = np.einsum("kij,uj->kui", np.abs(R), (ubox[:, 1] - ubox[:, 0]) / 2)
-    nu = np.diff(uset.start)[mm]
-    rep = np.repeat(np.arange(len(kk)), nu)
-    k, j = kk[rep], jj[rep]
-    u = uset.start[mm[rep]] + np.arange(len(rep)) - np.repeat(np.cumsum(nu) - nu, nu)
-    lo_u, hi_u = wc[k, u] - wh[k, u], wc[k, u] + wh[k, u]
-    pbox = sset.owner_box[j]
-    keep = ((lo_u < pbox[:, 1] + MARGIN_LDU) & (hi_u > pbox[:, 0] - MARGIN_LDU)).all(axis=1)
-    k, j, u, lo_u, hi_u = k[keep], j[keep], u[keep], lo_u[keep], hi_u[keep]
-    ns = np.diff(sset.start)[j]
-    rep = np.repeat(np.arange(len(k)), ns)
-    s = sset.start[j[rep]] + np.arange(len(rep)) - np.repeat(np.cumsum(ns) - ns, ns)
-    k, j, u, lo_u, hi_u = k[rep], j[rep], u[rep], lo_u[rep], hi_u[rep]
-    is_conn = conn[k, j]
-    sb = sset.box[s]
-    keep = ~(is_conn & (uset.stud[u] | sset.stud[s]))  # studs never collide with connected parts
-    keep &= ((lo_u < sb[:, 1] + MARGIN_LDU) & (hi_u > sb[:, 0] - MARGIN_LDU)).all(axis=1)
-    return k[keep], u[keep], s[keep], j[keep], is_conn[keep]
+        return (np.zeros(0, np.int64),) * 4 + (np.zeros(0, bool),)
+    return near_pairs(uset, sset, sboxes, rel, R, t, np.zeros_like(t), conn, -MARGIN_LDU, -MARGIN_LDU)
 
 
 def penetrations(requests: Sequence[tuple]) -> list[list[Penetration]]:

@@ -245,13 +245,18 @@ def bucket_of(lp: LinearProgram) -> tuple[int, int, int, int]:
     return _bucket(_parts(lp))
 
 
-def _stack(parts: Sequence[_Parts], batch: int, n: int, m: int, w: int, k: int) -> dict[str, np.ndarray]:
-    out = {
+def _empty(batch: int, n: int, m: int, w: int, k: int) -> dict[str, np.ndarray]:
+    """The solver's arrays of a launch, every column padding (no entries, no rows in force)."""
+    return {
         "c": np.zeros((batch, n)), "b": np.zeros((batch, m)),
         "a_rows": np.zeros((batch, n, w), np.int32), "a_vals": np.zeros((batch, n, w)),
         "coef": np.zeros((batch, n, k)), "link": np.zeros((batch, n, k)), "rhs": np.ones((batch, n, k)),
         "mask": np.zeros((batch, n, k)), "link_col": np.zeros(batch, np.int32),
     }
+
+
+def _stack(parts: Sequence[_Parts], batch: int, n: int, m: int, w: int, k: int) -> dict[str, np.ndarray]:
+    out = _empty(batch, n, m, w, k)
     for i, p in enumerate(parts):
         out["c"][i, : len(p.c)] = p.c
         out["b"][i, : len(p.b)] = p.b
@@ -565,12 +570,7 @@ def _load_arrays(models: Sequence[LoadModel], cfg: LoadConfig, batch: int, n: in
     per model), from the same columns (`statics.connection_columns`, ...): the same rows and
     columns as `to_lp` then `_parts` give, except that zero entries are kept (they change
     nothing). Members past the models copy the first (padding that converges with it)."""
-    out = {
-        "c": np.zeros((batch, n)), "b": np.zeros((batch, m)),
-        "a_rows": np.zeros((batch, n, w), np.int32), "a_vals": np.zeros((batch, n, w)),
-        "coef": np.zeros((batch, n, k)), "link": np.zeros((batch, n, k)), "rhs": np.ones((batch, n, k)),
-        "mask": np.zeros((batch, n, k)), "link_col": np.zeros(batch, np.int32),
-    }
+    out = _empty(batch, n, m, w, k)
     rows_flat, vals_flat = out["a_rows"].reshape(-1), out["a_vals"].reshape(-1)
     B = len(models)
     nb = np.array([md.n_bodies for md in models])
@@ -741,11 +741,8 @@ def solve_on_bases(groups: Sequence[tuple], cfg: LoadConfig | None = None, *, to
         for shape, chunk in _group(buckets):
             if shape not in COMPILES:
                 COMPILES.append(shape)
-            batch, n, m = shape[0], shape[1], shape[2]
-            arrays = {"c": np.zeros((batch, n)), "b": np.zeros((batch, m)),
-                      "a_rows": np.zeros((batch, n, 12), np.int32), "a_vals": np.zeros((batch, n, 12)),
-                      "coef": np.zeros((batch, n, 2)), "link": np.zeros((batch, n, 2)), "rhs": np.ones((batch, n, 2)),
-                      "mask": np.zeros((batch, n, 2)), "link_col": np.zeros(batch, np.int32)}
+            m = shape[2]
+            arrays = _empty(*shape)
             arrays["c"][:, 0] = 1.0
             # The chunk's members by group, each group's candidates written together.
             rows_of: dict[int, list[tuple[int, int]]] = {}

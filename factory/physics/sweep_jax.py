@@ -458,22 +458,25 @@ def _swept_boxes_meet(lo: np.ndarray, hi: np.ndarray, d: np.ndarray) -> np.ndarr
     return start < end
 
 
-def _pairs(uset: _Set, sset: _Set, sboxes, rel, R, t, d, conn, tol: float, margin: float, a: int, b: int):
-    """The piece pairs of candidates a..b-1 whose boxes meet somewhere along the approach, with their
-    thresholds: (candidate, unit piece, structure piece, part, connected, thr, thr_c, undecided)."""
-    R, t, d, conn = R[a:b], t[a:b], d[a:b], conn[a:b]
-    # Parts: each member's box swept along d against each structure part's box (the reference's
-    # filter, with the parts it connects to kept: their pieces count too, with the slack).
+def near_pairs(uset: _Set, sset: _Set, sboxes, rel, R, t, d, conn, part_margin: float = 0.0,
+               piece_margin: float = 0.0):
+    """The piece pairs whose boxes meet at some s >= 0 along each candidate's d (d = 0: at its pose),
+    overlapping by more than the margin along every axis (a negative margin: apart by less than
+    it): (candidate, unit piece, structure piece, part, connected). Each member's box against each
+    part's (`part_margin`), then each of its pieces against the box of the part's pieces, then
+    against each of them (`piece_margin`); stud pieces of parts the candidate connects to are left
+    out (they never collide). `conn`: (candidates, parts) connected."""
+    def meet(a_lo, a_hi, b_lo, b_hi, dk, margin):
+        return _swept_boxes_meet(a_lo - b_hi + margin, a_hi - b_lo - margin, dk)
+
     mb = np.stack([part.bbox for part, _ in rel])
     mR = np.stack([p.R for _, p in rel])
     mt = np.stack([p.t for _, p in rel])
     wR = np.einsum("kij,mjl->kmil", R, mR)
     centre = np.einsum("kmij,mj->kmi", wR, mb.mean(axis=1)) + np.einsum("kij,mj->kmi", R, mt) + t[:, None]
     half = np.einsum("kmij,mj->kmi", np.abs(wR), (mb[:, 1] - mb[:, 0]) / 2)
-    ub = np.stack([centre - half, centre + half], axis=2)  # (K, M, 2, 3)
-    lo = ub[:, :, None, 0] - sboxes[None, None, :, 1] + margin
-    hi = ub[:, :, None, 1] - sboxes[None, None, :, 0] - margin
-    kk, mm, jj = np.nonzero(_swept_boxes_meet(lo, hi, d[:, None, None]))
+    kk, mm, jj = np.nonzero(meet((centre - half)[:, :, None], (centre + half)[:, :, None], sboxes[None, None, :, 0],
+                                 sboxes[None, None, :, 1], d[:, None, None], part_margin))
     # Pieces: each piece of the member (its world box at each candidate, computed once per
     # candidate and piece) against the box of all the part's pieces, then against each of them.
     ubox = uset.box
@@ -485,7 +488,7 @@ def _pairs(uset: _Set, sset: _Set, sboxes, rel, R, t, d, conn, tol: float, margi
     u = uset.start[mm[rep]] + np.arange(len(rep)) - np.repeat(np.cumsum(nu) - nu, nu)
     pbox = sset.owner_box
     lo_u, hi_u = wc[k, u] - wh[k, u], wc[k, u] + wh[k, u]
-    near = _swept_boxes_meet(lo_u - pbox[j, 1], hi_u - pbox[j, 0], d[k])
+    near = meet(lo_u, hi_u, pbox[j, 0], pbox[j, 1], d[k], piece_margin)
     k, j, u, lo_u, hi_u = k[near], j[near], u[near], lo_u[near], hi_u[near]
     ns = np.diff(sset.start)[j]
     rep = np.repeat(np.arange(len(k)), ns)
@@ -493,9 +496,17 @@ def _pairs(uset: _Set, sset: _Set, sboxes, rel, R, t, d, conn, tol: float, margi
     k, j, u, lo_u, hi_u = k[rep], j[rep], u[rep], lo_u[rep], hi_u[rep]
     is_conn = conn[k, j]
     sb = sset.box[s]
-    near = ~(is_conn & (uset.stud[u] | sset.stud[s]))  # studs never collide with connected parts
-    near &= _swept_boxes_meet(lo_u - sb[:, 1], hi_u - sb[:, 0], d[k])
-    k, u, s, j, is_conn = k[near], u[near], s[near], j[near], is_conn[near]
+    near = ~(is_conn & (uset.stud[u] | sset.stud[s]))
+    near &= meet(lo_u, hi_u, sb[:, 0], sb[:, 1], d[k], piece_margin)
+    return k[near], u[near], s[near], j[near], is_conn[near]
+
+
+def _pairs(uset: _Set, sset: _Set, sboxes, rel, R, t, d, conn, tol: float, margin: float, a: int, b: int):
+    """The piece pairs of candidates a..b-1 whose boxes meet somewhere along the approach
+    (`near_pairs`: parts' boxes shrunk by the reference's margin, the parts it connects to kept:
+    their pieces count too, with the slack), with their thresholds: (candidate, unit piece,
+    structure piece, part, connected, thr, thr_c, undecided)."""
+    k, u, s, j, is_conn = near_pairs(uset, sset, sboxes, rel, R[a:b], t[a:b], d[a:b], conn[a:b], margin)
     thr = tol - uset.inset[u] - sset.inset[s] + np.where(is_conn, CONNECTED_SLACK_LDU, 0.0)
     thr_c = np.where(is_conn, tol, np.inf)
     undecided = ~is_conn & (uset.stud[u] != sset.stud[s])

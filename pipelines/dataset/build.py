@@ -25,6 +25,7 @@ from pipelines.dataset.config import (
     diff_configs,
     json_bytes,
 )
+from pipelines.dataset import spool
 from pipelines.dataset.shards import build_shard, read_marker
 
 BACKENDS = ("local", "ray")
@@ -150,7 +151,8 @@ def _run_ray(config, todo, out, workers, bar):
 
 def growers_of(workers: int, growers: int | None = None) -> int:
     """Grower tasks of a lockstep build: `growers` (at most the workers), by default two thirds of
-    the workers (growing a step costs about twice its renders, measured on one H200)."""
+    the workers (on one H200 machine a step's growth took 0.32 s of a process at batch 16, its
+    render and encoding 0.20 s of a worker: `docs/sampler.md`, issue measurements)."""
     return min(max(1, workers), growers or max(1, (2 * workers) // 3))
 
 
@@ -160,8 +162,6 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, grower
     kept in `spool` as it ends), while the other workers render and encode each shard whose objects
     are all grown (the shard function): physics and rendering overlap, and every grower's checks go
     to the device. Returns the failed shards as `_run_local` does."""
-    from pipelines.dataset import spool
-
     workers = max(1, workers)
     growers = growers_of(workers, growers)
     # (An unreadable or foreign spool entry counts as grown here; the shard function grows it.)
@@ -204,16 +204,17 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, grower
                 bar.update(len(config.shard_objects(k)))
 
         while waiting:
-            growing = [f for f in grow_jobs if not _done(f)]
-            for f in [f for f in grow_jobs if f not in growing]:
+            ended = [f for f in grow_jobs if _done(f)]
+            grow_jobs = [f for f in grow_jobs if f not in ended]
+            for f in ended:
                 try:
                     finish(f)
                 except Exception as exc:  # noqa: BLE001 - the shards then grow their objects themselves
                     print(f"warning: a grower failed ({type(exc).__name__}: {exc}); its shards grow their "
                           f"own objects", file=sys.stderr)
-            grow_jobs = growing
+            grown = spool.present(out)
             for k in list(waiting):
-                waiting[k] = {i for i in waiting[k] if not spool.has(out, i)}
+                waiting[k] -= grown
                 if not waiting[k] or not grow_jobs:
                     del waiting[k]
                     running[k] = submit(k)

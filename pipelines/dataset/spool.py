@@ -53,6 +53,15 @@ def has(out, index: int) -> bool:
     return spool_path(out, index).exists()
 
 
+def present(out) -> set[int]:
+    """The indices of every object kept here (one listing of the folder)."""
+    try:
+        names = os.listdir(spool_path(out, 0).parent)
+    except FileNotFoundError:
+        return set()
+    return {int(n[:-4]) for n in names if n.endswith(".pkl") and n[:-4].isdigit()}
+
+
 def drop(out, indices) -> None:
     """Forget the objects of a finished shard."""
     for i in indices:
