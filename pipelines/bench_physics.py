@@ -19,9 +19,11 @@ compiles it made.
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import platform
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -208,7 +210,9 @@ def _ctx_init(kind: str, n: int, batch: int) -> None:
 
     s = grown(n)
     _CTX.update(kind=kind, s=s)
-    if kind == "loads":
+    if kind == "whole":
+        _CTX["poses"] = candidates(s, batch)
+    elif kind == "loads":
         brick = load_part(get_reader(), "3001")
         _CTX["poses"] = candidates(s, batch)
         _CTX["conns"] = [_unit_connections(s, [(brick, p)]) for p in _CTX["poses"]]
@@ -224,6 +228,9 @@ def _ctx_run(span: tuple[int, int]) -> list:
     from factory.physics.sweep import sweep
 
     a, b = span
+    if _CTX["kind"] == "whole":
+        brick = load_part(get_reader(), "3001")
+        return [(v.ok, v.reason) for v in check(_CTX["s"], brick, _CTX["poses"][a:b], floor_y=24.0, explain=False)]
     if _CTX["kind"] == "loads":
         return [(v.stands, v.reason) for v in load_stage(_CTX["s"], _CTX["poses"][a:b], conns=_CTX["conns"][a:b])]
     return [sweep(_CTX["scene"], _CTX["s"], w, c).buildable for w, c, _ in _CTX["cases"][a:b]]
@@ -292,6 +299,51 @@ def measure_lp(sizes, batches, log=None, cpu_max: int = 128, cpu_workers: int = 
     return rows
 
 
+def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int = 1,
+                  config: CheckConfig = CheckConfig(), batched: bool = True) -> list[dict]:
+    """Whole checks per second (every check a candidate goes through: connection, collision,
+    clutch, buildability sweep, whole-structure loads; `check` as the sampler calls it, failing
+    connections not sought): the batched path (`backend='mjx'`, default JAX device) on each batch
+    and the reference (`'mujoco'`, in `cpu_workers` processes) on its first `cpu_max` candidates,
+    verdicts (accepted, reason) compared on those. `batched=False`: the reference alone."""
+    from factory.physics import check as check_mod
+
+    brick = load_part(get_reader(), "3001")
+    rows = []
+    for n in sizes:
+        s = grown(n)
+        for batch in batches:
+            poses = candidates(s, batch)
+            row = {"bricks": n, "batch": batch}
+            if batched:
+                t = time.perf_counter()
+                check(s, brick, poses, backend="mjx", config=config, floor_y=24.0, explain=False)  # compiles
+                first_s = time.perf_counter() - t
+                # JAX leaves ~600K long-lived objects after its compiles; a full collection then
+                # takes ~0.3 s. A long-running worker moves them out of the collector's view once.
+                gc.collect()
+                gc.freeze()
+                before = check_mod.STAGE_SECONDS.copy()
+                t = time.perf_counter()
+                got = check(s, brick, poses, backend="mjx", config=config, floor_y=24.0, explain=False)
+                gpu_s = time.perf_counter() - t
+                stages = check_mod.STAGE_SECONDS - before
+                row.update(gpu_per_s=round(batch / gpu_s, 1), first_call_s=round(first_s, 2),
+                           stage_s={k: round(v, 3) for k, v in sorted(stages.items())},
+                           accepted=sum(v.ok for v in got),
+                           reasons=dict(Counter(v.reason for v in got if v.reason)))
+            if cpu_max:
+                ref, cpu_s = cpu_reference("whole", n, batch, min(cpu_max, batch), cpu_workers)
+                row.update(cpu_workers=cpu_workers, cpu_per_s=round(len(ref) / cpu_s, 1), cpu_compared=len(ref))
+                if batched:
+                    row.update(speedup=round(batch / gpu_s / (len(ref) / cpu_s), 2),
+                               agree=sum(a == (b.ok, b.reason) for a, b in zip(ref, got)))
+            rows.append(row)
+            if log is not None:
+                log(row)
+    return rows
+
+
 def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), cpu_max: int = 512, log=None,
                   cpu_workers: int = 1, batched: bool = True) -> list[dict]:
     """Sweep candidates per second, the batched path (`sweep_jax`, default JAX device) and the CPU
@@ -354,17 +406,22 @@ def main(argv=None) -> int:
     ap.add_argument("--sweep", action="store_true",
                     help="measure the buildability sweep instead: the batched exact JAX path "
                          "(factory.physics.sweep_jax) against the CPU reference (sweep.sweep)")
-    ap.add_argument("--cpu-max", type=int, help="with --sweep or --lp: candidates the CPU reference checks "
-                    "(0: none; default 512 for --sweep, 128 for --lp)")
+    ap.add_argument("--cpu-max", type=int, help="with --sweep, --lp or --whole: candidates the CPU reference checks "
+                    "(0: none; default 512 for --sweep, 128 for --lp, 256 for --whole)")
     ap.add_argument("--cpu-workers", type=int, default=1, help="with --sweep or --lp: processes the CPU reference runs in")
     ap.add_argument("--reference-only", action="store_true", help="with --sweep or --lp: the CPU reference alone")
     ap.add_argument("--out")
     ap.add_argument("--lp", action="store_true", help="the batched load solver alone, on real load programs")
+    ap.add_argument("--whole", action="store_true", help="whole checks (every check a candidate goes through): "
+                    "the batched path against the reference on the same candidates, verdicts compared")
     args = ap.parse_args(argv)
     sizes, batches = [int(x) for x in args.sizes.split(",")], [int(x) for x in args.batches.split(",")]
     log = lambda r: print(json.dumps(r), flush=True)
     if args.sweep:
         rows = measure_sweep(sizes, batches, 512 if args.cpu_max is None else args.cpu_max, log=log,
+                             cpu_workers=args.cpu_workers, batched=not args.reference_only)
+    elif args.whole:
+        rows = measure_whole(sizes, batches, log=log, cpu_max=256 if args.cpu_max is None else args.cpu_max,
                              cpu_workers=args.cpu_workers, batched=not args.reference_only)
     elif args.lp:
         rows = measure_lp(sizes, batches, log=log, cpu_max=128 if args.cpu_max is None else args.cpu_max,

@@ -314,3 +314,37 @@ def test_programs_of_several_structures_share_launches_and_match_highs(monkeypat
             if a.load is not None:
                 assert abs(a.load - b.load) <= 1e-7 * max(1.0, b.load)
     assert {v.reason for r in refs for v in r} >= {None, "overload"}
+
+
+def test_clutch_programs_on_the_device_give_the_verdicts_of_highs():
+    # holds_alone_many with the batched solver (what the 'mjx' checks use) against HiGHS, on the
+    # cases the closed form leaves to the program: sitting on some studs while hanging from others,
+    # hanging while resting on the ground, tilted studs; heavy and light parts, near the limit too.
+    from factory.physics.statics import LoadConfig, _closed_form, holds_alone_many
+
+    rng = np.random.default_rng(11)
+    cfg = LoadConfig()
+    cases = []
+    while len(cases) < 240:
+        n = int(rng.integers(1, 5))
+        studs = np.unique(np.column_stack([rng.integers(-2, 3, n) * 20.0, np.zeros(n),
+                                           rng.integers(-2, 3, n) * 20.0]), axis=0)
+        kind = len(cases) % 3
+        axes = [np.array([0.0, -1.0, 0.0])] * len(studs)
+        if kind == 2:
+            tilt = np.array([rng.uniform(-0.3, 0.3), -1.0, rng.uniform(-0.3, 0.3)])
+            axes = [tilt / np.linalg.norm(tilt)] * len(studs)
+        holds = [bool(rng.integers(0, 2)) for _ in studs]
+        ground = np.zeros((0, 3))
+        if kind == 1:
+            holds = [True] * len(studs)
+            ground = np.array([[x, 24.0, z] for x in (-40.0, 40.0) for z in (-20.0, 20.0)])
+        conns = [(h, p, a) for h, p, a in zip(holds, studs, axes)]
+        com = np.array([rng.normal() * 30, -10.0, rng.normal() * 30])
+        mass = float(10 ** rng.uniform(-3, -0.5))
+        if _closed_form(mass, com, conns, ground, cfg) is None:
+            cases.append((mass, com, conns, ground))
+    device = holds_alone_many(cases, cfg, lp_jax.solve_batch)
+    highs = holds_alone_many(cases, cfg)
+    assert device == highs
+    assert 0 < sum(highs) < len(highs)  # both verdicts occur

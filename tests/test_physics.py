@@ -287,3 +287,26 @@ def test_turn_faults_only_where_the_part_fills_another_box():
     pose = Pose(I3, [0, -24, 0])
     assert np.allclose(_envelope(square, pose), _envelope(square, Pose(turn, pose.t)), atol=1.0)
     assert not np.allclose(_envelope(long, pose), _envelope(long, Pose(turn, pose.t)), atol=1.0)
+
+
+def test_connections_at_many_poses_are_those_found_one_pose_at_a_time():
+    # The batched finder (two tree queries for all poses) against the per-pose matcher, on every
+    # feasible attachment of several part types to a mixed structure: same connections, same order.
+    from factory.physics.check import _unit_connections
+    from factory.physics.structure import connections_at
+
+    base = Structure([at("3001", 0, 0, 0), at("3020", 10, -24, 0), at("3003", -30, 8, 20),
+                      at("3069b", 0, -32, 0), at("3040b", 40, 0, 0)])
+    total = 0
+    for name in ("3001", "3020", "3069b", "3040b", "3665", "3003"):
+        poses = feasible_poses(base, part(name))
+        want = [_unit_connections(base, [(part(name), p)]) for p in poses]
+        got = connections_at(base, part(name), np.array([p.R for p in poses]), np.array([p.t for p in poses]))
+        assert len(got) == len(want)
+        for g, w in zip(got, want):
+            assert [(a, b) for a, b, *_ in g] == [(a, b) for a, b, *_ in w]
+            for (_, _, gp, ga), (_, _, wp, wa) in zip(g, w):
+                np.testing.assert_allclose(gp, wp, atol=1e-9)
+                np.testing.assert_allclose(ga, wa, atol=1e-9)
+        total += sum(map(len, want))
+    assert total > 300

@@ -30,10 +30,10 @@ from factory.parts import Part
 from factory.physics.collide import CollisionScene, Penetration
 from factory.physics.keep_last import KeepLast
 from factory.physics.mass import part_mass_properties
-from factory.physics.statics import (Failure, Link, LoadBase, LoadConfig, holds_alone, judge_many, judge_on_bases,
+from factory.physics.statics import (Failure, Link, LoadBase, LoadConfig, holds_alone_many, judge_many, judge_on_bases,
                                      support_points)
 from factory.physics.sweep import seating_from_connections, sweep
-from factory.physics.structure import Placed, Structure, connectors, lowest_point, match
+from factory.physics.structure import Placed, Structure, connections_at, connectors, lowest_point, match
 from factory.physics.unmodelled import may_hold
 from factory.pose import Pose
 
@@ -197,6 +197,14 @@ def _run_calls(calls: "Sequence[_Call]", backend: str) -> list[list[Verdict]]:
         STAGE_SECONDS["collide"] += time.perf_counter() - t0
         for c, found in zip(todo, found_all):
             c.collided(found)  # counted as 'rules'
+        # The clutch rule of every call: the closed form on the host, the programs in one launch.
+        cases = [c.clutch_cases() for c in calls]
+        t0 = time.perf_counter()
+        flat = [x for cs in cases for x in cs]
+        holds = iter(holds_alone_many(flat, calls[0].config.loads, _lp_jax(backend).solve_batch) if flat else [])
+        STAGE_SECONDS["rules"] += time.perf_counter() - t0
+        for c, cs in zip(calls, cases):
+            c.clutched([next(holds) for _ in cs])
         t0 = time.perf_counter()
 
         todo = [(c, g) for c in calls if (g := c.sweep_group()) is not None]
@@ -231,9 +239,13 @@ class _Call:
         self.pending: list[tuple[int, list[Placed], list]] = []
         self.to_sweep: list[tuple] = []
         self.to_collide: list[tuple] = []
+        self.to_clutch: list[tuple] = []
+        if len(first) == 1:  # one part at many poses: every candidate's connections in one query
+            found = connections_at(structure, first[0].part, np.array([u[0].pose.R for u in units]),
+                                   np.array([u[0].pose.t for u in units]))
         for k, unit in enumerate(units):
             world = [(p.part, p.pose) for p in unit]
-            conns = _unit_connections(structure, world)
+            conns = found[k] if len(first) == 1 else _unit_connections(structure, world)
             outer = [c for c in conns if min(c[0], c[1]) < base_n]
             self.to_collide.append((k, unit, world, conns, outer, {min(c[0], c[1]) for c in outer}))
         STAGE_SECONDS["rules"] += time.perf_counter() - t0
@@ -261,9 +273,12 @@ class _Call:
                 [touched for *_, touched in self.to_collide], self.floor_y, self.config.max_penetration_ldu)
 
     def collided(self, found: Sequence[Penetration]) -> None:
-        """The rules after collision, given each candidate's `Penetration`."""
+        """The rules after collision, given each candidate's `Penetration`: verdicts for those
+        that collide or connect to nothing; the rest queued for the clutch rule (`clutch_cases`,
+        `clutched`: for 'mjx' the programs of every call go to the device together)."""
         t0 = time.perf_counter()
         structure, config, floor_y, base_n = self.structure, self.config, self.floor_y, self.base_n
+        self.to_clutch = []
         for (k, unit, world, conns, outer, touched), pen in zip(self.to_collide, found):
             depth, near = pen.depth, pen.near
             pose = unit[0].pose
@@ -284,18 +299,52 @@ class _Call:
             if not connected:
                 self.verdicts[k] = Verdict(**base, reason="no-connection")
                 continue
-            ground = floor_y if floor_y is not None else max(structure.floor_y(), lowest_point(unit))
-            if outer and not _holds_alone(unit, outer, base_n, ground if self.standing else None, config.loads):
+            self.to_clutch.append((k, base, unit, world, conns, outer, touched))
+        self.to_collide = []
+        STAGE_SECONDS["rules"] += time.perf_counter() - t0
+        if self.backend != "mjx":
+            self.clutched(holds_alone_many(self.clutch_cases(), config.loads))
+
+    def clutch_cases(self) -> list[tuple]:
+        """`statics.holds_alone_many`'s cases for the connected candidates (mass, centre, the
+        connections with the structure, ground support points)."""
+        t0 = time.perf_counter()
+        cfg, base_n = self.config.loads, self.base_n
+        floor = None
+        cases = []
+        for k, base, unit, world, conns, outer, touched in self.to_clutch:
+            if not outer:
+                continue
+            ground_y = None
+            if self.standing:
+                if self.floor_y is not None:
+                    ground_y = self.floor_y
+                else:
+                    floor = self.structure.floor_y() if floor is None else floor
+                    ground_y = max(floor, lowest_point(unit))
+            cases.append(_alone_case(unit, outer, base_n, ground_y, cfg))
+        STAGE_SECONDS["rules"] += time.perf_counter() - t0
+        return cases
+
+    def clutched(self, holds: Sequence[bool]) -> None:
+        """The verdicts after the clutch rule (`holds`: one per candidate with a connection, in
+        `clutch_cases`' order), then the CPU sweep for the reference or the queue for the batched
+        sweeps."""
+        t0 = time.perf_counter()
+        structure, config = self.structure, self.config
+        held = iter(holds)
+        for k, base, unit, world, conns, outer, touched in self.to_clutch:
+            if outer and not next(held):
                 self.verdicts[k] = Verdict(**base, clutch=False, reason="clutch")
                 continue
-            dirs = seating_from_connections(outer, base_n)
+            dirs = seating_from_connections(outer, self.base_n)
             if outer and self.backend == "mjx":
                 # Swept later, with every call's candidates at once on the device (`sweep_jax`).
                 self.to_sweep.append((k, base, unit, conns, world, touched, dirs))
                 continue
             built = sweep(self.scene, structure, world, touched, config.max_penetration_ldu, directions=dirs) if outer else None
             self._after_sweep(k, base, built, unit, conns, outer)
-        self.to_collide = []
+        self.to_clutch = []
         STAGE_SECONDS["rules"] += time.perf_counter() - t0
 
     def sweep_group(self):
@@ -388,7 +437,8 @@ def _lp_jax(backend: str):
     return lp_jax
 
 
-def _holds_alone(unit: Sequence[Placed], outer, base_n: int, ground_y: float | None, cfg: LoadConfig) -> bool:
+def _alone_case(unit: Sequence[Placed], outer, base_n: int, ground_y: float | None, cfg: LoadConfig) -> tuple:
+    """(mass, centre of mass, connections, ground support points) of a unit for `holds_alone_many`."""
     mass, weighted = 0.0, np.zeros(3)
     for p in unit:
         m, com, _ = part_mass_properties(p.part)
@@ -399,7 +449,7 @@ def _holds_alone(unit: Sequence[Placed], outer, base_n: int, ground_y: float | N
     if ground_y is not None:
         pts = [support_points(p, ground_y, cfg) for p in unit]
         ground = np.concatenate(pts) if pts else ground
-    return holds_alone(mass, weighted / mass, conns, ground, cfg)
+    return mass, weighted / mass, conns, ground
 
 
 _SCENE = KeepLast()

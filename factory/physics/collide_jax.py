@@ -94,10 +94,10 @@ class _Job:
             crossing = self._studs_cross(keys)[which.reshape(-1)]
             np.maximum.at(deepest, k[probe[crossing]], overlap[probe[crossing]])
         touching = (overlap > -NEAR_LDU) | (centre > 0)
-        near: list[set[int]] = [set() for _ in range(K)]
-        for a, b in zip(k[touching], j[touching]):
-            near[a].add(int(b))
-        return [Penetration(float(deepest[i]), frozenset(near[i])) for i in range(K)]
+        near: list[list[int]] = [[] for _ in range(K)]
+        for a, b in zip(k[touching].tolist(), j[touching].tolist()):
+            near[a].append(b)
+        return [Penetration(d, frozenset(n)) for d, n in zip(deepest.tolist(), near)]
 
     def _below_ground(self) -> np.ndarray:
         """Per candidate: how far its pieces (plus their inset) reach below the ground."""

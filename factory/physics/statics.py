@@ -600,32 +600,65 @@ def holds_alone(mass_kg: float, com: np.ndarray, conns: Sequence[tuple[bool, np.
     resultant must pass through the part's "effective centre" (W c - sum lo_j x_j) / (W - sum lo_j):
     that point must lie in the hull of the rim and ground points; all bounded above is the mirror
     image. Mixed or sideways connections go to the program itself (6 rows)."""
+    return holds_alone_many([(mass_kg, com, conns, ground)], cfg)[0]
+
+
+_RIM_VERTICAL = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])
+
+
+def holds_alone_many(cases: Sequence[tuple], cfg: LoadConfig = LoadConfig(),
+                     solve: Callable[[list[LinearProgram]], list[LPResult]] | None = None) -> list[bool]:
+    """`holds_alone` of each case (mass, com, conns, ground): the closed form where it applies, the
+    programs of the rest solved together by `solve` (default: HiGHS one at a time; the batched
+    checks pass `lp_jax.solve_batch`)."""
+    out: list[bool | None] = [None] * len(cases)
+    programs: list[tuple[int, LinearProgram]] = []
+    for k, (mass_kg, com, conns, ground) in enumerate(cases):
+        verdict = _closed_form(mass_kg, com, conns, ground, cfg)
+        if verdict is None:
+            programs.append((k, _alone_program(mass_kg, com, conns, ground, cfg)))
+        else:
+            out[k] = verdict
+    if programs:
+        results = (solve or (lambda lps: [solve_highs(lp) for lp in lps]))([lp for _, lp in programs])
+        for (k, _), res in zip(programs, results):
+            out[k] = res.status == "optimal" and res.objective <= 1.0 + cfg.tolerance
+    return out  # type: ignore[return-value]
+
+
+def _closed_form(mass_kg, com, conns, ground, cfg: LoadConfig) -> bool | None:
+    """`holds_alone` where every connection is vertical and all rim bounds lie on one side; None
+    where the program must decide."""
     weight = mass_kg * GRAVITY
     if not conns and not len(ground):
         return False
-    axes = np.array([n for _, _, n in conns]).reshape(-1, 3)
-    vertical = (np.abs(axes[:, 1]) > 0.999).all() if len(axes) else True
-    if vertical:
-        pts, lo_up, lo_down = [], [], []
-        for holds_stud, p, n in conns:
-            up = (n @ UP > 0) != holds_stud  # the stud pushes the part up when it sits on it
-            for q in _rim(p, n):
-                pts.append(q)
-                (lo_up if up else lo_down).append(len(pts) - 1)
-        bound = [-cfg.clutch_n / 4 if k in lo_up else cfg.clutch_n / 4 for k in range(len(pts))]
-        for q in ground:
-            pts.append(q)
-            lo_up.append(len(pts) - 1)
-            bound.append(0.0)
-        if not lo_down or not lo_up:
-            xz = np.array(pts)[:, [0, 2]]
-            b = np.array(bound)
-            sgn = 1.0 if not lo_down else -1.0  # all bounded below, or all above (mirrored)
-            total = sgn * weight - sgn * b.sum()
-            if total <= 0:
-                return False
-            centre = (sgn * weight * np.asarray(com)[[0, 2]] - sgn * (b[:, None] * xz).sum(0)) / total
-            return _inside(_hull_xz(np.unique(np.round(xz, 6), axis=0)), centre, cfg.tolerance)
+    axes = np.array([n for _, _, n in conns], float).reshape(-1, 3)
+    if len(axes) and not (np.abs(axes[:, 1]) > 0.999).all():
+        return None
+    # Rim points connection by connection (+x, -x, +z, -z), then the ground's: the order of the sums.
+    holds = np.array([h for h, _, _ in conns], bool)
+    up = ((axes @ UP) > 0) != holds  # the stud pushes the part up when it sits on it
+    if up.any() and not up.all():
+        return None
+    pos = np.array([p for _, p, _ in conns], float).reshape(-1, 3)
+    rims = (pos[:, None, :] + STUD_RADIUS * _RIM_VERTICAL[None]).reshape(-1, 3)
+    ground = np.asarray(ground, float).reshape(-1, 3)
+    if len(ground) and len(up) and not up[0]:
+        return None  # hanging from studs and standing on the ground: bounds on both sides
+    pts = np.concatenate([rims, ground])
+    bound = np.concatenate([np.repeat(np.where(up, -cfg.clutch_n / 4, cfg.clutch_n / 4), 4), np.zeros(len(ground))])
+    xz = pts[:, [0, 2]]
+    sgn = 1.0 if (up.all() if len(up) else True) else -1.0  # all bounded below, or all above (mirrored)
+    total = sgn * weight - sgn * bound.sum()
+    if total <= 0:
+        return False
+    centre = (sgn * weight * np.asarray(com)[[0, 2]] - sgn * (bound[:, None] * xz).sum(0)) / total
+    return _inside(_hull_xz(np.unique(np.round(xz, 6), axis=0)), centre, cfg.tolerance)
+
+
+def _alone_program(mass_kg, com, conns, ground, cfg: LoadConfig) -> LinearProgram:
+    """The one-body program of `holds_alone` (body 1, the fixed rest of the structure, has no rows)."""
+    axes = np.array([n for _, _, n in conns], float).reshape(-1, 3)
     model = LoadModel(
         parts=np.array([0, -1]), mass=np.array([mass_kg, 0.0]),
         com=np.stack([np.asarray(com, float), np.zeros(3)]),
@@ -635,11 +668,8 @@ def holds_alone(mass_kg: float, com: np.ndarray, conns: Sequence[tuple[bool, np.
         ground_body=np.zeros(len(ground), np.int64), ground_pos=np.asarray(ground, float).reshape(-1, 3),
         link_a=np.zeros(0, np.int64), link_b=np.zeros(0, np.int64), link_pos=np.zeros((0, 3)),
     )
-    # Body 1 is the fixed rest of the structure: drop its rows.
     lp = to_lp(model, cfg)
-    lp = LinearProgram(lp.c, lp.a_eq[:6], lp.b_eq[:6], lp.a_ub, lp.b_ub, lp.lower, lp.upper)
-    res = solve_highs(lp)
-    return res.status == "optimal" and res.objective <= 1.0 + cfg.tolerance
+    return LinearProgram(lp.c, lp.a_eq[:6], lp.b_eq[:6], lp.a_ub, lp.b_ub, lp.lower, lp.upper)
 
 
 def _rim(p: np.ndarray, n: np.ndarray) -> np.ndarray:

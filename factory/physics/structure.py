@@ -51,6 +51,54 @@ def match(pos_a, axis_a, pos_b, axis_b, tol: float = MATCH_LDU) -> list[tuple[in
     return out
 
 
+def _pairs_within(pos_a, axis_a, pos_b, axis_b, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """All index pairs (i, j) that `match` gives, as two arrays sorted by (i, j): in one tree query
+    instead of one Python list per point."""
+    if len(pos_a) == 0 or len(pos_b) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    near = cKDTree(pos_a).sparse_distance_matrix(cKDTree(pos_b), tol, output_type="ndarray")
+    i, j = near["i"].astype(np.int64), near["j"].astype(np.int64)
+    # sparse_distance_matrix leaves out pairs at distance 0 only when both trees are the same
+    # object; here they never are. It stores pairs with distance <= tol, as query_ball_point.
+    keep = np.einsum("kd,kd->k", axis_a[i], axis_b[j]) > 0.999
+    i, j = i[keep], j[keep]
+    order = np.lexsort((j, i))
+    return i[order], j[order]
+
+
+def connections_at(structure: "Structure", part: Part, rotations: np.ndarray, translations: np.ndarray
+                   ) -> list[list[tuple[int, int, np.ndarray, np.ndarray]]]:
+    """The stud connections one part would make with the structure at each of many poses
+    (rotations (B, 3, 3), translations (B, 3)), each list as `check._unit_connections` gives it for
+    the part alone (numbered `len(structure)`): the structure's studs in the part's sockets, then
+    the part's studs in the structure's sockets, each in `match`'s order. All poses in two tree
+    queries (the sampler and the batched checks ask for thousands at once)."""
+    batch, base = len(rotations), len(structure)
+    out: list[list] = [[] for _ in range(batch)]
+    sp, sa, so = structure.studs
+    kp, ka, ko = structure.sockets
+    for which in ("sockets", "studs"):
+        items = part.sockets if which == "sockets" else part.studs
+        if not items or batch == 0:
+            continue
+        local_p = np.array([c.pos for c in items], float)
+        local_a = np.array([c.axis for c in items], float)
+        k = len(items)
+        pos = (np.einsum("bij,kj->bki", rotations, local_p) + translations[:, None, :]).reshape(-1, 3)
+        axis = np.einsum("bij,kj->bki", rotations, local_a).reshape(-1, 3)
+        if which == "sockets":
+            i, j = _pairs_within(sp, sa, pos, axis, MATCH_LDU)  # structure stud i, candidate socket j
+            owner = j // k
+            order = np.argsort(owner, kind="stable")  # per candidate, still by (i, j)
+            for c, si in zip(owner[order], i[order]):
+                out[c].append((int(so[si]), base, sp[si], sa[si]))
+        else:
+            i, j = _pairs_within(pos, axis, kp, ka, MATCH_LDU)  # candidate stud i, structure socket j
+            for ci, kj in zip(i, j):  # sorted by i, so by candidate, then stud, then socket
+                out[ci // k].append((base, int(ko[kj]), pos[ci], axis[ci]))
+    return out
+
+
 @dataclass
 class Structure:
     """Parts placed so far, with their world connection points, which are occupied, the stud
