@@ -174,13 +174,16 @@ def stud_crosses(pos: np.ndarray, axis: np.ndarray, surface: Surface) -> bool:
     return bool(studs_cross(pos[None], axis[None], surface)[0])
 
 
+_I3 = np.eye(3)
+
+
 def probe_frame(stud_at, stud_pose: Pose, body_part: Part, body_pose: Pose) -> tuple[np.ndarray, np.ndarray, Surface]:
     """(stud base, stud axis, surface) for `studs_cross`: a stud (base and axis in its part's frame,
     `CollisionShape.stud_at`) of a part at `stud_pose` against `body_part` at `body_pose`, in the
     body part's own frame (its surface read once per part, `part_surface`); a scaled or sheared
     placement (rare in LDraw) has its surface moved into the world instead."""
     pos, axis = (np.asarray(v, float) for v in stud_at)
-    if np.allclose(body_pose.R @ body_pose.R.T, np.eye(3), atol=1e-9):
+    if (np.abs(body_pose.R @ body_pose.R.T - _I3) <= 1e-9 + 1e-5 * _I3).all():  # np.allclose(.., atol=1e-9), cheaper
         rel, surface = body_pose.inverse() @ stud_pose, part_surface(body_part)
     else:
         rel, surface = stud_pose, Surface.of(body_pose.apply(body_part.flat.triangles.reshape(-1, 3)))

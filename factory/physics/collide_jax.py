@@ -34,7 +34,7 @@ from factory.parts import Part
 from factory.physics.collide import CONNECTED_SLACK_LDU, NEAR_LDU, Penetration, probe_frame, studs_cross
 from factory.physics.geometry import collision_shape
 from factory.physics.structure import Structure
-from factory.physics.sweep_jax import _Set, _intervals_many, _structure_set, _unit_set, near_pairs
+from factory.physics.sweep_jax import _Set, _intervals_many, _structure_set, _unit_set, near_pairs_threaded
 from factory.pose import Pose
 
 MARGIN_LDU = NEAR_LDU + 0.5
@@ -139,11 +139,11 @@ class _Job:
 
 def _pairs_at(uset: _Set, sset: _Set, sboxes: np.ndarray, rel, R, t, conn):
     """Piece pairs within `MARGIN_LDU` of each other by their boxes at each candidate's pose
-    (`sweep_jax.near_pairs` with no motion), the stud pieces of connected parts left out:
+    (`sweep_jax.near_pairs` with no motion, chunks on threads), the stud pieces of connected parts left out:
     (candidate, unit piece, structure piece, part, connected)."""
     if not len(sboxes) or not len(uset.pieces):
         return (np.zeros(0, np.int64),) * 4 + (np.zeros(0, bool),)
-    return near_pairs(uset, sset, sboxes, rel, R, t, np.zeros_like(t), conn, -MARGIN_LDU, -MARGIN_LDU)
+    return near_pairs_threaded(uset, sset, sboxes, rel, R, t, np.zeros_like(t), conn, -MARGIN_LDU, -MARGIN_LDU)
 
 
 def penetrations(requests: Sequence[tuple]) -> list[list[Penetration]]:
