@@ -520,39 +520,33 @@ while the device computes)."""
 PAIR_THREADS = min(8, os.cpu_count() or 1)
 
 
+def _in_chunks(fn, count: int) -> tuple:
+    """fn(a, b) over candidates a..b-1 in chunks of `PAIR_CHUNK` on `PAIR_THREADS` threads, each
+    returned array joined in candidate order (the same arrays as one call over all gives)."""
+    spans = [(a, min(a + PAIR_CHUNK, count)) for a in range(0, count, PAIR_CHUNK)]
+    if len(spans) <= 1 or PAIR_THREADS <= 1:
+        parts = [fn(a, b) for a, b in spans]
+    else:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(min(PAIR_THREADS, len(spans))) as pool:
+            parts = list(pool.map(lambda span: fn(*span), spans))
+    return tuple(np.concatenate(x) for x in zip(*parts))
+
+
 def near_pairs_threaded(uset: _Set, sset: _Set, sboxes, rel, R, t, d, conn, part_margin: float = 0.0,
                         piece_margin: float = 0.0):
-    """`near_pairs` of all candidates in chunks of `PAIR_CHUNK` over `PAIR_THREADS` threads, joined
-    in candidate order (the same arrays as one call gives)."""
-    def chunk(span):
-        a, b = span
+    """`near_pairs` of all candidates, in chunks on threads (`_in_chunks`)."""
+    def chunk(a, b):
         k, *rest = near_pairs(uset, sset, sboxes, rel, R[a:b], t[a:b], d[a:b], conn[a:b], part_margin, piece_margin)
         return (k + a, *rest)
 
-    spans = [(a, min(a + PAIR_CHUNK, len(R))) for a in range(0, len(R), PAIR_CHUNK)]
-    if len(spans) <= 1 or PAIR_THREADS <= 1:
-        parts = [chunk(span) for span in spans]
-    else:
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(min(PAIR_THREADS, len(spans))) as pool:
-            parts = list(pool.map(chunk, spans))
-    return tuple(np.concatenate(x) for x in zip(*parts))
+    return _in_chunks(chunk, len(R))
 
 
 def _pairs_threaded(uset, sset, sboxes, rel, R, t, d, conn, tol, margin):
-    """`_pairs` of all candidates, in chunks of `PAIR_CHUNK` over `PAIR_THREADS` threads, joined in
-    candidate order (the same arrays as one call gives)."""
-    spans = [(a, min(a + PAIR_CHUNK, len(R))) for a in range(0, len(R), PAIR_CHUNK)]
-    args = (uset, sset, sboxes, rel, R, t, d, conn, tol, margin)
-    if len(spans) == 1 or PAIR_THREADS <= 1:
-        parts = [_pairs(*args, a, b) for a, b in spans]
-    else:
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(min(PAIR_THREADS, len(spans))) as pool:
-            parts = list(pool.map(lambda span: _pairs(*args, *span), spans))
-    return tuple(np.concatenate(x) for x in zip(*parts))
+    """`_pairs` of all candidates, in chunks on threads (`_in_chunks`)."""
+    return _in_chunks(lambda a, b: _pairs(uset, sset, sboxes, rel, R, t, d, conn, tol, margin, a, b), len(R))
 
 
 def sweep_many(
