@@ -258,6 +258,19 @@ def cpu_reference(kind: str, n: int, batch: int, count: int, workers: int) -> tu
     return [x for p in parts for x in p], seconds
 
 
+def _with_reference(row: dict, kind: str, n: int, batch: int, cpu_max: int, cpu_workers: int,
+                    batched: tuple[float, list] | None) -> None:
+    """Add the CPU reference's rate on the batch's first `cpu_max` candidates to `row`, and with
+    `batched` (its seconds for the whole batch, its answers) the speed-up and how many answers
+    agree."""
+    ref, cpu_s = cpu_reference(kind, n, batch, min(cpu_max, batch), cpu_workers)
+    row.update(cpu_workers=cpu_workers, cpu_per_s=round(len(ref) / cpu_s, 1), cpu_compared=len(ref))
+    if batched is not None:
+        seconds, answers = batched
+        row.update(speedup=round(batch / seconds / (len(ref) / cpu_s), 2),
+                   agree=sum(a == b for a, b in zip(ref, answers)))
+
+
 def measure_lp(sizes, batches, log=None, cpu_max: int = 128, cpu_workers: int = 1,
                config: CheckConfig = CheckConfig(), batched: bool = True) -> list[dict]:
     """Load checks per second from the candidates' connections (`load_stage`; the sweep is timed
@@ -288,11 +301,8 @@ def measure_lp(sizes, batches, log=None, cpu_max: int = 128, cpu_workers: int = 
                            fallbacks=lp_jax.FALLBACKS[0] - fallbacks, tipping=sum(v.reason == "unstable" for v in got),
                            overloaded=sum(v.reason == "overload" for v in got))
             if cpu_max:
-                ref, cpu_s = cpu_reference("loads", n, batch, min(cpu_max, batch), cpu_workers)
-                row.update(cpu_workers=cpu_workers, cpu_per_s=round(len(ref) / cpu_s, 1), cpu_compared=len(ref))
-                if batched:
-                    row.update(speedup=round(batch / jax_s / (len(ref) / cpu_s), 2),
-                               agree=sum(a == (b.stands, b.reason) for a, b in zip(ref, got)))
+                _with_reference(row, "loads", n, batch, cpu_max, cpu_workers,
+                                (jax_s, [(v.stands, v.reason) for v in got]) if batched else None)
             rows.append(row)
             if log is not None:
                 log(row)
@@ -319,8 +329,8 @@ def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int
                 t = time.perf_counter()
                 check(s, brick, poses, backend="mjx", config=config, floor_y=24.0, explain=False)  # compiles
                 first_s = time.perf_counter() - t
-                # JAX leaves ~600K long-lived objects after its compiles; a full collection then
-                # takes ~0.3 s. A long-running worker moves them out of the collector's view once.
+                # A process that has compiled with JAX holds many long-lived objects (a sampler
+                # process: 661K, a full collection 0.29 s); moved out of the collector's view.
                 gc.collect()
                 gc.freeze()
                 _ALONE.clear()  # the warm-up's clutch answers: the timed call finds its own
@@ -334,11 +344,8 @@ def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int
                            accepted=sum(v.ok for v in got),
                            reasons=dict(Counter(v.reason for v in got if v.reason)))
             if cpu_max:
-                ref, cpu_s = cpu_reference("whole", n, batch, min(cpu_max, batch), cpu_workers)
-                row.update(cpu_workers=cpu_workers, cpu_per_s=round(len(ref) / cpu_s, 1), cpu_compared=len(ref))
-                if batched:
-                    row.update(speedup=round(batch / gpu_s / (len(ref) / cpu_s), 2),
-                               agree=sum(a == (b.ok, b.reason) for a, b in zip(ref, got)))
+                _with_reference(row, "whole", n, batch, cpu_max, cpu_workers,
+                                (gpu_s, [(v.ok, v.reason) for v in got]) if batched else None)
             rows.append(row)
             if log is not None:
                 log(row)

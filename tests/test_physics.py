@@ -290,17 +290,25 @@ def test_turn_faults_only_where_the_part_fills_another_box():
 
 
 def test_connections_at_many_poses_are_those_found_one_pose_at_a_time():
-    # The batched finder (two tree queries for all poses) against the per-pose matcher, on every
-    # feasible attachment of several part types to a mixed structure: same connections, same order.
-    from factory.physics.check import _unit_connections
-    from factory.physics.structure import connections_at
+    # The batched finder (two tree queries for all poses) against `match` on each pose's
+    # connectors, on every feasible attachment of several part types to a mixed structure: same
+    # connections, same order.
+    from factory.physics.structure import connections_at, connectors, match
+
+    def one_pose(s, p, pose):
+        sp, sa, so = s.studs
+        kp, ka, ko = s.sockets
+        cp, ca = connectors(p, pose, "sockets")
+        out = [(int(so[i]), len(s), sp[i], sa[i]) for i, _ in match(sp, sa, cp, ca)]
+        cp, ca = connectors(p, pose, "studs")
+        return out + [(len(s), int(ko[k]), cp[i], ca[i]) for i, k in match(cp, ca, kp, ka)]
 
     base = Structure([at("3001", 0, 0, 0), at("3020", 10, -24, 0), at("3003", -30, 8, 20),
                       at("3069b", 0, -32, 0), at("3040b", 40, 0, 0)])
     total = 0
     for name in ("3001", "3020", "3069b", "3040b", "3665", "3003"):
         poses = feasible_poses(base, part(name))
-        want = [_unit_connections(base, [(part(name), p)]) for p in poses]
+        want = [one_pose(base, part(name), p) for p in poses]
         got = connections_at(base, part(name), np.array([p.R for p in poses]), np.array([p.t for p in poses]))
         assert len(got) == len(want)
         for g, w in zip(got, want):

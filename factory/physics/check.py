@@ -33,7 +33,7 @@ from factory.physics.mass import part_mass_properties
 from factory.physics.statics import (Failure, Link, LoadBase, LoadConfig, holds_alone_many, judge_many, judge_on_bases,
                                      support_points)
 from factory.physics.sweep import seating_from_connections, sweep
-from factory.physics.structure import Placed, Structure, connections_at, connectors, lowest_point, match
+from factory.physics.structure import Placed, Structure, connections_at, lowest_point
 from factory.physics.unmodelled import may_hold
 from factory.pose import Pose
 
@@ -102,16 +102,9 @@ def _unit_connections(structure: Structure, unit: Sequence[tuple[Part, Pose]]) -
     (stud part, socket part, stud base, stud axis); the unit's parts are numbered after the
     structure's."""
     out = []
-    sp, sa, so = structure.studs
-    kp, ka, ko = structure.sockets
     base = len(structure)
     for j, (part, pose) in enumerate(unit):
-        cp, ca = connectors(part, pose, "sockets")
-        for i, _ in match(sp, sa, cp, ca):
-            out.append((int(so[i]), base + j, sp[i], sa[i]))
-        cp, ca = connectors(part, pose, "studs")
-        for i, k in match(cp, ca, kp, ka):
-            out.append((base + j, int(ko[k]), cp[i], ca[i]))
+        out += connections_at(structure, part, pose.R[None], pose.t[None], base + j)[0]
     if len(unit) > 1:
         inner = Structure([Placed(part, 16, pose) for part, pose in unit])
         out += [(base + a, base + b, p, n) for a, b, p, n in inner.connections]
@@ -201,8 +194,9 @@ def _run_calls(calls: "Sequence[_Call]", backend: str) -> list[list[Verdict]]:
         # The clutch rule of every call: the closed form on the host, the programs in one launch.
         cases = [c.clutch_cases() for c in calls]
         t0 = time.perf_counter()
-        flat = [x for cs in cases for x in cs]
-        holds = iter(holds_alone_many(flat, calls[0].config.loads, _lp_jax(backend).solve_batch) if flat else [])
+        # One config for every call: check_many passes its own to each.
+        holds = iter(holds_alone_many([x for cs in cases for x in cs], calls[0].config.loads,
+                                      _lp_jax(backend).solve_batch))
         STAGE_SECONDS["clutch"] += time.perf_counter() - t0
         for c, cs in zip(calls, cases):
             c.clutched([next(holds) for _ in cs])
@@ -242,11 +236,11 @@ class _Call:
         self.to_collide: list[tuple] = []
         self.to_clutch: list[tuple] = []
         if len(first) == 1:  # one part at many poses: every candidate's connections in one query
-            found = connections_at(structure, first[0].part, np.array([u[0].pose.R for u in units]),
-                                   np.array([u[0].pose.t for u in units]))
+            each = connections_at(structure, first[0].part, np.array([u[0].pose.R for u in units]),
+                                  np.array([u[0].pose.t for u in units]))
         for k, unit in enumerate(units):
             world = [(p.part, p.pose) for p in unit]
-            conns = found[k] if len(first) == 1 else _unit_connections(structure, world)
+            conns = each[k] if len(first) == 1 else _unit_connections(structure, world)
             outer = [c for c in conns if min(c[0], c[1]) < base_n]
             self.to_collide.append((k, unit, world, conns, outer, {min(c[0], c[1]) for c in outer}))
         STAGE_SECONDS["rules"] += time.perf_counter() - t0
@@ -278,7 +272,7 @@ class _Call:
         that collide or connect to nothing; the rest queued for the clutch rule (`clutch_cases`,
         `clutched`: for 'mjx' the programs of every call go to the device together)."""
         t0 = time.perf_counter()
-        structure, config, floor_y, base_n = self.structure, self.config, self.floor_y, self.base_n
+        structure, config, base_n = self.structure, self.config, self.base_n
         self.to_clutch = []
         for (k, unit, world, conns, outer, touched), pen in zip(self.to_collide, found):
             depth, near = pen.depth, pen.near

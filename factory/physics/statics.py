@@ -616,32 +616,32 @@ def holds_alone_many(cases: Sequence[tuple], cfg: LoadConfig = LoadConfig(),
     mass (positions relative to it, rounded to 1e-6 LDU) and its answer kept (`_ALONE`): the
     sampler's candidates of one part repeat configurations (2x4 bricks on a 30-brick wall: 819
     cases, 174 distinct), so most never reach a program."""
-    keys = [_alone_key(*case) for case in cases]
+    keys = [(_alone_key(*case), cfg) for case in cases]
+    answers = {key: _ALONE[key] for key in keys if key in _ALONE}
     programs: dict[tuple, LinearProgram] = {}
     for key in keys:
-        if (key, cfg) in _ALONE or key in programs:
+        if key in answers or key in programs:
             continue
-        mass_kg, conns, ground = _alone_unkey(key)
+        mass_kg, conns, ground = _alone_unkey(key[0])
         verdict = _closed_form(mass_kg, np.zeros(3), conns, ground, cfg)
         if verdict is None:
             programs[key] = _alone_program(mass_kg, np.zeros(3), conns, ground, cfg)
         else:
-            _remember((key, cfg), verdict)
+            answers[key] = verdict
     if programs:
         results = (solve or (lambda lps: [solve_highs(lp) for lp in lps]))(list(programs.values()))
         for key, res in zip(programs, results):
-            _remember((key, cfg), res.status == "optimal" and res.objective <= 1.0 + cfg.tolerance)
-    return [_ALONE[(k, cfg)] for k in keys]
-
-
-_ALONE: dict = {}
-"""`holds_alone` answers by case relative to its centre of mass (`holds_alone_many`)."""
-
-
-def _remember(key, verdict: bool) -> None:
-    if len(_ALONE) >= 65536:
+            answers[key] = res.status == "optimal" and res.objective <= 1.0 + cfg.tolerance
+    if len(_ALONE) + len(answers) > ALONE_KEPT:
         _ALONE.clear()
-    _ALONE[key] = bool(verdict)
+    _ALONE.update(answers)
+    return [bool(answers[key]) for key in keys]
+
+
+ALONE_KEPT = 65536
+"""Most `holds_alone` answers kept (`_ALONE`); past it they are dropped and found again."""
+_ALONE: dict = {}
+"""`holds_alone` answers by (case relative to its centre of mass, config) (`holds_alone_many`)."""
 
 
 def _alone_key(mass_kg, com, conns, ground) -> tuple:
@@ -709,8 +709,3 @@ def _alone_program(mass_kg, com, conns, ground, cfg: LoadConfig) -> LinearProgra
     )
     lp = to_lp(model, cfg)
     return LinearProgram(lp.c, lp.a_eq[:6], lp.b_eq[:6], lp.a_ub, lp.b_ub, lp.lower, lp.upper)
-
-
-def _rim(p: np.ndarray, n: np.ndarray) -> np.ndarray:
-    e1, e2 = _basis(np.asarray(n, float)[None])
-    return np.asarray(p) + STUD_RADIUS * np.stack([e1[0], -e1[0], e2[0], -e2[0]])

@@ -66,14 +66,14 @@ def _pairs_within(pos_a, axis_a, pos_b, axis_b, tol: float) -> tuple[np.ndarray,
     return i[order], j[order]
 
 
-def connections_at(structure: "Structure", part: Part, rotations: np.ndarray, translations: np.ndarray
-                   ) -> list[list[tuple[int, int, np.ndarray, np.ndarray]]]:
+def connections_at(structure: "Structure", part: Part, rotations: np.ndarray, translations: np.ndarray,
+                   number: int | None = None) -> list[list[tuple[int, int, np.ndarray, np.ndarray]]]:
     """The stud connections one part would make with the structure at each of many poses
-    (rotations (B, 3, 3), translations (B, 3)), each list as `check._unit_connections` gives it for
-    the part alone (numbered `len(structure)`): the structure's studs in the part's sockets, then
-    the part's studs in the structure's sockets, each in `match`'s order. All poses in two tree
-    queries (the sampler and the batched checks ask for thousands at once)."""
-    batch, base = len(rotations), len(structure)
+    (rotations (B, 3, 3), translations (B, 3)), as (stud part, socket part, stud base, stud axis)
+    with the part numbered `number` (default `len(structure)`): the structure's studs in the
+    part's sockets, then the part's studs in the structure's sockets, each in `match`'s order.
+    All poses in two tree queries (the sampler and the batched checks ask for thousands at once)."""
+    batch, base = len(rotations), len(structure) if number is None else number
     out: list[list] = [[] for _ in range(batch)]
     sp, sa, so = structure.studs
     kp, ka, ko = structure.sockets
