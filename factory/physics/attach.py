@@ -26,6 +26,21 @@ def _rotation_key(part: Part, r: np.ndarray) -> tuple:
     return min(tuple(np.round(r @ s, 4).ravel().tolist()) for s in part.symmetry.rotations)
 
 
+def _first_rows(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(indices of each distinct row's first occurrence, ascending; each row's group: the rank of
+    its row's first occurrence). A stable sort keeps equal rows in their order."""
+    order = np.lexsort(keys.T[::-1])
+    k = keys[order]
+    new = np.ones(len(k), bool)
+    new[1:] = (k[1:] != k[:-1]).any(axis=1)
+    firsts = order[new]
+    rank = np.empty(len(firsts), np.int64)
+    rank[np.argsort(firsts, kind="stable")] = np.arange(len(firsts))
+    group = np.empty(len(k), np.int64)
+    group[order] = rank[np.cumsum(new) - 1]
+    return np.sort(firsts), group
+
+
 def attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarray, np.ndarray]:
     """Rotations (n, 3, 3) and translations (n, 3) of the feasible attachments (module docstring)."""
     stud_busy, sock_busy = structure.occupied()
@@ -43,11 +58,10 @@ def attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarray, np.
     for plan_i, (q, b, targets, axes) in enumerate(plans):
         if len(targets) == 0:
             continue
-        groups: dict[tuple, list[int]] = {}
-        for j, a in enumerate(np.round(axes, 9)):
-            groups.setdefault(tuple(a.tolist()), []).append(j)
-        for _, members in groups.items():
-            idx = np.array(members)
+        # Targets by axis (rounded), groups in order of first occurrence.
+        _, group = _first_rows(np.round(axes, 9))
+        for g in range(int(group.max()) + 1):
+            idx = np.flatnonzero(group == g)
             a = axes[idx[0]]
             base = align(b, a)
             vertical = np.allclose(a, [0, -1, 0]) or np.allclose(a, [0, 1, 0])
@@ -74,8 +88,7 @@ def attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarray, np.
     rot_index, t, rid = rot_index[perm], t[perm], rid[perm]
     tkey = np.round(np.round(t, 3) * 1000).astype(np.int64)
     keys = np.concatenate([rid[:, None].astype(np.int64), tkey], axis=1)
-    _, first = np.unique(keys, axis=0, return_index=True)
-    first = np.sort(first)
+    first, _ = _first_rows(keys)
     return np.stack(rots)[rot_index[first]], t[first]
 
 

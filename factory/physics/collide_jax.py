@@ -102,10 +102,11 @@ class _Job:
     def _below_ground(self) -> np.ndarray:
         """Per candidate: how far its pieces (plus their inset) reach below the ground."""
         uset = self.uset
-        if not uset.pieces:
+        if not uset.n:
             return np.zeros(len(self.poses))
-        verts = np.concatenate([p.verts for p in uset.pieces])
-        inset = np.repeat(uset.inset, [len(p.verts) for p in uset.pieces])
+        # Every bucket's padded vertices: padding repeats a vertex of the piece.
+        verts = np.concatenate([v.reshape(-1, 3) for v, _ in uset.verts])
+        inset = np.concatenate([np.repeat(i, v.shape[1]) for v, i in uset.verts])
         y = np.einsum("kj,vj->kv", self.R[:, 1], verts) + self.t[:, 1:2]  # LDraw y points down
         return np.maximum((y - self.floor_y + inset).max(axis=1), 0.0)
 
@@ -141,7 +142,7 @@ def _pairs_at(uset: _Set, sset: _Set, sboxes: np.ndarray, rel, R, t, conn):
     """Piece pairs within `MARGIN_LDU` of each other by their boxes at each candidate's pose
     (`sweep_jax.near_pairs` with no motion, chunks on threads), the stud pieces of connected parts left out:
     (candidate, unit piece, structure piece, part, connected)."""
-    if not len(sboxes) or not len(uset.pieces):
+    if not len(sboxes) or not uset.n:
         return (np.zeros(0, np.int64),) * 4 + (np.zeros(0, bool),)
     return near_pairs_threaded(uset, sset, sboxes, rel, R, t, np.zeros_like(t), conn, -MARGIN_LDU, -MARGIN_LDU)
 

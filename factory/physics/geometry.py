@@ -31,6 +31,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
 from factory.connections import STUD_HEIGHT, STUD_RADIUS
+from factory.cache import cache_root
 from factory.parts import Part
 
 INSET_LDU = 0.25
@@ -71,9 +72,8 @@ class DecompositionConfig:
 
 
 def cache_dir() -> Path:
-    """Where decompositions are cached: `$BRICK_FACTORY_CACHE` or `~/.cache/brick-factory`."""
-    root = os.environ.get("BRICK_FACTORY_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "brick-factory")
-    return Path(root) / "coacd"
+    """Where decompositions are cached: `coacd/` in the factory's cache folder (`factory.cache`)."""
+    return cache_root() / "coacd"
 
 
 @dataclass(frozen=True, eq=False)

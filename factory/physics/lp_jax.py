@@ -71,11 +71,14 @@ import numpy as np
 import scipy.sparse as sp
 from jax import lax
 
+from factory.physics.jax_cache import enable as enable_compile_cache
 from factory.physics.lp import LinearProgram, LPResult, solve_highs
 from factory.physics.mass import GRAVITY, part_mass_properties
 from factory.physics.statics import (LEVER_LDU, PER_CONNECTION, PER_LINK, PER_SUPPORT, LoadBase, LoadConfig, LoadModel,
                                      _connection_arrays, capacity_rows, connection_columns, layout, link_columns,
                                      support_columns, support_points, to_lp)
+
+enable_compile_cache()  # before this module's first compile
 
 MAX_ITERATIONS = 80
 """Iterations after which a member that has not converged is "error" (or goes to HiGHS)."""

@@ -62,6 +62,7 @@ from scipy.spatial import ConvexHull
 from factory.parts import Part
 from factory.physics.collide import CONNECTED_SLACK_LDU, CollisionScene
 from factory.physics.geometry import INSET_LDU, collision_shape
+from factory.physics.jax_cache import enable as enable_compile_cache
 from factory.physics.keep_last import KeepLast
 from factory.physics.structure import Structure
 from factory.physics.sweep import (MIN_STEP_LDU, SweepResult, _boxes, _overlap_intervals, approaches_from,
@@ -97,10 +98,6 @@ class _Piece:
     prism: np.ndarray
     """(3, 3): up to three directions along which the piece is a right prism (zero rows pad)."""
 
-    def moved(self, R: np.ndarray, t: np.ndarray) -> "_Piece":
-        return _Piece(self.verts @ R.T + t, self.normals @ R.T, self.edges @ R.T, self.stud, self.inset,
-                      self.prism @ R.T)
-
     @property
     def bucket(self) -> tuple[int, int, int]:
         """Padded (vertices, normals, edges): the first of `LEVELS` that holds the piece, else
@@ -121,6 +118,7 @@ def _on_gpu() -> bool:
     """Whether JAX's default device is a GPU (asked at the first launch, not at import)."""
     import jax
 
+    enable_compile_cache()
     return jax.default_backend() == "gpu"
 
 
@@ -180,69 +178,115 @@ def _prism_axes(normals: np.ndarray, edges: np.ndarray) -> np.ndarray:
     return out
 
 
+def _padded(pieces: Sequence[_Piece]) -> dict[tuple, tuple]:
+    """The pieces grouped by bucket: {bucket: (piece indices, vertices, normals, edges)}, each
+    piece's arrays padded to the bucket's sizes by repeating its first row (which changes no
+    extreme value)."""
+    def pad(a: np.ndarray, n: int) -> np.ndarray:
+        return np.concatenate([a, np.repeat(a[:1], n - len(a), 0)])
+
+    out: dict[tuple, list] = {}
+    for i, p in enumerate(pieces):
+        out.setdefault(p.bucket, []).append(i)
+    return {b: (np.array(idx, np.int64),
+                *(np.stack([pad(getattr(pieces[i], name), n) for i in idx]) for name, n in zip(("verts", "normals", "edges"), b)))
+            for b, idx in out.items()}
+
+
+@dataclass(frozen=True, eq=False)
+class _Template:
+    """One part's collision pieces (body, then studs) in its frame, laid out once for `_Set`."""
+
+    stud: np.ndarray
+    inset: np.ndarray
+    prism: np.ndarray
+    centres: np.ndarray
+    """Each piece's centre as the scene's coincidence test takes it (the mean of its vertices)."""
+    rows: dict
+    """`_padded` of the pieces."""
+
+
 _SHAPES: dict[int, tuple] = {}
 
 
-def _pieces_of(part: Part) -> tuple[list[_Piece], np.ndarray]:
-    """The part's collision pieces (body, then studs), in its frame, and each piece's centre as
-    the scene's coincidence test takes it (the mean of its vertices)."""
+def _template(part: Part) -> _Template:
     shape = collision_shape(part)
     if id(shape) not in _SHAPES:
         pieces = [_piece(v, False, shape.body_inset) for v in shape.body]
         pieces += [_piece(v, True, INSET_LDU) for v in shape.studs]
         centres = np.array([v.mean(axis=0) for v in (*shape.body, *shape.studs)]).reshape(-1, 3)
-        _SHAPES[id(shape)] = (shape, pieces, centres)  # the shape is kept, so its id is not reused
-    return _SHAPES[id(shape)][1], _SHAPES[id(shape)][2]
+        template = _Template(np.array([p.stud for p in pieces], bool), np.array([p.inset for p in pieces]),
+                             np.stack([p.prism for p in pieces]) if pieces else np.zeros((0, 3, 3)), centres,
+                             _padded(pieces))
+        _SHAPES[id(shape)] = (shape, template)  # the shape is kept, so its id is not reused
+    return _SHAPES[id(shape)][1]
 
 
-@dataclass
 class _Set:
-    """Placed pieces (world or unit frame) with their owner, grouped into padded bucket tables."""
+    """Placed pieces (world or unit frame) with their owner, grouped into padded bucket tables.
 
-    pieces: list[_Piece]
-    centres: np.ndarray
-    owner: np.ndarray
-    """Index of the part (structure) or member (unit) owning each piece."""
-    owners: int
+    `rows`: {bucket: (piece indices, ascending; vertices, normals, edges padded to the bucket)}."""
 
-    def __post_init__(self):
-        self.stud = np.array([p.stud for p in self.pieces], bool)
-        self.inset = np.array([p.inset for p in self.pieces])
-        self.prism = np.stack([p.prism for p in self.pieces]) if self.pieces else np.zeros((0, 3, 3))
-        v = [p.verts for p in self.pieces]
-        self.box = np.stack([[x.min(0), x.max(0)] for x in v]) if v else np.zeros((0, 2, 3))
+    def __init__(self, stud: np.ndarray, inset: np.ndarray, prism: np.ndarray, centres: np.ndarray,
+                 owner: np.ndarray, owners: int, rows: dict):
+        self.stud, self.inset, self.prism, self.centres = stud, inset, prism, centres
+        self.owner, self.owners, self.n = owner, owners, len(stud)
+        self.box = np.zeros((self.n, 2, 3))
+        for idx, verts, _, _ in rows.values():
+            self.box[idx, 0], self.box[idx, 1] = verts.min(axis=1), verts.max(axis=1)
         self.start = np.searchsorted(self.owner, np.arange(self.owners + 1))  # pieces by owner
         # The box around each owner's pieces (an empty box where it has none).
         self.owner_box = np.empty((self.owners, 2, 3))
         self.owner_box[:, 0], self.owner_box[:, 1] = np.inf, -np.inf
         np.minimum.at(self.owner_box[:, 0], self.owner, self.box[:, 0])
         np.maximum.at(self.owner_box[:, 1], self.owner, self.box[:, 1])
-        buckets = [p.bucket for p in self.pieces]
-        self.buckets = sorted(set(buckets))
-        self.bucket_of = np.array([self.buckets.index(b) for b in buckets], np.int64)
-        self.local = np.zeros(len(self.pieces), np.int64)
+        self.buckets = sorted(rows)
+        self.bucket_of = np.zeros(self.n, np.int64)
+        self.local = np.zeros(self.n, np.int64)
         self.tables = []
-        for b, (nv, nf, ne) in enumerate(self.buckets):
-            idx = np.flatnonzero(self.bucket_of == b)
+        self.verts = []
+        for b, shape in enumerate(self.buckets):
+            idx, verts, normals, edges = rows[shape]
+            self.bucket_of[idx] = b
             self.local[idx] = np.arange(len(idx))
-            rows = _pow2(len(idx), MIN_ROWS)
-            pick = np.concatenate([idx, np.full(rows - len(idx), idx[0])])
-            # Padding repeats a piece's first vertex, normal or edge: it changes no extreme value.
-            self.tables.append(tuple(np.stack([np.concatenate([a, np.repeat(a[:1], n - len(a), 0)])
-                                               for a in (getattr(self.pieces[i], name) for i in pick)])
-                                     for name, n in (("verts", nv), ("normals", nf), ("edges", ne)))
-                               + (self.centres[pick],))
+            pad = _pow2(len(idx), MIN_ROWS) - len(idx)
+            # Padding rows repeat the bucket's first piece.
+            self.tables.append(tuple(np.concatenate([a, np.repeat(a[:1], pad, 0)])
+                                     for a in (verts, normals, edges, self.centres[idx])))
+            self.verts.append((verts, self.inset[idx]))
+
+    @classmethod
+    def of_pieces(cls, pieces: Sequence[_Piece], centres: np.ndarray, owner: np.ndarray, owners: int) -> "_Set":
+        return cls(np.array([p.stud for p in pieces], bool), np.array([p.inset for p in pieces]),
+                   np.stack([p.prism for p in pieces]) if pieces else np.zeros((0, 3, 3)), centres, owner, owners,
+                   _padded(pieces))
 
 
 def _set_of(items: Sequence[tuple[Part, Pose]]) -> _Set:
-    pieces, centres, owner = [], [], []
-    for i, (part, pose) in enumerate(items):
-        ps, cs = _pieces_of(part)
-        pieces += [p.moved(pose.R, pose.t) for p in ps]
-        centres.append(pose.apply(cs) if len(cs) else np.zeros((0, 3)))
-        owner += [i] * len(ps)
-    return _Set(pieces, np.concatenate(centres) if centres else np.zeros((0, 3)), np.array(owner, np.int64),
-                len(items))
+    """The pieces of parts at poses: each part's `_Template` turned and moved, every bucket's rows
+    in one product."""
+    temps = [_template(part) for part, _ in items]
+    counts = np.array([len(t.stud) for t in temps], np.int64)
+    n = int(counts.sum())
+    owner = np.repeat(np.arange(len(items)), counts)
+    if not n:
+        return _Set(np.zeros(0, bool), np.zeros(0), np.zeros((0, 3, 3)), np.zeros((0, 3)), owner, len(items), {})
+    RT = np.stack([pose.R.T for _, pose in items])
+    t = np.stack([pose.t for _, pose in items])
+    first = np.cumsum(counts) - counts
+    centres = np.matmul(np.concatenate([tp.centres for tp in temps])[:, None], RT[owner])[:, 0] + t[owner]
+    prism = np.matmul(np.concatenate([tp.prism for tp in temps]), RT[owner])
+    gathered: dict[tuple, list] = {}
+    for i, tp in enumerate(temps):
+        for b, (idx, verts, normals, edges) in tp.rows.items():
+            gathered.setdefault(b, []).append((idx + first[i], verts, normals, edges, np.full(len(idx), i)))
+    rows = {}
+    for b, chunks in gathered.items():
+        idx, verts, normals, edges, who = (np.concatenate(x) for x in zip(*chunks))
+        rt = RT[who]
+        rows[b] = (idx, np.matmul(verts, rt) + t[who][:, None], np.matmul(normals, rt), np.matmul(edges, rt))
+    return _Set(np.concatenate([tp.stud for tp in temps]), np.concatenate([tp.inset for tp in temps]), prism,
+                centres, owner, len(items), rows)
 
 
 _STRUCTURE, _UNIT = KeepLast(), KeepLast()
@@ -277,6 +321,8 @@ def _kernel():
     if _KERNEL is None:
         import jax
         import jax.numpy as jnp
+
+        enable_compile_cache()
 
         def interval(av, bv, axes, valid, d, thr):
             """Open interval of s where every axis's two overlaps of (A - s d) and B exceed thr."""
@@ -440,8 +486,8 @@ def exact_intervals(a: Sequence[np.ndarray], b: Sequence[np.ndarray], d: np.ndar
     """(n, 2): for convex point sets a[i], b[i] (world), the open interval of s where the depth of
     a[i] moved by -s d[i] into b[i] exceeds thr[i] >= 0 (empty: hi <= lo). For tests and checks."""
     n = len(a)
-    ua = _Set([_piece(v, False, 0.0) for v in a], np.array([v.mean(0) for v in a]), np.arange(n), n)
-    sb = _Set([_piece(v, False, 0.0) for v in b], np.array([v.mean(0) for v in b]), np.arange(n), n)
+    ua = _Set.of_pieces([_piece(v, False, 0.0) for v in a], np.array([v.mean(0) for v in a]), np.arange(n), n)
+    sb = _Set.of_pieces([_piece(v, False, 0.0) for v in b], np.array([v.mean(0) for v in b]), np.arange(n), n)
     idx = np.arange(n)
     R, t = np.repeat(np.eye(3)[None], n, 0), np.zeros((n, 3))
     (res,) = _intervals_many([(ua, sb, R, t, np.asarray(d, float), idx, idx, idx, np.asarray(thr, float),

@@ -35,11 +35,22 @@ def part_hull_points(part: Part) -> np.ndarray:
 
 def hull_volume(points: np.ndarray) -> tuple[float, np.ndarray]:
     """(volume, hull vertices) of a point set; (0, points) when it is flat or too small."""
+    volume, vertices, _ = _hull(points)
+    return volume, vertices
+
+
+def _hull(points: np.ndarray) -> tuple[float, np.ndarray, np.ndarray | None]:
+    """`hull_volume` and the hull's facet planes (n . x + d <= 0 inside; None without a hull)."""
     try:
         h = ConvexHull(points)
     except (QhullError, ValueError):
-        return 0.0, points
-    return float(h.volume), points[h.vertices]
+        return 0.0, points, None
+    return float(h.volume), points[h.vertices], h.equations
+
+
+INSIDE_LDU = 1e-9
+"""A candidate point this close to the inside of the hull's every facet plane is inside: it
+changes neither the hull nor its volume."""
 
 
 class DensityTracker:
@@ -48,20 +59,42 @@ class DensityTracker:
     def __init__(self):
         self.volume = 0.0
         self.points = np.zeros((0, 3))
+        self.hull_volume = 0.0
+        self.planes: np.ndarray | None = None
 
     def add(self, part: Part, pose: Pose) -> float:
         self.volume += part.volume_ldu3
-        _, self.points = hull_volume(np.concatenate([self.points, pose.apply(part_hull_points(part))]))
+        self.hull_volume, self.points, self.planes = _hull(np.concatenate([self.points, pose.apply(part_hull_points(part))]))
         return self.density()
 
     def density(self) -> float:
-        hull, _ = hull_volume(self.points)
-        return self.volume / hull if hull > 0 else 0.0
+        return self.volume / self.hull_volume if self.hull_volume > 0 else 0.0
+
+    def densities_with(self, part: Part, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """`density_with` at each of n poses (R (n, 3, 3), t (n, 3)): a candidate whose points all
+        lie inside the current hull leaves it as it is (no hull to compute); for the rest, the
+        hull of the current hull's vertices and the candidate's points outside it."""
+        pts = np.einsum("nij,pj->npi", R, part_hull_points(part)) + t[:, None]
+        volume = self.volume + part.volume_ldu3
+        out = np.zeros(len(pts))
+        if self.planes is None:
+            for i, p in enumerate(pts):
+                hull, _ = hull_volume(np.concatenate([self.points, p]))
+                out[i] = volume / hull if hull > 0 else 0.0
+            return out
+        normal, offset = self.planes[:, :3].T, self.planes[:, 3]
+        for i, p in enumerate(pts):
+            outside = ((p @ normal + offset) > INSIDE_LDU).any(axis=1)
+            if not outside.any():
+                out[i] = volume / self.hull_volume
+                continue
+            hull, _ = hull_volume(np.concatenate([self.points, p[outside]]))
+            out[i] = volume / hull if hull > 0 else 0.0
+        return out
 
     def density_with(self, part: Part, pose: Pose) -> float:
         """The density after adding `part` at `pose` (the tracker is not changed)."""
-        hull, _ = hull_volume(np.concatenate([self.points, pose.apply(part_hull_points(part))]))
-        return (self.volume + part.volume_ldu3) / hull if hull > 0 else 0.0
+        return float(self.densities_with(part, pose.R[None], pose.t[None])[0])
 
 
 def density(placed: Iterable[tuple[Part, Pose]]) -> float:

@@ -136,7 +136,7 @@ class Sampler:
                 # logit + Gumbel noise. Checking candidates in decreasing order of that key and taking
                 # the first survivor chooses exactly as a softmax over all survivors would, whatever
                 # the batch size, and spares the checks of the candidates after it.
-                dens = np.array([tracker.density_with(part, pose) for pose in poses])
+                dens = tracker.densities_with(part, r, t)
                 n = len(steps) + 1  # parts after placement
                 logits = cfg.density_weight * n * np.log(np.maximum(dens, 1e-12)) / cfg.temperature
                 key = logits + rng.gumbel(size=len(poses))
