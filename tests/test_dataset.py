@@ -358,3 +358,90 @@ def test_lockstep_build_gives_the_same_bytes_and_keeps_grown_objects(built, tmp_
         build(config, tmp_path / "bad", batch=0, progress=False)
     with pytest.raises(ValueError, match="growers must be an integer >= 1"):
         build(config, tmp_path / "bad", batch=2, growers=0, progress=False)
+
+
+def _children(pid: int) -> list[int]:
+    """Live (not zombie) processes whose parent is `pid`, from /proc."""
+    found = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                stat = (d / "stat").read_text()
+            except OSError:
+                continue
+            fields = stat.rsplit(")", 1)[1].split()
+            if int(fields[1]) == pid and fields[0] != "Z":
+                found.append(int(d.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc; the parent-death signal is Linux's")
+def test_workers_end_with_a_killed_build(tmp_path):
+    """`kill -9` of a `synth --workers 2` ends its worker processes too (they used to finish their
+    shards and then wait forever, holding memory)."""
+    out = tmp_path / "orphans"
+    cmd = [sys.executable, "-m", "pipelines.synth", *CLI_ARGS, "--out", str(out), "--no-progress", "--workers", "2"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    workers: list[int] = []
+    try:
+        deadline = time.time() + 120
+        while True:
+            workers = [p for p in _children(proc.pid)
+                       if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()]
+            if len(workers) == 2:
+                break
+            assert proc.poll() is None, "the build ended before its workers started"
+            assert time.time() < deadline, "no two workers within 120 s"
+            time.sleep(0.05)
+    finally:
+        proc.kill()
+        proc.wait()
+    deadline = time.time() + 30
+    while any(_alive(p) for p in workers) and time.time() < deadline:
+        time.sleep(0.1)
+    left = [p for p in workers if _alive(p)]
+    for p in left:
+        os.kill(p, signal.SIGKILL)
+    assert not left, f"workers {left} outlived their killed parent"
+
+
+def test_worker_processes_are_numbered_for_the_gpus():
+    """The build's workers get distinct numbers (`factory.gpus.SLOT_ENV`), which pick their share
+    of the GPUs."""
+    from pipelines.dataset.build import _worker_pool
+
+    with _worker_pool(2) as pool:
+        slots = set(pool.map(_slot_after, [0.5] * 6))
+    assert slots == {"0", "1"}
+
+
+def _slot_after(seconds: float) -> str:
+    time.sleep(seconds)  # keeps this worker busy so that the other takes the next task
+    from factory import gpus
+
+    return os.environ[gpus.SLOT_ENV]
+
+
+def test_gpu_share_of_a_numbered_worker(monkeypatch):
+    from factory import gpus
+
+    monkeypatch.delenv("MUJOCO_EGL_DEVICE_ID", raising=False)
+    monkeypatch.setattr(gpus, "count", lambda: 2)
+    monkeypatch.setenv(gpus.SLOT_ENV, "3")
+    assert gpus.choose_egl_device() == 1 and os.environ["MUJOCO_EGL_DEVICE_ID"] == "1"
+    monkeypatch.setenv("MUJOCO_EGL_DEVICE_ID", "0")  # the user's choice wins
+    assert gpus.choose_egl_device() is None and os.environ["MUJOCO_EGL_DEVICE_ID"] == "0"
+    monkeypatch.delenv("MUJOCO_EGL_DEVICE_ID")
+    monkeypatch.setattr(gpus, "count", lambda: 1)  # one GPU: nothing to choose
+    assert gpus.choose_egl_device() is None and "MUJOCO_EGL_DEVICE_ID" not in os.environ
+    monkeypatch.delenv(gpus.SLOT_ENV)
+    monkeypatch.setattr(gpus, "count", lambda: 4)  # not a numbered worker
+    assert gpus.choose_egl_device() is None

@@ -429,3 +429,24 @@ def test_osmesa_fallback_renders_the_step(tmp_path):
     after = np.asarray(Image.open(tmp_path / "after.png").convert("RGB")).astype(int)
     red = (after[..., 0] > 200) & (after[..., 1] < 60) & (after[..., 2] < 60)
     assert red.sum() > 20, "the red box around the new part is drawn"
+
+
+def test_kept_glyph_masks_draw_what_pil_draws():
+    """`compose.text` (glyph masks kept across calls) gives the pixels of `ImageDraw.text` for the
+    labels the renders draw, at every font size they use, on a busy background, drawn twice."""
+    from PIL import Image, ImageDraw
+
+    from factory.render import compose
+
+    rng = np.random.default_rng(0)
+    labels = ["0", "-20", "140", "12.5", "X (LDU)", "-Y (LDU)", "Brick 3", "front", "Catalog", "+Z"]
+    for size in (9, 10, 12, 14, 20, 28):
+        base = rng.integers(0, 256, size=(60, 160, 3), dtype=np.uint8)
+        for fill in (compose.INK, (220, 30, 30)):
+            a, b = Image.fromarray(base), Image.fromarray(base)
+            da, db = ImageDraw.Draw(a), ImageDraw.Draw(b)
+            for k, s in enumerate(labels * 2):
+                xy = (int(rng.integers(-5, 150)), int(rng.integers(-5, 50)))
+                da.text(xy, s, fill=fill, font=compose.font(size))
+                compose.text(db, xy, s, size, fill)
+            assert np.array_equal(np.asarray(a), np.asarray(b)), (size, fill)

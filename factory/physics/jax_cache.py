@@ -16,11 +16,14 @@ MIN_COMPILE_SECONDS = 0.1
 
 @cache
 def enable() -> str:
-    """Point JAX at the cache (once per process, before the first compile); returns the folder."""
+    """Point JAX at the cache (once per process, before the first compile); returns the folder.
+    A numbered worker also takes its share of the GPUs here (`factory.gpus`)."""
     import jax
 
+    from factory import gpus
     from factory.cache import cache_root
 
+    gpus.choose_jax_device(jax)
     path = os.environ.get("JAX_COMPILATION_CACHE_DIR") or str(cache_root() / "jax")
     jax.config.update("jax_compilation_cache_dir", path)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)

@@ -19,6 +19,8 @@ import os
 import sys
 import weakref
 
+from factory import gpus
+
 _INSTALL_HINT = (
     "install Mesa's EGL (Debian/Ubuntu: apt-get install libegl1 libgl1-mesa-dri) for MUJOCO_GL=egl, "
     "or OSMesa (apt-get install libosmesa6) and set MUJOCO_GL=osmesa"
@@ -71,6 +73,8 @@ class Context:
 
     def __init__(self):
         backend = configure()
+        if backend == "egl":
+            gpus.choose_egl_device()  # this worker's share of the machine's GPUs
         try:
             if backend == "egl":
                 from mujoco.egl import GLContext

@@ -8,14 +8,20 @@ gallery from the completion markers and the data files.
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import json
+import multiprocessing
 import os
+import signal
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from contextlib import ExitStack, contextmanager
 from importlib import metadata
 from pathlib import Path
 
+from factory import gpus
 from factory.atomic import write_atomic
 from pipelines.dataset.config import (
     SCHEMA_VERSION,
@@ -79,6 +85,34 @@ def _worker_env() -> dict[str, str]:
     return {k: os.environ[k] for k in (*ENV_FOR_WORKERS, *ONE_THREAD) if k in os.environ}
 
 
+def _worker_pool(workers: int) -> ProcessPoolExecutor:
+    """The local build's worker processes: spawned (a fresh interpreter each, no GL or MuJoCo state
+    forked from this process), one numeric thread each, numbered in start order so that they
+    spread over the machine's GPUs (`factory.gpus`), and ended with this process."""
+    _one_thread_each()
+    ctx = multiprocessing.get_context("spawn")
+    return ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_start_worker,
+                               initargs=(ctx.Value("i", 0), os.getpid()))
+
+
+_PR_SET_PDEATHSIG = 1
+
+
+def _start_worker(counter, parent: int) -> None:
+    """A worker's set-up: its number (`gpus.SLOT_ENV`), and on Linux a SIGTERM when its parent
+    dies (a killed build used to leave its workers running: they finished their shards and then
+    waited forever, holding memory and, on a GPU machine, GPU memory)."""
+    with counter.get_lock():
+        number = counter.value
+        counter.value += 1
+    os.environ[gpus.SLOT_ENV] = str(number)
+    if sys.platform.startswith("linux"):
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+        if os.getppid() != parent:  # the parent died before the line above took effect
+            os._exit(1)
+
+
 def _run_local(config, todo, out, workers, bar):
     errors = []
     if workers <= 1:
@@ -90,12 +124,9 @@ def _run_local(config, todo, out, workers, bar):
             except Exception as exc:  # noqa: BLE001 - reported with the shard number
                 errors.append((k, exc))
         return errors
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import as_completed
 
-    # spawn: a fresh interpreter per worker (no GL or MuJoCo state forked from this process).
-    _one_thread_each()
-    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+    with _worker_pool(workers) as pool:
         futures = {pool.submit(build_shard, config.to_json(), k, str(out)): k for k in todo}
         for fut in as_completed(futures):
             k = futures[fut]
@@ -182,14 +213,8 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, grower
             submit_grow = lambda part: grow_task.remote(config.to_json(), part, str(out), batch)  # noqa: E731
             finish = ray.get
         else:
-            import multiprocessing
-            from concurrent.futures import ProcessPoolExecutor
-
-            # spawn: a fresh interpreter per worker (no GL or MuJoCo state forked from this process).
             # Growers are submitted first: they hold `growers` of the workers while they run.
-            _one_thread_each()
-            pool = stack.enter_context(ProcessPoolExecutor(max_workers=workers,
-                                                           mp_context=multiprocessing.get_context("spawn")))
+            pool = stack.enter_context(_worker_pool(workers))
             submit = lambda k: pool.submit(build_shard, config.to_json(), k, str(out))  # noqa: E731
             submit_grow = lambda part: pool.submit(spool.grow, config.to_json(), part, str(out), batch)  # noqa: E731
             finish = lambda f: f.result()  # noqa: E731

@@ -1,0 +1,55 @@
+"""Which GPU a worker process uses: the factory's worker processes spread over every GPU.
+
+A build's pool numbers its workers (`SLOT_ENV`, set by `pipelines.dataset.build`). On a machine
+with several NVIDIA GPUs, worker k renders on EGL device k mod G (`MUJOCO_EGL_DEVICE_ID`, read by
+MuJoCo's EGL backend when the process's context is made) and runs its JAX kernels on JAX's GPU
+k mod G (`jax_default_device`); with one GPU, none or no slot, nothing is chosen. A user's own
+`MUJOCO_EGL_DEVICE_ID` wins. `CUDA_VISIBLE_DEVICES` is not set: NVIDIA's EGL remaps its devices
+by it (google-deepmind/mujoco#3245), so setting it for JAX could move the renders too.
+"""
+
+from __future__ import annotations
+
+import os
+
+SLOT_ENV = "BRICK_FACTORY_WORKER"
+"""The worker's number in its pool (0, 1, ...), set by the pool's initializer."""
+
+_NVIDIA_GPUS = "/proc/driver/nvidia/gpus"
+
+
+def count() -> int:
+    """NVIDIA GPUs of this machine, as the driver lists them (0 without the driver)."""
+    try:
+        return len(os.listdir(_NVIDIA_GPUS))
+    except OSError:
+        return 0
+
+
+def slot() -> int | None:
+    """This process's worker number, or None outside a numbered pool."""
+    value = os.environ.get(SLOT_ENV, "")
+    return int(value) if value.isdigit() else None
+
+
+def choose_egl_device() -> int | None:
+    """Set `MUJOCO_EGL_DEVICE_ID` for this worker (before its GL context exists) unless the user
+    did; returns the device chosen, or None."""
+    k, gpus = slot(), count()
+    if k is None or gpus < 2 or "MUJOCO_EGL_DEVICE_ID" in os.environ:
+        return None
+    os.environ["MUJOCO_EGL_DEVICE_ID"] = str(k % gpus)
+    return k % gpus
+
+
+def choose_jax_device(jax) -> object | None:
+    """Make this worker's JAX default device its share of the GPUs; returns it, or None."""
+    k = slot()
+    if k is None:
+        return None
+    devices = [d for d in jax.devices() if d.platform == "gpu"]
+    if len(devices) < 2:
+        return None
+    device = devices[k % len(devices)]
+    jax.config.update("jax_default_device", device)
+    return device
