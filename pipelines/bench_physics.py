@@ -4,6 +4,9 @@
 [--batches 256,1024,4096] [--out FILE.json]`; with `--sweep`, the buildability sweep alone
 (`measure_sweep`: the batched exact JAX path against the CPU reference).
 
+`python -m pipelines.bench_physics --growth --backends mjx --batches 1,16,64 --steps 30 --objects 64`:
+lockstep growth of the same objects at each batch, steps per second (`measure_growth`).
+
 `python -m pipelines.bench_physics --lp --sizes 30,60,90 --batches 1024,4096,16384`: the load check
 alone from each candidate's pose (`load_stage`: model, tipping rule, program), the batched JAX
 solver against HiGHS (`--cpu-workers K`: the reference in K processes), verdicts compared.
@@ -405,6 +408,33 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
     return rows
 
 
+def measure_growth(backend: str, batches, steps: int, objects: int, log=None) -> list[dict]:
+    """Lockstep growth in this process: objects 0..objects-1 of the default sampler config with
+    exactly `steps` parts each, grown `batch` at a time, for each batch: steps per second over the
+    whole growth (the same objects whatever the batch, so rows compare on the same inputs). One
+    other object is grown first, untimed (parts loaded, first kernels compiled); the compiles of
+    shapes it did not meet fall in the rows. Seconds per check stage from `check.STAGE_SECONDS`."""
+    from factory.physics import check as check_module
+    from factory.sampler import Sampler, SamplerConfig
+
+    sampler = Sampler(SamplerConfig(seed=0, min_steps=steps, max_steps=steps, backend=backend,
+                                    check_batch=64 if backend == "mjx" else 8), None)
+    list(sampler.grow([objects], batch=1))
+    rows = []
+    for batch in batches:
+        check_module.STAGE_SECONDS.clear()
+        t0 = time.perf_counter()
+        placed = sum(len(a.steps) for a in sampler.grow(range(objects), batch=batch))
+        wall = time.perf_counter() - t0
+        row = {"kind": "growth", "backend": backend, "batch": batch, "objects": objects, "steps": placed,
+               "target_steps": steps, "seconds": round(wall, 2), "steps_per_s": round(placed / wall, 2),
+               "stage_seconds": {k: round(v, 2) for k, v in sorted(check_module.STAGE_SECONDS.items())}}
+        rows.append(row)
+        if log:
+            log(row)
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m pipelines.bench_physics")
     ap.add_argument("--backends", default="mujoco")
@@ -422,10 +452,17 @@ def main(argv=None) -> int:
     ap.add_argument("--lp", action="store_true", help="the batched load solver alone, on real load programs")
     ap.add_argument("--whole", action="store_true", help="whole checks (every check a candidate goes through): "
                     "the batched path against the reference on the same candidates, verdicts compared")
+    ap.add_argument("--growth", action="store_true",
+                    help="lockstep growth: --objects objects of --steps parts each grown --batches at a time "
+                         "with the first of --backends, steps per second per batch (same objects in every row)")
+    ap.add_argument("--steps", type=int, default=30, help="with --growth: parts per object (default 30)")
+    ap.add_argument("--objects", type=int, default=64, help="with --growth: objects grown (default 64)")
     args = ap.parse_args(argv)
     sizes, batches = [int(x) for x in args.sizes.split(",")], [int(x) for x in args.batches.split(",")]
     log = lambda r: print(json.dumps(r), flush=True)
-    if args.sweep:
+    if args.growth:
+        rows = measure_growth(args.backends.split(",")[0], batches, args.steps, args.objects, log=log)
+    elif args.sweep:
         rows = measure_sweep(sizes, batches, 512 if args.cpu_max is None else args.cpu_max, log=log,
                              cpu_workers=args.cpu_workers, batched=not args.reference_only)
     elif args.whole:

@@ -40,3 +40,14 @@ def test_quick_bench_writes_report_and_plots(tmp_path):
 def test_unknown_backend_is_a_clear_error(tmp_path, capsys):
     assert bench.main(["--out", str(tmp_path), "--backends", "cuda"]) == 2
     assert "unknown backend 'cuda'; valid: mujoco, mjx, auto" in capsys.readouterr().err
+
+
+def test_growth_rows_grow_the_same_objects_at_every_batch():
+    """`bench_physics --growth`: one row per batch, each over the same objects (the same parts placed),
+    with a positive rate."""
+    from pipelines.bench_physics import measure_growth
+
+    rows = measure_growth("mujoco", [1, 3], steps=3, objects=3)
+    assert [r["batch"] for r in rows] == [1, 3]
+    assert rows[0]["steps"] == rows[1]["steps"] > 0
+    assert all(r["steps_per_s"] > 0 and r["stage_seconds"]["rules"] > 0 for r in rows)
