@@ -433,7 +433,10 @@ def _slot_after(seconds: float) -> str:
 def test_gpu_share_of_a_numbered_worker(monkeypatch):
     from factory import gpus
 
-    monkeypatch.delenv("MUJOCO_EGL_DEVICE_ID", raising=False)
+    # set, then removed: monkeypatch then restores the variable's first state whatever the code
+    # under test writes into os.environ itself
+    monkeypatch.setenv("MUJOCO_EGL_DEVICE_ID", "unset")
+    monkeypatch.delenv("MUJOCO_EGL_DEVICE_ID")
     monkeypatch.setattr(gpus, "count", lambda: 2)
     monkeypatch.setenv(gpus.SLOT_ENV, "3")
     assert gpus.choose_egl_device() == 1 and os.environ["MUJOCO_EGL_DEVICE_ID"] == "1"
@@ -444,4 +447,4 @@ def test_gpu_share_of_a_numbered_worker(monkeypatch):
     assert gpus.choose_egl_device() is None and "MUJOCO_EGL_DEVICE_ID" not in os.environ
     monkeypatch.delenv(gpus.SLOT_ENV)
     monkeypatch.setattr(gpus, "count", lambda: 4)  # not a numbered worker
-    assert gpus.choose_egl_device() is None
+    assert gpus.choose_egl_device() is None and "MUJOCO_EGL_DEVICE_ID" not in os.environ

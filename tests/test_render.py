@@ -450,3 +450,22 @@ def test_kept_glyph_masks_draw_what_pil_draws():
                 da.text(xy, s, fill=fill, font=compose.font(size))
                 compose.text(db, xy, s, size, fill)
             assert np.array_equal(np.asarray(a), np.asarray(b)), (size, fill)
+
+
+def test_a_chosen_egl_device_that_is_not_there_falls_back(monkeypatch):
+    """A numbered worker whose GPU share names an EGL device that does not exist (more GPUs than EGL
+    devices) renders on the default device instead of failing its shard."""
+    from factory import gpus
+    from factory.render import gl
+
+    if gl.configure() != "egl":
+        pytest.skip("the EGL backend is not the one in use")
+    script = ("import os; from factory import gpus; gpus.count = lambda: 64; "
+              "from factory.render import gl; c = gl.context(); "
+              "print(c.backend, os.environ.get('MUJOCO_EGL_DEVICE_ID'))")
+    env = {k: v for k, v in os.environ.items() if k != "MUJOCO_EGL_DEVICE_ID"}
+    env[gpus.SLOT_ENV] = "63"
+    env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).resolve().parents[1]), env.get("PYTHONPATH", "")])
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split()[-2:] == ["egl", "None"]

@@ -73,14 +73,20 @@ class Context:
 
     def __init__(self):
         backend = configure()
-        if backend == "egl":
-            gpus.choose_egl_device()  # this worker's share of the machine's GPUs
+        chosen = gpus.choose_egl_device() if backend == "egl" else None  # this worker's share of the GPUs
         try:
             if backend == "egl":
                 from mujoco.egl import GLContext
             else:
                 from mujoco.osmesa import GLContext
-            self._gl = GLContext(64, 64)
+            try:
+                self._gl = GLContext(64, 64)
+            except Exception:
+                if chosen is None:
+                    raise
+                # EGL lists fewer devices than the driver has GPUs: the default device, not a failed build
+                del os.environ["MUJOCO_EGL_DEVICE_ID"]
+                self._gl = GLContext(64, 64)
             self._gl.make_current()
         except Exception as exc:
             raise RenderUnavailableError(
