@@ -194,3 +194,57 @@ def test_a_capped_object_ends_stuck_and_says_why():
     a = s.sample(0)
     assert a.end_reason == "stuck" and len(a) < 30 and a.steps[-1].part == "3070b.dat"
     assert a.stuck_rejected and set(a.stuck_rejected) <= {"below-ground", "no-attachment", "collision"}
+
+
+def _growing_tracker(sampler, index: int, parts: int):
+    """The density tracker and structure of a sampled object's first `parts` parts."""
+    from factory.sampler.density import DensityTracker
+
+    a = sampler.sample(index)
+    tracker, structure = DensityTracker(), Structure()
+    by_name = {p.name: p for p in sampler.parts}
+    for s in a.steps[:parts]:
+        tracker.add(by_name[s.part], s.pose)
+        structure.add(Placed(by_name[s.part], s.colour, s.pose))
+    return tracker, structure
+
+
+@pytest.fixture(scope="module")
+def twelve_parts():
+    sampler = Sampler(SamplerConfig(seed=0, min_steps=12, max_steps=12))
+    return sampler, _growing_tracker(sampler, 0, 12)
+
+
+@pytest.mark.parametrize("weight", [30.0, 0.0, -30.0])
+def test_candidate_order_computes_only_the_densities_it_needs(twelve_parts, weight):
+    """`KeyOrder` gives the candidates in exactly the order of the keys computed from every
+    candidate's density (ties by index), and the upper bounds hold; with the reward on, the first
+    eight come with fewer densities computed than there are candidates."""
+    from factory.physics.attach import attachment_arrays
+    from factory.sampler.sampler import KeyOrder
+
+    sampler, (tracker, structure) = twelve_parts
+    rng = np.random.default_rng(5)
+    computed = total = 0
+    for part in sampler.parts[::3]:
+        r, t = attachment_arrays(structure, part)
+        if len(t) > 64:
+            pick = np.sort(rng.choice(len(t), 64, replace=False))
+            r, t = r[pick], t[pick]
+        if not len(t):
+            continue
+        exact = tracker.densities_with(part, r, t)
+        for trial in range(3):
+            noise = rng.gumbel(size=len(t))
+            cands = tracker.candidates(part, r, t)
+            assert np.all(cands.upper >= exact)
+            keys = weight * np.log(np.maximum(exact, 1e-12)) / 0.3 + noise
+            assert list(KeyOrder(cands, weight, 0.3, noise)) == [int(i) for i in np.argsort(-keys, kind="stable")]
+            first = tracker.candidates(part, r, t)
+            order = KeyOrder(first, weight, 0.3, noise)
+            [order.next() for _ in range(min(8, len(t)))]
+            computed += len(first._exact)
+            total += len(t)
+    assert total > 300
+    if weight > 0:
+        assert computed < total

@@ -35,17 +35,22 @@ def part_hull_points(part: Part) -> np.ndarray:
 
 def hull_volume(points: np.ndarray) -> tuple[float, np.ndarray]:
     """(volume, hull vertices) of a point set; (0, points) when it is flat or too small."""
-    volume, vertices, _ = _hull(points)
+    volume, vertices, _, _ = _hull(points)
     return volume, vertices
 
 
-def _hull(points: np.ndarray) -> tuple[float, np.ndarray, np.ndarray | None]:
-    """`hull_volume` and the hull's facet planes (n . x + d <= 0 inside; None without a hull)."""
+def _hull(points: np.ndarray, areas: bool = False):
+    """`hull_volume`, the hull's facet planes (n . x + d <= 0 inside, unit n; None without a hull)
+    and, with `areas`, each facet's area (qhull's facets are triangles, one plane each)."""
     try:
         h = ConvexHull(points)
     except (QhullError, ValueError):
-        return 0.0, points, None
-    return float(h.volume), points[h.vertices], h.equations
+        return 0.0, points, None, None
+    area = None
+    if areas:
+        a, b, c = (points[h.simplices[:, k]] for k in range(3))
+        area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    return float(h.volume), points[h.vertices], h.equations, area
 
 
 INSIDE_LDU = 1e-9
@@ -61,10 +66,12 @@ class DensityTracker:
         self.points = np.zeros((0, 3))
         self.hull_volume = 0.0
         self.planes: np.ndarray | None = None
+        self.facet_areas: np.ndarray | None = None
 
     def add(self, part: Part, pose: Pose) -> float:
         self.volume += part.volume_ldu3
-        self.hull_volume, self.points, self.planes = _hull(np.concatenate([self.points, pose.apply(part_hull_points(part))]))
+        self.hull_volume, self.points, self.planes, self.facet_areas = _hull(
+            np.concatenate([self.points, pose.apply(part_hull_points(part))]), areas=True)
         return self.density()
 
     def density(self) -> float:
@@ -74,27 +81,66 @@ class DensityTracker:
         """`density_with` at each of n poses (R (n, 3, 3), t (n, 3)): a candidate whose points all
         lie inside the current hull leaves it as it is (no hull to compute); for the rest, the
         hull of the current hull's vertices and the candidate's points outside it."""
-        pts = np.einsum("nij,pj->npi", R, part_hull_points(part)) + t[:, None]
-        volume = self.volume + part.volume_ldu3
-        out = np.zeros(len(pts))
-        if self.planes is None:
-            for i, p in enumerate(pts):
-                hull, _ = hull_volume(np.concatenate([self.points, p]))
-                out[i] = volume / hull if hull > 0 else 0.0
-            return out
-        normal, offset = self.planes[:, :3].T, self.planes[:, 3]
-        for i, p in enumerate(pts):
-            outside = ((p @ normal + offset) > INSIDE_LDU).any(axis=1)
-            if not outside.any():
-                out[i] = volume / self.hull_volume
-                continue
-            hull, _ = hull_volume(np.concatenate([self.points, p[outside]]))
-            out[i] = volume / hull if hull > 0 else 0.0
-        return out
+        lazy = self.candidates(part, R, t)
+        return np.array([lazy.exact(i) for i in range(len(t))])
+
+    def candidates(self, part: Part, R: np.ndarray, t: np.ndarray) -> "CandidateDensities":
+        """The densities of `part` at n poses, each computed when asked (`CandidateDensities`)."""
+        return CandidateDensities(self, part, R, t)
 
     def density_with(self, part: Part, pose: Pose) -> float:
         """The density after adding `part` at `pose` (the tracker is not changed)."""
         return float(self.densities_with(part, pose.R[None], pose.t[None])[0])
+
+
+HULL_BOUND_SLACK = 1e-9
+"""Relative slack taken off the hull-volume lower bound, so that rounding can never put a bound
+above the exact volume qhull gives."""
+
+
+class CandidateDensities:
+    """The density after adding a part at each of n poses: known at once for a candidate inside the
+    current hull, computed with one qhull call when asked (`exact`) for the rest, and bounded from
+    above for all at once (`upper`) without any.
+
+    The bound: the hull with the candidate is at least the current hull plus, for any single
+    candidate point q outside it, the pyramids from q over the hull's facets that q sees (exactly
+    the hull of the current hull and q: beneath-beyond), so density <= volume / (that). The
+    sampler asks `exact` only where the bound could change its choice (`sampler.KeyOrder`)."""
+
+    def __init__(self, tracker: DensityTracker, part: Part, R: np.ndarray, t: np.ndarray):
+        self.tracker = tracker
+        self.volume = tracker.volume + part.volume_ldu3
+        self.points = np.einsum("nij,pj->npi", R, part_hull_points(part)) + t[:, None]
+        n = len(self.points)
+        self._exact: dict[int, float] = {}
+        if tracker.planes is None:
+            self.outside = np.ones((n, self.points.shape[1]), dtype=bool)
+            self.upper = np.full(n, np.inf)
+            return
+        normal, offset = tracker.planes[:, :3].T, tracker.planes[:, 3]
+        dist = self.points @ normal + offset  # (n, points, facets): > 0 where a facet sees the point
+        self.outside = (dist > INSIDE_LDU).any(axis=2)
+        for i in np.flatnonzero(~self.outside.any(axis=1)):
+            self._exact[int(i)] = self.volume / tracker.hull_volume
+        pyramids = np.where(self.outside, np.maximum(dist, 0.0) @ tracker.facet_areas, 0.0) / 3.0
+        lower = (tracker.hull_volume + pyramids.max(axis=1)) * (1.0 - HULL_BOUND_SLACK)
+        self.upper = np.where(lower > 0, self.volume / np.maximum(lower, 1e-300), np.inf)
+        for i, d in self._exact.items():
+            self.upper[i] = d
+
+    def known(self, i: int) -> bool:
+        return i in self._exact
+
+    def exact(self, i: int) -> float:
+        """The density with candidate i (one qhull call unless it lies inside the current hull)."""
+        if i not in self._exact:
+            p = self.points[i]
+            if self.tracker.planes is not None:
+                p = p[self.outside[i]]
+            hull, _ = hull_volume(np.concatenate([self.tracker.points, p]))
+            self._exact[i] = self.volume / hull if hull > 0 else 0.0
+        return self._exact[i]
 
 
 def density(placed: Iterable[tuple[Part, Pose]]) -> float:

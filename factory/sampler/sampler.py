@@ -38,7 +38,7 @@ from factory.pose import Pose
 from factory.sampler.assembly import Assembly, AssemblyStep
 from factory.physics.attach import attachment_arrays, lowest_y
 from factory.sampler.config import SamplerConfig, SamplerConfigError
-from factory.sampler.density import DensityTracker, part_hull_points
+from factory.sampler.density import CandidateDensities, DensityTracker, part_hull_points
 
 LIST_LIMIT = 80
 """Valid choices listed in full in an error up to this many; beyond, close matches and a count."""
@@ -135,30 +135,35 @@ class Sampler:
                 # Softmax over the survivors by the Gumbel-max trick: the survivor with the largest
                 # logit + Gumbel noise. Checking candidates in decreasing order of that key and taking
                 # the first survivor chooses exactly as a softmax over all survivors would, whatever
-                # the batch size, and spares the checks of the candidates after it.
-                dens = tracker.densities_with(part, r, t)
+                # the batch size, and spares the checks of the candidates after it. `KeyOrder` gives
+                # that order computing a candidate's density only where it can change it.
                 n = len(steps) + 1  # parts after placement
-                logits = cfg.density_weight * n * np.log(np.maximum(dens, 1e-12)) / cfg.temperature
-                key = logits + rng.gumbel(size=len(poses))
-                order = np.argsort(-key, kind="stable")
-                for start in range(0, len(order), cfg.check_batch):
-                    batch = order[start:start + cfg.check_batch]
+                order = KeyOrder(tracker.candidates(part, r, t), cfg.density_weight * n, cfg.temperature,
+                                 rng.gumbel(size=len(poses)))
+                while chosen is None and order.left:
+                    if order.left <= cfg.check_batch:
+                        # The rest in one request: which of them is first is settled after the
+                        # checks, so only the densities down to the first survivor are computed.
+                        batch, walk = order.rest(), order
+                    else:
+                        batch = [order.next() for _ in range(cfg.check_batch)]
+                        walk = iter(batch)
                     # A rejected candidate's reason is counted, never its failing connections.
                     verdicts = yield CheckRequest(structure, part, tuple(poses[i] for i in batch), colour, ground)
-                    for i, v in zip(batch, verdicts):
+                    verdict_of = dict(zip(batch, verdicts))
+                    for i in walk:
                         checked += 1
+                        v = verdict_of[i]
                         if v.ok:
-                            chosen = (part, colour, v, ground, draw + 1, feasible, float(dens[i]))
+                            chosen = (part, colour, v, ground, draw + 1, feasible)
                             break
                         rejected[v.reason] += 1
-                    if chosen is not None:
-                        break
                 if chosen is not None:
                     break
             if chosen is None:
                 end, stuck = "stuck", dict(sorted(rejected.items()))
                 break
-            part, colour, verdict, ground, draws, feasible, _ = chosen
+            part, colour, verdict, ground, draws, feasible = chosen
             floor = ground
             structure.add(Placed(part, colour, verdict.pose))
             d = tracker.add(part, verdict.pose)
@@ -171,6 +176,68 @@ class Sampler:
             steps=tuple(steps), density=tracker.density() if steps else 0.0, seed=cfg.seed,
             index=int(index), target_steps=target, end_reason=end, stuck_rejected=stuck,
         )
+
+
+class KeyOrder:
+    """A draw's candidates in decreasing Gumbel-max key, `weight * ln(density) / temperature +
+    noise` (ties by index: `np.argsort(-key, kind="stable")`), computing a candidate's density
+    (a qhull call) only when its upper bound (`CandidateDensities.upper`) could put it before the
+    next one given. Keys are computed for all candidates at once, exactly as from the full density
+    vector, so the order, and so every object, is the one computing all densities first gives."""
+
+    def __init__(self, densities: CandidateDensities, weight: float, temperature: float, noise: np.ndarray):
+        self.densities, self.weight, self.temperature, self.noise = densities, weight, temperature, noise
+        self.values = densities.upper.copy()
+        self.exact = np.array([densities.known(i) for i in range(len(noise))], dtype=bool)
+        if weight < 0:  # an upper bound of the density is then a lower bound of the key
+            self._settle(np.flatnonzero(~self.exact))
+        self.given = np.zeros(len(noise), dtype=bool)
+
+    @property
+    def left(self) -> int:
+        return int(np.count_nonzero(~self.given))
+
+    def _keys(self) -> np.ndarray:
+        if self.weight == 0:  # no density in the key: 0 * ln(d) adds nothing to the noise
+            return self.noise + 0.0
+        return self.weight * np.log(np.maximum(self.values, 1e-12)) / self.temperature + self.noise
+
+    def _settle(self, indices) -> None:
+        for j in indices:
+            self.values[j] = self.densities.exact(int(j))
+            self.exact[j] = True
+
+    def next(self) -> int | None:
+        """The next candidate in key order, or None when all were given."""
+        open_ = ~self.given
+        if not open_.any():
+            return None
+        if self.weight == 0:
+            self.exact[:] = True
+        while True:
+            keys = self._keys()
+            known = np.where(open_ & self.exact, keys, -np.inf)
+            bound = np.where(open_ & ~self.exact, keys, -np.inf)
+            best = int(np.argmax(known))  # the first of equal keys: the lowest index
+            if (open_ & self.exact)[best] and known[best] > bound.max():
+                self.given[best] = True
+                return best
+            self._settle([int(np.argmax(bound))])
+
+    def __iter__(self):
+        return self
+
+    def __next__(self) -> int:
+        i = self.next()
+        if i is None:
+            raise StopIteration
+        return i
+
+    def rest(self) -> list[int]:
+        """The candidates not given yet, by their keys' bounds (the order of a request; the key
+        order among them is then walked with `next`)."""
+        keys = self._keys()
+        return [int(i) for i in np.argsort(-keys, kind="stable") if not self.given[i]]
 
 
 def _index(index) -> int:
