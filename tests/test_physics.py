@@ -71,6 +71,25 @@ def test_vectorised_enumeration_matches_the_plain_loop():
         assert all(a.allclose(b) for a, b in zip(mine, theirs))
 
 
+def test_enumeration_matches_the_plain_loop_with_side_studs(real_reader):
+    """Connectors on several axes (side studs of 87087 and 4070, both faces of 3956) on a
+    structure with side studs free, sockets taken and a turned part: the same poses in the same
+    order as the plain loop."""
+    from factory import load_part
+
+    real = {n: load_part(real_reader, n) for n in ("3001", "87087", "4070", "3956", "3023")}
+    turn = rotation_about((0, 1, 0), 90.0)
+    s = Structure([Placed(real["3001"], 4, Pose(np.eye(3), [0, 0, 0])),
+                   Placed(real["87087"], 1, Pose(np.eye(3), [0, -24, 0])),
+                   Placed(real["4070"], 14, Pose(turn, [20, -24, 0])),
+                   Placed(real["3023"], 2, Pose(turn, [-10, -8, 0]))])
+    assert len(s.studs[1]) and (np.abs(s.studs[1][:, 1]) < 0.5).any()  # a side stud is there
+    for name in ("87087", "4070", "3956", "3023"):
+        mine, theirs = feasible_poses(s, real[name]), _plain_loop(s, real[name])
+        assert len(mine) == len(theirs) > 0
+        assert all(a.allclose(b) for a, b in zip(mine, theirs))
+
+
 def test_occupied_studs_are_not_offered():
     stack = Structure([at("3001", 0, 0, 0), at("3001", 0, -24, 0)])
     poses = feasible_poses(stack, part("3001"))

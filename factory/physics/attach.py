@@ -41,42 +41,60 @@ def _first_rows(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.sort(firsts), group
 
 
+def _axis_groups(axes: np.ndarray) -> list[np.ndarray]:
+    """Target indices grouped by axis (rounded to 1e-9), groups in order of first occurrence."""
+    if len(axes) == 0:
+        return []
+    _, group = _first_rows(np.round(axes, 9))
+    return [np.flatnonzero(group == g) for g in range(int(group.max()) + 1)]
+
+
 def attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarray, np.ndarray]:
-    """Rotations (n, 3, 3) and translations (n, 3) of the feasible attachments (module docstring)."""
+    """Rotations (n, 3, 3) and translations (n, 3) of the feasible attachments (module docstring).
+
+    Every plan (a part connector and the free targets it can take) of one family (sockets on free
+    studs, studs into free sockets) shares the family's targets, so their axis groups are found
+    once per family, and each (connector axis, target axis, turn) rotation once per call; the
+    translations of all plans with one connector axis come in one array operation."""
     stud_busy, sock_busy = structure.occupied()
     sp, sa, _ = structure.studs
     kp, ka, _ = structure.sockets
-    plans = []
-    for c in part.sockets:
-        plans.append((np.array(c.pos), np.array(c.axis), sp[~stud_busy], sa[~stud_busy]))
-    for c in part.studs:
-        plans.append((np.array(c.pos), np.array(c.axis), kp[~sock_busy], ka[~sock_busy]))
-
+    families = [(part.sockets, sp[~stud_busy], sa[~stud_busy], 0),
+                (part.studs, kp[~sock_busy], ka[~sock_busy], len(part.sockets))]
     rot_ids: dict[tuple, int] = {}  # symmetry-aware rotation key -> id
-    rots: list[np.ndarray] = []  # one representative rotation matrix per (plan, axis, turn) use
+    turned: dict[tuple, tuple[int, int]] = {}  # (connector axis, target axis, turn) -> (rotation, key id)
+    rots: list[np.ndarray] = []
     chunks_order, chunks_rot, chunks_t, chunks_key = [], [], [], []
-    for plan_i, (q, b, targets, axes) in enumerate(plans):
-        if len(targets) == 0:
+    for connectors, targets, axes, first_plan in families:
+        if len(targets) == 0 or not connectors:
             continue
-        # Targets by axis (rounded), groups in order of first occurrence.
-        _, group = _first_rows(np.round(axes, 9))
-        for g in range(int(group.max()) + 1):
-            idx = np.flatnonzero(group == g)
-            a = axes[idx[0]]
-            base = align(b, a)
-            vertical = np.allclose(a, [0, -1, 0]) or np.allclose(a, [0, 1, 0])
-            for k in range(4):
-                twist = _TURNS[k] if vertical else rotation_about(a, 90.0 * k)
-                r = np.round(twist @ base, 12)
-                key = _rotation_key(part, r)
-                rid = rot_ids.setdefault(key, len(rot_ids))
-                t = targets[idx] - r @ q
-                n = len(idx)
-                chunks_order.append(np.stack([np.full(n, plan_i), idx, np.full(n, k)], axis=1))
-                rots.append(r)
-                chunks_rot.append(np.full(n, len(rots) - 1))
-                chunks_t.append(t)
-                chunks_key.append(np.full(n, rid))
+        groups = _axis_groups(axes)
+        by_axis: dict[tuple, list[int]] = {}  # connector axis -> plan numbers in this family
+        for i, c in enumerate(connectors):
+            by_axis.setdefault(tuple(float(v) for v in c.axis), []).append(i)
+        for b_key, members in by_axis.items():
+            b = np.array(b_key)
+            q = np.array([connectors[i].pos for i in members], dtype=float)  # (m, 3)
+            plan = first_plan + np.array(members)
+            for idx in groups:
+                a = axes[idx[0]]
+                base = align(b, a)
+                vertical = np.allclose(a, [0, -1, 0]) or np.allclose(a, [0, 1, 0])
+                n, m = len(idx), len(members)
+                for k in range(4):
+                    slot = (b_key, tuple(a.tolist()), k)
+                    if slot not in turned:
+                        twist = _TURNS[k] if vertical else rotation_about(a, 90.0 * k)
+                        r = np.round(twist @ base, 12)
+                        rots.append(r)
+                        turned[slot] = (len(rots) - 1, rot_ids.setdefault(_rotation_key(part, r), len(rot_ids)))
+                    ri, rid = turned[slot]
+                    r = rots[ri]
+                    t = targets[idx][None, :, :] - (q @ r.T)[:, None, :]  # (m, n, 3)
+                    chunks_order.append(np.stack([np.repeat(plan, n), np.tile(idx, m), np.full(n * m, k)], axis=1))
+                    chunks_rot.append(np.full(n * m, ri))
+                    chunks_t.append(t.reshape(-1, 3))
+                    chunks_key.append(np.full(n * m, rid))
     if not chunks_t:
         return np.zeros((0, 3, 3)), np.zeros((0, 3))
     order = np.concatenate(chunks_order)
