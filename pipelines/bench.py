@@ -6,7 +6,9 @@ Sections, each timed and written as soon as it ends (a later failure loses nothi
 
 - machine: CPU count, GPU (through JAX or torch when they see one), package versions;
 - physics: candidate checks per second per backend present (`mujoco` always; `mjx` when JAX is
-  installed; larger batches when a GPU is present), from `pipelines.bench_physics.measure`;
+  installed; larger batches when a GPU is present), from `pipelines.bench_physics.measure`; load
+  checks and sweeps at 30-90 bricks; lockstep growth of the same objects (`measure_growth`: on a
+  GPU the batched path at batch 16 against the CPU reference one object at a time);
 - render: views per second of the embedded example model and, where given, of human designs;
 - synth: a small `make synth` build end to end (steps per second, per-stage seconds, bytes);
 - evaluation: the baselines (`oracle`, `heuristic`, `random`, and `random` revised under world
@@ -101,7 +103,19 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None) -
                            cpu_workers=workers, batched=False)
         sweeps = measure_sweep(check_sizes, [1024], cpu_max=32 if quick else 512, log=log("sweep"),
                                cpu_workers=workers, batched=False)
-    return {"backends": backends, "rows": rows, "loads": loads, "sweeps": sweeps,
+    # Lockstep growth of the same objects: on a GPU the batched path at one batch against the CPU
+    # reference one object at a time; without one, the reference at two batches (the objects are
+    # the same whatever the batch, only the cost moves).
+    from pipelines.bench_physics import measure_growth
+
+    glog = log("growth")
+    if gpu and "mjx" in backends:
+        growth = (measure_growth("mjx", [16], steps=20, objects=16, log=glog)
+                  + measure_growth("mujoco", [1], steps=20, objects=16, log=glog))
+    else:
+        objects, steps = (2, 3) if quick else (8, 10)
+        growth = measure_growth("mujoco", [1, objects], steps=steps, objects=objects, log=glog)
+    return {"backends": backends, "rows": rows, "loads": loads, "sweeps": sweeps, "growth": growth,
             "note": "candidates of a 2x4 brick on grown 2x4-brick structures; loads/s is the "
                     "whole-structure load program alone (HiGHS for mujoco, the batched JAX solver for mjx), "
                     "checks/s the whole check (connection, contacts, clutch, loads)"}
@@ -280,6 +294,15 @@ def markdown(report: dict) -> str:
                 lines += _table(["bricks", "batch", "GPU per s", "CPU reference per s"],
                                 [[r["bricks"], r["batch"], r.get("jax_per_s", "-"), r.get("cpu_per_s", "-")] for r in rows])
                 lines += [""]
+    growth = report.get("physics", {}).get("growth") or []
+    if growth:
+        lines += ["### Lockstep growth (`bench_physics --growth`)", "",
+                  "The same objects (default config, exactly the given parts each) grown a batch at a time "
+                  "in one process; steps per second over the whole growth.", ""]
+        lines += _table(["backend", "batch", "objects", "steps", "seconds", "steps/s"],
+                        [[r["backend"], r["batch"], r["objects"], r["steps"], r["seconds"], r["steps_per_s"]]
+                         for r in growth])
+        lines += [""]
     if "render" in report:
         lines += ["## Renders", "", "Best of 3 passes over 7 views (6 orthographic, 1 isometric) at 256 px; "
                   "a step render is every image of one step except the catalog.", ""]

@@ -19,6 +19,9 @@ def test_quick_bench_writes_report_and_plots(tmp_path):
     assert phys["backend"] == "mujoco" and phys["checks_per_s"] > 0 and 0 < phys["accepted"] <= phys["batch"]
     (loads,), (sweeps,) = report["physics"]["loads"], report["physics"]["sweeps"]
     assert loads["bricks"] == sweeps["bricks"] == 30 and loads["cpu_per_s"] > 0 and sweeps["cpu_per_s"] > 0
+    growth = report["physics"]["growth"]
+    assert [g["batch"] for g in growth] == [1, 2] and growth[0]["steps"] == growth[1]["steps"] > 0
+    assert "Lockstep growth" in (out / "report.md").read_text()
     assert report["render"]["rows"][0]["rgb_views_per_s"] > 0
     synth = report["synth"]
     assert synth["objects"] == 5 and synth["steps"] >= 30 and synth["steps_per_s"] > 0
