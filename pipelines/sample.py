@@ -30,6 +30,7 @@ from factory.cli import run_guarded
 from factory.physics.check import BACKENDS
 from factory.sampler import Sampler, SamplerConfig, SamplerConfigError
 from factory.atomic import write_atomic
+from pipelines import workers
 
 _SAMPLER: Sampler | None = None
 
@@ -37,6 +38,12 @@ _SAMPLER: Sampler | None = None
 def _init(config: SamplerConfig, ldraw: str | None) -> None:
     global _SAMPLER
     _SAMPLER = Sampler(config, ldraw)
+
+
+def _init_worker(counter, parent: int, config: SamplerConfig, ldraw: str | None) -> None:
+    """A worker process: numbered and ended with this command (`pipelines.workers`), then its sampler."""
+    workers.start_worker(counter, parent)
+    _init(config, ldraw)
 
 
 def _timed(indices: list[int], batch: int):
@@ -149,7 +156,9 @@ def _run(args, config: SamplerConfig) -> int:
     pool = None
     chunks = _chunks(indices, args.batch, args.workers)
     if args.workers > 1:
-        pool = mp.get_context("fork").Pool(args.workers, initializer=_init, initargs=(config, args.ldraw))
+        ctx = mp.get_context("fork")
+        pool = ctx.Pool(args.workers, initializer=_init_worker,
+                        initargs=(*workers.numbering(ctx), config, args.ldraw))
         results = (x for done in pool.imap_unordered(partial(_chunk, batch=args.batch), chunks) for x in done)
     else:
         results = (x for c in chunks for x in _timed(c, args.batch))

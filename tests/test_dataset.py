@@ -34,7 +34,7 @@ from pipelines.dataset import (
     split_of,
 )
 from pipelines.dataset.schema import IMAGE_COLUMNS, SCHEMA, features_json
-from conftest import tiny_dataset_config
+from conftest import alive, children_of, tiny_dataset_config
 
 ROOT = Path(__file__).resolve().parents[1]
 CLI_ARGS = ["--n", "3", "--seed", "0", "--min-steps", "2", "--max-steps", "3", "--candidates", "16",
@@ -360,29 +360,6 @@ def test_lockstep_build_gives_the_same_bytes_and_keeps_grown_objects(built, tmp_
         build(config, tmp_path / "bad", batch=2, growers=0, progress=False)
 
 
-def _children(pid: int) -> list[int]:
-    """Live (not zombie) processes whose parent is `pid`, from /proc."""
-    found = []
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                stat = (d / "stat").read_text()
-            except OSError:
-                continue
-            fields = stat.rsplit(")", 1)[1].split()
-            if int(fields[1]) == pid and fields[0] != "Z":
-                found.append(int(d.name))
-    return found
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
-
-
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc; the parent-death signal is Linux's")
 def test_workers_end_with_a_killed_build(tmp_path):
     """`kill -9` of a `synth --workers 2` ends its worker processes too (they used to finish their
@@ -394,7 +371,7 @@ def test_workers_end_with_a_killed_build(tmp_path):
     try:
         deadline = time.time() + 120
         while True:
-            workers = [p for p in _children(proc.pid)
+            workers = [p for p in children_of(proc.pid)
                        if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()]
             if len(workers) == 2:
                 break
@@ -405,9 +382,9 @@ def test_workers_end_with_a_killed_build(tmp_path):
         proc.kill()
         proc.wait()
     deadline = time.time() + 30
-    while any(_alive(p) for p in workers) and time.time() < deadline:
+    while any(alive(p) for p in workers) and time.time() < deadline:
         time.sleep(0.1)
-    left = [p for p in workers if _alive(p)]
+    left = [p for p in workers if alive(p)]
     for p in left:
         os.kill(p, signal.SIGKILL)
     assert not left, f"workers {left} outlived their killed parent"
@@ -416,9 +393,9 @@ def test_workers_end_with_a_killed_build(tmp_path):
 def test_worker_processes_are_numbered_for_the_gpus():
     """The build's workers get distinct numbers (`factory.gpus.SLOT_ENV`), which pick their share
     of the GPUs."""
-    from pipelines.dataset.build import _worker_pool
+    from pipelines.workers import pool as worker_pool
 
-    with _worker_pool(2) as pool:
+    with worker_pool(2) as pool:
         slots = set(pool.map(_slot_after, [0.5] * 6))
     assert slots == {"0", "1"}
 

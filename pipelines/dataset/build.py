@@ -8,20 +8,14 @@ gallery from the completion markers and the data files.
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import json
-import multiprocessing
 import os
-import signal
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from contextlib import ExitStack, contextmanager
 from importlib import metadata
 from pathlib import Path
 
-from factory import gpus
 from factory.atomic import write_atomic
 from pipelines.dataset.config import (
     SCHEMA_VERSION,
@@ -33,6 +27,8 @@ from pipelines.dataset.config import (
 )
 from pipelines.dataset import spool
 from pipelines.dataset.shards import build_shard, read_marker
+from pipelines.workers import ONE_THREAD, one_thread_each
+from pipelines.workers import pool as workers_pool
 
 BACKENDS = ("local", "ray")
 PACKAGES = ("brick-factory", "numpy", "scipy", "trimesh", "mujoco", "pillow", "pyarrow")
@@ -68,49 +64,9 @@ def prepare(config: DatasetConfig, out) -> Path:
     return out
 
 
-ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-"""Numeric libraries' threads per worker process, unless the user set them: the workers fill the
-cores, and a pool per process oversubscribes them (16 samplers on 16 cores of an H200 machine:
-980 steps in 58.7 s with the libraries' default threads, 45.4 s with one each)."""
-
-
-def _one_thread_each() -> None:
-    """Worker processes started from now on use one numeric thread each (`ONE_THREAD`)."""
-    for k, v in ONE_THREAD.items():
-        os.environ.setdefault(k, v)
-
-
 def _worker_env() -> dict[str, str]:
-    _one_thread_each()
+    one_thread_each()
     return {k: os.environ[k] for k in (*ENV_FOR_WORKERS, *ONE_THREAD) if k in os.environ}
-
-
-def _worker_pool(workers: int) -> ProcessPoolExecutor:
-    """The local build's worker processes: spawned (a fresh interpreter each, no GL or MuJoCo state
-    forked from this process), one numeric thread each, numbered in start order so that they
-    spread over the machine's GPUs (`factory.gpus`), and ended with this process."""
-    _one_thread_each()
-    ctx = multiprocessing.get_context("spawn")
-    return ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_start_worker,
-                               initargs=(ctx.Value("i", 0), os.getpid()))
-
-
-_PR_SET_PDEATHSIG = 1
-
-
-def _start_worker(counter, parent: int) -> None:
-    """A worker's set-up: its number (`gpus.SLOT_ENV`), and on Linux a SIGTERM when its parent
-    dies (a killed build used to leave its workers running: they finished their shards and then
-    waited forever, holding memory and, on a GPU machine, GPU memory)."""
-    with counter.get_lock():
-        number = counter.value
-        counter.value += 1
-    os.environ[gpus.SLOT_ENV] = str(number)
-    if sys.platform.startswith("linux"):
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-        if os.getppid() != parent:  # the parent died before the line above took effect
-            os._exit(1)
 
 
 def _run_local(config, todo, out, workers, bar):
@@ -126,7 +82,7 @@ def _run_local(config, todo, out, workers, bar):
         return errors
     from concurrent.futures import as_completed
 
-    with _worker_pool(workers) as pool:
+    with workers_pool(workers) as pool:
         futures = {pool.submit(build_shard, config.to_json(), k, str(out)): k for k in todo}
         for fut in as_completed(futures):
             k = futures[fut]
@@ -214,7 +170,7 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, grower
             finish = ray.get
         else:
             # Growers are submitted first: they hold `growers` of the workers while they run.
-            pool = stack.enter_context(_worker_pool(workers))
+            pool = stack.enter_context(workers_pool(workers))
             submit = lambda k: pool.submit(build_shard, config.to_json(), k, str(out))  # noqa: E731
             submit_grow = lambda part: pool.submit(spool.grow, config.to_json(), part, str(out), batch)  # noqa: E731
             finish = lambda f: f.result()  # noqa: E731
