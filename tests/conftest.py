@@ -158,3 +158,32 @@ def alive(pid: int) -> bool:
     except OSError:
         return False
     return state != "Z"
+
+
+def assert_workers_end_with_killed_parent(proc, marker: bytes, workers: int = 2, settle: float = 0.0,
+                                          grace: float = 10.0) -> None:
+    """Wait for `workers` children of `proc` whose command line holds `marker`, kill `proc` with
+    SIGKILL (after `settle` seconds), and assert that they end within `grace` seconds."""
+    import os
+    import signal
+    import time
+
+    found: list[int] = []
+    try:
+        deadline = time.time() + 120
+        while len(found) < workers:
+            found = [p for p in children_of(proc.pid) if marker in Path(f"/proc/{p}/cmdline").read_bytes()]
+            assert proc.poll() is None, "the command ended before its workers started"
+            assert time.time() < deadline, f"no {workers} workers within 120 s"
+            time.sleep(0.05)
+        time.sleep(settle)
+    finally:
+        proc.kill()
+        proc.wait()
+    deadline = time.time() + grace
+    while any(alive(p) for p in found) and time.time() < deadline:
+        time.sleep(0.1)
+    left = [p for p in found if alive(p)]
+    for p in left:
+        os.kill(p, signal.SIGKILL)
+    assert not left, f"workers {left} outlived their killed parent"

@@ -34,7 +34,7 @@ from pipelines.dataset import (
     split_of,
 )
 from pipelines.dataset.schema import IMAGE_COLUMNS, SCHEMA, features_json
-from conftest import alive, children_of, tiny_dataset_config
+from conftest import assert_workers_end_with_killed_parent, tiny_dataset_config
 
 ROOT = Path(__file__).resolve().parents[1]
 CLI_ARGS = ["--n", "3", "--seed", "0", "--min-steps", "2", "--max-steps", "3", "--candidates", "16",
@@ -367,27 +367,7 @@ def test_workers_end_with_a_killed_build(tmp_path):
     out = tmp_path / "orphans"
     cmd = [sys.executable, "-m", "pipelines.synth", *CLI_ARGS, "--out", str(out), "--no-progress", "--workers", "2"]
     proc = subprocess.Popen(cmd, cwd=ROOT, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    workers: list[int] = []
-    try:
-        deadline = time.time() + 120
-        while True:
-            workers = [p for p in children_of(proc.pid)
-                       if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()]
-            if len(workers) == 2:
-                break
-            assert proc.poll() is None, "the build ended before its workers started"
-            assert time.time() < deadline, "no two workers within 120 s"
-            time.sleep(0.05)
-    finally:
-        proc.kill()
-        proc.wait()
-    deadline = time.time() + 30
-    while any(alive(p) for p in workers) and time.time() < deadline:
-        time.sleep(0.1)
-    left = [p for p in workers if alive(p)]
-    for p in left:
-        os.kill(p, signal.SIGKILL)
-    assert not left, f"workers {left} outlived their killed parent"
+    assert_workers_end_with_killed_parent(proc, b"spawn_main", grace=30.0)
 
 
 def test_worker_processes_are_numbered_for_the_gpus():

@@ -253,34 +253,12 @@ def test_candidate_order_computes_only_the_densities_it_needs(twelve_parts, weig
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc; the parent-death signal is Linux's")
 def test_sample_workers_end_with_a_killed_command(tmp_path):
     """`kill -9` of `pipelines.sample --workers 2` ends its worker processes too."""
-    import signal
-    import time
-
-    from conftest import alive, children_of
+    from conftest import assert_workers_end_with_killed_parent
 
     env = {k: v for k, v in os.environ.items() if k != "LDRAWDIR"}
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     cmd = [sys.executable, "-m", "pipelines.sample", "--n", "8", "--out", str(tmp_path / "o"),
            "--min-steps", "90", "--max-steps", "90", "--workers", "2"]
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    workers: list[int] = []
-    try:
-        deadline = time.time() + 120
-        while len(workers) < 2:
-            workers = [p for p in children_of(proc.pid)
-                       if b"pipelines.sample" in Path(f"/proc/{p}/cmdline").read_bytes()]
-            assert proc.poll() is None, "the command ended before its workers started"
-            assert time.time() < deadline, "no two workers within 120 s"
-            time.sleep(0.05)
-        time.sleep(1.0)  # the workers are sampling
-    finally:
-        proc.kill()
-        proc.wait()
-    # (an object of 90 parts takes far longer than this: a worker that ends in time was ended)
-    deadline = time.time() + 10
-    while any(alive(p) for p in workers) and time.time() < deadline:
-        time.sleep(0.1)
-    left = [p for p in workers if alive(p)]
-    for p in left:
-        os.kill(p, signal.SIGKILL)
-    assert not left, f"workers {left} outlived their killed parent"
+    # (an object of 90 parts takes far longer than the grace: a worker that ends in time was ended)
+    assert_workers_end_with_killed_parent(proc, b"pipelines.sample", settle=1.0, grace=10.0)
