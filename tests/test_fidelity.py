@@ -170,3 +170,25 @@ def test_minifig_pieces_join_by_joints_not_modelled(at):
     assert v.reason == "unsupported-connection", v
     # A minifig head pushed into a brick is judged like any part.
     assert verdict([at("3001", 0, -20, 0)], head).reason == "collision"
+
+
+def test_kept_stud_probe_answers_are_the_computed_ones(real_reader):
+    """`studs_cross` answers a probe asked before from its store: the same answers as computing
+    every probe, for studs crossing, standing free and in a hollow of a real brick, asked in
+    mixed batches (some known, some new), and never another surface's answer."""
+    from factory.physics import collide
+
+    body = collide.part_surface(load_part(real_reader, "3001"))
+    rng = np.random.default_rng(3)
+    up = np.array([0.0, -1.0, 0.0])
+    pos = np.concatenate([rng.uniform([-45, -10, -25], [45, 30, 25], size=(60, 3)),
+                          np.array([[x, 4.0, z] for x in (-30, -10, 10, 30) for z in (-10, 10)])])
+    axis = np.repeat(up[None], len(pos), axis=0)
+    computed = collide._studs_cross(pos, axis, body)
+    assert computed.any() and not computed.all()
+    collide._CROSSED.clear()
+    first = collide.studs_cross(pos[::2], axis[::2], body)
+    assert np.array_equal(first, computed[::2])
+    assert np.array_equal(collide.studs_cross(pos, axis, body), computed)  # half from the store
+    other = collide.Surface.of(body.tris + np.array([0.0, 1000.0, 0.0]))  # the brick far away
+    assert not collide.studs_cross(pos, axis, other).any()
