@@ -9,15 +9,18 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
 
-from factory.parts import load_part
+from factory.parts import box_corners, load_part
 from factory.physics.check import check_units
 from factory.physics.geometry import collision_shape
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
+from factory.symmetry import rotation_about
+from pipelines.verify import _on_table
 
 I3 = np.eye(3)
 TURN = np.diag([-1.0, 1.0, -1.0])  # half a turn about the stud axis
 SIDE = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # studs along -Z (on a side stud)
+QUARTER = np.array([[0, 0, -1.0], [0, 1.0, 0], [1.0, 0, 0]])  # a quarter turn about the stud axis
 
 
 @pytest.fixture(scope="module")
@@ -58,6 +61,9 @@ PLACEMENTS = {
         [at("3022", 0, 0, 0), at("2357", -10, -24, -10)], at("3005", 10, -24, 10)),
     "corner plate round a 1x1 plate": lambda at: (
         [at("3022", 0, 0, 0), at("3024", 10, -8, 10)], at("2420", -10, -8, -10)),
+    # Covered Wagon, Cannon step 2: a wheel holder plate on a 2x4 plate (its underside open
+    # towards the pins: sockets held by the centre tube and one wall).
+    "wheel holder plate on a plate": lambda at: ([at("3020", 0, 0, 0, QUARTER)], at("6157", 0, -16, 20)),
 }
 
 
@@ -69,7 +75,8 @@ def test_round_and_notched_parts_where_people_put_them_are_accepted(at, case):
 
 
 @pytest.mark.parametrize("case", ["round brick beside bricks", "round plates side by side",
-                                  "cone on a round plate", "dish on a 1x1 brick among plates"])
+                                  "cone on a round plate", "dish on a 1x1 brick among plates",
+                                  "wheel holder plate on a plate"])
 def test_round_parts_moved_off_their_studs_are_rejected(at, case):
     structure, good = PLACEMENTS[case](at)
     up = np.array([0.0, -1.0, 0.0])
@@ -170,3 +177,17 @@ def test_minifig_pieces_join_by_joints_not_modelled(at):
     assert v.reason == "unsupported-connection", v
     # A minifig head pushed into a brick is judged like any part.
     assert verdict([at("3001", 0, -20, 0)], head).reason == "collision"
+
+
+def test_the_ground_is_the_lowest_point_of_a_tilted_part(at):
+    # Covered Wagon, main model: the cannon stands tilted 15 degrees about its axle; its wheels'
+    # boxes turned with it reach 9.4 LDU below the wheels, so the ground was put there and the
+    # barrels and the tile laid on the table beside the wagon were judged floating.
+    wheel = at("4489b", 0, 0, 0, rotation_about(np.array([1.0, 0.0, 0.0]), 15.0) @ QUARTER)
+    points = wheel.pose.apply(wheel.part.flat.triangles.reshape(-1, 3))
+    built = Structure([wheel])
+    assert built.floor_y() == pytest.approx(points[:, 1].max())
+    assert wheel.pose.apply(box_corners(wheel.part.bbox))[:, 1].max() > built.floor_y() + 9.0
+    # A tile lying on the table beside it is on the table; one a plate above it is not.
+    assert _on_table(built, [at("3069b", 100, built.floor_y() - 8, 0)])
+    assert not _on_table(built, [at("3069b", 100, built.floor_y() - 16, 0)])
