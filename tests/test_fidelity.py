@@ -191,3 +191,42 @@ def test_the_ground_is_the_lowest_point_of_a_tilted_part(at):
     # A tile lying on the table beside it is on the table; one a plate above it is not.
     assert _on_table(built, [at("3069b", 100, built.floor_y() - 8, 0)])
     assert not _on_table(built, [at("3069b", 100, built.floor_y() - 16, 0)])
+
+
+def test_a_part_blocked_far_out_on_its_axis_comes_in_from_the_side(at):
+    # LEGO Truck steps 7-8: lights pressed onto side studs of its front, the wheel holders 100 LDU
+    # further out on their axis. Here: a round plate onto a headlight brick's side stud, a brick
+    # standing 52 LDU further out on that axis (more than the fingertip's room, `PRESS_LDU`).
+    base = at("3035", 0, 0, 0, QUARTER)
+    light = at("4070", -10, -24, 10)
+    ahead = at("3005", -10, -24, -70)
+    plate = at("6141", -10, -14, -4, SIDE)
+    v = verdict([base, light, ahead], plate)
+    assert v.reason is None and v.connections == 1 and v.buildable, v
+    # In a tunnel (1x4 bricks either side, a 4x4 plate over it, the base plate 4 LDU under it) as
+    # long as the way to the brick ahead, it can only come along its axis: through that brick.
+    tunnel = [at("3010", -30, -24, -40, QUARTER), at("3010", 10, -24, -40, QUARTER), at("3031", 0, -32, -40)]
+    v = verdict([base, light, ahead] + tunnel, plate)
+    assert v.reason == "blocked" and 2 in v.blocked_by, v
+    # With the brick ahead within the fingertip's room, it cannot be pressed on either.
+    v = verdict([base, light, at("3005", -10, -24, -30)], plate)
+    assert v.reason == "blocked", v
+
+
+def test_a_mudguard_stands_beside_the_plate_under_its_rounded_end(at):
+    # Vintage Car step 10: a mudguard with rounded ends on the chassis plates, its front end down
+    # beside a 1x3 plate. coacd's pieces of the mudguard (too curved to be cut along its faces)
+    # are hulls of its vertices near each piece and spanned the corner between its end and a
+    # ledge above: 3.7 LDU past the end's face, a 1.9 LDU overlap with the plate. Each piece
+    # that is not faithful is now split along the part's faces.
+    turn, quarter_back = np.diag([-1.0, 1.0, -1.0]), QUARTER.T
+    chassis = [at("4282", 0, 0, 0, turn), at("3623", -130, 0, 30, turn), at("3623", -130, 0, -30, turn),
+               at("3020", -120, -8, 0, QUARTER), at("3035", 20, -8, 0), at("18892", -80, -8, 0, quarter_back)]
+    v = verdict(chassis, at("35789", -80, -40, 40, turn))
+    assert v.reason is None and v.connections == 4, v
+    # Pushed 4 LDU towards the plate it is not on its studs, and it overlaps the plate.
+    assert verdict(chassis, at("35789", -80, -40, 36, turn)).reason == "collision"
+    # No piece holds the point beside the end's face where the plate's edge lies (the part's
+    # own frame: its end's face at z = 0, the plate below the ledge at y > 40).
+    shape = collision_shape(at("35789", 0, 0, 0).part)
+    assert not any(np.all(ConvexHull(p).equations @ [34.0, 44.0, 1.0, 1.0] < 0) for p in shape.body)
