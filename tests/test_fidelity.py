@@ -61,6 +61,10 @@ PLACEMENTS = {
         [at("3022", 0, 0, 0), at("2357", -10, -24, -10)], at("3005", 10, -24, 10)),
     "corner plate round a 1x1 plate": lambda at: (
         [at("3022", 0, 0, 0), at("3024", 10, -8, 10)], at("2420", -10, -8, -10)),
+    "2x2 round plates stacked": lambda at: ([at("3003", 0, 0, 0), at("4032b", 0, -8, 0)], at("4032b", 0, -16, 0)),
+    "round tile on a 2x2 round plate": lambda at: ([at("3022", 0, 0, 0), at("4032b", 0, -8, 0)], at("4150", 0, -16, 0)),
+    "dish on a round plate": lambda at: (
+        [at("3031", 0, 0, 0), at("3024", -10, -8, -10), at("6141", -10, -16, -10)], at("43898", -10, -24, -10)),
     # Covered Wagon, Cannon step 2: a wheel holder plate on a 2x4 plate (its underside open
     # towards the pins: sockets held by the centre tube and one wall).
     "wheel holder plate on a plate": lambda at: ([at("3020", 0, 0, 0, QUARTER)], at("6157", 0, -16, 20)),
@@ -86,6 +90,18 @@ def test_round_parts_moved_off_their_studs_are_rejected(at, case):
     ]:
         v = verdict(structure, Placed(good.part, good.colour, Pose(good.pose.R, moved)))
         assert v.reason in reasons, (case, name, v)
+
+
+@pytest.mark.parametrize("case, towards", [("round brick beside bricks", [1.0, 0.0, 0.0]),
+                                           ("round plates side by side", [-1.0, 0.0, 0.0]),
+                                           ("round tile beside a tile", [-1.0, 0.0, 0.0]),
+                                           ("tile beside a round tile", [1.0, 0.0, 0.0])])
+def test_round_parts_pushed_into_their_neighbour_are_rejected(at, case, towards):
+    # 4 LDU into the part they touch (a round part's faces are 16-gons: its pieces must still
+    # reach its rim, not only its inset hull's middle).
+    structure, good = PLACEMENTS[case](at)
+    v = verdict(structure, Placed(good.part, good.colour, Pose(good.pose.R, good.pose.t + 4.0 * np.array(towards))))
+    assert v.reason in {"collision", "no-connection"} and v.max_penetration_ldu > 3.0, (case, v)
 
 
 def test_a_wedge_fits_round_the_brick_in_its_notch(at):
