@@ -12,7 +12,8 @@ A part's collision shape is two kinds of convex pieces, all in the part's LDraw 
   faithful in the same sense (a round plate's narrow base below its wider top, a corner brick's
   or a wedge's notch, a headlight brick's recess, a dish's dome below the stud it sits on): the
   pieces then follow the part's surface. Only where that takes too many cells does coacd split
-  the body.
+  the body. Any piece still not faithful (coacd's hulls span concave corners) is then split along
+  the part's faces within it (`_refined`).
 
 Every piece is inset by `INSET_LDU` (its faces moved inward), so mated parts that touch are not
 penetrating and a penetration measured between inset pieces is a real overlap of at least
@@ -71,7 +72,7 @@ class DecompositionConfig:
     prism is solid, so filling the bore under it changes nothing)."""
     refine_cells: int = 64
     """How many cells the split of one unfaithful piece (`_refined`) may examine. Not part of the
-    decomposition's cache key: refined pieces are cached under their own (`REFINED`)."""
+    decomposition's cache key: refined pieces are cached under their own (`collision_shape`)."""
 
 
 def cache_dir() -> Path:
