@@ -106,8 +106,11 @@ def _distance_2d(tris: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.where(inside, 0.0, edge)
 
 
-def find_sockets(tris: np.ndarray) -> tuple[Connector, ...]:
-    """Sockets on the underside of a part, from its triangles (n, 3, 3) in LDU."""
+def find_sockets(tris: np.ndarray, stud_columns=()) -> tuple[Connector, ...]:
+    """Sockets on the underside of a part, from its triangles (n, 3, 3) in LDU. `stud_columns`:
+    the (x, z) of the part's own studs that point up, where a stud held only from two opposite
+    sides counts too (`_pinched`)."""
+    columns = np.asarray(stud_columns, float).reshape(-1, 2)
     if len(tris) == 0:
         return ()
     n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
@@ -129,7 +132,8 @@ def find_sockets(tris: np.ndarray) -> tuple[Connector, ...]:
             continue
         for x in xs:
             for z in zs:
-                kind = _probe(tris, centres, reach, at_level, np.array([x, y0, z]))
+                under = bool(len(columns)) and bool((np.abs(columns - [x, z]).max(axis=1) < 1e-3).any())
+                kind = _probe(tris, centres, reach, at_level, np.array([x, y0, z]), under)
                 if kind:
                     found.append(Connector((_r(x), _r(y0), _r(z)), tuple(UP.tolist()), kind))
     return tuple(sorted(found, key=lambda c: (c.pos[1], c.pos[0], c.pos[2])))
@@ -148,15 +152,21 @@ def _turn_to_up(axis: np.ndarray) -> np.ndarray:
     return r
 
 
-def sockets_facing(tris: np.ndarray, stud_axes) -> tuple[Connector, ...]:
+def sockets_facing(tris: np.ndarray, studs) -> tuple[Connector, ...]:
     """Sockets entered along UP (the underside, `find_sockets`) and, for every other principal
     axis the part's own studs point along, the sockets entered along that axis: a part with studs
     on a side (a bracket) has its sockets at the back of that side, as a brick has them under its
     top. Other directions are not probed: a part has no reason to hold a stud there, and probing
     every side of every part would cost five more probes per part."""
-    found = list(find_sockets(tris))
+    studs = list(studs)
+
+    def columns(r: np.ndarray) -> np.ndarray:
+        # The (x, z) of the studs that point up once the part is turned by r.
+        return np.array([(r @ c.pos)[[0, 2]] for c in studs if (r @ c.axis) @ UP > 0.999]).reshape(-1, 2)
+
+    found = list(find_sockets(tris, columns(np.eye(3))))
     done = {tuple(UP)}
-    for a in stud_axes:
+    for a in {c.axis for c in studs}:
         a = np.asarray(a, float)
         k = int(np.argmax(np.abs(a)))
         if abs(a[k]) < 0.999:
@@ -166,13 +176,13 @@ def sockets_facing(tris: np.ndarray, stud_axes) -> tuple[Connector, ...]:
             continue
         done.add(key)
         r = _turn_to_up(np.array(key))
-        for c in find_sockets(tris @ r.T):
+        for c in find_sockets(tris @ r.T, columns(r)):
             pos = r.T @ np.array(c.pos)
             found.append(Connector(tuple(_r(v) for v in pos), tuple(_r(v) for v in key), c.kind))
     return tuple(sorted(found, key=lambda c: (c.axis, c.pos[1], c.pos[0], c.pos[2])))
 
 
-def _probe(tris, centres, reach, rim, c) -> str | None:
+def _probe(tris, centres, reach, rim, c, under_stud: bool = False) -> str | None:
     # A rim face at this level must touch the stud: the opening is the end of the material
     # around it (a ledge further from the stud, such as a rib inside a cavity, is not).
     rim_d = _distance_2d(rim[:, :, [0, 2]], c[[0, 2]]).min()
@@ -201,6 +211,17 @@ def _probe(tris, centres, reach, rim, c) -> str | None:
     touching = side <= STUD_RADIUS + 0.6
     if touching.all():
         return "tube"
-    if touching.sum() >= 3:
+    if touching.sum() >= 3 or (under_stud and _pinched(touching)):
         return "stud"
     return None
+
+
+def _pinched(touching: np.ndarray) -> bool:
+    """Whether the stud is held between two surfaces on opposite sides (at least 135 degrees
+    apart): a tube and the wall across from it grip a stud as three walls do (the underside of a
+    wheel holder plate, open towards its pins, has only its centre tube and one side wall).
+    Asked only right under one of the part's own studs, where a plate's sockets are: between
+    the long walls of a 1x2 tile, half a stud off its grid, two sides are no socket."""
+    k = np.flatnonzero(touching)
+    apart = np.abs(k[:, None] - k[None, :]) % 8
+    return bool((np.minimum(apart, 8 - apart) >= 3).any())

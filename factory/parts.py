@@ -7,6 +7,7 @@ from functools import cached_property
 
 import numpy as np
 import trimesh
+from scipy.spatial import ConvexHull, QhullError
 
 from factory.connections import Connector, sockets_facing, studs_from_flat
 from factory.ldraw.reader import Flat, Reader
@@ -52,6 +53,18 @@ class Part:
         return np.stack([pts.min(0), pts.max(0)])
 
     @cached_property
+    def hull_points(self) -> np.ndarray:
+        """The vertices of the convex hull of the part's triangles (k, 3) in LDU: the extent of
+        the part along any direction, where its box is exact only along the part's own axes."""
+        pts = self.flat.triangles.reshape(-1, 3)
+        if len(pts) < 4:
+            return pts
+        try:
+            return pts[ConvexHull(pts).vertices]
+        except (QhullError, ValueError):
+            return pts  # flat or degenerate: every point
+
+    @cached_property
     def volume_ldu3(self) -> float:
         """Enclosed volume from the signed divergence sum over the outward-wound triangles.
 
@@ -76,7 +89,7 @@ class Part:
 
     @cached_property
     def sockets(self) -> tuple[Connector, ...]:
-        return sockets_facing(self.flat.triangles, {c.axis for c in self.studs})
+        return sockets_facing(self.flat.triangles, self.studs)
 
     @cached_property
     def symmetry(self) -> Symmetry:

@@ -147,7 +147,8 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
     """
     reader = get_reader(ldraw)
     frames: dict[str, Pose] = {}
-    steps = build_steps(reader, reader.open_model(model_path), frames)
+    blocks: dict[str, int] = {}
+    steps = build_steps(reader, reader.open_model(model_path), frames, blocks)
     open_: list[_Assembly] = []
     # Every part of each assembly in its own frame, in build order; a finished sub-assembly also
     # belongs to its parents (for the turn fault judged in the finished design).
@@ -163,6 +164,21 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
             move = frames[parent].inverse() @ frames[tag]
             finished.setdefault(parent, []).extend(Placed(q.part, q.colour, move @ q.pose) for q in finished[tag])
 
+    def going_in_with(tag: str) -> list[Placed]:
+        """The parts that go in with sub-assembly `tag`, in its parent's frame: the later
+        sub-assemblies its parent's file references in the same STEP block, and the parts that
+        block places itself (a wagon rests its front on the drawbar built beside it)."""
+        parent = tag.rsplit("/", 1)[0]
+        siblings = [t for t in finished if t.rsplit("/", 1)[0] == parent and blocks.get(t) == blocks[tag]]
+        out = []
+        for t in siblings[siblings.index(tag) + 1:]:
+            move = frames[parent].inverse() @ frames[t]
+            out += [Placed(q.part, q.colour, move @ q.pose) for q in finished[t]]
+        for step in steps:
+            if step.assembly == parent and step.block == blocks[tag]:
+                out += locals_of[id(step)]
+        return out
+
     def close_until(tag: str):
         while open_ and not (tag == open_[-1].tag or tag.startswith(open_[-1].tag + "/")):
             done = open_.pop()
@@ -174,6 +190,13 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
             (v,) = check_units(parent.structure, [unit], backend, config,
                                require_connection=not _on_table(parent.structure, unit),
                                standing=parent.tag == "main", unit_links=done.structure.links)
+            along = going_in_with(done.tag) if v.reason in ("no-connection", "unstable") else []
+            if along:
+                # As the parts of one step: it may rest on what goes in with it.
+                judged_on = Structure(parent.structure.placed + along)
+                judged_on.links.extend(parent.structure.links)
+                (v,) = check_units(judged_on, [unit], backend, config, standing=parent.tag == "main",
+                                   unit_links=done.structure.links)
             yield _record(v, step=done.last_step, index=0, part=done.tag.rsplit("/", 1)[-1],
                           color=unit[0].colour, unit=True, assembly=done.tag)
             _add_unit(parent.structure, unit, done.structure.links, v)

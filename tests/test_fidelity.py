@@ -9,15 +9,18 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
 
-from factory.parts import load_part
+from factory.parts import box_corners, load_part
 from factory.physics.check import check_units
 from factory.physics.geometry import collision_shape
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
+from factory.symmetry import rotation_about
+from pipelines.verify import _on_table
 
 I3 = np.eye(3)
 TURN = np.diag([-1.0, 1.0, -1.0])  # half a turn about the stud axis
 SIDE = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # studs along -Z (on a side stud)
+QUARTER = np.array([[0, 0, -1.0], [0, 1.0, 0], [1.0, 0, 0]])  # a quarter turn about the stud axis
 
 
 @pytest.fixture(scope="module")
@@ -58,6 +61,13 @@ PLACEMENTS = {
         [at("3022", 0, 0, 0), at("2357", -10, -24, -10)], at("3005", 10, -24, 10)),
     "corner plate round a 1x1 plate": lambda at: (
         [at("3022", 0, 0, 0), at("3024", 10, -8, 10)], at("2420", -10, -8, -10)),
+    "2x2 round plates stacked": lambda at: ([at("3003", 0, 0, 0), at("4032b", 0, -8, 0)], at("4032b", 0, -16, 0)),
+    "round tile on a 2x2 round plate": lambda at: ([at("3022", 0, 0, 0), at("4032b", 0, -8, 0)], at("4150", 0, -16, 0)),
+    "dish on a round plate": lambda at: (
+        [at("3031", 0, 0, 0), at("3024", -10, -8, -10), at("6141", -10, -16, -10)], at("43898", -10, -24, -10)),
+    # Covered Wagon, Cannon step 2: a wheel holder plate on a 2x4 plate (its underside open
+    # towards the pins: sockets held by the centre tube and one wall).
+    "wheel holder plate on a plate": lambda at: ([at("3020", 0, 0, 0, QUARTER)], at("6157", 0, -16, 20)),
 }
 
 
@@ -69,7 +79,8 @@ def test_round_and_notched_parts_where_people_put_them_are_accepted(at, case):
 
 
 @pytest.mark.parametrize("case", ["round brick beside bricks", "round plates side by side",
-                                  "cone on a round plate", "dish on a 1x1 brick among plates"])
+                                  "cone on a round plate", "dish on a 1x1 brick among plates",
+                                  "wheel holder plate on a plate"])
 def test_round_parts_moved_off_their_studs_are_rejected(at, case):
     structure, good = PLACEMENTS[case](at)
     up = np.array([0.0, -1.0, 0.0])
@@ -79,6 +90,18 @@ def test_round_parts_moved_off_their_studs_are_rejected(at, case):
     ]:
         v = verdict(structure, Placed(good.part, good.colour, Pose(good.pose.R, moved)))
         assert v.reason in reasons, (case, name, v)
+
+
+@pytest.mark.parametrize("case, towards", [("round brick beside bricks", [1.0, 0.0, 0.0]),
+                                           ("round plates side by side", [-1.0, 0.0, 0.0]),
+                                           ("round tile beside a tile", [-1.0, 0.0, 0.0]),
+                                           ("tile beside a round tile", [1.0, 0.0, 0.0])])
+def test_round_parts_pushed_into_their_neighbour_are_rejected(at, case, towards):
+    # 4 LDU into the part they touch (a round part's faces are 16-gons: its pieces must still
+    # reach its rim, not only its inset hull's middle).
+    structure, good = PLACEMENTS[case](at)
+    v = verdict(structure, Placed(good.part, good.colour, Pose(good.pose.R, good.pose.t + 4.0 * np.array(towards))))
+    assert v.reason in {"collision", "no-connection"} and v.max_penetration_ldu > 3.0, (case, v)
 
 
 def test_a_wedge_fits_round_the_brick_in_its_notch(at):
@@ -192,3 +215,83 @@ def test_kept_stud_probe_answers_are_the_computed_ones(real_reader):
     assert np.array_equal(collide.studs_cross(pos, axis, body), computed)  # half from the store
     other = collide.Surface.of(body.tris + np.array([0.0, 1000.0, 0.0]))  # the brick far away
     assert not collide.studs_cross(pos, axis, other).any()
+
+
+def test_the_ground_is_the_lowest_point_of_a_tilted_part(at):
+    # Covered Wagon, main model: the cannon stands tilted 15 degrees about its axle; its wheels'
+    # boxes turned with it reach 9.4 LDU below the wheels, so the ground was put there and the
+    # barrels and the tile laid on the table beside the wagon were judged floating.
+    wheel = at("4489b", 0, 0, 0, rotation_about(np.array([1.0, 0.0, 0.0]), 15.0) @ QUARTER)
+    points = wheel.pose.apply(wheel.part.flat.triangles.reshape(-1, 3))
+    built = Structure([wheel])
+    assert built.floor_y() == pytest.approx(points[:, 1].max())
+    assert wheel.pose.apply(box_corners(wheel.part.bbox))[:, 1].max() > built.floor_y() + 9.0
+    # A tile lying on the table beside it is on the table; one a plate above it is not.
+    assert _on_table(built, [at("3069b", 100, built.floor_y() - 8, 0)])
+    assert not _on_table(built, [at("3069b", 100, built.floor_y() - 16, 0)])
+
+
+def test_a_part_blocked_far_out_on_its_axis_comes_in_from_the_side(at):
+    # LEGO Truck steps 7-8: lights pressed onto side studs of its front, the wheel holders 100 LDU
+    # further out on their axis. Here: a round plate onto a headlight brick's side stud, a brick
+    # standing 52 LDU further out on that axis (more than the fingertip's room, `PRESS_LDU`).
+    base = at("3035", 0, 0, 0, QUARTER)
+    light = at("4070", -10, -24, 10)
+    ahead = at("3005", -10, -24, -70)
+    plate = at("6141", -10, -14, -4, SIDE)
+    v = verdict([base, light, ahead], plate)
+    assert v.reason is None and v.connections == 1 and v.buildable, v
+    # In a tunnel (1x4 bricks either side, a 4x4 plate over it, the base plate 4 LDU under it) as
+    # long as the way to the brick ahead, it can only come along its axis: through that brick.
+    tunnel = [at("3010", -30, -24, -40, QUARTER), at("3010", 10, -24, -40, QUARTER), at("3031", 0, -32, -40)]
+    v = verdict([base, light, ahead] + tunnel, plate)
+    assert v.reason == "blocked" and 2 in v.blocked_by, v
+    # With the brick ahead within the fingertip's room, it cannot be pressed on either.
+    v = verdict([base, light, at("3005", -10, -24, -30)], plate)
+    assert v.reason == "blocked", v
+
+
+def test_a_mudguard_stands_beside_the_plate_under_its_rounded_end(at):
+    # Vintage Car step 10: a mudguard with rounded ends on the chassis plates, its front end down
+    # beside a 1x3 plate. coacd's pieces of the mudguard (too curved to be cut along its faces)
+    # are hulls of its vertices near each piece and spanned the corner between its end and a
+    # ledge above: 3.7 LDU past the end's face, a 1.9 LDU overlap with the plate. Each piece
+    # that is not faithful is now split along the part's faces.
+    turn, quarter_back = np.diag([-1.0, 1.0, -1.0]), QUARTER.T
+    chassis = [at("4282", 0, 0, 0, turn), at("3623", -130, 0, 30, turn), at("3623", -130, 0, -30, turn),
+               at("3020", -120, -8, 0, QUARTER), at("3035", 20, -8, 0), at("18892", -80, -8, 0, quarter_back)]
+    v = verdict(chassis, at("35789", -80, -40, 40, turn))
+    assert v.reason is None and v.connections == 4, v
+    # Pushed 4 LDU towards the plate it is not on its studs, and it overlaps the plate.
+    assert verdict(chassis, at("35789", -80, -40, 36, turn)).reason == "collision"
+    # No piece holds the point beside the end's face where the plate's edge lies (the part's
+    # own frame: its end's face at z = 0, the plate below the ledge at y > 40).
+    shape = collision_shape(at("35789", 0, 0, 0).part)
+    assert not any(np.all(ConvexHull(p).equations @ [34.0, 44.0, 1.0, 1.0] < 0) for p in shape.body)
+
+
+SEESAW = """0 FILE main.ldr
+1 16 0 0 0 1 0 0 0 1 0 0 0 1 seesaw.ldr
+{step}1 16 0 0 0 1 0 0 0 1 0 0 0 1 prop.ldr
+0 FILE seesaw.ldr
+1 4 -30 0 -10 1 0 0 0 1 0 0 0 1 3005.dat
+0 STEP
+1 4 0 -8 0 1 0 0 0 1 0 0 0 1 3020.dat
+0 FILE prop.ldr
+1 4 30 0 -10 1 0 0 0 1 0 0 0 1 3005.dat
+"""
+
+
+@pytest.mark.parametrize("step, reason", [("", None), ("0 STEP\n", "unstable")])
+def test_sub_assemblies_of_one_step_go_in_together(write, step, reason):
+    # Covered Wagon, main model: the wagon stands on its rear wheels and rests its front on the
+    # drawbar, a sub-assembly of the same step built after it. Here a 2x4 plate on a 1x1 brick
+    # at one end (it tips alone) and a 1x1 brick under its other end, in one step of the main
+    # model: judged with what goes in with it, it stands. A step later, it tips.
+    from conftest import LDRAW
+    from pipelines.verify import verify_model
+
+    path = write("seesaw.mpd", SEESAW.format(step=step))
+    units = {r["assembly"]: r for r in verify_model(path, LDRAW) if r.get("unit")}
+    assert units["main/seesaw.ldr#1"]["reason"] == reason, units
+    assert units["main/prop.ldr#1"]["reason"] is None and units["main/prop.ldr#1"]["connections"] == 1, units

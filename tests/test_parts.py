@@ -44,6 +44,14 @@ def test_brick_2x4(real_reader):
         ("3665", 2, {"stud": 1}),  # a ~Moved to stub: geometry of 3665a
         ("3020", 8, {"stud": 8, "tube": 3}),
         ("3068b", 0, {"stud": 4, "tube": 1}),
+        # Wheel holder plates, their undersides open towards the pins: each stud is held between
+        # the centre tube and one side wall only (two opposite sides), right under a stud on top.
+        ("6157", 4, {"stud": 4}),
+        ("11002", 4, {"stud": 4}),
+        # A 1x4 brick without bars underneath: its middle studs' sockets have only the long walls.
+        ("3066", 4, {"stud": 4}),
+        # Between a 1x2 tile's long walls half a stud off its grid is no socket (no stud above).
+        ("3069b", 0, {"stud": 2}),
     ],
 )
 def test_connection_points(real_reader, name, studs, sockets):

@@ -139,23 +139,28 @@ def test_decompositions_are_cached_on_disk(tmp_path, monkeypatch):
     monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path))
     cfg = DecompositionConfig(inset_ldu=0.3)  # a config no other test uses: a fresh entry
     first = collision_shape(part("3039"), cfg)
-    files = list(cache_dir().glob("*.npz"))
-    assert len(files) == 1 and files[0].stem == first.key
+    # Two entries: the decomposition and its pieces made faithful (named by the shape's key).
+    files = sorted(cache_dir().glob("*.npz"), key=lambda f: f.stem != first.key)
+    assert len(files) == 2 and files[0].stem == first.key
     # A new Part object (as in a new process) reads the entry instead of decomposing again.
     from factory.parts import Part
 
     clone = Part(name="3039.dat", description="", moved_to=None, flat=part("3039").flat)
-    mtime = files[0].stat().st_mtime_ns
+    mtimes = [f.stat().st_mtime_ns for f in files]
     again = collision_shape(clone, cfg)
-    assert files[0].stat().st_mtime_ns == mtime
+    assert [f.stat().st_mtime_ns for f in files] == mtimes
     assert all(np.allclose(a, b) for a, b in zip(first.body, again.body))
-    # A damaged entry is recomputed and replaced.
-    files[0].write_bytes(b"not a zip")
-    clone2 = Part(name="3039.dat", description="", moved_to=None, flat=part("3039").flat)
-    repaired = collision_shape(clone2, cfg)
-    assert len(repaired.body) == len(first.body)
-    with np.load(files[0]) as data:
-        assert int(data["n"]) == len(first.body)
+    # A damaged entry is recomputed and replaced: the refined one alone (from the decomposition's
+    # entry), then both.
+    for damaged in (files[:1], files):
+        for f in damaged:
+            f.write_bytes(b"not a zip")
+        clone2 = Part(name="3039.dat", description="", moved_to=None, flat=part("3039").flat)
+        repaired = collision_shape(clone2, cfg)
+        assert len(repaired.body) == len(first.body)
+        for f in files:
+            with np.load(f) as data:
+                assert int(data["n"]) == len(first.body)
 
 
 def test_inset_pieces_stay_inside_the_part():

@@ -16,7 +16,7 @@ from factory.physics.attach import feasible_poses, lowest_y
 from factory.physics.check import CheckConfig, _unit_connections
 from factory.physics.collide import CollisionScene
 from factory.physics.structure import Placed, Structure
-from factory.physics.sweep import SweepResult, approach, sweep
+from factory.physics.sweep import PRESS_LDU, SweepResult, approach, sweep
 from factory.symmetry import rotation_about
 from conftest import at, part
 
@@ -147,14 +147,17 @@ TOPS = {"plate": at("3710", 0, -176, 10), "tile": at("3068b", 20, -176, 0)}
 def test_a_blocker_thinner_than_a_step_is_found(top, step):
     # 8 LDU thick (a plate's studs add 4), 140 LDU above the brick's studs; at step 50 the whole
     # interval where the boxes meet (~40 LDU) holds no grid pose: only halving where the bound
-    # allows an overlap finds it.
-    r = swept(COLUMN + [TOPS[top]], [at("3003", 0, -24, 0)], step_ldu=step)
+    # allows an overlap finds it. Along the axis all the way (`press_ldu=None`):
+    r = swept(COLUMN + [TOPS[top]], [at("3003", 0, -24, 0)], step_ldu=step, press_ldu=None)
     assert r.buildable is False and r.blocked_by == (8,)
     # Coming down from above, the brick's bottom (its pose's y = 0 when seated) meets the
     # blocker's top (the plate's studs at y = -180, the tile's face at -176), found within a step.
     assert 175 - step < r.at_ldu < 180
     # Without the top the same path is clear.
-    assert swept(COLUMN, [at("3003", 0, -24, 0)], step_ldu=step).buildable
+    assert swept(COLUMN, [at("3003", 0, -24, 0)], step_ldu=step, press_ldu=None).buildable
+    # A hand brings the brick in from the side under that high top and presses it down.
+    r = swept(COLUMN + [TOPS[top]], [at("3003", 0, -24, 0)], step_ldu=step)
+    assert r.buildable and r.at_ldu == PRESS_LDU
 
 
 def test_connections_on_two_axes_are_not_judged():
@@ -215,7 +218,7 @@ def test_sweep_cost_and_agreement_with_the_plain_sweep_on_grown_structures(size,
     fast, plain = [], []
     for world, touched in cases:
         t = time.perf_counter()
-        r = sweep(scene, s, world, touched)
+        r = sweep(scene, s, world, touched, press_ldu=None)
         fast.append((r.buildable, r.poses_checked, time.perf_counter() - t))
         t = time.perf_counter()
         ok, n = _plain_sweep(scene, s, world, touched)

@@ -41,6 +41,9 @@ class BuildStep:
     parts: tuple[PlacedPart, ...]
     frame: Pose = Pose.identity()
     """Where the sub-assembly's own frame sits in the model frame (identity for `main`)."""
+    block: int = 0
+    """How many STEP lines of its assembly's file come before it: its parts and the sub-assemblies
+    that file references in the same block go in together (`build_steps`' `blocks`)."""
 
     def to_json(self) -> dict:
         return {
@@ -69,16 +72,19 @@ def is_submodel(res: Resolved) -> bool:
     return not (f.name.lower().endswith(".dat") and has_faces)
 
 
-def build_steps(reader: Reader, model: Model, frames: dict[str, Pose] | None = None) -> list[BuildStep]:
+def build_steps(reader: Reader, model: Model, frames: dict[str, Pose] | None = None,
+                blocks: dict[str, int] | None = None) -> list[BuildStep]:
     """The model's build steps in order; steps that place no part are dropped.
 
     `frames`, when given, receives every sub-assembly instance's frame (also those with no part
-    of their own), keyed by tag.
+    of their own), keyed by tag; `blocks` the STEP block of its parent's file that references it
+    (as `BuildStep.block`).
     """
     main = Resolved(model.main, f"{model.path}#{model.main.name.lower()}", "mpd", model)
     _count_parts(reader, main, (), {})
     steps: list[BuildStep] = []
-    _expand(reader, main, Pose.identity(), 16, MAIN_ASSEMBLY, steps, (), frames if frames is not None else {})
+    _expand(reader, main, Pose.identity(), 16, MAIN_ASSEMBLY, steps, (), frames if frames is not None else {},
+            blocks if blocks is not None else {})
     return steps
 
 
@@ -109,21 +115,24 @@ def _expand(
     out: list[BuildStep],
     stack: tuple[str, ...],
     frames: dict[str, Pose],
+    blocks: dict[str, int],
 ) -> None:
     if len(stack) > MAX_DEPTH:
         raise LDrawLimitError(f"submodels nest more than {MAX_DEPTH} levels deep", res.file.path)
     frames[assembly] = pose
     current: list[PlacedPart] = []
     instances: dict[str, int] = defaultdict(int)
+    block = 0
 
     def close_step() -> None:
         if current:
-            out.append(BuildStep(len(out), assembly, tuple(current), pose))
+            out.append(BuildStep(len(out), assembly, tuple(current), pose, block))
             current.clear()
 
     for item in res.file.items:
         if isinstance(item, Step):
             close_step()
+            block += 1
             continue
         if not isinstance(item, Ref):
             continue
@@ -134,7 +143,8 @@ def _expand(
             label = _label(child.file, item)
             instances[label.lower()] += 1
             sub = f"{assembly}/{label}#{instances[label.lower()]}"
-            _expand(reader, child, child_pose, child_colour, sub, out, stack + (res.key,), frames)
+            blocks[sub] = block
+            _expand(reader, child, child_pose, child_colour, sub, out, stack + (res.key,), frames, blocks)
         else:
             current.append(
                 PlacedPart(item.name, child_colour, child_pose, f"{res.file.path}:{item.line}")

@@ -12,7 +12,8 @@ A part's collision shape is two kinds of convex pieces, all in the part's LDraw 
   faithful in the same sense (a round plate's narrow base below its wider top, a corner brick's
   or a wedge's notch, a headlight brick's recess, a dish's dome below the stud it sits on): the
   pieces then follow the part's surface. Only where that takes too many cells does coacd split
-  the body.
+  the body. Any piece still not faithful (coacd's hulls span concave corners) is then split along
+  the part's faces within it (`_refined`).
 
 Every piece is inset by `INSET_LDU` (its faces moved inward), so mated parts that touch are not
 penetrating and a penetration measured between inset pieces is a real overlap of at least
@@ -69,6 +70,9 @@ class DecompositionConfig:
     stud_bores_roofed: bool = True
     """Whether the faithfulness test counts a hollow stud's bore as roofed (the stud's collision
     prism is solid, so filling the bore under it changes nothing)."""
+    refine_cells: int = 64
+    """How many cells the split of one unfaithful piece (`_refined`) may examine. Not part of the
+    decomposition's cache key: refined pieces are cached under their own (`collision_shape`)."""
 
 
 def cache_dir() -> Path:
@@ -261,11 +265,13 @@ def _stud_caps(part: Part, segments: int = 16) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros((0, 3, 3))
 
 
-def _cut(polys: list[np.ndarray], axis: int, at: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Polygons split by the plane x[axis] = at into the parts below and above it."""
+def _cut(polys: list[np.ndarray], axis: int | np.ndarray, at: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Polygons split by the plane x[axis] = at (or, for a normal vector `axis`, x . axis = at)
+    into the parts below and above it."""
+    normal = np.eye(3)[axis] if np.isscalar(axis) else np.asarray(axis, float)
     below, above = [], []
     for poly in polys:
-        c = poly[:, axis] - at
+        c = poly @ normal - at
         if c.max() <= 1e-9:
             below.append(poly)
             continue
@@ -343,17 +349,56 @@ def _split_faithful(polys: list[np.ndarray], test: _Faithfulness, min_cut: float
     return pieces
 
 
-def _faithful_pieces(part: Part, cfg: DecompositionConfig) -> list[np.ndarray] | None:
-    """Point sets of the body's faithful convex pieces: its hull alone when that is faithful, else
-    the halves of `_split_faithful`; None where neither works (coacd's case)."""
-    body = part.flat.triangles[~part.flat.in_stud]
+def _faithfulness(part: Part, cfg: DecompositionConfig) -> _Faithfulness:
+    """The faithfulness test of the part's pieces (`_Faithfulness`)."""
     occluders = part.flat.triangles
     if cfg.stud_bores_roofed and part.studs:
         occluders = np.concatenate([occluders, _stud_caps(part)])
     # Sockets entered from below only: a bracket's sockets behind its side studs are no floor.
     floor = max((c.pos[1] for c in part.sockets if c.axis == (0.0, -1.0, 0.0)), default=None)
-    test = _Faithfulness(occluders, cfg.faithful_pitch_ldu, floor)
-    return _split_faithful(list(body), test, cfg.min_cut_ldu, [cfg.split_cells])
+    return _Faithfulness(occluders, cfg.faithful_pitch_ldu, floor)
+
+
+def _faithful_pieces(part: Part, cfg: DecompositionConfig) -> list[np.ndarray] | None:
+    """Point sets of the body's faithful convex pieces: its hull alone when that is faithful, else
+    the halves of `_split_faithful`; None where neither works (coacd's case)."""
+    body = part.flat.triangles[~part.flat.in_stud]
+    return _split_faithful(list(body), _faithfulness(part, cfg), cfg.min_cut_ldu, [cfg.split_cells])
+
+
+def _within(polys: list[np.ndarray], piece: np.ndarray, reach: float) -> list[np.ndarray]:
+    """The parts of the polygons inside the hull of `piece` grown by `reach` on every face."""
+    try:
+        eq = ConvexHull(piece).equations
+    except (QhullError, ValueError):
+        return []
+    for n, d in zip(eq[:, :3], eq[:, 3]):
+        polys, _ = _cut(polys, n, -d + reach)
+        if not polys:
+            break
+    return polys
+
+
+def _refined(part: Part, pieces: list[np.ndarray], cfg: DecompositionConfig) -> list[np.ndarray]:
+    """Inset pieces, each one that is not faithful (a coacd piece is the hull of the part's
+    vertices near it, and spans concave corners: the Vintage Car's mudguard 35789 reached 3.7 LDU
+    past its rounded end into the plate beside it) replaced by faithful pieces of the part's
+    surface within it (grown by the inset and the snap distance), split along the part's own
+    faces as a whole body is; kept where that takes more than `refine_cells` cells."""
+    test = _faithfulness(part, cfg)
+    body = list(part.flat.triangles[~part.flat.in_stud])
+    out = []
+    for piece in pieces:
+        if test.escaping(piece) == 0:
+            out.append(piece)
+            continue
+        polys = _within(body, piece, cfg.inset_ldu + cfg.snap_ldu)
+        split = _split_faithful(polys, test, cfg.min_cut_ldu, [cfg.refine_cells]) if polys else None
+        if split is None:
+            out.append(piece)
+            continue
+        out += [p for p in (inset_hull(r, cfg.inset_ldu) for r in split) if p is not None]
+    return out
 
 
 def _snap(piece: np.ndarray, verts: np.ndarray, snap: float) -> np.ndarray | None:
@@ -377,41 +422,63 @@ def _body_mesh(part: Part) -> tuple[np.ndarray, np.ndarray]:
     return verts, faces[keep]
 
 
+def _load(path: Path) -> tuple[list[np.ndarray], float] | None:
+    """A cached entry's pieces and inset, None if missing or damaged (then recomputed)."""
+    if not path.exists():
+        return None
+    try:
+        with np.load(path) as data:
+            return [data[f"p{i}"] for i in range(int(data["n"]))], float(data["inset"])
+    except (OSError, ValueError, KeyError):
+        return None
+
+
+def _save(path: Path, body: list[np.ndarray], inset: float) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
+    np.savez(tmp, n=len(body), inset=inset, **{f"p{i}": p for i, p in enumerate(body)})
+    os.replace(tmp, path)
+
+
+def _decomposed(part: Part, verts: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig) -> list[np.ndarray]:
+    """The body's inset pieces (faithful hull, faces-cut pieces, else snapped coacd pieces)."""
+    faithful = _faithful_pieces(part, cfg) if len(faces) else []
+    if faithful is not None:
+        return [p for p in (inset_hull(r, cfg.inset_ldu) for r in faithful) if p is not None]
+    # coacd remeshes its input on a voxel grid, so its pieces bulge up to ~1 LDU out of the part.
+    # Rebuild each piece as the hull of the part's own vertices it holds (within a snap
+    # distance): pieces then follow the real surface.
+    pieces = (_snap(r, verts, cfg.snap_ldu) for r in _decompose(verts, faces, cfg))
+    return [p for p in (inset_hull(r, cfg.inset_ldu) for r in pieces if r is not None) if p is not None]
+
+
 def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()) -> CollisionShape:
-    """The part's inset collision pieces, from the disk cache or decomposed now (and cached)."""
+    """The part's inset collision pieces, from the disk cache or decomposed now (and cached).
+
+    Two entries per part: the decomposition (keyed by the mesh and the settings but
+    `refine_cells`), and its pieces made faithful (`_refined`, keyed by the first key and
+    `refine_cells`), so that entries written before the refinement existed keep their meaning."""
     memo = part.__dict__.setdefault("_collision_shapes", {})
     if cfg in memo:
         return memo[cfg]
     verts, faces = _body_mesh(part)
+    settings = asdict(cfg)
+    refine = settings.pop("refine_cells")
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(verts).tobytes())
     h.update(np.ascontiguousarray(faces).tobytes())
-    h.update(json.dumps(asdict(cfg), sort_keys=True).encode())
-    key = h.hexdigest()[:24]
-    path = cache_dir() / f"{key}.npz"
-    body: list[np.ndarray] | None = None
-    if path.exists():
-        try:
-            with np.load(path) as data:
-                body = [data[f"p{i}"] for i in range(int(data["n"]))]
-                inset = float(data["inset"])
-        except (OSError, ValueError, KeyError):
-            body = None  # a damaged entry is recomputed and replaced
-    if body is None:
-        inset = cfg.inset_ldu
-        faithful = _faithful_pieces(part, cfg) if len(faces) else []
-        if faithful is not None:
-            body = [p for p in (inset_hull(r, cfg.inset_ldu) for r in faithful) if p is not None]
-        else:
-            # coacd remeshes its input on a voxel grid, so its pieces bulge up to ~1 LDU out of
-            # the part. Rebuild each piece as the hull of the part's own vertices it holds (within
-            # a snap distance): pieces then follow the real surface.
-            pieces = (_snap(r, verts, cfg.snap_ldu) for r in _decompose(verts, faces, cfg))
-            body = [p for p in (inset_hull(r, cfg.inset_ldu) for r in pieces if r is not None) if p is not None]
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
-        np.savez(tmp, n=len(body), inset=inset, **{f"p{i}": p for i, p in enumerate(body)})
-        os.replace(tmp, path)
+    h.update(json.dumps(settings, sort_keys=True).encode())
+    raw_key = h.hexdigest()[:24]
+    key = hashlib.sha256(f"{raw_key}/refined/{refine}".encode()).hexdigest()[:24]
+    found = _load(cache_dir() / f"{key}.npz")
+    if found is None:
+        raw = _load(cache_dir() / f"{raw_key}.npz")
+        if raw is None:
+            raw = (_decomposed(part, verts, faces, cfg), cfg.inset_ldu)
+            _save(cache_dir() / f"{raw_key}.npz", *raw)
+        found = (_refined(part, raw[0], cfg), raw[1])
+        _save(cache_dir() / f"{key}.npz", *found)
+    body, inset = found
     studs, stud_at = [], []
     for s in part.studs:
         prism = inset_hull(stud_prism(s.pos, s.axis), cfg.inset_ldu)

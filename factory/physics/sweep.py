@@ -1,4 +1,5 @@
-"""Buildability: can a part reach its pose along its connection axis from outside the structure?
+"""Buildability: can a part reach its pose along its connection axis from outside the structure
+(or from the side, pressed on along the axis only at the end)?
 
 The collision check judges only the final pose, so it accepts parts in places no hand can reach: a
 brick under a roof, a tile slid into a one-plate-high slot under an overhang. A builder presses a
@@ -24,6 +25,14 @@ the rest of the path costs nothing. Parts the unit connects to are left out of t
 backs away from them along the axis; a connected part that reaches round over the unit's path, as a
 bracket could, is not swept).
 
+**Pressed on last** (`PRESS_LDU`). A hand brings a part near along any line and presses it along
+the axis only at the end, with a fingertip behind it. So a unit blocked further out on its axis is
+still buildable when the last `PRESS_LDU` of the axis is clear and, from there (studs out of their
+sockets: nothing connected), it reaches clear space along one of four directions square to the axis
+(`across`), swept the same way: the LEGO Truck's lights, pressed onto side studs of its front with
+the wheel holders 100 LDU further out on their axis. A brick in a gap under a roof, or a tile slid
+into a one-plate slot under an overhang, meets the roof within that stretch: blocked.
+
 **Steps** (why a blocker cannot slip between them). Each interval is cut into equal segments of at
 most `step_ldu` and the poses between them are queried; the interval's own ends are not (there the
 boxes overlap by at most the margin, which bounds the overlap without a query; s = 0 is the final
@@ -48,7 +57,7 @@ from __future__ import annotations
 
 import math
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import mujoco
@@ -62,6 +71,14 @@ from factory.pose import Pose
 
 SAME_AXIS = 0.999
 """Cosine within which two approach directions agree (2.6 degrees, as `structure.match`)."""
+
+PRESS_LDU = 40.0
+"""How far straight back along its approach a unit must be clear: a fingertip's width (16 mm),
+the room behind a part that a hand needs to press it on (the part's own path stands for the
+finger's). Further out, a hand brings the part in along any line (a light pressed onto a side
+stud of a truck's front, whose wheel holders stand 100 LDU further out on its axis); a brick
+slid into a gap with a roof 24 LDU above it cannot be pressed down."""
+
 
 MIN_STEP_LDU = 0.25
 """The finest step used next to contacts: overlaps deeper than the tolerance plus half of it are
@@ -221,8 +238,11 @@ def sweep(
     max_penetration_ldu: float = 0.5,
     step_ldu: float = 2.0,
     directions: np.ndarray | None = None,
+    press_ldu: float | None = PRESS_LDU,
 ) -> SweepResult:
-    """Sweep the unit (parts in world poses) along its approach from clear space to its pose.
+    """Sweep the unit (parts in world poses) along its approach from clear space to its pose, or,
+    blocked further out than `press_ldu`, from the side to there (`_pressed_last`; None: along
+    the approach all the way).
 
     `scene` is the unit's collision scene as `check.check_units` builds it (the unit's parts
     relative to its first part) and `connected` the structure parts the unit connects to, as the
@@ -235,7 +255,50 @@ def sweep(
     if found.direction is None:
         return SweepResult(False if found.reason == "clamped" else None, found.reason, (), 0.0, 0.0, 0)
     d = found.direction
-    tol = max_penetration_ldu
+    straight = _along(scene, structure, unit, connected, d, max_penetration_ldu, step_ldu)
+    if straight.buildable or press_ldu is None or straight.at_ldu <= press_ldu:
+        return straight
+    return _pressed_last(scene, structure, unit, connected, d, max_penetration_ldu, step_ldu, straight, press_ldu)
+
+
+def across(d: np.ndarray) -> np.ndarray:
+    """(4, 3): the directions a unit may come in from before it is pressed on along `d`: both
+    ways along two axes square to `d` (the principal axes, where `d` is one)."""
+    k = int(np.argmax(np.abs(d)))
+    u = np.cross(d, np.eye(3)[(k + 1) % 3])
+    u /= np.linalg.norm(u)
+    v = np.cross(d, u)
+    return np.array([u, -u, v, -v])
+
+
+def _pressed_last(scene, structure, unit, connected, d, tol, step_ldu, straight: SweepResult,
+                  press: float) -> SweepResult:
+    """The unit blocked on its axis further out than `press` LDU: buildable if the last `press`
+    LDU along the axis are clear and, from there (studs out of their sockets, so nothing
+    is connected), it reaches clear space along one of the directions `across` the axis; else the
+    straight sweep's verdict stands."""
+    queries = straight.poses_checked
+    near = _along(scene, structure, unit, connected, d, tol, step_ldu, reach=press)
+    queries += near.poses_checked
+    if not near.buildable:
+        return replace(straight, poses_checked=queries)
+    anchor = unit[0][1]
+    with _without_floor(scene):
+        depth, _ = scene.penetration(Pose(anchor.R, anchor.t - press * d), set())
+    queries += 1
+    if depth <= tol:
+        backed = [(part, Pose(pose.R, pose.t - press * d)) for part, pose in unit]
+        for side in across(d):
+            way = _along(scene, structure, backed, set(), side, tol, step_ldu)
+            queries += way.poses_checked
+            if way.buildable:
+                return SweepResult(True, None, (), max(near.depth_ldu, way.depth_ldu), press, queries)
+    return replace(straight, poses_checked=queries)
+
+
+def _along(scene, structure, unit, connected, d, tol, step_ldu, reach: float | None = None) -> SweepResult:
+    """The sweep of the unit along `d` from clear space to its pose (module docstring), or only
+    over the last `reach` LDU of it (the pose at `reach` queried too)."""
     margin = min(tol, 2 * INSET_LDU)
     unit_boxes = _boxes(unit)
     boxes = _boxes([(p.part, p.pose) for p in structure.placed])
@@ -276,11 +339,19 @@ def sweep(
         # its way. A blocked grid pose is reported without searching the segment before it: that
         # would only say more precisely where, at 3-4 more queries.
         for lo, hi in intervals[::-1]:
+            if reach is not None and lo >= reach:
+                continue
+            # At the interval's ends the box bound holds (the margin); at s = 0, the final pose,
+            # the collision check has judged it within tolerance. An interval cut at `reach` has
+            # its end there queried.
+            g_prev = margin
+            if reach is not None and hi > reach:
+                hi = reach
+                g_prev, blockers = probe(hi)
+                if blockers is not None:
+                    return SweepResult(False, "blocked", blockers, round(float(g_prev), 4), round(float(hi), 4), queries)
             n = max(1, math.ceil((hi - lo) / step_ldu - 1e-9))
             grid = hi - (hi - lo) * np.arange(n + 1) / n
-            # At the interval's ends the box bound holds (the margin); at s = 0, the final pose,
-            # the collision check has judged it within tolerance.
-            g_prev = margin
             for k in range(1, n + 1):
                 g, blockers = probe(grid[k]) if k < n else ((tol if lo == 0.0 else margin), None)
                 hit = (grid[k], g, blockers) if blockers is not None else first_block(grid[k - 1], g_prev, grid[k], g)

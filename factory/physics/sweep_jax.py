@@ -26,7 +26,9 @@ whole call is swept on the CPU instead.
   one that only an undecided pair could block is swept by `sweep.sweep` on the CPU (`COUNTS`).
 
 A unit is blocked when a counted interval meets s > 0 (s = 0, the final pose, is the collision
-check's). The blocking pose reported (`at_ldu`) is the outer end of the outermost interval, where
+check's). One blocked only further out than `sweep.PRESS_LDU` is swept by `sweep.sweep` on the
+CPU, which then asks whether it comes in from the side and is pressed on only over that last
+stretch (`sweep._pressed_last`): the same rule on both backends. The blocking pose reported (`at_ldu`) is the outer end of the outermost interval, where
 the unit coming from outside first overlaps beyond the tolerance; `blocked_by` names the parts
 whose decided intervals hold a pose just inside it (`MIN_STEP_LDU` / 4 in, or the interval's middle
 if shorter). The depth there is not computed (`depth_ldu` is nan); no contact query is made.
@@ -65,7 +67,7 @@ from factory.physics.geometry import INSET_LDU, collision_shape
 from factory.physics.jax_cache import enable as enable_compile_cache
 from factory.physics.keep_last import KeepLast
 from factory.physics.structure import Structure
-from factory.physics.sweep import (MIN_STEP_LDU, SweepResult, _boxes, _overlap_intervals, approaches_from,
+from factory.physics.sweep import (PRESS_LDU, MIN_STEP_LDU, SweepResult, _boxes, _overlap_intervals, approaches_from,
                                    box_interval, seating_directions, sweep)
 from factory.pose import Pose
 
@@ -720,8 +722,16 @@ class _SweepJob:
             blockers.setdefault(int(a), set()).add(int(b))
         maybe = np.zeros(len(idx), bool)
         maybe[hk[~hdec & plain]] = True
+        # Blocked within the stretch it is pressed along (`sweep.PRESS_LDU`): no side approach helps.
+        pressed = np.zeros(len(idx), bool)
+        pressed[dk[dlo < PRESS_LDU]] = True
         for row, i in enumerate(idx):
-            if np.isfinite(top[row]):
+            if np.isfinite(top[row]) and not pressed[row]:
+                # Blocked only further out: whether the unit comes in from the side instead
+                # (`sweep._pressed_last`) is asked on the CPU.
+                COUNTS["referred"] += 1
+                results[i] = self.cpu(i)
+            elif np.isfinite(top[row]):
                 COUNTS["device"] += 1
                 results[i] = SweepResult(False, "blocked", tuple(sorted(blockers.get(row, ()))), float("nan"),
                                          round(float(top[row]), 4), 0)
