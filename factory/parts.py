@@ -54,11 +54,10 @@ class Part:
 
     @cached_property
     def hull_points(self) -> np.ndarray:
-        """The vertices of the convex hull of the part's triangles (k, 3) in LDU: the extent of
-        the part along any direction, where its box is exact only along the part's own axes."""
-        pts = self.flat.triangles.reshape(-1, 3)
-        if len(pts) < 4:
-            return pts
+        """The vertices of the convex hull of the part's triangles (k, 3) in LDU, rounded to 1e-6:
+        the part's extent along any direction (its box is exact only along its own axes), and the
+        points the density reward's hull is made of."""
+        pts = np.unique(np.round(self.flat.triangles.reshape(-1, 3), 6), axis=0)
         try:
             return pts[ConvexHull(pts).vertices]
         except (QhullError, ValueError):

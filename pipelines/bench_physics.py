@@ -32,12 +32,13 @@ from pathlib import Path
 import numpy as np
 
 from factory import Pose, get_reader, load_part
-from factory.physics.check import CheckConfig, check
+from factory.physics.check import STAGE_SECONDS, CheckConfig, check
 from factory.physics.check import _unit_connections
 from factory.physics.statics import _ALONE, LoadBase, judge_many
 from factory.physics.attach import feasible_poses, lowest_y
 from factory.physics.structure import Placed, Structure
 from factory.physics.sweep import _boxes
+from factory.sampler import Sampler, SamplerConfig
 
 
 GROWN = Path(__file__).with_name("grown_3001.json")
@@ -414,21 +415,18 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None) ->
     whole growth (the same objects whatever the batch, so rows compare on the same inputs). One
     other object is grown first, untimed (parts loaded, first kernels compiled); the compiles of
     shapes it did not meet fall in the rows. Seconds per check stage from `check.STAGE_SECONDS`."""
-    from factory.physics import check as check_module
-    from factory.sampler import Sampler, SamplerConfig
-
     sampler = Sampler(SamplerConfig(seed=0, min_steps=steps, max_steps=steps, backend=backend,
                                     check_batch=64 if backend == "mjx" else 8), None)
     list(sampler.grow([objects], batch=1))
     rows = []
     for batch in batches:
-        check_module.STAGE_SECONDS.clear()
+        STAGE_SECONDS.clear()
         t0 = time.perf_counter()
         placed = sum(len(a.steps) for a in sampler.grow(range(objects), batch=batch))
         wall = time.perf_counter() - t0
         row = {"kind": "growth", "backend": backend, "batch": batch, "objects": objects, "steps": placed,
                "target_steps": steps, "seconds": round(wall, 2), "steps_per_s": round(placed / wall, 2),
-               "stage_seconds": {k: round(v, 2) for k, v in sorted(check_module.STAGE_SECONDS.items())}}
+               "stage_seconds": {k: round(v, 2) for k, v in sorted(STAGE_SECONDS.items())}}
         rows.append(row)
         if log:
             log(row)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import subprocess
@@ -242,7 +243,7 @@ def test_candidate_order_computes_only_the_densities_it_needs(twelve_parts, weig
             assert list(KeyOrder(cands, weight, 0.3, noise)) == [int(i) for i in np.argsort(-keys, kind="stable")]
             first = tracker.candidates(part, r, t)
             order = KeyOrder(first, weight, 0.3, noise)
-            [order.next() for _ in range(min(8, len(t)))]
+            list(itertools.islice(order, 8))
             computed += len(first._exact)
             total += len(t)
     assert total > 300

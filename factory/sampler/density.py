@@ -13,7 +13,6 @@ one small qhull call (~0.2 ms).
 
 from __future__ import annotations
 
-from functools import lru_cache
 from typing import Iterable
 
 import numpy as np
@@ -21,16 +20,6 @@ from scipy.spatial import ConvexHull, QhullError
 
 from factory.parts import Part
 from factory.pose import Pose
-
-
-@lru_cache(maxsize=None)
-def part_hull_points(part: Part) -> np.ndarray:
-    """The vertices of the part's convex hull, in its own frame (LDU)."""
-    pts = np.unique(np.round(part.flat.triangles.reshape(-1, 3), 6), axis=0)
-    try:
-        return pts[ConvexHull(pts).vertices]
-    except (QhullError, ValueError):
-        return pts
 
 
 def hull_volume(points: np.ndarray) -> tuple[float, np.ndarray]:
@@ -71,7 +60,7 @@ class DensityTracker:
     def add(self, part: Part, pose: Pose) -> float:
         self.volume += part.volume_ldu3
         self.hull_volume, self.points, self.planes, self.facet_areas = _hull(
-            np.concatenate([self.points, pose.apply(part_hull_points(part))]), areas=True)
+            np.concatenate([self.points, pose.apply(part.hull_points)]), areas=True)
         return self.density()
 
     def density(self) -> float:
@@ -111,7 +100,7 @@ class CandidateDensities:
     def __init__(self, tracker: DensityTracker, part: Part, R: np.ndarray, t: np.ndarray):
         self.tracker = tracker
         self.volume = tracker.volume + part.volume_ldu3
-        self.points = np.einsum("nij,pj->npi", R, part_hull_points(part)) + t[:, None]
+        self.points = np.einsum("nij,pj->npi", R, part.hull_points) + t[:, None]
         n = len(self.points)
         self._exact: dict[int, float] = {}
         if tracker.planes is None:

@@ -23,6 +23,7 @@ ground) and is checked like any other (it must stand on its own).
 
 from __future__ import annotations
 
+import itertools
 import os
 from collections import Counter
 from typing import Generator, Iterable, Iterator
@@ -38,7 +39,7 @@ from factory.pose import Pose
 from factory.sampler.assembly import Assembly, AssemblyStep
 from factory.physics.attach import attachment_arrays, lowest_y
 from factory.sampler.config import SamplerConfig, SamplerConfigError
-from factory.sampler.density import CandidateDensities, DensityTracker, part_hull_points
+from factory.sampler.density import CandidateDensities, DensityTracker
 
 LIST_LIMIT = 80
 """Valid choices listed in full in an error up to this many; beyond, close matches and a count."""
@@ -59,7 +60,7 @@ class Sampler:
         _check_colours(self.reader, self.colours)
         self.colour_p = _probabilities([w for _, w in config.colours])
         for part in self.parts:  # derive each part's connectors, symmetry and hull once, up front
-            part.symmetry, part_hull_points(part)
+            part.symmetry, part.hull_points
 
     # -- public -----------------------------------------------------------------------------------
     def sample(self, index: int) -> Assembly:
@@ -146,7 +147,7 @@ class Sampler:
                         # checks, so only the densities down to the first survivor are computed.
                         batch, walk = order.rest(), order
                     else:
-                        batch = [order.next() for _ in range(cfg.check_batch)]
+                        batch = list(itertools.islice(order, cfg.check_batch))
                         walk = iter(batch)
                     # A rejected candidate's reason is counted, never its failing connections.
                     verdicts = yield CheckRequest(structure, part, tuple(poses[i] for i in batch), colour, ground)
@@ -180,16 +181,19 @@ class Sampler:
 
 class KeyOrder:
     """A draw's candidates in decreasing Gumbel-max key, `weight * ln(density) / temperature +
-    noise` (ties by index: `np.argsort(-key, kind="stable")`), computing a candidate's density
-    (a qhull call) only when its upper bound (`CandidateDensities.upper`) could put it before the
-    next one given. Keys are computed for all candidates at once, exactly as from the full density
-    vector, so the order, and so every object, is the one computing all densities first gives."""
+    noise` (ties by index: `np.argsort(-key, kind="stable")`), as an iterator, computing a
+    candidate's density (a qhull call) only when its upper bound (`CandidateDensities.upper`)
+    could put it before the next one given. Keys are computed for all candidates at once, exactly
+    as from the full density vector, so the order, and so every object, is the one computing all
+    densities first gives."""
 
     def __init__(self, densities: CandidateDensities, weight: float, temperature: float, noise: np.ndarray):
         self.densities, self.weight, self.temperature, self.noise = densities, weight, temperature, noise
         self.values = densities.upper.copy()
-        self.exact = np.array([densities.known(i) for i in range(len(noise))], dtype=bool)
-        if weight < 0:  # an upper bound of the density is then a lower bound of the key
+        # Without the reward no density enters a key; with a negative weight an upper bound of the
+        # density is a lower bound of the key, so every density is computed.
+        self.exact = np.full(len(noise), weight == 0) | [densities.known(i) for i in range(len(noise))]
+        if weight < 0:
             self._settle(np.flatnonzero(~self.exact))
         self.given = np.zeros(len(noise), dtype=bool)
 
@@ -198,7 +202,7 @@ class KeyOrder:
         return int(np.count_nonzero(~self.given))
 
     def _keys(self) -> np.ndarray:
-        if self.weight == 0:  # no density in the key: 0 * ln(d) adds nothing to the noise
+        if self.weight == 0:  # 0 * ln(d) adds nothing to the noise
             return self.noise + 0.0
         return self.weight * np.log(np.maximum(self.values, 1e-12)) / self.temperature + self.noise
 
@@ -207,13 +211,14 @@ class KeyOrder:
             self.values[j] = self.densities.exact(int(j))
             self.exact[j] = True
 
-    def next(self) -> int | None:
-        """The next candidate in key order, or None when all were given."""
+    def __iter__(self):
+        return self
+
+    def __next__(self) -> int:
+        """The next candidate in key order."""
         open_ = ~self.given
         if not open_.any():
-            return None
-        if self.weight == 0:
-            self.exact[:] = True
+            raise StopIteration
         while True:
             keys = self._keys()
             known = np.where(open_ & self.exact, keys, -np.inf)
@@ -224,18 +229,9 @@ class KeyOrder:
                 return best
             self._settle([int(np.argmax(bound))])
 
-    def __iter__(self):
-        return self
-
-    def __next__(self) -> int:
-        i = self.next()
-        if i is None:
-            raise StopIteration
-        return i
-
     def rest(self) -> list[int]:
         """The candidates not given yet, by their keys' bounds (the order of a request; the key
-        order among them is then walked with `next`)."""
+        order among them is then walked by iterating)."""
         keys = self._keys()
         return [int(i) for i in np.argsort(-keys, kind="stable") if not self.given[i]]
 
