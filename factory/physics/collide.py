@@ -10,6 +10,7 @@ slope): only a stud that crosses a wall or a face of the other part collides.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,6 +53,28 @@ def _inside_depth(planes: np.ndarray, piece: np.ndarray, n_pieces: int, points: 
 
 def _fmt(a: np.ndarray) -> str:
     return " ".join(f"{v:.7g}" for v in np.asarray(a).ravel())
+
+
+_PLACED: dict[tuple[int, str], tuple] = {}
+"""Per (shape, piece kind): the shape (kept so that its id is not reused) and each piece as (mesh
+name, vertices text, geom position text)."""
+
+
+def _placed_pieces(shape: CollisionShape, kind: str) -> tuple:
+    """A shape's pieces as MJCF meshes about their own centres, each placed by its geom's
+    position. Pieces equal up to a translation (every stud of a part, the studs of different parts)
+    share one mesh: compiling a scene's meshes (a hull and inertia each) cost ~7x more than the
+    rest of the model with one mesh per stud (0.084 s against 0.011 s for a 60-part scene)."""
+    hit = _PLACED.get((id(shape), kind))
+    if hit is None or hit[0] is not shape:
+        rows = []
+        for verts in (shape.body if kind == "b" else shape.studs):
+            centre = verts.mean(axis=0)
+            local = points_to_mujoco(verts - centre)
+            digest = hashlib.sha1((np.round(local, 9) + 0.0).tobytes()).hexdigest()[:16]
+            rows.append((f"p{digest}", _fmt(local), _fmt(points_to_mujoco(centre))))
+        hit = _PLACED[(id(shape), kind)] = (shape, tuple(rows))
+    return hit[1]
 
 
 @dataclass(frozen=True)
@@ -271,7 +294,7 @@ class CollisionScene:
         floor_z = -floor_y * LDU_M
         template = (TEMPLATES / "collision.xml").read_text()
         xml = template.format(
-            assets="".join(f'<mesh name="{n}" vertex="{_fmt(points_to_mujoco(v))}"/>' for n, v in meshes.items()),
+            assets="".join(f'<mesh name="{n}" vertex="{v}"/>' for n, v in meshes.items()),
             floor_z=f"{floor_z:.7g}",
             margin=f"{(NEAR_LDU + 0.5) * LDU_M:.7g}",
             structure="".join(bodies),
@@ -296,11 +319,10 @@ class CollisionScene:
     def _geoms(shape: CollisionShape, meshes: dict, owner: int, info: list, member: int = 0) -> str:
         out = []
         for kind, pieces in (("b", shape.body), ("s", shape.studs)):
-            for i, verts in enumerate(pieces):
-                name = f"{shape.key}_{kind}{i}"
+            for i, (name, verts, pos) in enumerate(_placed_pieces(shape, kind)):
                 meshes.setdefault(name, verts)
                 cls = "stud" if kind == "s" else "body"
-                out.append(f'<geom class="{cls}" mesh="{name}"/>')
+                out.append(f'<geom class="{cls}" mesh="{name}" pos="{pos}"/>')
                 info.append(_GeomInfo(owner, kind == "s", shape.body_inset if kind == "b" else INSET_LDU,
                                       member, shape.stud_at[i] if kind == "s" else None))
         return "".join(out)
