@@ -28,7 +28,7 @@ import numpy as np
 
 from factory.cli import run_guarded
 from factory.physics.check import BACKENDS
-from factory.sampler import Sampler, SamplerConfig, SamplerConfigError
+from factory.sampler import Sampler, SamplerConfig, SamplerConfigError, default_check_batch
 from factory.atomic import write_atomic
 from pipelines import workers
 
@@ -124,14 +124,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-steps", type=int, default=d.max_steps)
     ap.add_argument("--candidates", type=int, default=d.candidates_per_step, help="candidates per step")
     ap.add_argument("--check-batch", type=int, default=None,
-                    help=f"candidates per checker call (default {d.check_batch}; mjx: --candidates)")
+                    help="candidates per checker call (default 1 with mujoco, --candidates with mjx)")
     ap.add_argument("--density-weight", type=float, default=d.density_weight, help="0 turns the reward off")
     ap.add_argument("--temperature", type=float, default=d.temperature)
     ap.add_argument("--steps-json", action="store_true", help="also list every step in summary.json")
     args = ap.parse_args(argv)
     if args.n < 0 or args.start < 0 or args.workers < 1 or args.batch < 1:
         ap.error("--n and --start must be >= 0, --workers and --batch >= 1")
-    check_batch = args.check_batch or (args.candidates if args.backend == "mjx" else d.check_batch)
+    check_batch = args.check_batch or default_check_batch(args.backend, args.candidates)
 
     def body() -> int:
         config = SamplerConfig(

@@ -21,7 +21,7 @@ def _ldraw(arg):
 
 
 def config_from_args(args):
-    from factory.sampler import SamplerConfig
+    from factory.sampler import SamplerConfig, default_check_batch
     from pipelines.dataset import DatasetConfig
     from pipelines.dataset.sources import sampler_config_json
 
@@ -34,6 +34,8 @@ def config_from_args(args):
               backend=args.check_backend)
     if args.candidates is not None:
         kw["candidates_per_step"] = args.candidates
+    kw["check_batch"] = args.check_batch or default_check_batch(args.check_backend, kw.get(
+        "candidates_per_step", SamplerConfig.candidates_per_step))
     if args.parts:
         kw["parts"] = [p.strip() for p in args.parts.split(",") if p.strip()]
     sampler = SamplerConfig(**kw)
@@ -100,6 +102,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--min-steps", type=int, default=20, help="fewest parts per object (default 20)")
     ap.add_argument("--max-steps", type=int, default=90, help="most parts per object (default 90)")
     ap.add_argument("--candidates", type=int, help="feasible attachments checked per part draw")
+    ap.add_argument("--check-batch", type=int,
+                    help="candidates per checker call (default 1 with mujoco, --candidates with mjx); the "
+                         "objects do not depend on it")
     ap.add_argument("--parts", help="comma-separated part set (default: the sampler's)")
     ap.add_argument("--check-backend", choices=("auto", "mujoco", "mjx"), default="auto",
                     help="physics checks one candidate at a time on the CPU (mujoco), or batched in JAX: collision, "

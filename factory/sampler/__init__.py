@@ -7,7 +7,7 @@ seed. See `docs/sampler.md`.
 """
 
 from factory.sampler.assembly import Assembly, AssemblyStep
-from factory.sampler.config import DEFAULT_COLOURS, DEFAULT_PARTS, SamplerConfig, SamplerConfigError
+from factory.sampler.config import DEFAULT_COLOURS, DEFAULT_PARTS, SamplerConfig, SamplerConfigError, default_check_batch
 from factory.sampler.density import density
 from factory.sampler.sampler import Sampler
 
@@ -19,5 +19,6 @@ __all__ = [
     "Sampler",
     "SamplerConfig",
     "SamplerConfigError",
+    "default_check_batch",
     "density",
 ]
