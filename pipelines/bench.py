@@ -138,7 +138,7 @@ def synth_section(work: Path, quick: bool) -> dict:
     from pipelines.synth import config_from_args
 
     n = 5 if quick else 20
-    ns = argparse.Namespace(n=n, seed=0, min_steps=6, max_steps=10, candidates=None, parts=None,
+    ns = argparse.Namespace(n=n, seed=0, min_steps=6, max_steps=10, candidates=None, check_batch=None, parts=None,
                             check_backend="mujoco", size=256, tile=128, objects_per_shard=1, ldraw=None,
                             dataset_id="bench-synth")
     out = work / "synth"

@@ -405,3 +405,16 @@ def test_gpu_share_of_a_numbered_worker(monkeypatch):
     monkeypatch.delenv(gpus.SLOT_ENV)
     monkeypatch.setattr(gpus, "count", lambda: 4)  # not a numbered worker
     assert gpus.choose_egl_device() is None and "MUJOCO_EGL_DEVICE_ID" not in os.environ
+
+
+def test_largest_shards_are_scheduled_first():
+    from factory.sampler.sampler import target_steps
+    from pipelines.dataset.build import largest_first
+    from pipelines.dataset.sources import sampler_config_from_json
+
+    config = tiny_dataset_config(n=12, min_steps=2, max_steps=40)
+    cfg = sampler_config_from_json(config.sampler)
+    order = largest_first(config, list(range(config.num_shards)))
+    assert sorted(order) == list(range(config.num_shards))
+    work = [sum(target_steps(cfg, i) ** 2 for i in config.shard_objects(k)) for k in order]
+    assert work == sorted(work, reverse=True) and work[0] > work[-1]

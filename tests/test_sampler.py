@@ -263,3 +263,11 @@ def test_sample_workers_end_with_a_killed_command(tmp_path):
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     # (an object of 90 parts takes far longer than the grace: a worker that ends in time was ended)
     assert_workers_end_with_killed_parent(proc, b"pipelines.sample", settle=1.0, grace=10.0)
+
+
+def test_target_steps_is_the_length_an_object_grows_to(objects):
+    from factory.sampler.sampler import target_steps
+
+    cfg = SamplerConfig(seed=11, **SMALL)
+    assert [target_steps(cfg, i) for i in range(3)] == [a.target_steps for a in objects]
+    assert all(3 <= target_steps(cfg, i) <= 6 for i in range(50))

@@ -95,8 +95,7 @@ class Sampler:
         `CheckRequest`), takes their verdicts back (`send`), and returns the `Assembly`. Every
         random choice comes from the object's own stream, in a fixed order."""
         cfg = self.config
-        rng = np.random.default_rng([cfg.seed, _index(index)])
-        target = int(rng.integers(cfg.min_steps, cfg.max_steps + 1))
+        rng, target = _stream(cfg, index)
         structure = Structure()
         tracker = DensityTracker()
         floor: float | None = None
@@ -234,6 +233,18 @@ class KeyOrder:
         order among them is then walked by iterating)."""
         keys = self._keys()
         return [int(i) for i in np.argsort(-keys, kind="stable") if not self.given[i]]
+
+
+def _stream(cfg: SamplerConfig, index) -> tuple[np.random.Generator, int]:
+    """Object `index`'s random stream and its target length, the stream's first draw."""
+    rng = np.random.default_rng([cfg.seed, _index(index)])
+    return rng, int(rng.integers(cfg.min_steps, cfg.max_steps + 1))
+
+
+def target_steps(cfg: SamplerConfig, index: int) -> int:
+    """The length object `index` is grown towards (it may end sooner, stuck), known before it
+    grows: a build schedules its largest shards first with it."""
+    return _stream(cfg, index)[1]
 
 
 def _index(index) -> int:
