@@ -139,7 +139,7 @@ def synth_section(work: Path, quick: bool) -> dict:
 
     n = 5 if quick else 20
     ns = argparse.Namespace(n=n, seed=0, min_steps=6, max_steps=10, candidates=None, check_batch=None, parts=None,
-                            check_backend="mujoco", size=256, tile=128, objects_per_shard=1, ldraw=None,
+                            check_backend="mujoco", size=256, tile=128, png_level=6, objects_per_shard=1, ldraw=None,
                             dataset_id="bench-synth")
     out = work / "synth"
     summary = build(config_from_args(ns), out, workers=min(2, os.cpu_count() or 1), progress=False)
@@ -162,7 +162,7 @@ def designs_section(work: Path, models: list[Path], ldraw: str) -> dict:
     # No physics replay: the baselines need the targets and images only, and the replay would first
     # decompose every real part with coacd (minutes on a new machine; physics.md, pipelines.verify).
     ns = argparse.Namespace(models=[str(m) for m in models], seed=0, no_physics=True, ldraw=ldraw,
-                            size=256, tile=128, objects_per_shard=1, dataset_id="bench-designs")
+                            size=256, tile=128, png_level=6, objects_per_shard=1, dataset_id="bench-designs")
     out = work / "designs"
     summary = build(config_from_args(ns), out, workers=1, progress=False)
     return {"out": str(out), "objects": summary["total"]["objects"], "steps": summary["total"]["steps"],

@@ -41,7 +41,7 @@ def config_from_args(args):
         if not read_steps(p, _ldraw(args.ldraw)):  # bad files and missing parts fail here, exit 2
             raise ValueError(f"{p} places no parts")
     models = [{"object_id": oid, "path": p, "sha256": file_sha256(p)} for oid, p in zip(object_ids(paths), paths)]
-    return DatasetConfig("design", len(models), seed=args.seed, size=args.size, tile=args.tile,
+    return DatasetConfig("design", len(models), seed=args.seed, size=args.size, tile=args.tile, png_compress_level=args.png_level,
                          objects_per_shard=args.objects_per_shard, models=tuple(models),
                          ldraw=_ldraw(args.ldraw), physics=not args.no_physics,
                          **({"dataset_id": args.dataset_id} if args.dataset_id else {}))

@@ -118,7 +118,7 @@ def tiny_dataset_config(**changes):
     from pipelines.synth import config_from_args
 
     ns = argparse.Namespace(n=3, seed=0, min_steps=2, max_steps=3, candidates=16, check_batch=None, parts=None,
-                            check_backend="mujoco", size=128, tile=64, objects_per_shard=1, ldraw=None,
+                            check_backend="mujoco", size=128, tile=64, png_level=6, objects_per_shard=1, ldraw=None,
                             dataset_id=None)
     for k, v in changes.items():
         setattr(ns, k, v)

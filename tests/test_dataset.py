@@ -418,3 +418,8 @@ def test_largest_shards_are_scheduled_first():
     assert sorted(order) == list(range(config.num_shards))
     work = [sum(target_steps(cfg, i) ** 2 for i in config.shard_objects(k)) for k in order]
     assert work == sorted(work, reverse=True) and work[0] > work[-1]
+
+
+def test_png_level_reaches_the_config_and_its_hash():
+    six, one = tiny_dataset_config(), tiny_dataset_config(png_level=1)
+    assert (six.png_compress_level, one.png_compress_level) == (6, 1) and six.hash != one.hash
