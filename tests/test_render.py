@@ -469,3 +469,26 @@ def test_a_chosen_egl_device_that_is_not_there_falls_back(monkeypatch):
     out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split()[-2:] == ["egl", "None"]
+
+
+def test_axes_views_made_from_the_previous_step_match_rendered_ones(reader):
+    """A step's 'before' axes views come from the previous step's plain views and segmentation
+    (background turned light) instead of seven renders: the same image but for antialiased
+    silhouette pixels, which blend with white instead of the light grey."""
+    scene_parts = [placed("3001", 15, (0, 0, 0)), placed("3003", 4, (30, -24, 10)),
+                   placed("3020", 1, (0, -48, 0))]
+    bounds = bounds_of(scene_parts, reader)
+    kw = dict(reader=reader, bounds=bounds, scene_parts=scene_parts, parts=False)
+    first = render_step_full(scene_parts[:1], scene_parts[1:2], 128, **kw)
+    alone = render_step_full(scene_parts[:2], scene_parts[2:], 128, before_views=first.after_views, **kw)
+    reused = render_step_full(scene_parts[:2], scene_parts[2:], 128, before_views=first.after_views,
+                              before_isometric=first.after_isometric, before_segmentation=first.segmentation, **kw)
+    a = np.asarray(alone.images["axes"]).astype(int)
+    b = np.asarray(reused.images["axes"]).astype(int)
+    diff = np.abs(a - b).max(-1)
+    assert a.shape == b.shape and 0 < np.count_nonzero(diff) < 0.01 * diff.size and diff.max() <= 16
+    # the white brick's faces stay white: only background pixels turn light
+    white_a, white_b = ((x == 255).all(-1).sum() for x in (a, b))
+    assert white_a > 500 and abs(int(white_a) - int(white_b)) < 0.01 * diff.size
+    for name in ("before", "after", "isometric"):
+        assert alone.images[name].tobytes() == reused.images[name].tobytes()

@@ -24,7 +24,7 @@ from factory.render.cameras import (
     VIEWS,
     Framing,
 )
-from factory.render.scene import ON_CLEAR, Item, Scene, colour_table, scene_for
+from factory.render.scene import BACKGROUND, ON_CLEAR, Item, Scene, colour_table, scene_for
 from factory.render.views import render_rgb, render_seg
 
 EDGE_PX = 0.9
@@ -102,6 +102,9 @@ class StepRender:
     after_views: list[np.ndarray] = field(default_factory=list)
     """The six orthographic views after the step, plain (no boxes): the next step's `before_views`
     when it renders the same assembly, framing and scene."""
+    after_isometric: np.ndarray | None = None
+    """The isometric view after the step, plain: with `after_views` and `segmentation`, the next
+    step's axes views (`before_views`, `before_isometric`, `before_segmentation`)."""
 
 
 def render_step(before: Sequence[PlacedPart], new: Sequence[PlacedPart], size: int = 256, *,
@@ -125,11 +128,15 @@ def render_step(before: Sequence[PlacedPart], new: Sequence[PlacedPart], size: i
 def render_step_full(before: Sequence[PlacedPart], new: Sequence[PlacedPart], size: int = 256, *,
                      reader: Reader | None = None, bounds=None,
                      scene_parts: Sequence[PlacedPart] | None = None, axes_state: str = "before",
-                     parts: bool = True, before_views: Sequence[np.ndarray] | None = None) -> StepRender:
+                     parts: bool = True, before_views: Sequence[np.ndarray] | None = None,
+                     before_isometric: np.ndarray | None = None,
+                     before_segmentation: dict[str, np.ndarray] | None = None) -> StepRender:
     """`render_step`, also returning the red boxes, the framing and the segmentation renders.
 
     `before_views`: the previous step's `after_views`, when that step rendered exactly `before`
     with the same bounds, scene parts and size; the same pixels, without rendering them again.
+    With its `after_isometric` and `segmentation` too, the 'before' axes views are made from them
+    (`_axes_composite`) instead of seven more renders.
     """
     if axes_state not in ("before", "after"):
         raise ValueError("axes_state must be 'before' or 'after'")
@@ -150,6 +157,8 @@ def render_step_full(before: Sequence[PlacedPart], new: Sequence[PlacedPart], si
         arr = render_rgb(scene, after, colours, v, framing, size)
         if v != ISOMETRIC:
             after_views.append(arr.copy())
+        else:
+            after_iso = arr.copy()
         rgb = Image.fromarray(arr)
         seg = render_seg(scene, after, colours, v, framing, size)
         segs[v] = seg
@@ -172,9 +181,12 @@ def render_step_full(before: Sequence[PlacedPart], new: Sequence[PlacedPart], si
                 _PARTS[key] = render_part(p.part, p.colour, size=size, reader=reader)
             images[f"part_{j}"] = _PARTS[key].copy()
     shown = b_items if axes_state == "before" else after
+    given = None
+    if axes_state == "before" and before_isometric is not None and before_segmentation is not None:
+        given = ({**dict(zip(ORTHO_VIEWS, before_views)), ISOMETRIC: before_isometric}, before_segmentation)
     images["axes"] = _axes_composite(scene, shown, colours, framing, size,
-                                     title=f"{axes_state} this step")
-    return StepRender(images, boxes, framing, segs, after_views)
+                                     title=f"{axes_state} this step", given=given)
+    return StepRender(images, boxes, framing, segs, after_views, after_iso)
 
 
 def _axes_margins(size: int) -> tuple[int, int]:
@@ -183,12 +195,23 @@ def _axes_margins(size: int) -> tuple[int, int]:
 
 
 def _axes_composite(scene: Scene, items: Sequence[Item], colours, framing: Framing, size: int,
-                    title: str = "") -> Image.Image:
+                    title: str = "", given: tuple[dict, dict] | None = None) -> Image.Image:
+    """The seven axis views of `items` on the light background. `given` = (plain views on white,
+    segmentations) of exactly these items, framing and size, by view name: the views are made from
+    them, the background (white where no part is seen) turned light, instead of rendered again."""
     ml, mb = _axes_margins(size)
     tiles = []
+    light = np.array(compose.LIGHT_BG, np.uint8)
     for v in ALL_VIEWS:
-        arr = render_rgb(scene, items, colours, v, framing, size, background=compose.LIGHT_BG)
-        mask = (arr == np.array(compose.LIGHT_BG, np.uint8)).all(-1)
+        if given is None:
+            arr = render_rgb(scene, items, colours, v, framing, size, background=compose.LIGHT_BG)
+            mask = (arr == light).all(-1)
+        else:
+            arr = given[0][v].copy()
+            # Only pure background: outlines and antialiased edges outside the faces (where the
+            # segmentation, drawn without outlines or multisampling, sees nothing) keep their pixels.
+            mask = (given[1][v] < 0) & (arr == np.array(BACKGROUND, np.uint8)).all(-1)
+            arr[mask] = light
         if v == ISOMETRIC:
             tile = compose.tick_tile(Image.fromarray(arr), v, {}, None, ml, mb, mask)
             _triad(tile, framing, size, ml)

@@ -106,7 +106,7 @@ def _rows(obj, config, split, timings, reader, colours) -> list[dict]:
     from factory.render import bounds_of, render_catalog, render_step_full
 
     bounds: dict[str, np.ndarray] = {}
-    last_after: tuple = (None, None)  # (what the previous step rendered after it, its plain views)
+    last_after: tuple = (None, None)  # (what the previous step rendered after it, its StepRender)
     rows = []
     n_steps = len(obj.steps)
     for k, step in enumerate(obj.steps):
@@ -114,10 +114,13 @@ def _rows(obj, config, split, timings, reader, colours) -> list[dict]:
         if step.assembly not in bounds:
             bounds[step.assembly] = bounds_of(list(step.scene), reader)
         before_key = (step.assembly, _placed_key(step.before))
-        reuse = last_after[1] if last_after[0] == before_key else None
+        prev = last_after[1] if last_after[0] == before_key else None
         res = render_step_full(list(step.before), list(step.new), config.size, reader=reader,
-                               bounds=bounds[step.assembly], scene_parts=list(step.scene), before_views=reuse)
-        last_after = ((step.assembly, before_key[1] + _placed_key(step.new)), res.after_views)
+                               bounds=bounds[step.assembly], scene_parts=list(step.scene),
+                               before_views=prev and prev.after_views,
+                               before_isometric=prev and prev.after_isometric,
+                               before_segmentation=prev and prev.segmentation)
+        last_after = ((step.assembly, before_key[1] + _placed_key(step.new)), res)
         entries = catalog_layout(reader, step.catalog)
         catalog_img, cells = render_catalog(entries, tile=config.tile, reader=reader)
         images = {
