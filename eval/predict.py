@@ -56,6 +56,7 @@ from eval.data import (
 )
 from eval.feedback import Feedback, assembly_rows, before_rows, feedback_columns, feedback_example
 from eval.metrics import StepTarget
+from factory.atomic import umask
 from factory.cli import run_guarded
 
 BASELINES = ("baseline:random", "baseline:oracle", "baseline:heuristic")
@@ -227,6 +228,7 @@ def write_predictions(data, predictor: Predictor, out, split: str | None = "test
     summary = {"lines": 0, "steps": 0, "revised": 0, "path": str(out)}
     steps = set()
     try:
+        os.fchmod(fd, 0o666 & ~umask())  # readable as a plain open would leave it, not mkstemp's 0600
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             for rec in iter_predictions(data, predictor, split, tasks, limit, feedback, progress):
                 f.write(json.dumps(rec, ensure_ascii=False) + "\n")

@@ -11,13 +11,30 @@ import tempfile
 from pathlib import Path
 
 
+def umask() -> int:
+    """The process's file mode creation mask (read without changing it where Linux says it)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except OSError:
+        pass
+    old = os.umask(0o022)  # elsewhere: set and restore (not thread-safe, hence the above first)
+    os.umask(old)
+    return old
+
+
 def write_atomic(path: str | os.PathLike, data: bytes) -> None:
     """Write `data` to `path` through a uniquely named temporary file in the same folder, fsynced,
-    then `os.replace`; the temporary file is removed if anything fails."""
+    then `os.replace`; the temporary file is removed if anything fails. The file gets the mode a
+    plain `open` would give (0666 less the umask), not `mkstemp`'s 0600, so teammates and workers
+    under another uid can read the outputs."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~umask())
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()

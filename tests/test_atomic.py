@@ -29,3 +29,16 @@ def test_a_failed_write_keeps_the_old_file_and_cleans_up(tmp_path, monkeypatch):
         write_atomic(path, b"new")
     assert path.read_bytes() == b"old"
     assert os.listdir(tmp_path) == ["f.json"]
+
+
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o002, 0o664), (0o077, 0o600)])
+def test_written_files_follow_the_umask(tmp_path, umask, mode):
+    """A teammate or a Ray worker under another uid reads what a run wrote (not mkstemp's 0600)."""
+    old = os.umask(umask)
+    try:
+        path = tmp_path / f"f{umask:o}.json"
+        write_atomic(path, b"x")
+        write_atomic(path, b"y")  # replacing keeps it too
+    finally:
+        os.umask(old)
+    assert path.stat().st_mode & 0o777 == mode

@@ -374,3 +374,34 @@ def test_shared_meshes_put_every_piece_where_the_part_has_it():
             # the same point set (MuJoCo keeps mesh vertices as float32, in its own order): 1e-7 m = 0.00025 LDU
             gap = np.linalg.norm(world[:, None] - want[None], axis=-1)
             assert gap.min(axis=1).max() < 1e-7 and gap.min(axis=0).max() < 1e-7
+
+
+@pytest.mark.parametrize("damage", ["empty", "truncated"])
+def test_an_empty_or_truncated_cache_entry_is_decomposed_again(tmp_path, monkeypatch, damage):
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path))
+    from factory.parts import Part
+
+    cfg = DecompositionConfig(inset_ldu=0.31)  # a fresh entry (and a fresh Part: no memo)
+    first = collision_shape(Part(name="3039.dat", description="", moved_to=None, flat=part("3039").flat), cfg)
+    files = sorted(cache_dir().glob("*.npz"))
+    assert len(files) == 2
+    for f in files:
+        f.write_bytes(b"" if damage == "empty" else f.read_bytes()[: f.stat().st_size // 2])
+    clone = Part(name="3039.dat", description="", moved_to=None, flat=part("3039").flat)
+    again = collision_shape(clone, cfg)
+    assert len(again.body) == len(first.body)
+    for f in files:  # and replaced
+        with np.load(f) as data:
+            assert int(data["n"]) == len(first.body)
+
+
+def test_an_unwritable_cache_is_worked_without(tmp_path, monkeypatch, capsys):
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a file where the cache folder would be")
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(blocker / "cache"))
+    from factory.parts import Part
+
+    clone = Part(name="3039.dat", description="", moved_to=None, flat=part("3039").flat)
+    shape = collision_shape(clone, DecompositionConfig(inset_ldu=0.32))
+    assert len(shape.body) >= 1
+    assert "cache" in capsys.readouterr().err

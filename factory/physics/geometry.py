@@ -25,6 +25,8 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import sys
+import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -423,21 +425,41 @@ def _body_mesh(part: Part) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _load(path: Path) -> tuple[list[np.ndarray], float] | None:
-    """A cached entry's pieces and inset, None if missing or damaged (then recomputed)."""
-    if not path.exists():
-        return None
+    """A cached entry's pieces and inset, None if missing or damaged (then recomputed): empty
+    (EOFError), truncated (BadZipFile), foreign or unreadable."""
     try:
         with np.load(path) as data:
             return [data[f"p{i}"] for i in range(int(data["n"]))], float(data["inset"])
-    except (OSError, ValueError, KeyError):
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None
 
 
+_UNWRITABLE: set[str] = set()
+"""Cache folders this process could not write to (said once each)."""
+
+
 def _save(path: Path, body: list[np.ndarray], inset: float) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Keep an entry (a temporary file, fsynced, then renamed); a cache that cannot be written is
+    worked without, said once on stderr."""
     tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
-    np.savez(tmp, n=len(body), inset=inset, **{f"p{i}": p for i, p in enumerate(body)})
-    os.replace(tmp, path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as f:
+            np.savez(f, n=len(body), inset=inset, **{f"p{i}": p for i, p in enumerate(body)})
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:  # no folder to hold it
+            pass
+        if str(path.parent) not in _UNWRITABLE:
+            _UNWRITABLE.add(str(path.parent))
+            print(f"warning: cannot write the decomposition cache {path.parent} ({exc.strerror or exc}); "
+                  "working without it (set BRICK_FACTORY_CACHE to a writable folder)", file=sys.stderr)
 
 
 def _decomposed(part: Part, verts: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig) -> list[np.ndarray]:
