@@ -101,9 +101,9 @@ def run(config, args) -> int:
 
 def guarded(body) -> int:
     from factory.sampler import SamplerConfigError
-    from pipelines.dataset import ConfigMismatchError, ShardFailedError
+    from pipelines.dataset import ConfigMismatchError, FolderBusyError, ShardFailedError
 
-    return run_guarded(body, {ConfigMismatchError: 2, SamplerConfigError: 2, ValueError: 2,
+    return run_guarded(body, {ConfigMismatchError: 2, FolderBusyError: 2, SamplerConfigError: 2, ValueError: 2,
                               ShardFailedError: 1, OSError: 2})
 
 

@@ -423,3 +423,40 @@ def test_largest_shards_are_scheduled_first():
 def test_png_level_reaches_the_config_and_its_hash():
     six, one = tiny_dataset_config(), tiny_dataset_config(png_level=1)
     assert (six.png_compress_level, one.png_compress_level) == (6, 1) and six.hash != one.hash
+
+
+def test_a_second_run_on_the_same_folder_is_refused_naming_the_first(tmp_path):
+    """Two runs on one OUT would delete each other's temporary files: the second is refused while
+    the first holds the folder, the folder is free again (no lock file left) once it ends, and a
+    killed holder frees it too (an flock ends with its process)."""
+    from pipelines.dataset.build import FolderBusyError, holding
+
+    out = tmp_path / "out"
+    with holding(out):
+        lock = out / "meta" / "build.lock"
+        assert str(os.getpid()) in lock.read_text()
+        code = f"from pipelines.dataset.build import holding\nwith holding({str(out)!r}): pass"
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        assert r.returncode != 0 and "FolderBusyError" in r.stderr and f"pid {os.getpid()}" in r.stderr
+        with pytest.raises(FolderBusyError, match="being built by another run"):
+            with holding(out):
+                pass
+        r = subprocess.run([sys.executable, "-m", "pipelines.synth", "--n", "1", "--out", str(out), "--min-steps", "1",
+                            "--max-steps", "1", "--no-progress"], capture_output=True, text=True, timeout=300)
+        last = r.stderr.strip().splitlines()[-1]
+        assert r.returncode == 2 and last.startswith("error: ") and "being built by another run" in last
+    assert not (out / "meta" / "build.lock").exists()
+    code = (f"import time\nfrom pipelines.dataset.build import holding\nwith holding({str(out)!r}):\n"
+            "    print('held', flush=True)\n    time.sleep(60)")
+    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert p.stdout.readline().strip() == "held"
+        with pytest.raises(FolderBusyError):
+            with holding(out):
+                pass
+        p.kill()
+        p.wait(timeout=30)
+    finally:
+        p.kill()
+    with holding(out):  # free again
+        pass

@@ -6,7 +6,7 @@
 See docs/dataset.md: rows, layout, determinism and resume, the Ray backend, the designs source.
 """
 
-from pipelines.dataset.build import BACKENDS, ShardFailedError, build, finalize, prepare, summary_line
+from pipelines.dataset.build import BACKENDS, FolderBusyError, ShardFailedError, build, finalize, prepare, summary_line
 from pipelines.dataset.config import (
     SCHEMA_VERSION,
     ConfigMismatchError,
@@ -32,6 +32,7 @@ __all__ = [
     "SYSTEM_TEXT",
     "ConfigMismatchError",
     "DatasetConfig",
+    "FolderBusyError",
     "ShardFailedError",
     "build",
     "build_shard",

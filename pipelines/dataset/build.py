@@ -39,9 +39,64 @@ class ShardFailedError(RuntimeError):
     pass
 
 
+class FolderBusyError(RuntimeError):
+    """Another run is building the same output folder."""
+
+
+@contextmanager
+def holding(out):
+    """Hold `out` for one build: an exclusive `flock` on `OUT/meta/build.lock`, which names the
+    holder (pid, host, start). A second run on the folder is refused (`FolderBusyError`) instead of
+    deleting the first's temporary files; the lock ends with the holding process however it ends,
+    and the file is removed when the build ends, so a finished folder holds no trace of it."""
+    import fcntl
+    import socket
+
+    path = Path(out) / "meta" / "build.lock"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            try:
+                holder = os.pread(fd, 512, 0).decode(errors="replace").strip() or "a run starting"
+            finally:
+                os.close(fd)
+            raise FolderBusyError(f"{out} is being built by another run ({holder}); wait for it to end, "
+                                  "or use another output folder") from None
+        # The previous holder may have removed the file between our open and our lock: then we
+        # hold a lock on a file no one else sees; take the one at the path instead.
+        try:
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"pid {os.getpid()} on {socket.gethostname()} since "
+                      f"{time.strftime('%Y-%m-%d %H:%M:%S')}\n".encode(), 0)
+        yield path
+    finally:
+        try:
+            path.unlink(missing_ok=True)
+        finally:
+            os.close(fd)
+
+
 def prepare(config: DatasetConfig, out) -> Path:
     """Create `out` for `config`, or check that it was started with the same config."""
     out = Path(out)
+    if not _started_with(config, out):
+        write_atomic(out / "meta" / "config.json", json_bytes({"config_hash": config.hash, "config": config.to_json()}))
+    return out
+
+
+def _started_with(config: DatasetConfig, out: Path) -> bool:
+    """Whether `out` was started with `config` (False: not started); raises `ConfigMismatchError`
+    for another config or data without one. Writes nothing."""
     cfg_path = out / "meta" / "config.json"
     if cfg_path.exists():
         try:
@@ -56,12 +111,11 @@ def prepare(config: DatasetConfig, out) -> Path:
                 + f". Resume it with the original settings, use another output folder, or delete {out} "
                 "to start over."
             )
-        return out
+        return True
     data = out / "data"
     if data.is_dir() and any(data.iterdir()):
         raise ConfigMismatchError(f"{out} holds data files but no meta/config.json; use an empty folder")
-    write_atomic(cfg_path, json_bytes({"config_hash": config.hash, "config": config.to_json()}))
-    return out
+    return False
 
 
 def _worker_env() -> dict[str, str]:
@@ -234,9 +288,7 @@ def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, 
 
     `batch` > 1 (synthetic data): objects grown `batch` at a time by `growers` of the workers
     (default two thirds) while the others render (`_run_grown`); the data files are the same
-    whatever `batch` and `growers`."""
-    from tqdm import tqdm
-
+    whatever `batch` and `growers`. The folder is held for the build (`holding`)."""
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
@@ -244,6 +296,14 @@ def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, 
     if growers is not None and (isinstance(growers, bool) or not isinstance(growers, int) or growers < 1):
         raise ValueError(f"growers must be an integer >= 1, got {growers!r}")
     t0 = time.perf_counter()
+    _started_with(config, Path(out))  # a run refused for its config leaves the folder untouched
+    with holding(out):
+        return _build(config, out, backend, workers, progress, desc, batch, growers, t0)
+
+
+def _build(config, out, backend, workers, progress, desc, batch, growers, t0) -> dict:
+    from tqdm import tqdm
+
     out = prepare(config, out)
     todo = largest_first(config, [k for k in range(config.num_shards) if read_marker(out, k, config) is None])
     done_objects = sum(len(config.shard_objects(k)) for k in range(config.num_shards) if k not in set(todo))
