@@ -460,3 +460,20 @@ def test_a_second_run_on_the_same_folder_is_refused_naming_the_first(tmp_path):
         p.kill()
     with holding(out):  # free again
         pass
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--parts", "3001,nosuch"], "unknown part 'nosuch'"),
+    (["--ldraw", "/nonexistent-ldraw"], "/nonexistent-ldraw"),
+    (["--seed", str(2 ** 70)], "seed must be"),
+    (["--max-steps", "100000"], "max_steps"),
+])
+def test_config_errors_are_found_before_anything_is_written(tmp_path, args, message):
+    """A bad part, library, seed or length exits 2 at once, the folder not created: the corrected
+    command is then not refused as 'a different config'."""
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "pipelines.synth", "--n", "2", "--out", str(out), "--no-progress", *args],
+                       capture_output=True, text=True, timeout=300)
+    last = r.stderr.strip().splitlines()[-1]
+    assert r.returncode == 2 and last.startswith("error: ") and message in last, r.stderr
+    assert not out.exists()

@@ -10,6 +10,11 @@ from factory.embedded.catalog import INVERTED_SLOPE, PARTS, SLOPE, TILE
 from factory.physics.check import BACKENDS, CheckConfig
 
 
+MAX_STEPS = 1000
+"""Most parts an object may be grown to: 11x the default's 90, so a mistyped length fails at once
+instead of growing (and holding its structure's load programs) for hours."""
+
+
 class SamplerConfigError(ValueError):
     """A sampler setting is invalid; the message names the setting and the valid choices."""
 
@@ -128,8 +133,10 @@ class SamplerConfig:
             raise SamplerConfigError(f"check_batch must be >= 1, got {self.check_batch}")
         if self.max_redraws < 0:
             raise SamplerConfigError(f"max_redraws must be >= 0, got {self.max_redraws}")
-        if self.seed < 0:
-            raise SamplerConfigError(f"seed must be >= 0, got {self.seed}")
+        if not 0 <= self.seed < 2 ** 63:
+            raise SamplerConfigError(f"seed must be in 0..2**63-1 (it is stored as int64), got {self.seed}")
+        if self.max_steps > MAX_STEPS:
+            raise SamplerConfigError(f"max_steps must be <= {MAX_STEPS}, got {self.max_steps}")
         if not (math.isfinite(self.density_weight) and self.density_weight >= 0):
             raise SamplerConfigError(f"density_weight must be a finite number >= 0, got {self.density_weight}")
         if not (math.isfinite(self.temperature) and self.temperature > 0):

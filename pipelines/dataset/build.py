@@ -282,6 +282,16 @@ def largest_first(config: DatasetConfig, shards: list[int]) -> list[int]:
     return sorted(shards, key=lambda k: (-work[k], k))
 
 
+def _check_source(config: DatasetConfig) -> None:
+    """Raise what the shards would (an unknown part or colour, a missing library: the sampler's
+    own checks) before anything is written."""
+    if config.source == "synthetic":
+        from factory.sampler import Sampler
+        from pipelines.dataset.sources import sampler_config_from_json
+
+        Sampler(sampler_config_from_json(config.sampler), config.ldraw)
+
+
 def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, progress: bool = True,
           desc: str = "objects", batch: int = 1, growers: int | None = None) -> dict:
     """Build every missing shard of `config` into `out`, then the metadata; returns the summary.
@@ -296,7 +306,10 @@ def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, 
     if growers is not None and (isinstance(growers, bool) or not isinstance(growers, int) or growers < 1):
         raise ValueError(f"growers must be an integer >= 1, got {growers!r}")
     t0 = time.perf_counter()
-    _started_with(config, Path(out))  # a run refused for its config leaves the folder untouched
+    # A run refused for its config, its parts or its library leaves the folder untouched (so the
+    # corrected command is not refused as another config).
+    _check_source(config)
+    _started_with(config, Path(out))
     with holding(out):
         return _build(config, out, backend, workers, progress, desc, batch, growers, t0)
 

@@ -62,8 +62,8 @@ class DatasetConfig:
             raise ValueError(f"source must be one of {SOURCES}, got {self.source!r}")
         if isinstance(self.n_objects, bool) or not isinstance(self.n_objects, int) or self.n_objects < 1:
             raise ValueError(f"the number of objects must be an integer >= 1, got {self.n_objects!r}")
-        if not isinstance(self.seed, int) or self.seed < 0:
-            raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2 ** 63:
+            raise ValueError(f"seed must be an integer in 0..2**63-1 (stored as int64), got {self.seed!r}")
         if not 32 <= self.size <= 2048 or not 32 <= self.tile <= 1024:
             raise ValueError("size must be in 32..2048 and tile in 32..1024")
         if not isinstance(self.objects_per_shard, int) or self.objects_per_shard < 1:
