@@ -19,6 +19,10 @@ def run_guarded(body: Callable[[], int | None], extra: dict[type[BaseException],
         return body() or 0
     except BrokenPipeError:
         return 0
+    except KeyboardInterrupt:
+        print("error: interrupted; what was finished is kept (re-run the same command to resume where it can)",
+              file=sys.stderr)
+        return 130
     except RecursionError:
         print("error: input nests too deeply to read", file=sys.stderr)
         return 2

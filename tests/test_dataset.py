@@ -477,3 +477,38 @@ def test_config_errors_are_found_before_anything_is_written(tmp_path, args, mess
     last = r.stderr.strip().splitlines()[-1]
     assert r.returncode == 2 and last.startswith("error: ") and message in last, r.stderr
     assert not out.exists()
+
+
+def test_ctrl_c_ends_a_build_with_one_line_and_no_worker_left(tmp_path):
+    """Ctrl-C (SIGINT to the whole foreground group): exit 130, one line, no traceback from the
+    parent or the workers, every worker gone, and the folder free for the resumed run."""
+    import signal
+
+    from pipelines.dataset.build import holding
+
+    out = tmp_path / "out"
+    p = subprocess.Popen([sys.executable, "-m", "pipelines.synth", "--n", "4", "--out", str(out), "--workers", "2",
+                          "--objects-per-shard", "1", "--min-steps", "20", "--max-steps", "20", "--no-progress"],
+                         stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.time() + 120
+        while not (out / "meta" / "build.lock").exists() and time.time() < deadline:
+            time.sleep(0.2)
+        time.sleep(3)  # the workers are up and sampling
+        os.killpg(p.pid, signal.SIGINT)
+        err = p.stderr.read()
+        assert p.wait(60) == 130
+    finally:
+        p.kill()
+    assert "Traceback" not in err and err.strip().splitlines()[-1].startswith("error: interrupted")
+    deadline = time.time() + 30
+    while time.time() < deadline:
+        try:
+            os.killpg(p.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.2)
+    else:
+        pytest.fail("a worker outlived the interrupted build")
+    with holding(out):
+        pass
