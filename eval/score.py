@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -170,10 +171,22 @@ def format_table(result: dict) -> str:
     return "\n".join(line for line in lines if line != "")
 
 
+def _finite(value):
+    """`value` with every non-finite float as None: JSON has no Infinity or NaN (an error too large
+    for a float, say from a translation of 1e300 LDU, is written null)."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
 def run(args) -> int:
     result = score_file(args.data, args.pred, args.split, args.mode, only_predicted=args.only_predicted)
     if args.json:
-        print(json.dumps(result, indent=1, sort_keys=True))
+        print(json.dumps(_finite(result), indent=1, sort_keys=True, allow_nan=False))
     else:
         print(format_table(result))
     return 0

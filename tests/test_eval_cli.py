@@ -337,3 +337,17 @@ def test_hf_bad_checkpoint_is_a_clean_error(tiny_dataset, tmp_path, capsys):
     rc = predict_cli.main(["--data", str(tiny_dataset), "--model", f"hf:{tmp_path}", "--out",
                            str(tmp_path / "x.jsonl"), "--device", "cpu"])
     assert rc == 2 and "neither a model" in capsys.readouterr().err
+
+
+def test_score_json_is_valid_json_for_a_huge_translation(tiny_dataset, tmp_path):
+    """An error too large for a float is written null: JSON has no Infinity."""
+    lines = _lines(_predict(tiny_dataset, "baseline:oracle", tmp_path / "o.jsonl"))
+    for ln in lines:
+        if ln["task"] == "pose":
+            ln["text"] = ln["text"].replace("x=", "x=1e300", 1).replace("y=", "y=1e300", 1)
+    pred = tmp_path / "huge.jsonl"
+    pred.write_text("".join(json.dumps(ln) + "\n" for ln in lines))
+    r = _cli("eval.score", "--data", tiny_dataset, "--pred", pred, "--json")
+    assert r.returncode == 0, r.stderr
+    result = json.loads(r.stdout, parse_constant=lambda c: pytest.fail(f"{c} in the JSON"))
+    assert result["paper"]["overall"]["translation_error_ldu"] is None
