@@ -512,3 +512,25 @@ def test_ctrl_c_ends_a_build_with_one_line_and_no_worker_left(tmp_path):
         pytest.fail("a worker outlived the interrupted build")
     with holding(out):
         pass
+
+
+@pytest.mark.parametrize("damage", ["deleted", "truncated"])
+def test_a_damaged_shard_under_its_marker_is_built_again(built, tmp_path, damage, capsys):
+    """The marker records its files' sizes: a shard file deleted or cut short is built again (its
+    name said), and temporary files a kill stranded in meta/shards/ and gallery/ are removed, so
+    the folder ends as an uninterrupted build's."""
+    out = tmp_path / "copy"
+    shutil.copytree(built, out)
+    victim = sorted((out / "data").glob("train-00001-*.parquet"))[0]
+    if damage == "deleted":
+        victim.unlink()
+    else:
+        victim.write_bytes(victim.read_bytes()[:100])
+    (out / "meta" / "shards" / ".00002.json.abc123.tmp").write_bytes(b"{")
+    (out / "gallery").mkdir(exist_ok=True)
+    (out / "gallery" / ".index.md.xyz.tmp").write_bytes(b"half")
+    s = build(_config(), out, progress=False)
+    assert s["shards_built"] == 1 and s["shards_skipped"] == 2
+    assert victim.name in capsys.readouterr().err
+    _assert_identical(built, out)
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == sorted(p.relative_to(built) for p in built.rglob("*"))

@@ -26,7 +26,7 @@ from pipelines.dataset.config import (
     json_bytes,
 )
 from pipelines.dataset import spool
-from pipelines.dataset.shards import build_shard, read_marker
+from pipelines.dataset.shards import build_shard, read_marker, remove_stranded
 from pipelines.workers import ONE_THREAD, one_thread_each
 from pipelines.workers import pool as workers_pool
 
@@ -323,6 +323,7 @@ def _build(config, out, backend, workers, progress, desc, batch, growers, t0) ->
     from tqdm import tqdm
 
     out = prepare(config, out)
+    remove_stranded(out)
     todo = largest_first(config, [k for k in range(config.num_shards) if read_marker(out, k, config) is None])
     done_objects = sum(len(config.shard_objects(k)) for k in range(config.num_shards) if k not in set(todo))
     with tqdm(total=config.n_objects, initial=done_objects, desc=desc, unit="obj", disable=not progress,

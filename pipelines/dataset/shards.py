@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -50,13 +51,30 @@ def marker_path(out, shard: int) -> Path:
 
 
 def read_marker(out, shard: int, config: DatasetConfig) -> dict | None:
-    """The shard's completion record when it is done under this config, else None."""
+    """The shard's completion record when it is done under this config and its data files are
+    there at the sizes it records, else None (then the shard is built again; a missing or cut file
+    is named on stderr)."""
     p = marker_path(out, shard)
     try:
         rec = json.loads(p.read_text())
     except (OSError, ValueError):
         return None
-    return rec if rec.get("config_hash") == config.hash else None
+    if not isinstance(rec, dict) or rec.get("config_hash") != config.hash:
+        return None
+    try:
+        files, sizes = rec["files"], rec["bytes"]
+        for split, name in files.items():
+            try:
+                size = (Path(out) / name).stat().st_size
+            except FileNotFoundError:
+                size = None
+            if size != sizes[split]:
+                print(f"warning: {Path(out) / name} is {'missing' if size is None else f'{size} bytes'}, its marker "
+                      f"{p} records {sizes[split]} bytes: shard {shard} is built again", file=sys.stderr)
+                return None
+    except (KeyError, TypeError, AttributeError):
+        return None
+    return rec
 
 
 def _source(config: DatasetConfig):
@@ -68,6 +86,30 @@ def _source(config: DatasetConfig):
         _SOURCES.clear()
         _SOURCES[key] = make_source(config)
     return _SOURCES[key]
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def remove_stranded(out) -> None:
+    """Temporary files a killed run left (`.NAME.*.tmp` of `write_atomic` and the shard writers)
+    in the folder's data, meta, shard-marker, spool and gallery folders. Only for the run holding
+    the folder (`build.holding`): no other run can be writing them."""
+    out = Path(out)
+    for folder in (out / "data", out / "meta", out / "meta" / "shards", out / "meta" / "spool", out / "gallery"):
+        if not folder.is_dir():
+            continue
+        for f in folder.iterdir():
+            if f.name.startswith(".") and f.name.endswith(".tmp") and f.is_file():
+                try:
+                    f.unlink()
+                except OSError:
+                    pass
 
 
 def _remove_stale(out: Path, names: list[str]) -> None:
@@ -135,6 +177,7 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
             w.close()
         writers = {}
         for s in SPLITS:
+            _fsync(tmps[s])  # on disk before its name and its marker say it is done
             os.replace(tmps[s], finals[s])
         timings["write"] += time.perf_counter() - t
     finally:
