@@ -41,3 +41,7 @@ class LDrawReadError(LDrawError):
 
 class LDrawLimitError(LDrawError):
     """Input whose expansion would exceed a safety limit (depth, triangles, parts)."""
+
+
+class LDrawPlacementError(LDrawError):
+    """A part or submodel placed by a matrix that is not a rotation (scaled, sheared, mirrored)."""

@@ -107,3 +107,45 @@ def test_step_json_matches_the_command_line_format(embedded_reader, write):
         "assembly": "main",
         "parts": [{"part": "3001.dat", "color": 4, "R": [[0, 0, 1], [0, 1, 0], [-1, 0, 0]], "T": [10, -24, 0]}],
     }
+
+
+@pytest.mark.parametrize("matrix, what", [
+    ("0 0 0 0 0 0 0 0 0", "all zero"),
+    ("1 0 0 0 1 0 0 0 0", "rank-deficient"),
+    ("2 0 0 0 2 0 0 0 2", "scaled"),
+    ("1 0.5 0 0 1 0 0 0 1", "sheared"),
+    ("-1 0 0 0 1 0 0 0 1", "mirrored"),
+])
+def test_a_placement_that_is_not_a_rotation_is_refused_with_its_line(embedded_reader, write, matrix, what):
+    from factory.errors import LDrawPlacementError
+
+    path = write("m.ldr", f"0 model\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat\n1 4 0 -24 0 {matrix} 3001.dat\n")
+    with pytest.raises(LDrawPlacementError, match=r"m\.ldr:3: .*rotation") as err:
+        build_steps(embedded_reader, embedded_reader.open_model(path))
+    assert what and err.value.line == 3
+    # a submodel is placed the same way
+    mpd = write("s.mpd", f"0 FILE a.ldr\n1 16 0 0 0 {matrix} b.ldr\n0 FILE b.ldr\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat\n")
+    with pytest.raises(LDrawPlacementError, match=r"s\.mpd#a\.ldr:2: "):
+        build_steps(embedded_reader, embedded_reader.open_model(mpd))
+
+
+def test_rotations_written_to_six_decimals_are_accepted(embedded_reader, write):
+    path = write("r.ldr", "1 4 0 0 0 0.707107 0 0.707107 0 1 0 -0.707107 0 0.707107 3001.dat\n")
+    assert len(build_steps(embedded_reader, embedded_reader.open_model(path))[0].parts) == 1
+
+
+@needs_ldraw
+def test_every_real_model_places_its_parts_by_rotations(real_reader):
+    for path in sorted(MODELS.glob("*.*")):
+        if path.suffix.lower() in (".ldr", ".mpd"):
+            assert build_steps(real_reader, real_reader.open_model(path))
+
+
+def test_a_nearly_orthonormal_placement_is_taken_as_the_nearest_rotation(embedded_reader, write):
+    """Real files turn parts by approximate matrices (10156's minifig arms: rows (1, 0.17, 0) and
+    (-0.17, 1, 0)); the part is placed by the nearest rotation."""
+    path = write("n.ldr", "1 4 0 0 0 1 0.17 0 -0.17 1 0 0 0 1 3001.dat\n")
+    pose = build_steps(embedded_reader, embedded_reader.open_model(path))[0].parts[0].pose
+    r = np.asarray(pose.R)
+    assert np.allclose(r @ r.T, np.eye(3), atol=1e-12) and np.linalg.det(r) == pytest.approx(1.0)
+    assert np.degrees(np.arctan2(r[0, 1], r[0, 0])) == pytest.approx(np.degrees(np.arctan(0.17)), abs=1e-9)

@@ -11,7 +11,9 @@ from __future__ import annotations
 from collections import defaultdict
 from dataclasses import dataclass
 
-from factory.errors import LDrawLimitError
+import numpy as np
+
+from factory.errors import LDrawLimitError, LDrawPlacementError
 from factory.ldraw.parse import LDrawFile, Ref, Step
 from factory.ldraw.reader import MAX_DEPTH, Model, Reader, Resolved
 from factory.pose import Pose
@@ -137,7 +139,7 @@ def _expand(
         if not isinstance(item, Ref):
             continue
         child = reader.resolve(item, res.file, res.model)
-        child_pose = pose @ Pose(item.matrix, item.pos)
+        child_pose = pose @ Pose(_placement_rotation(item, res.file.path), item.pos)
         child_colour = colour if item.colour == 16 else item.colour
         if is_submodel(child):
             label = _label(child.file, item)
@@ -150,6 +152,40 @@ def _expand(
                 PlacedPart(item.name, child_colour, child_pose, f"{res.file.path}:{item.line}")
             )
     close_step()
+
+
+ROTATION_TOL = 1e-3
+"""How far a placement's rows may be from orthonormal and still be used as written: files write
+matrices to a few decimals (0.707107 for a 45-degree turn is 1e-6 off)."""
+
+NEAR_ROTATION = 0.05
+"""Placements whose stretch (singular values) is within 5 % of 1 are turned into the nearest
+rotation: hand-edited real files turn parts by approximate matrices (10156's minifig arms,
+rows (1, 0.17, 0) and (-0.17, 1, 0): 1.4 % stretch). Anything further is refused."""
+
+
+def _placement_rotation(ref: Ref, path: str) -> np.ndarray:
+    """The rotation a part or submodel is placed by: its matrix when orthonormal within
+    `ROTATION_TOL`, the nearest rotation when it stretches by at most `NEAR_ROTATION`; a zero,
+    rank-deficient, scaled, sheared or mirrored matrix is refused (`LDrawPlacementError`, with the
+    file and line). (Primitives inside a part may be scaled or mirrored, as the LDraw spec allows;
+    they are not placed here.)"""
+    m = np.asarray(ref.matrix, dtype=np.float64)
+    if np.isfinite(m).all():
+        u, sv, vt = np.linalg.svd(m)
+        det = float(np.linalg.det(m))
+        if det > 0 and float(np.abs(sv - 1.0).max()) <= NEAR_ROTATION:
+            if float(np.abs(m @ m.T - np.eye(3)).max()) <= ROTATION_TOL:
+                return m
+            return u @ vt
+        kind = "mirrors" if det < 0 else "scales or shears"
+    else:
+        det, kind = float("nan"), "is not finite and so scales"
+    rows = "; ".join(" ".join(f"{v:g}" for v in row) for row in m)
+    raise LDrawPlacementError(
+        f"{ref.name} is placed by a matrix that {kind} it ({rows}; determinant {det:.3g}); a part or "
+        f"submodel placement must be a rotation (orthonormal rows, determinant +1; within "
+        f"{NEAR_ROTATION:.0%} it is taken as the nearest rotation)", path, ref.line)
 
 
 def _label(f: LDrawFile, ref: Ref) -> str:
