@@ -19,11 +19,12 @@ from pipelines.synth import _ldraw, add_run_args, guarded, run
 
 
 def object_ids(paths) -> list[str]:
-    """File stems, lower case, with characters outside [a-z0-9._-] as '-'; repeats get '-2', '-3'."""
+    """File stems, lower case, with characters outside [a-z0-9._-] as '-' (no leading '.' or '-', at
+    most 120 characters: a plain name, `dataset.config.NAME`); repeats get '-2', '-3'."""
     seen: dict[str, int] = {}
     out = []
     for p in paths:
-        stem = re.sub(r"[^a-z0-9._-]+", "-", os.path.splitext(os.path.basename(p))[0].lower()).strip("-") or "model"
+        stem = re.sub(r"[^a-z0-9._-]+", "-", os.path.splitext(os.path.basename(p))[0].lower()).strip("-.")[:120] or "model"
         seen[stem] = seen.get(stem, 0) + 1
         out.append(stem if seen[stem] == 1 else f"{stem}-{seen[stem]}")
     return out

@@ -19,8 +19,10 @@ import json
 import sys
 from pathlib import Path
 
-FORMATS = ("llamafactory",)
 from eval.metrics import TASKS
+from pipelines.dataset.config import check_name
+
+FORMATS = ("llamafactory",)
 
 
 def _user_text(messages) -> str:
@@ -43,7 +45,7 @@ def export_llamafactory(out, dest, splits=("train", "test"), tasks=TASKS) -> dic
 
     out, dest = Path(out), Path(dest)
     info = json.loads((out / "meta" / "info.json").read_text())
-    did = info["dataset_id"]
+    did = check_name(info.get("dataset_id"), "dataset_id", f"{out / 'meta' / 'info.json'}: ")
     dest.mkdir(parents=True, exist_ok=True)
     counts: dict[str, int] = {}
     registry = {}
@@ -59,6 +61,7 @@ def export_llamafactory(out, dest, splits=("train", "test"), tasks=TASKS) -> dic
                 pf = pq.ParquetFile(f)
                 for g in range(pf.num_row_groups):
                     for row in pf.read_row_group(g).to_pylist():
+                        check_name(row["object_id"], "object_id", f"{f}: ")  # paths stay under dest
                         folder = dest / "images" / row["object_id"]
                         folder.mkdir(parents=True, exist_ok=True)
                         paths = {}

@@ -534,3 +534,26 @@ def test_a_damaged_shard_under_its_marker_is_built_again(built, tmp_path, damage
     assert victim.name in capsys.readouterr().err
     _assert_identical(built, out)
     assert sorted(p.relative_to(out) for p in out.rglob("*")) == sorted(p.relative_to(built) for p in built.rglob("*"))
+
+
+@pytest.mark.parametrize("dataset_id", ["../../escaped", "lego: v2", ".hidden", "a/b"])
+def test_a_dataset_id_that_is_not_a_plain_name_is_refused(tmp_path, dataset_id):
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "pipelines.synth", "--n", "1", "--out", str(out), "--no-progress",
+                        "--dataset-id", dataset_id], capture_output=True, text=True, timeout=300)
+    last = r.stderr.strip().splitlines()[-1]
+    assert r.returncode == 2 and last.startswith("error: ") and "dataset_id" in last and not out.exists()
+
+
+def test_export_writes_only_under_its_destination(built, tmp_path):
+    """A crafted dataset (its id in meta/info.json) cannot make export write outside DEST."""
+    out = tmp_path / "crafted"
+    shutil.copytree(built, out)
+    info = json.loads((out / "meta" / "info.json").read_text())
+    info["dataset_id"] = "../../escaped"
+    (out / "meta" / "info.json").write_text(json.dumps(info))
+    dest = tmp_path / "a" / "b" / "dest"
+    r = subprocess.run([sys.executable, "-m", "pipelines.export", str(out), "--format", "llamafactory", str(dest)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "dataset_id" in r.stderr and "info.json" in r.stderr
+    assert not list(tmp_path.rglob("escaped*"))

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import re
 from dataclasses import asdict, dataclass, field, fields
 
 SCHEMA_VERSION = 1
@@ -75,6 +76,7 @@ class DatasetConfig:
         if not self.dataset_id:
             default = "brick-factory-synth" if self.source == "synthetic" else "brick-factory-designs"
             object.__setattr__(self, "dataset_id", default)
+        check_name(self.dataset_id, "dataset_id")
         object.__setattr__(self, "models", tuple(dict(m) for m in self.models))
         if self.source == "design" and len(self.models) != self.n_objects:
             raise ValueError("a design config needs one model entry per object")
@@ -127,6 +129,19 @@ class DatasetConfig:
 def _uniform(*key) -> float:
     h = hashlib.sha256("/".join(["brick-factory-split", *map(str, key)]).encode()).digest()
     return int.from_bytes(h[:8], "big") / 2.0**64
+
+
+NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")
+"""A dataset or object id: it names files (export, the Hub) and the card's YAML, so letters,
+digits, '.', '_' and '-', starting with a letter or digit, at most 128 characters."""
+
+
+def check_name(value, what: str, where: str = "") -> str:
+    """`value` when it is a plain name (`NAME`), else a ValueError naming `what` (and `where`)."""
+    if not isinstance(value, str) or not NAME.fullmatch(value):
+        raise ValueError(f"{where}{what} must be letters, digits, '.', '_' or '-' (starting with a letter or "
+                         f"digit, at most 128 characters), got {value!r}")
+    return value
 
 
 def split_of(seed: int, object_id: str, train_fraction: float = 0.8, index: int | None = None) -> str:
