@@ -22,7 +22,8 @@ import numpy as np
 from dataclasses import dataclass, field
 
 from factory.cli import run_guarded
-from factory.ldraw import build_steps, get_reader
+from factory.errors import LDrawError
+from factory.ldraw import NO_PARTS, build_steps, get_reader
 from factory.parts import box_corners, load_part
 from factory.physics.check import BACKENDS, CheckConfig, Verdict, check_units
 from factory.physics.statics import Link
@@ -149,6 +150,8 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
     frames: dict[str, Pose] = {}
     blocks: dict[str, int] = {}
     steps = build_steps(reader, reader.open_model(model_path), frames, blocks)
+    if not steps:
+        raise LDrawError(NO_PARTS, str(model_path))
     open_: list[_Assembly] = []
     # Every part of each assembly in its own frame, in build order; a finished sub-assembly also
     # belongs to its parents (for the turn fault judged in the finished design).

@@ -81,3 +81,17 @@ def test_missing_model_and_unknown_part(tmp_path):
 def test_bad_library_folder(tmp_path):
     out = run("part", "3001", "--ldraw", str(tmp_path))
     assert out.returncode != 0 and "is not an LDraw library" in out.stderr
+
+
+@pytest.mark.parametrize("name, content", [
+    ("empty.ldr", "0 an empty model\n0 STEP\n"),
+    ("empty-main.mpd", "0 FILE main.ldr\n0 nothing here\n0 FILE b.ldr\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat\n"),
+])
+def test_a_model_that_places_no_parts_is_an_error(tmp_path, name, content):
+    path = tmp_path / name
+    path.write_text(content)
+    for cmd in ([sys.executable, "-m", "factory.ldraw", "steps", str(path)],
+                [sys.executable, "-m", "pipelines.verify", str(path)]):
+        r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(lines) == 1 and name in lines[0] and "places no parts" in lines[0], r.stderr

@@ -7,10 +7,11 @@ from functools import lru_cache
 
 from factory.ldraw.colours import Colour, ColourTable
 from factory.ldraw.library import Library
-from factory.ldraw.model import BuildStep, PlacedPart, build_steps
+from factory.ldraw.model import NO_PARTS, BuildStep, PlacedPart, build_steps
 from factory.ldraw.reader import Flat, Model, Reader
 
 __all__ = [
+    "NO_PARTS",
     "BuildStep",
     "Colour",
     "ColourTable",

@@ -21,12 +21,16 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--json", action="store_true", help="print JSON (the only format)")
     args = parser.parse_args(argv)
 
-    from factory.ldraw import get_reader, read_steps
+    from factory.errors import LDrawError
+    from factory.ldraw import NO_PARTS, get_reader, read_steps
     from factory.parts import load_part
 
     def body() -> None:
         if args.command == "steps":
-            for step in read_steps(args.model, args.ldraw):
+            steps = read_steps(args.model, args.ldraw)
+            if not steps:
+                raise LDrawError(NO_PARTS, args.model)
+            for step in steps:
                 print(json.dumps(step.to_json()))
         else:
             print(json.dumps(load_part(get_reader(args.ldraw), args.name).to_json()))

@@ -18,6 +18,9 @@ from factory.ldraw.parse import LDrawFile, Ref, Step
 from factory.ldraw.reader import MAX_DEPTH, Model, Reader, Resolved
 from factory.pose import Pose
 
+NO_PARTS = "places no parts (an empty model, or an MPD whose main block references no part or submodel)"
+"""What the command lines say of a model that gives no build step."""
+
 MAX_MODEL_PARTS = 200_000
 """Most part placements a model may expand to; the largest real sets have about 10,000."""
 
