@@ -295,3 +295,27 @@ def test_sub_assemblies_of_one_step_go_in_together(write, step, reason):
     units = {r["assembly"]: r for r in verify_model(path, None) if r.get("unit")}
     assert units["main/seesaw.ldr#1"]["reason"] == reason, units
     assert units["main/prop.ldr#1"]["reason"] is None and units["main/prop.ldr#1"]["connections"] == 1, units
+
+
+# Vintage Car (verify's steps 50-53): the rear mudguards 35789 of the two step 26 units, then 1x3
+# plates and a 1x4 plate laid beside their rounded ends, above their sockets, on the open side
+# of the corner between a mudguard's side face and the wall of its row of sockets. Real poses.
+TURN_Y = np.diag([-1.0, 1.0, -1.0])
+ROUND_CORNER = {
+    "1x3 plate beside the left mudguard": ("35789", (120, -40, -40), I3, "3623", (70, -32, -30), I3),
+    "1x3 plate beside the right mudguard": ("35789", (120, -40, 40), TURN_Y, "3623", (70, -32, 30), I3),
+    "1x4 plate across the left mudguard's end": ("35789", (120, -40, -40), I3, "3710", (90, -40, 0), QUARTER.T),
+}
+
+
+@pytest.mark.parametrize("case", list(ROUND_CORNER))
+def test_a_plate_beside_a_mudguards_end_is_clear_of_it(at, case):
+    guard, g_at, g_r, plate, p_at, p_r = ROUND_CORNER[case]
+    mudguard = at(guard, *g_at, g_r)
+    v = verdict([mudguard], at(plate, *p_at, p_r))
+    assert not v.collision and v.max_penetration_ldu <= 0.5, (case, v)
+    # Pushed 4 LDU along the car and 4 down, into the mudguard's row of sockets, it overlaps the
+    # mudguard's material: the corner is open, not the mudguard.
+    into = np.array([4.0, 4.0, 0.0])
+    v = verdict([mudguard], at(plate, *(np.array(p_at) + into), p_r))
+    assert v.collision and v.max_penetration_ldu > 3.0, (case, v)

@@ -72,9 +72,16 @@ class DecompositionConfig:
     stud_bores_roofed: bool = True
     """Whether the faithfulness test counts a hollow stud's bore as roofed (the stud's collision
     prism is solid, so filling the bore under it changes nothing)."""
-    refine_cells: int = 64
-    """How many cells the split of one unfaithful piece (`_refined`) may examine. Not part of the
-    decomposition's cache key: refined pieces are cached under their own (`collision_shape`)."""
+    refine_cells: int = 256
+    """How many cells the split of one unfaithful piece (`_refined`) may examine (the mudguard
+    35789 needs 128 since the refinement samples to the inset). Not part of the decomposition's
+    cache key: refined pieces are cached under their own (`collision_shape`)."""
+
+
+REFINED_VERSION = 2
+"""Version of the refinement (`_refined`), part of refined pieces' cache key. 2: samples every point
+the inset piece keeps, halves cells down to twice the inset and drops pieces thinner than the
+inset (1: sampled 0.5 LDU in, halved down to `min_cut_ldu`, kept every piece)."""
 
 
 def cache_dir() -> Path:
@@ -229,6 +236,10 @@ class _Faithfulness:
     pitch: float
     socket_floor: float | None
     """The lowest socket opening (largest LDraw y), None for a part without sockets."""
+    depth: float = 0.5
+    """How far inside the hull a sample point must lie. The whole-body split samples 0.5 LDU in;
+    the refinement (`_refined`) samples everything the inset piece keeps (`INSET_LDU` in), so a
+    cell thinner than 1 LDU still holds sample points (see there)."""
 
     def escaping(self, points: np.ndarray) -> int:
         """How many sample points inside the hull of `points` see out of the part."""
@@ -244,7 +255,7 @@ class _Faithfulness:
             n = max(1, int(round((b - a) / self.pitch)))
             axes.append(a + (np.arange(n) + 0.5) * (b - a) / n)
         grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-        inside = np.all(grid @ hull.equations[:, :3].T + hull.equations[:, 3] < -0.5, axis=1)
+        inside = np.all(grid @ hull.equations[:, :3].T + hull.equations[:, 3] < -self.depth, axis=1)
         grid = grid[inside]
         escaped = np.zeros(len(grid), bool)
         for axis, sign in _SIDES:
@@ -351,14 +362,14 @@ def _split_faithful(polys: list[np.ndarray], test: _Faithfulness, min_cut: float
     return pieces
 
 
-def _faithfulness(part: Part, cfg: DecompositionConfig) -> _Faithfulness:
-    """The faithfulness test of the part's pieces (`_Faithfulness`)."""
+def _faithfulness(part: Part, cfg: DecompositionConfig, depth: float = 0.5) -> _Faithfulness:
+    """The faithfulness test of the part's pieces (`_Faithfulness`), sampling `depth` inside."""
     occluders = part.flat.triangles
     if cfg.stud_bores_roofed and part.studs:
         occluders = np.concatenate([occluders, _stud_caps(part)])
     # Sockets entered from below only: a bracket's sockets behind its side studs are no floor.
     floor = max((c.pos[1] for c in part.sockets if c.axis == (0.0, -1.0, 0.0)), default=None)
-    return _Faithfulness(occluders, cfg.faithful_pitch_ldu, floor)
+    return _Faithfulness(occluders, cfg.faithful_pitch_ldu, floor, depth)
 
 
 def _faithful_pieces(part: Part, cfg: DecompositionConfig) -> list[np.ndarray] | None:
@@ -386,8 +397,18 @@ def _refined(part: Part, pieces: list[np.ndarray], cfg: DecompositionConfig) -> 
     vertices near it, and spans concave corners: the Vintage Car's mudguard 35789 reached 3.7 LDU
     past its rounded end into the plate beside it) replaced by faithful pieces of the part's
     surface within it (grown by the inset and the snap distance), split along the part's own
-    faces as a whole body is; kept where that takes more than `refine_cells` cells."""
-    test = _faithfulness(part, cfg)
+    faces as a whole body is; kept where that takes more than `refine_cells` cells.
+
+    Here the test samples every point the inset piece keeps (deeper than the inset), not only
+    those 0.5 LDU in as the whole-body split does, and a cell may be halved down to twice the
+    inset: a half thinner than that keeps no inset piece, and a thicker one holds sample points.
+    `_within` cuts the part's faces by the grown piece's planes, not along the part's own faces,
+    so it can leave a slab under 1 LDU thick that held no point 0.5 in and passed whatever it
+    filled. The Vintage Car's mudguard 35789: a slab 1 LDU thick (z 0..1 in its frame) joined
+    the face of its side (z = 0) to the wall and the ledge of its row of sockets (x = -20,
+    y = 24), spanning the open corner between them, above its sockets beside its rounded end,
+    where the design lays 1x3 plates; its inset piece reached 7 LDU into them."""
+    test = _faithfulness(part, cfg, depth=cfg.inset_ldu)
     body = list(part.flat.triangles[~part.flat.in_stud])
     out = []
     for piece in pieces:
@@ -395,12 +416,31 @@ def _refined(part: Part, pieces: list[np.ndarray], cfg: DecompositionConfig) -> 
             out.append(piece)
             continue
         polys = _within(body, piece, cfg.inset_ldu + cfg.snap_ldu)
-        split = _split_faithful(polys, test, cfg.min_cut_ldu, [cfg.refine_cells]) if polys else None
+        split = (_split_faithful(polys, test, 2 * cfg.inset_ldu, [cfg.refine_cells])
+                 if polys else None)
         if split is None:
             out.append(piece)
             continue
-        out += [p for p in (inset_hull(r, cfg.inset_ldu) for r in split) if p is not None]
+        out += [p for p in (inset_hull(r, cfg.inset_ldu) for r in split)
+                if p is not None and _width(p) >= cfg.inset_ldu]
     return out
+
+
+def _width(piece: np.ndarray) -> float:
+    """How thin a convex piece is: its least extent along the normal of one of its faces.
+
+    A refined piece thinner than the inset came from a cell under three insets thick, which the
+    test's grid (`faithful_pitch_ldu` apart) may hold no point of where it is a wedge: it is not
+    known to be faithful, and no part overlaps it by more than its width, well under the checker's
+    tolerance, so it is dropped. The mudguard 35789 kept such a wedge (0.06 LDU thick) in the
+    open corner beside its rounded end, and MuJoCo measured the 1x3 plate lying there 0.56 LDU
+    into it."""
+    try:
+        normals = ConvexHull(piece).equations[:, :3]
+    except (QhullError, ValueError):
+        return 0.0
+    proj = piece @ normals.T
+    return float((proj.max(0) - proj.min(0)).min())
 
 
 def _snap(piece: np.ndarray, verts: np.ndarray, snap: float) -> np.ndarray | None:
@@ -491,7 +531,8 @@ def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()
     h.update(np.ascontiguousarray(faces).tobytes())
     h.update(json.dumps(settings, sort_keys=True).encode())
     raw_key = h.hexdigest()[:24]
-    key = hashlib.sha256(f"{raw_key}/refined/{refine}".encode()).hexdigest()[:24]
+    # REFINED_VERSION names how `_refined` works: a change to it must not reuse older entries.
+    key = hashlib.sha256(f"{raw_key}/refined/{refine}/{REFINED_VERSION}".encode()).hexdigest()[:24]
     found = _load(cache_dir() / f"{key}.npz")
     if found is None:
         raw = _load(cache_dir() / f"{raw_key}.npz")
