@@ -110,9 +110,17 @@ class Part:
         return out
 
 
-def load_part(reader: Reader, name: str) -> Part:
-    """A part by name (`3001`, `3001.dat`), flattened once per reader and cached."""
-    res = reader.part(name)
+def load_part(reader: Reader, name, model: str | None = None) -> Part:
+    """A part by name (`3001`, `3001.dat`), flattened once per reader and cached.
+
+    `name` may also be a placed part (`factory.ldraw.PlacedPart`): its `part` and `model`. With a
+    model (its path), the name is found as `build_steps` found it: the model's MPD blocks, its
+    folder, then the library; without, in the library alone. The cache is keyed by the resolved
+    file, so a model's own `mybrick.dat` and the library's are different parts.
+    """
+    if not isinstance(name, str):
+        name, model = name.part, name.model
+    res = reader.part(name, model)
     cache = reader.parts
     if res.key not in cache:
         base = name if name.lower().endswith((".dat", ".ldr")) else name + ".dat"

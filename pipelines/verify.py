@@ -159,7 +159,7 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
     finished: dict[str, list[Placed]] = {}
     for step in steps:
         to_local = frames[step.assembly].inverse()
-        locals_of[id(step)] = [Placed(load_part(reader, p.part), p.colour, to_local @ p.pose) for p in step.parts]
+        locals_of[id(step)] = [Placed(load_part(reader, p), p.colour, to_local @ p.pose) for p in step.parts]
         finished.setdefault(step.assembly, []).extend(locals_of[id(step)])
     for depth in range(max((t.count("/") for t in finished), default=0), 0, -1):
         for tag in [t for t in finished if t.count("/") == depth]:

@@ -54,7 +54,7 @@ def test_tower_manual_order():
     assert len(module.before) == 6 and len(steps[8].before) == 10
     # the catalog: bricks still in the box, plus the module's own bricks on the module step
     assert len(steps[0].catalog) == 11 and len(steps[4].catalog) == 5
-    assert Counter(module.catalog) == Counter((p.part, p.colour) for p in roof) + Counter([("3020.dat", 14)])
+    assert Counter(module.catalog) == Counter((p.part, p.colour, p.model) for p in roof) + Counter([("3020.dat", 14, None)])
     # physics: a verdict per placed brick, the unit verdict on the module step
     assert all(len(s.physics["bricks"]) == len(s.new) for s in steps if s.kind == "part")
     assert module.physics["unit"]["assembly"] == "main/roof.ldr#1"

@@ -36,6 +36,10 @@ class PlacedPart:
     pose: Pose
     source: str
     """`file:line` of the type 1 line that placed it."""
+    model: str | None = None
+    """The path of the model whose MPD blocks or folder hold the part (an unofficial part shipped
+    with the model); None for a part of the library. `load_part(reader, placed)` finds the same
+    file `build_steps` did."""
 
 
 @dataclass(frozen=True)
@@ -152,7 +156,8 @@ def _expand(
             _expand(reader, child, child_pose, child_colour, sub, out, stack + (res.key,), frames, blocks)
         else:
             current.append(
-                PlacedPart(item.name, child_colour, child_pose, f"{res.file.path}:{item.line}")
+                PlacedPart(item.name, child_colour, child_pose, f"{res.file.path}:{item.line}",
+                           child.model.path if child.origin != "library" else None)
             )
     close_step()
 

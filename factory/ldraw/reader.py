@@ -29,6 +29,9 @@ MAX_DEPTH = 64
 MAX_TRIANGLES = 2_000_000
 """Most triangles a flattened file may expand to; a 48x48 baseplate has about 250,000."""
 
+KEEP_MODELS = 16
+"""Opened models a reader keeps for `Reader.model` (an older one is opened again when asked for)."""
+
 _STUD = re.compile(r"^(?:.*/)?stud(|2|2a|6|6a|10|13|15|16|17a|18a|20|22a|p\d+[a-z]?)(-logo\d*)?\.dat$")
 """Stud primitives (and logo variants). Not stud3*/stud4*: those are underside bars and tubes."""
 
@@ -102,7 +105,11 @@ class Reader:
     _flat: dict[str, Flat] = field(default_factory=dict)
     _counts: dict[str, int] = field(default_factory=dict)
     parts: dict[str, object] = field(default_factory=dict)
-    """`factory.parts.Part` objects by resolved key, filled by `load_part`."""
+    """`factory.parts.Part` objects by resolved key, filled by `load_part`. A part found in a
+    model's MPD blocks or folder has a key of its own (`MODEL#name`, `MODEL|file`), so it never
+    stands in for the library's part of the same name in another model."""
+    models: dict[str, Model] = field(default_factory=dict)
+    """The models opened last (`open_model`, the `KEEP_MODELS` latest), by path, for `model()`."""
 
     # -- reading -----------------------------------------------------------------------------
     def parse_located(self, loc: Located) -> LDrawFile:
@@ -141,7 +148,16 @@ class Reader:
                 main = f
         if main is None:
             raise LDrawReadError("file has no model in it (no lines outside 0 !DATA blocks)", str(path))
-        return Model(str(path), parsed, main, folder)
+        model = Model(str(path), parsed, main, folder)
+        self.models.pop(model.path, None)
+        self.models[model.path] = model
+        while len(self.models) > KEEP_MODELS:
+            del self.models[next(iter(self.models))]
+        return model
+
+    def model(self, path: str | os.PathLike) -> Model:
+        """The model at `path` as last opened by this reader (opened now if it was not)."""
+        return self.models.get(str(path)) or self.open_model(path)
 
     def resolve(self, ref: Ref, parent: LDrawFile, model: Model | None) -> Resolved:
         """Find what `ref` names: MPD blocks, then the model's folder, then the library."""
@@ -166,12 +182,16 @@ class Reader:
             f"cannot find {ref.name!r} (looked in {'; '.join(looked)}){hint}", parent.path, ref.line
         )
 
-    def part(self, name: str) -> Resolved:
-        """A part of the library by name (`3001`, `3001.dat`, `s/3001s01.dat`)."""
+    def part(self, name: str, model: str | os.PathLike | Model | None = None) -> Resolved:
+        """A part by name (`3001`, `3001.dat`, `s/3001s01.dat`): of the library, or, with `model`
+        (a `Model` or its path), found as the model's own references are (`resolve`: its MPD
+        blocks, its folder, then the library), as `PlacedPart.model` asks."""
         norm = name if name.lower().endswith((".dat", ".ldr")) else name + ".dat"
         fake = Ref(0, 16, np.eye(3), np.zeros(3), norm.replace("\\", "/").lower())
-        holder = LDrawFile(path="<command line>", name="")
-        return self.resolve(fake, holder, None)
+        if model is not None and not isinstance(model, Model):
+            model = self.model(model)
+        holder = LDrawFile(path="<command line>" if model is None else model.path, name="")
+        return self.resolve(fake, holder, model)
 
     # -- flattening --------------------------------------------------------------------------
     def triangle_count(self, res: Resolved, stack: tuple[str, ...] = ()) -> int:

@@ -7,7 +7,7 @@ parts and colours (default: `get_reader()`, i.e. `$LDRAWDIR` or the embedded lib
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from PIL import Image, ImageDraw
@@ -48,12 +48,12 @@ def _reader(reader: Reader | None) -> Reader:
 
 
 def _items(placed: Sequence[PlacedPart], reader: Reader) -> list[Item]:
-    return [Item(load_part(reader, p.part), p.colour, p.pose) for p in placed]
+    return [Item(load_part(reader, p), p.colour, p.pose) for p in placed]
 
 
 def _scene(items: Sequence[Item], framing_height: float, size: int, universe: Sequence[PlacedPart] | None,
            reader: Reader) -> Scene:
-    uni = [load_part(reader, p.part) for p in universe] if universe is not None else None
+    uni = [load_part(reader, p) for p in universe] if universe is not None else None
     return scene_for([it.part for it in items], EDGE_PX * framing_height / size, universe=uni)
 
 
@@ -70,7 +70,7 @@ def bounds_of(placed: Sequence[PlacedPart], reader: Reader | None = None) -> np.
     reader = _reader(reader)
     pts = []
     for p in placed:
-        v = part_geometry(load_part(reader, p.part)).vertices
+        v = part_geometry(load_part(reader, p)).vertices
         if len(v):
             pts.append(p.pose.apply(v))
     if not pts:
@@ -176,9 +176,9 @@ def render_step_full(before: Sequence[PlacedPart], new: Sequence[PlacedPart], si
     }
     if parts:
         for j, p in enumerate(new, 1):
-            key = (id(reader), p.part.lower(), int(p.colour), size)
+            key = (id(reader), p.model, p.part.lower(), int(p.colour), size)
             if key not in _PARTS:
-                _PARTS[key] = render_part(p.part, p.colour, size=size, reader=reader)
+                _PARTS[key] = render_part(load_part(reader, p), p.colour, size=size, reader=reader)
             images[f"part_{j}"] = _PARTS[key].copy()
     shown = b_items if axes_state == "before" else after
     given = None
@@ -298,27 +298,30 @@ def render_part(part: str | Part, colour: int = 16, size: int = 256, *, reader: 
                             if size >= 384 else f"{p.name}: own LDraw frame")
 
 
-def render_catalog(parts: Sequence[tuple[str, int] | PlacedPart], tile: int = 128, cols: int = 6, *,
+def render_catalog(parts: Sequence[tuple[str, int] | tuple[str, int, str | None] | PlacedPart], tile: int = 128,
+                   cols: int = 6, *,
                    reader: Reader | None = None) -> tuple[Image.Image, list[tuple[int, int]]]:
     """A grid of candidate parts (part name, colour), one tile each at a common scale.
 
     Tiles run left to right, top to bottom, `cols` to a row; each shows the part alone (isometric, in
-    its own frame, centred) with its file name above. Identical parts get separate tiles. Returns the
+    its own frame, centred) with its file name above. Identical parts get separate tiles. A third
+    item, the model's path, names a part the model ships (`PlacedPart.model`). Returns the
     image and, for each input, its (row, col), both 1-indexed from the top-left.
     """
     reader = _reader(reader)
     colours = colour_table(reader)
-    entries = [(p.part, p.colour) if isinstance(p, PlacedPart) else (p[0], int(p[1])) for p in parts]
+    entries = [(p.part, p.colour, p.model) if isinstance(p, PlacedPart)
+               else (p[0], int(p[1]), p[2] if len(p) > 2 else None) for p in parts]
     if not entries:
         raise ValueError("render_catalog needs at least one part")
-    loaded = [load_part(reader, name) for name, _ in entries]
+    loaded = [load_part(reader, name, model) for name, _, model in entries]
     distinct = list({id(p): p for p in loaded}.values())
     heights = [Framing.from_bounds(p.bbox, margin=0.06).iso_height for p in distinct]
     height = max(heights)
     scene = None
     tiles, cells = [], []
-    for i, (p, (_name, colour)) in enumerate(zip(loaded, entries)):
-        key = (id(reader), p.name.lower(), colour, height, tile)
+    for i, (p, (_name, colour, model)) in enumerate(zip(loaded, entries)):
+        key = (id(reader), model, p.name.lower(), colour, height, tile)
         if key not in _TILES:
             if scene is None:
                 scene = scene_for(distinct, EDGE_PX * height / tile)
@@ -363,8 +366,8 @@ def render_feedback(before: Sequence[PlacedPart], predicted: Sequence[PlacedPart
     reader = _reader(reader)
     colours = colour_table(reader)
     b_items = [Item(it.part, _muted(colours, it.colour), it.pose) for it in _items(before, reader)]
-    predicted = [PlacedPart(p.part, p.colour, nearest_rotation(p.pose), p.source) for p in predicted]
-    p_items = [Item(load_part(reader, p.part), FEEDBACK_RGBA, p.pose, FEEDBACK_EDGE) for p in predicted]
+    predicted = [replace(p, pose=nearest_rotation(p.pose)) for p in predicted]
+    p_items = [Item(load_part(reader, p), FEEDBACK_RGBA, p.pose, FEEDBACK_EDGE) for p in predicted]
     bb = bounds_of([*before, *predicted], reader)
     if bounds is not None:
         b = np.asarray(bounds, float)

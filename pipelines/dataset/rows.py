@@ -15,7 +15,7 @@ from factory.parts import LDU_CM, load_part
 from pipelines.dataset import prompts
 from pipelines.dataset.sources import _py
 
-_GEOMETRY: dict[tuple[int, str], str] = {}
+_GEOMETRY: dict[tuple[int, str | None, str], str] = {}
 
 SINGLE_SCENES = 6
 """One-part render scenes (the part images) kept while rendering an object. Each costs about 90 MB
@@ -23,12 +23,13 @@ on llvmpipe (MuJoCo's default 4096x4096 shadow map per render context, unused by
 the render package's default of 64 would reach gigabytes on objects with many distinct parts."""
 
 
-def geometry_key(reader, name: str) -> str:
+def geometry_key(reader, name: str, model: str | None = None) -> str:
     """A digest of a part's geometry (its distinct vertices, rounded to 1e-3 LDU): parts under two
-    names (a `~Moved to` stub and its target, say) with the same shape get the same key."""
-    key = (id(reader), name.lower())
+    names (a `~Moved to` stub and its target, say) with the same shape get the same key. `model`
+    as `PlacedPart.model` (a part the model ships)."""
+    key = (id(reader), model, name.lower())
     if key not in _GEOMETRY:
-        tris = load_part(reader, name).flat.triangles.reshape(-1, 3)
+        tris = load_part(reader, name, model).flat.triangles.reshape(-1, 3)
         verts = np.unique(np.round(tris, 3), axis=0) if len(tris) else np.zeros((0, 3))
         _GEOMETRY[key] = hashlib.sha1(np.ascontiguousarray(verts, dtype=np.float64).tobytes()).hexdigest()
     return _GEOMETRY[key]
@@ -53,19 +54,23 @@ def _parts_image(images: dict, n: int):
 
 def catalog_layout(reader, offered):
     """The catalog's entries sorted by part name and colour (build order would give the answer
-    away), as (normalised name, colour)."""
-    entries = [(normalise_part(load_part(reader, name).name), int(colour)) for name, colour in offered]
-    return sorted(entries)
+    away), as (normalised name, colour, model): `offered` items are (part, colour) or
+    (part, colour, model), `model` as `PlacedPart.model`."""
+    entries = []
+    for name, colour, *model in offered:
+        model = model[0] if model else None
+        entries.append((normalise_part(load_part(reader, name, model).name), int(colour), model))
+    return sorted(entries, key=lambda e: (e[0], e[1]))
 
 
 def assign_cells(reader, new, entries, cells):
     """Per new brick: (equivalent cells, the cell picked for it). Equivalent: same geometry and
     colour. Identical bricks of one step get distinct cells (one cell holds one brick)."""
-    keys = [(geometry_key(reader, name), colour) for name, colour in entries]
+    keys = [(geometry_key(reader, name, model), colour) for name, colour, model in entries]
     used: set = set()
     out = []
     for p in new:
-        k = (geometry_key(reader, p.part), int(p.colour))
+        k = (geometry_key(reader, p.part, p.model), int(p.colour))
         eq = sorted(cells[i] for i, kk in enumerate(keys) if kk == k)
         free = [c for c in eq if c not in used]
         pick = free[0] if free else (eq[0] if eq else (0, 0))
@@ -76,7 +81,7 @@ def assign_cells(reader, new, entries, cells):
 
 def _placed_key(placed) -> tuple:
     """Placed parts as a hashable, exactly comparable key (name, colour, pose bytes)."""
-    return tuple((p.part.lower(), int(p.colour), np.asarray(p.pose.R, np.float64).tobytes(),
+    return tuple((p.part.lower(), p.model, int(p.colour), np.asarray(p.pose.R, np.float64).tobytes(),
                   np.asarray(p.pose.t, np.float64).tobytes()) for p in placed)
 
 
@@ -140,7 +145,7 @@ def _rows(obj, config, split, timings, reader, colours) -> list[dict]:
 
         bricks, picks, poses, described = [], [], [], []
         for p, (eq, pick) in zip(step.new, assign_cells(reader, step.new, entries, cells)):
-            part = load_part(reader, p.part)
+            part = load_part(reader, p)
             name = normalise_part(part.name)
             sym = part.symmetry
             ext = (np.asarray(part.bbox)[1] - np.asarray(part.bbox)[0]) * LDU_CM
@@ -182,7 +187,7 @@ def _rows(obj, config, split, timings, reader, colours) -> list[dict]:
             **encoded,
             "bricks": bricks,
             "catalog_parts": [{"part": n, "colour": c, "row": int(rc[0]), "col": int(rc[1])}
-                              for (n, c), rc in zip(entries, cells)],
+                              for (n, c, _), rc in zip(entries, cells)],
             "physics": json.dumps(_py(step.physics), sort_keys=True, separators=(",", ":"), allow_nan=False),
             "system": prompts.SYSTEM_TEXT,
             "selection_messages": prompts.conversation(prompts.SYSTEM_TEXT, len(prompts.SELECTION_IMAGES),

@@ -36,7 +36,9 @@ class Step:
     new: tuple
     """`PlacedPart`s this step places, in the same frame."""
     catalog: tuple
-    """(part, colour) of every brick offered by the catalog (any order; the row builder sorts)."""
+    """(part, colour, model) of every brick offered by the catalog (any order; the row builder
+    sorts); `model` as `PlacedPart.model` (None: the library's part). Synthetic steps give
+    (part, colour)."""
     physics: dict
     scene: tuple = ()
     """Every part of the finished assembly (frames every step of it alike; one render scene)."""
@@ -176,7 +178,7 @@ def manual_steps(model_path, ldraw=None, physics: bool = True) -> tuple[list[Ste
     frames: dict[str, Pose] = {}
     build = build_steps(reader, reader.open_model(model_path), frames)
     part_rec, unit_rec, seconds = _physics_records(model_path, ldraw, physics)
-    inventory = Counter((p.part, p.colour) for s in build for p in s.parts)
+    inventory = Counter((p.part, p.colour, p.model) for s in build for p in s.parts)
     out: list[Step] = []
     flags: Counter = Counter()
     open_: list[_Open] = []
@@ -185,7 +187,7 @@ def manual_steps(model_path, ldraw=None, physics: bool = True) -> tuple[list[Ste
     def emit(tag, kind, before, new, record):
         offered = list(inventory.elements())
         if kind == "module":
-            offered += [(p.part, p.colour) for p in new]
+            offered += [(p.part, p.colour, p.model) for p in new]
         out.append(Step(tag, kind, tuple(before), tuple(new), tuple(offered), record))
 
     def close_until(tag: str):
@@ -195,7 +197,7 @@ def manual_steps(model_path, ldraw=None, physics: bool = True) -> tuple[list[Ste
                 continue
             parent = open_[-1]
             to_parent = _inverse(parent.frame) @ done.frame
-            new = [PlacedPart(p.part, p.colour, to_parent @ p.pose, p.source) for p in done.placed]
+            new = [PlacedPart(p.part, p.colour, to_parent @ p.pose, p.source, p.model) for p in done.placed]
             if unit_rec is None:
                 record = dict(not_run)
             else:
@@ -215,7 +217,7 @@ def manual_steps(model_path, ldraw=None, physics: bool = True) -> tuple[list[Ste
                 open_.append(_Open(tag, frames.get(tag, Pose.identity())))
         asm = open_[-1]
         to_local = _inverse(asm.frame)
-        new = [PlacedPart(p.part, p.colour, to_local @ p.pose, p.source) for p in step.parts]
+        new = [PlacedPart(p.part, p.colour, to_local @ p.pose, p.source, p.model) for p in step.parts]
         if part_rec is None:
             record = dict(not_run)
         else:
@@ -224,7 +226,7 @@ def manual_steps(model_path, ldraw=None, physics: bool = True) -> tuple[list[Ste
             flags.update(b["reason"] for b in bricks if b and b.get("reason"))
         emit(asm.tag, "part", asm.placed, new, record)
         for p in step.parts:
-            inventory[(p.part, p.colour)] -= 1
+            inventory[(p.part, p.colour, p.model)] -= 1
         asm.placed.extend(new)
     close_until("")
     # Every assembly's final parts (its last step's before + new), for framing.
