@@ -325,7 +325,8 @@ def _build(config, out, backend, workers, progress, desc, batch, growers, t0) ->
     out = prepare(config, out)
     remove_stranded(out)
     todo = largest_first(config, [k for k in range(config.num_shards) if read_marker(out, k, config) is None])
-    done_objects = sum(len(config.shard_objects(k)) for k in range(config.num_shards) if k not in set(todo))
+    missing = set(todo)  # once: a set per shard made the start quadratic in the shard count
+    done_objects = sum(len(config.shard_objects(k)) for k in range(config.num_shards) if k not in missing)
     with tqdm(total=config.n_objects, initial=done_objects, desc=desc, unit="obj", disable=not progress,
               file=sys.stderr, dynamic_ncols=True) as bar:
         if batch > 1 and config.source == "synthetic":
