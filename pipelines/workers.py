@@ -42,8 +42,10 @@ def start_worker(counter, parent: int) -> None:
         counter.value += 1
     os.environ[gpus.SLOT_ENV] = str(number)
     # Ctrl-C reaches the whole process group: a worker ends at once and quietly (its parent says
-    # what happened once), instead of each printing a KeyboardInterrupt traceback.
-    signal.signal(signal.SIGINT, lambda *_: os._exit(130))
+    # what happened once), instead of each printing a KeyboardInterrupt traceback. Where SIGINT is
+    # ignored (a background job: so is it in the parent), the worker keeps ignoring it.
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        signal.signal(signal.SIGINT, lambda *_: os._exit(130))
     if sys.platform.startswith("linux"):
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
         libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)

@@ -487,14 +487,17 @@ def test_ctrl_c_ends_a_build_with_one_line_and_no_worker_left(tmp_path):
     from pipelines.dataset.build import holding
 
     out = tmp_path / "out"
+    # As from a terminal: SIGINT not ignored (a shell's background job, which may run this suite,
+    # starts its children with SIGINT ignored, and Python then keeps ignoring it).
     p = subprocess.Popen([sys.executable, "-m", "pipelines.synth", "--n", "4", "--out", str(out), "--workers", "2",
-                          "--objects-per-shard", "1", "--min-steps", "20", "--max-steps", "20", "--no-progress"],
-                         stderr=subprocess.PIPE, text=True, start_new_session=True)
+                          "--objects-per-shard", "1", "--min-steps", "40", "--max-steps", "40", "--no-progress"],
+                         stderr=subprocess.PIPE, text=True, start_new_session=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.time() + 120
         while not (out / "meta" / "build.lock").exists() and time.time() < deadline:
             time.sleep(0.2)
-        time.sleep(3)  # the workers are up and sampling
+        time.sleep(8)  # the workers are up (a fresh clone compiles its modules first) and sampling
         os.killpg(p.pid, signal.SIGINT)
         err = p.stderr.read()
         assert p.wait(60) == 130
