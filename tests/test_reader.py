@@ -143,6 +143,18 @@ def test_exponential_expansion_is_refused_quickly(mini_library):
     assert not reader._flat, "nothing may be expanded before the count is checked"
 
 
+def test_an_edge_bomb_is_refused_before_it_is_expanded(mini_library):
+    """Edge lines (type 2, and optional lines, type 5) count against a budget as triangles do:
+    nine tiny files, each placing the one below ten times, expand to 10^8 edges."""
+    add_part(mini_library, "e0.dat", "2 24 0 0 0 1 0 0\n5 24 0 0 0 0 1 0 1 1 0 -1 1 0\n")
+    for i in range(1, 9):
+        add_part(mini_library, f"e{i}.dat", f"1 16 0 0 0 1 0 0 0 1 0 0 0 1 e{i-1}.dat\n" * 10)
+    reader = lib_reader(mini_library)
+    with pytest.raises(LDrawLimitError, match="more than 4,000,000 edge"):
+        reader.flatten(reader.part("e8.dat"))
+    assert not reader._flat, "nothing may be expanded before the count is checked"
+
+
 def test_deep_nesting_is_refused(mini_library):
     add_part(mini_library, "d0.dat", "1 16 0 0 0 1 0 0 0 1 0 0 0 1 box.dat\n")
     for i in range(1, 80):
