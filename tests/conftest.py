@@ -160,6 +160,14 @@ def alive(pid: int) -> bool:
     return state != "Z"
 
 
+def _cmdline(pid: int) -> bytes:
+    """A process's command line; empty when it ended meanwhile (a short-lived child of the command)."""
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except (FileNotFoundError, ProcessLookupError):
+        return b""
+
+
 def assert_workers_end_with_killed_parent(proc, marker: bytes, workers: int = 2, settle: float = 0.0,
                                           grace: float = 10.0) -> None:
     """Wait for `workers` children of `proc` whose command line holds `marker`, kill `proc` with
@@ -172,7 +180,7 @@ def assert_workers_end_with_killed_parent(proc, marker: bytes, workers: int = 2,
     try:
         deadline = time.time() + 120
         while len(found) < workers:
-            found = [p for p in children_of(proc.pid) if marker in Path(f"/proc/{p}/cmdline").read_bytes()]
+            found = [p for p in children_of(proc.pid) if marker in _cmdline(p)]
             assert proc.poll() is None, "the command ended before its workers started"
             assert time.time() < deadline, f"no {workers} workers within 120 s"
             time.sleep(0.05)
