@@ -53,6 +53,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from eval.parse import PoseAnswer, parse_pose, parse_selection
+from factory.pose import nearest_rotation_matrix
 from factory.symmetry import Symmetry
 
 MODES = ("strict", "paper")
@@ -109,9 +110,7 @@ def project_to_rotation(M) -> tuple[np.ndarray, bool]:
     m = np.asarray(M, dtype=np.float64).reshape(3, 3)
     if not np.all(np.isfinite(m)):
         return np.eye(3), True
-    u, _, vt = np.linalg.svd(m)
-    d = 1.0 if np.linalg.det(u @ vt) > 0 else -1.0
-    r = u @ np.diag([1.0, 1.0, d]) @ vt
+    r = nearest_rotation_matrix(m)
     return r, bool(np.max(np.abs(m - r)) > PROJECTION_TOL)
 
 

@@ -104,6 +104,14 @@ class Pose:
         return f"Pose(R={self.R.round(6).tolist()}, t={self.t.round(6).tolist()})"
 
 
+def nearest_rotation_matrix(m) -> np.ndarray:
+    """The proper rotation nearest to a finite 3x3 matrix in the Frobenius norm: with the SVD
+    `m = U S V^T`, `U diag(1, 1, det(U V^T)) V^T` (a reflection's nearest rotation keeps det +1)."""
+    u, _, vt = np.linalg.svd(np.asarray(m, dtype=np.float64).reshape(3, 3))
+    d = 1.0 if np.linalg.det(u @ vt) > 0 else -1.0
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
 def points_to_mujoco(points) -> np.ndarray:
     """Points (..., 3) in LDU with LDraw axes to metres with MuJoCo's axes (mesh vertices)."""
     return np.asarray(points, dtype=np.float64) @ LDRAW_TO_MUJOCO.T * LDU_M

@@ -16,7 +16,7 @@ import numpy as np
 from factory.errors import LDrawLimitError, LDrawPlacementError
 from factory.ldraw.parse import LDrawFile, Ref, Step
 from factory.ldraw.reader import MAX_DEPTH, Model, Reader, Resolved
-from factory.pose import Pose
+from factory.pose import Pose, nearest_rotation_matrix
 
 NO_PARTS = "places no parts (an empty model, or an MPD whose main block references no part or submodel)"
 """What the command lines say of a model that gives no build step."""
@@ -180,12 +180,12 @@ def _placement_rotation(ref: Ref, path: str) -> np.ndarray:
     they are not placed here.)"""
     m = np.asarray(ref.matrix, dtype=np.float64)
     if np.isfinite(m).all():
-        u, sv, vt = np.linalg.svd(m)
+        stretch = np.linalg.svd(m, compute_uv=False)
         det = float(np.linalg.det(m))
-        if det > 0 and float(np.abs(sv - 1.0).max()) <= NEAR_ROTATION:
+        if det > 0 and float(np.abs(stretch - 1.0).max()) <= NEAR_ROTATION:
             if float(np.abs(m @ m.T - np.eye(3)).max()) <= ROTATION_TOL:
                 return m
-            return u @ vt
+            return nearest_rotation_matrix(m)
         kind = "mirrors" if det < 0 else "scales or shears"
     else:
         det, kind = float("nan"), "is not finite and so scales"

@@ -14,7 +14,7 @@ from PIL import Image, ImageDraw
 
 from factory.ldraw import PlacedPart, Reader, get_reader
 from factory.parts import Part, load_part
-from factory.pose import Pose
+from factory.pose import Pose, nearest_rotation_matrix
 from factory.render import compose
 from factory.render.cameras import (
     ALL_VIEWS,
@@ -339,10 +339,7 @@ def nearest_rotation(pose: Pose) -> Pose:
     """The pose with its matrix replaced by the nearest rotation (a model's answer may not be one)."""
     if pose.is_rotation(1e-6):
         return pose
-    r = np.nan_to_num(np.asarray(pose.R, float))
-    u, _, vt = np.linalg.svd(r)
-    d = np.sign(np.linalg.det(u @ vt)) or 1.0
-    rot = u @ np.diag([1.0, 1.0, d]) @ vt
+    rot = nearest_rotation_matrix(np.nan_to_num(np.asarray(pose.R, float)))
     return Pose(rot, np.nan_to_num(np.asarray(pose.t, float)))
 
 
