@@ -53,3 +53,11 @@ def choose_jax_device(jax) -> object | None:
     device = devices[k % len(devices)]
     jax.config.update("jax_default_device", device)
     return device
+
+
+def render_path() -> str:
+    """Where a job's worker renders run, in words (for the line a job prints at its start)."""
+    n = count()
+    if n and os.environ.get("MUJOCO_GL", "egl").lower() == "egl":
+        return f"EGL on {n} NVIDIA GPU(s), worker k on GPU k mod {n}"
+    return f"on the CPU ({os.environ.get('MUJOCO_GL') or 'EGL or OSMesa, whichever is installed'})"

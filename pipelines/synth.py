@@ -21,16 +21,16 @@ def _ldraw(arg):
 
 
 def config_from_args(args):
+    from factory import gpus
     from factory.sampler import SamplerConfig, default_check_batch
     from pipelines.dataset import DatasetConfig
     from pipelines.dataset.sources import sampler_config_json
 
     if args.check_backend == "auto":
         args.check_backend = "mujoco"
-        print(f"physics: mujoco, MuJoCo C in each worker (auto: in whole builds on one H100 with 16 workers "
-              f"these grew and rendered 23 steps/s, the batched JAX checks grew 10 steps/s with the GPU 79% "
-              f"busy: docs/dataset.md; --check-backend mjx asks for them); renders: {render_path()}",
-              file=sys.stderr, flush=True)
+        print(f"physics: mujoco, MuJoCo C in each worker (auto: the faster whole build, measured in "
+              f"docs/dataset.md; --check-backend mjx asks for the batched JAX checks); renders: "
+              f"{gpus.render_path()}", file=sys.stderr, flush=True)
     kw = dict(seed=args.seed, min_steps=args.min_steps, max_steps=args.max_steps,
               backend=args.check_backend)
     if args.candidates is not None:
@@ -43,16 +43,6 @@ def config_from_args(args):
     return DatasetConfig("synthetic", args.n, seed=args.seed, size=args.size, tile=args.tile, png_compress_level=args.png_level,
                          objects_per_shard=args.objects_per_shard, sampler=sampler_config_json(sampler),
                          ldraw=_ldraw(args.ldraw), **({"dataset_id": args.dataset_id} if args.dataset_id else {}))
-
-
-def render_path() -> str:
-    """Where the workers' renders run, in words."""
-    from factory import gpus
-
-    n = gpus.count()
-    if n and os.environ.get("MUJOCO_GL", "egl").lower() == "egl":
-        return f"EGL on {n} NVIDIA GPU(s), worker k on GPU k mod {n}"
-    return f"on the CPU ({os.environ.get('MUJOCO_GL') or 'EGL or OSMesa, whichever is installed'})"
 
 
 DEFAULT_GPU_BATCH = 16

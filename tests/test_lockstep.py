@@ -129,7 +129,7 @@ def test_jax_processes_share_the_gpu_memory(given, expected):
     env = {k: v for k, v in os.environ.items() if k != "XLA_PYTHON_CLIENT_PREALLOCATE"}
     if given is not None:
         env["XLA_PYTHON_CLIENT_PREALLOCATE"] = given
-    code = ("import os, factory.physics.check as c; c.auto_backend(); "
+    code = ("import os, factory.physics.check, jax; jax.default_backend(); "
             "print(os.environ['XLA_PYTHON_CLIENT_PREALLOCATE'])")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == expected

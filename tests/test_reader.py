@@ -132,26 +132,20 @@ def test_reference_cycle_is_reported_with_its_chain(mini_library):
         reader.flatten(reader.part("a.dat"))
 
 
-def test_exponential_expansion_is_refused_quickly(mini_library):
+@pytest.mark.parametrize("base, levels, copies, message", [
     # Twenty levels, each placing the one below twice: 2^20 boxes, 12 million triangles.
-    add_part(mini_library, "l0.dat", "1 16 0 0 0 1 0 0 0 1 0 0 0 1 box.dat\n")
-    for i in range(1, 21):
-        add_part(mini_library, f"l{i}.dat", f"1 16 0 0 0 1 0 0 0 1 0 0 0 1 l{i-1}.dat\n" * 2)
+    ("1 16 0 0 0 1 0 0 0 1 0 0 0 1 box.dat\n", 20, 2, "more than 2,000,000 triangles"),
+    # Edge lines (type 2, and optional lines, type 5) count against a budget as triangles do:
+    # nine tiny files, each placing the one below ten times, expand to 2 x 10^8 edges.
+    ("2 24 0 0 0 1 0 0\n5 24 0 0 0 0 1 0 1 1 0 -1 1 0\n", 8, 10, "more than 4,000,000 edge"),
+])
+def test_exponential_expansion_is_refused_before_it_is_expanded(mini_library, base, levels, copies, message):
+    add_part(mini_library, "l0.dat", base)
+    for i in range(1, levels + 1):
+        add_part(mini_library, f"l{i}.dat", f"1 16 0 0 0 1 0 0 0 1 0 0 0 1 l{i-1}.dat\n" * copies)
     reader = lib_reader(mini_library)
-    with pytest.raises(LDrawLimitError, match="more than 2,000,000 triangles"):
-        reader.flatten(reader.part("l20.dat"))
-    assert not reader._flat, "nothing may be expanded before the count is checked"
-
-
-def test_an_edge_bomb_is_refused_before_it_is_expanded(mini_library):
-    """Edge lines (type 2, and optional lines, type 5) count against a budget as triangles do:
-    nine tiny files, each placing the one below ten times, expand to 10^8 edges."""
-    add_part(mini_library, "e0.dat", "2 24 0 0 0 1 0 0\n5 24 0 0 0 0 1 0 1 1 0 -1 1 0\n")
-    for i in range(1, 9):
-        add_part(mini_library, f"e{i}.dat", f"1 16 0 0 0 1 0 0 0 1 0 0 0 1 e{i-1}.dat\n" * 10)
-    reader = lib_reader(mini_library)
-    with pytest.raises(LDrawLimitError, match="more than 4,000,000 edge"):
-        reader.flatten(reader.part("e8.dat"))
+    with pytest.raises(LDrawLimitError, match=message):
+        reader.flatten(reader.part(f"l{levels}.dat"))
     assert not reader._flat, "nothing may be expanded before the count is checked"
 
 

@@ -32,7 +32,7 @@ MAX_TRIANGLES = 2_000_000
 MAX_EDGES = 4_000_000
 """Most edge lines (types 2 and 5) a flattened file may expand to: twice the triangles' budget (the
 312 parts of the real subset draw 0.88 edges per triangle at the median, 1.38 at most); without
-it, nine tiny files could expand to 10^8 edges."""
+it, nine tiny files could expand to 2 x 10^8 edges."""
 
 KEEP_MODELS = 16
 """Opened models a reader keeps for `Reader.model` (an older one is opened again when asked for)."""

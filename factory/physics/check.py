@@ -40,18 +40,6 @@ from factory.pose import Pose
 BACKENDS = ("mujoco", "mjx")
 
 
-def auto_backend() -> tuple[str, str]:
-    """(backend, why): 'mjx' where JAX is installed and its default device is a GPU (the batched
-    checks pay off there), else the CPU reference 'mujoco'. Asking starts JAX's backend."""
-    try:
-        import jax
-    except ModuleNotFoundError:
-        return "mujoco", "MuJoCo C on the CPU (JAX is not installed: pip install -e '.[gpu]')"
-    if jax.default_backend() != "gpu":
-        return "mujoco", f"MuJoCo C on the CPU (JAX sees no CUDA GPU: its device is {jax.default_backend()})"
-    return "mjx", f"batched in JAX on {jax.devices()[0].device_kind} ({jax.device_count()} GPU)"
-
-
 @dataclass(frozen=True)
 class CheckConfig:
     """Thresholds of the checks."""

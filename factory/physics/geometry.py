@@ -470,9 +470,7 @@ def _load(path: Path) -> tuple[list[np.ndarray], float] | None:
     try:
         with np.load(path) as data:
             return [data[f"p{i}"] for i in range(int(data["n"]))], float(data["inset"])
-    except FileNotFoundError:
-        return None
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):  # OSError: missing too
         return None
 
 

@@ -26,7 +26,7 @@ from pipelines.dataset.config import (
     json_bytes,
 )
 from pipelines.dataset import spool
-from pipelines.dataset.shards import build_shard, read_marker, remove_stranded
+from pipelines.dataset.shards import build_shard, object_source, read_marker, remove_stranded
 from pipelines.workers import ONE_THREAD, one_thread_each
 from pipelines.workers import pool as workers_pool
 
@@ -289,12 +289,10 @@ def largest_first(config: DatasetConfig, shards: list[int]) -> list[int]:
 
 def _check_source(config: DatasetConfig) -> None:
     """Raise what the shards would (an unknown part or colour, a missing library: the sampler's
-    own checks) before anything is written."""
+    own checks) before anything is written. The source is this process's (`object_source`), so
+    shards built here reuse it."""
     if config.source == "synthetic":
-        from factory.sampler import Sampler
-        from pipelines.dataset.sources import sampler_config_from_json
-
-        Sampler(sampler_config_from_json(config.sampler), config.ldraw)
+        object_source(config)
 
 
 def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, progress: bool = True,

@@ -77,7 +77,7 @@ def read_marker(out, shard: int, config: DatasetConfig) -> dict | None:
     return rec
 
 
-def _source(config: DatasetConfig):
+def object_source(config: DatasetConfig):
     """One object source per process and config (a Ray or pool worker reuses it across shards)."""
     from pipelines.dataset.sources import make_source
 
@@ -149,7 +149,7 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
     stats: dict[str, dict[str, int]] = {}
     objects = []
     try:
-        source = _source(config)
+        source = object_source(config)
         for index in config.shard_objects(shard):
             oid = config.object_id(index)
             split = config.split(index)
