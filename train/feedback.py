@@ -61,7 +61,7 @@ def build_feedback(data, pred, out, split: str = "train", progress: bool = False
     from eval.score import read_predictions
     from factory.ldraw import get_reader
     from factory.render.scene import clear_cache
-    from pipelines.dataset.rows import png_bytes
+    from pipelines.dataset.png import png_bytes
     from pipelines.dataset.shards import WRITER_OPTIONS
     from train.checkpoint import write_atomic_text
 

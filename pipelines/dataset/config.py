@@ -47,7 +47,7 @@ class DatasetConfig:
     train_fraction: float = 0.8
     """Share of objects in the train split, decided per object from (seed, object id)."""
     png_compress_level: int = 6
-    """zlib level of the PNG images (0-9)."""
+    """Deflate level of the PNG images (0-9; `pipelines.dataset.png`)."""
     sampler: dict = field(default_factory=dict)
     """`SamplerConfig.to_json()` (synthetic only; its seed equals `seed`)."""
     models: tuple = ()

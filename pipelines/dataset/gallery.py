@@ -11,6 +11,7 @@ from PIL import Image
 
 from factory.atomic import write_atomic
 from pipelines.dataset.config import SPLITS
+from pipelines.dataset.png import png_bytes
 
 MAX_SAMPLES = 12
 SHOWN = ("before", "after", "isometric", "part", "axes", "catalog")
@@ -62,9 +63,7 @@ def write_gallery(config, out, info: dict) -> None:
     out = Path(out)
     gal = out / "gallery"
     rows = sample_rows(config, out)
-    buf = io.BytesIO()
-    contact_sheet(rows).save(buf, format="PNG", compress_level=6)
-    write_atomic(gal / "contact_sheet.png", buf.getvalue())
+    write_atomic(gal / "contact_sheet.png", png_bytes(contact_sheet(rows), 6))
     e = html.escape
     parts = [
         "<!doctype html>",

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import time
 
@@ -13,6 +12,7 @@ from eval.parse import normalise_part
 from factory.ldraw import get_reader
 from factory.parts import LDU_CM, load_part
 from pipelines.dataset import prompts
+from pipelines.dataset.png import png_bytes
 from pipelines.dataset.sources import _py
 
 _GEOMETRY: dict[tuple[int, str | None, str], str] = {}
@@ -33,12 +33,6 @@ def geometry_key(reader, name: str, model: str | None = None) -> str:
         verts = np.unique(np.round(tris, 3), axis=0) if len(tris) else np.zeros((0, 3))
         _GEOMETRY[key] = hashlib.sha1(np.ascontiguousarray(verts, dtype=np.float64).tobytes()).hexdigest()
     return _GEOMETRY[key]
-
-
-def png_bytes(img, level: int) -> bytes:
-    buf = io.BytesIO()
-    img.save(buf, format="PNG", compress_level=int(level), optimize=False)
-    return buf.getvalue()
 
 
 def _parts_image(images: dict, n: int):
