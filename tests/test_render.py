@@ -492,3 +492,21 @@ def test_axes_views_made_from_the_previous_step_match_rendered_ones(reader):
     assert white_a > 500 and abs(int(white_a) - int(white_b)) < 0.01 * diff.size
     for name in ("before", "after", "isometric"):
         assert alone.images[name].tobytes() == reused.images[name].tobytes()
+
+
+def test_part_image_is_the_same_whatever_was_rendered_before(reader):
+    """Part renders outlive `clear_cache` (the dataset builder clears per object), so they must not
+    depend on the scenes a process built before: the same pixels from a fresh process state and
+    after a step whose scene holds the part among others."""
+    from factory.render.images import _PARTS, render_part
+
+    render.scene.clear_cache()
+    _PARTS.clear()
+    fresh = np.asarray(render_part("3039", 14, 128, reader=reader))
+    before = [placed("3001", 4, (0, 0, 0)), placed("3039", 14, (0, -24, 10))]
+    render_step(before, [placed("3039", 14, (40, -24, 10))], 128, reader=reader)
+    _PARTS.clear()
+    again = np.asarray(render_part("3039", 14, 128, reader=reader))
+    assert np.array_equal(fresh, again)
+    step = render_step(before, [placed("3039", 14, (40, -48, 10))], 128, reader=reader)
+    assert np.array_equal(np.asarray(step["part_1"]), fresh)

@@ -357,28 +357,31 @@ class CollisionScene:
         mujoco.mj_fwdPosition(self.model, self.data)
         deepest = 0.0
         near: set[int] = set()
-        memo: dict = {}
-        for c in self.data.contact[: self.data.ncon]:
-            g1, g2 = c.geom1, c.geom2
+        n = self.data.ncon
+        if n:
+            # The contacts as arrays (a Python loop over MjContact structs cost most of this call).
+            con = self.data.contact
+            g1, g2 = np.asarray(con.geom1[:n], np.int64), np.asarray(con.geom2[:n], np.int64)
             o1, o2 = self.owner[g1], self.owner[g2]
-            if o1 != -1 and o2 != -1:
-                continue
-            other, other_g, cand_g = (o2, g2, g1) if o1 == -1 else (o1, g1, g2)
-            if other == -1:
-                continue
-            if other >= 0 and other in connected and (self.is_stud[other_g] or self.is_stud[cand_g]):
-                continue
-            overlap = -c.dist / LDU_M + self.inset[g1] + self.inset[g2]
-            if other >= 0 and other in connected:
-                overlap -= CONNECTED_SLACK_LDU
-            if overlap > 0 and other >= 0 and self.is_stud[g1] != self.is_stud[g2]:
-                stud_g, body_g = (g1, g2) if self.is_stud[g1] else (g2, g1)
+            cand_first = o1 == -1
+            other = np.where(cand_first, o2, o1)
+            other_g, cand_g = np.where(cand_first, g2, g1), np.where(cand_first, g1, g2)
+            # Candidate against structure or floor only (not within the candidate's unit).
+            keep = ((o1 == -1) | (o2 == -1)) & (other != -1)
+            conn = (other >= 0) & np.isin(other, np.fromiter(connected, np.int64, len(connected)))
+            keep &= ~(conn & (self.is_stud[other_g] | self.is_stud[cand_g]))
+            overlap = -np.asarray(con.dist[:n], float) / LDU_M + self.inset[g1] + self.inset[g2]
+            overlap = np.where(conn, overlap - CONNECTED_SLACK_LDU, overlap)
+            hollow = keep & (overlap > 0) & (other >= 0) & (self.is_stud[g1] != self.is_stud[g2])
+            memo: dict = {}
+            for i in np.flatnonzero(hollow):
+                stud_g, body_g = (int(g1[i]), int(g2[i])) if self.is_stud[g1[i]] else (int(g2[i]), int(g1[i]))
                 if self._stud_in_hollow(stud_g, body_g, pose, memo):
-                    overlap = min(overlap, 0.0)  # touching, not overlapping
-            if overlap > 0:
-                deepest = max(deepest, overlap)
-            if other >= 0 and overlap > -NEAR_LDU:
-                near.add(int(other))
+                    overlap[i] = min(overlap[i], 0.0)  # touching, not overlapping
+            over = keep & (overlap > 0)
+            if over.any():
+                deepest = float(overlap[over].max())
+            near = {int(o) for o in np.unique(other[keep & (other >= 0) & (overlap > -NEAR_LDU)])}
         depth, owners = self._coincident(pose)
         near |= owners
         return max(deepest, depth), near

@@ -103,6 +103,17 @@ def dashed_rect(img: Image.Image, box: tuple[int, int, int, int], colour=RED, wi
     run(y0, y1, x1 - width + 1, False)
 
 
+def colour_mask(arr: np.ndarray, rgb) -> np.ndarray:
+    """(H, W) bool: the pixels of an (H, W, 3) image that are exactly `rgb` (channel by channel:
+    ten times faster than `(arr == rgb).all(-1)` at 256 px)."""
+    return (arr[..., 0] == rgb[0]) & (arr[..., 1] == rgb[1]) & (arr[..., 2] == rgb[2])
+
+
+def fill(arr: np.ndarray, mask: np.ndarray, rgb) -> None:
+    """Set the `mask` pixels of an (H, W, 3) uint8 image to `rgb`, in place."""
+    np.copyto(arr, np.asarray(rgb, np.uint8), where=mask[..., None])
+
+
 def box_from_mask(mask: np.ndarray, pad: int) -> tuple[int, int, int, int] | None:
     """Inclusive pixel box around the True pixels of `mask`, padded and clamped; None if empty."""
     ys, xs = np.nonzero(mask)
@@ -140,7 +151,7 @@ def tick_tile(img: Image.Image, title: str, ticks: dict[str, list[tuple[float, f
     strip = label_strip_height(size)
     arr = np.asarray(img).copy()
     if bg_mask is not None:
-        arr[bg_mask] = bg
+        fill(arr, bg_mask, bg)
         for _v, x in ticks.get("h", []):
             xi = min(size - 1, int(np.floor(x)))
             col = bg_mask[:, xi]

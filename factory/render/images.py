@@ -6,6 +6,7 @@ parts and colours (default: `get_reader()`, i.e. `$LDRAWDIR` or the embedded lib
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -38,9 +39,15 @@ _TILES: dict[tuple, Image.Image] = {}
 """Catalog tiles by (reader, part, colour, common height, tile size): a catalog shrinks by a brick
 per step and keeps its scale until its tallest part is used up, so most tiles repeat. Cleared with
 the scenes (`clear_cache`), like them per object in the dataset builder."""
-_PARTS: dict[tuple, Image.Image] = {}
-"""Part renders by (reader, part, colour, size)."""
-ON_CLEAR.extend([_TILES.clear, _PARTS.clear])
+_PARTS: OrderedDict[tuple, tuple[Reader, Image.Image]] = OrderedDict()
+"""Part renders by (reader, model, part, colour, size), least recently used first. Kept across
+`clear_cache`: `render_part` draws each in a scene of that part alone, so an image is the same
+whatever the process rendered before, and each object of a dataset need not compile its parts'
+scenes again (38 of a 40-step object's 40 part images were compiled afresh when they were cleared
+per object)."""
+MAX_PART_IMAGES = 256
+"""Part renders kept (about 0.2 MB each at 256 px)."""
+ON_CLEAR.append(_TILES.clear)
 
 
 def _reader(reader: Reader | None) -> Reader:
@@ -177,9 +184,12 @@ def render_step_full(before: Sequence[PlacedPart], new: Sequence[PlacedPart], si
     if parts:
         for j, p in enumerate(new, 1):
             key = (id(reader), p.model, p.part.lower(), int(p.colour), size)
-            if key not in _PARTS:
-                _PARTS[key] = render_part(load_part(reader, p), p.colour, size=size, reader=reader)
-            images[f"part_{j}"] = _PARTS[key].copy()
+            if key not in _PARTS or _PARTS[key][0] is not reader:  # the reader held: its id stays its
+                _PARTS[key] = (reader, render_part(load_part(reader, p), p.colour, size=size, reader=reader))
+                while len(_PARTS) > MAX_PART_IMAGES:
+                    _PARTS.popitem(last=False)
+            _PARTS.move_to_end(key)
+            images[f"part_{j}"] = _PARTS[key][1].copy()
     shown = b_items if axes_state == "before" else after
     given = None
     if axes_state == "before" and before_isometric is not None and before_segmentation is not None:
@@ -205,13 +215,12 @@ def _axes_composite(scene: Scene, items: Sequence[Item], colours, framing: Frami
     for v in ALL_VIEWS:
         if given is None:
             arr = render_rgb(scene, items, colours, v, framing, size, background=compose.LIGHT_BG)
-            mask = (arr == light).all(-1)
+            mask = compose.colour_mask(arr, light)
         else:
-            arr = given[0][v].copy()
+            arr = given[0][v]
             # Only pure background: outlines and antialiased edges outside the faces (where the
             # segmentation, drawn without outlines or multisampling, sees nothing) keep their pixels.
-            mask = (given[1][v] < 0) & (arr == np.array(BACKGROUND, np.uint8)).all(-1)
-            arr[mask] = light
+            mask = (given[1][v] < 0) & compose.colour_mask(arr, BACKGROUND)
         if v == ISOMETRIC:
             tile = compose.tick_tile(Image.fromarray(arr), v, {}, None, ml, mb, mask)
             _triad(tile, framing, size, ml)
@@ -283,7 +292,7 @@ def render_part(part: str | Part, colour: int = 16, size: int = 256, *, reader: 
     lo = np.minimum(bb[0], 0)
     hi = np.maximum(bb[1], tips.max(0))
     framing = Framing.from_bounds(np.stack([lo, hi]), margin=0.1)
-    scene = scene_for([p], EDGE_PX * framing.iso_height / size)
+    scene = scene_for([p], EDGE_PX * framing.iso_height / size, alone=True)
     img = Image.fromarray(render_rgb(scene, [item], colour_table(reader), ISOMETRIC, framing, size))
     d = ImageDraw.Draw(img)
     o = framing.project(ISOMETRIC, np.zeros(3), size)

@@ -200,6 +200,8 @@ class Scene:
         self._buffer = 512
         self.shown: list[int] = []
         self._show_key: tuple | None = None
+        self._edge_geoms = np.zeros(0, np.int64)
+        self._edges_on = True
         self._bounds_memo: tuple | None = None
         self._vertices = {id(p): part_geometry(p).vertices for p in self.parts}
 
@@ -224,8 +226,13 @@ class Scene:
         # The views of one image set show the same items: on a GPU, rewriting 60 parts' poses and
         # colours per view cost more than drawing it. Items are frozen; `_shown_items` holds them,
         # so their ids cannot be reused while the key is kept.
-        key = (tuple(map(id, items)), id(colours), edges)
+        # The outlines are switched on their own: RGB and segmentation renders of one view
+        # alternate, and with `edges` in the key every view rewrote every pose and colour twice.
+        key = (tuple(map(id, items)), id(colours))
         if key == self._show_key:
+            if edges != self._edges_on:
+                self.model.geom_group[self._edge_geoms] = SHOWN if edges else HIDDEN
+                self._edges_on = edges
             return self.shown
         free: dict[int, list[int]] = {}
         for slot, part in enumerate(self.parts):
@@ -238,6 +245,7 @@ class Scene:
             slots.append(pool.pop(0))
         m = self.model
         m.geom_group[:] = HIDDEN
+        edge_geoms = []
         for it, slot in zip(items, slots):
             body = self.body_of_slot[slot]
             pos, quat = it.pose.to_mujoco_quat()
@@ -253,8 +261,12 @@ class Scene:
                     m.geom_rgba[gid] = rgba
                 else:
                     m.geom_rgba[gid] = colours.get(code).rgba
+                if code is None:
+                    edge_geoms.append(gid)
                 if edges or code is not None:
                     m.geom_group[gid] = SHOWN
+        self._edge_geoms = np.array(edge_geoms, np.int64)
+        self._edges_on = edges
         self.shown = slots
         self._shown_items = list(items)
         self._show_key = key
@@ -330,23 +342,25 @@ MAX_SINGLES = 64
 _serial = 0
 
 
-def scene_for(parts: Sequence[Part], edge_radius: float, universe: Sequence[Part] | None = None) -> Scene:
+def scene_for(parts: Sequence[Part], edge_radius: float, universe: Sequence[Part] | None = None,
+              alone: bool = False) -> Scene:
     """A scene with a slot for each of `parts` (cached; built for `universe` when one must be built).
 
     `universe`, a superset of `parts` (e.g. every part of a model), lets one compiled scene serve
-    every step of an assembly.
+    every step of an assembly. `alone`: a scene of exactly `parts`, never a larger cached one, so
+    what it renders does not depend on which scenes the process built before.
     """
     global _serial
     r = quantize_radius(edge_radius)
     need = Counter(id(p) for p in parts)
-    for cache in (_SCENES, _SINGLES):
+    for cache in ((_SINGLES,) if alone else (_SCENES, _SINGLES)):
         for key, scene in cache.items():
             if scene.edge_radius == r:
                 have = scene.counts()
-                if all(have[k] >= n for k, n in need.items()):
+                if have == need if alone else all(have[k] >= n for k, n in need.items()):
                     cache.move_to_end(key)
                     return scene
-    pool = list(universe) if universe is not None else []
+    pool = list(universe) if universe is not None and not alone else []
     have = Counter(id(p) for p in pool)
     for p in parts:  # whatever the universe lacks
         if have[id(p)] < need[id(p)]:
@@ -365,7 +379,7 @@ def scene_for(parts: Sequence[Part], edge_radius: float, universe: Sequence[Part
 
 
 ON_CLEAR: list = []
-"""Callables `clear_cache` also runs: image caches built on these scenes (catalog tiles, part renders)."""
+"""Callables `clear_cache` also runs: image caches built on these scenes (catalog tiles)."""
 
 
 def clear_cache() -> None:
