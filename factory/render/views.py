@@ -76,8 +76,9 @@ def render_seg(
         scn.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 0
     raw = np.empty((size, size, 3), np.uint8)
     mujoco.mjr_readPixels(raw, None, rect, con)
-    raw = raw[::-1].astype(np.int64)
-    segid = raw[..., 0] + (raw[..., 1] << 8) + (raw[..., 2] << 16)  # 0 = background, else segid + 1
+    raw = raw[::-1]
+    # 0 = background, else segid + 1
+    segid = raw[..., 0].astype(np.int32) | (raw[..., 1].astype(np.int32) << 8) | (raw[..., 2].astype(np.int32) << 16)
     slot_to_item = np.full(len(scene.parts), -1, np.int64)
     slot_to_item[np.asarray(scene.shown, int)] = np.arange(len(scene.shown))
     lut = np.full(scn.ngeom + 2, -1, np.int64)
