@@ -14,9 +14,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import warnings
+
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import linprog
+from scipy.optimize import OptimizeWarning, linprog
 
 STATUSES = ("optimal", "infeasible", "unbounded", "error")
 
@@ -53,9 +55,16 @@ class LPResult:
     objective: float
 
 
+HIGHS_OPTIONS = {"simplex_strategy": 4}
+"""HiGHS's primal simplex (after presolve): on the 77 load programs of one 70-step sampled object
+(17 to 2,100 variables) it took 2.14 s against 2.59 s for HiGHS's default dual simplex, 13,439
+iterations against 15,784, objectives the same to 4e-15 (this repository's 2-core CPU)."""
+# scipy passes HiGHS options it does not list itself through, with a warning each call.
+warnings.filterwarnings("ignore", r"Unrecognized options detected: \{'simplex_strategy'", OptimizeWarning)
+
+
 def solve_highs(lp: LinearProgram) -> LPResult:
-    """Solve with HiGHS (dual simplex after presolve): the reference the batched solver is
-    measured against."""
+    """Solve with HiGHS (`HIGHS_OPTIONS`): the reference the batched solver is measured against."""
     res = linprog(
         lp.c,
         A_ub=lp.a_ub if lp.a_ub.shape[0] else None,
@@ -64,6 +73,7 @@ def solve_highs(lp: LinearProgram) -> LPResult:
         b_eq=lp.b_eq if lp.a_eq.shape[0] else None,
         bounds=np.column_stack([lp.lower, lp.upper]),
         method="highs",
+        options=HIGHS_OPTIONS,
     )
     status = {0: "optimal", 2: "infeasible", 3: "unbounded"}.get(res.status, "error")
     if status != "optimal":
