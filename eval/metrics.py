@@ -25,7 +25,13 @@ Scoring rules of `score` (each chosen so that nothing a model emits is dropped):
   cell does not pay. Missing or unparseable: 0.
 - Pose answers are matched to target bricks by their number N (``Brick N`` is bricks[N-1]); a
   block for a number outside 1..n is ignored. A parsed matrix that is not a rotation (within 1e-3)
-  is replaced by its nearest rotation and counted in ``projected_rotations``.
+  is replaced by its nearest rotation and counted in ``projected_rotations``, unless it is
+  *mirrored* (finite, determinant < 0: a reflection, the handedness slip of a y-down frame). A
+  mirrored answer is wrong in every mode, whatever the part's symmetry: it places the mirror image
+  of the part, and a reflection has no single nearest rotation (negating one column of a rotation
+  leaves three rotations equally near, so an SVD would pick one arbitrarily and could score it 0
+  degrees). Its rotation error is 180 degrees, the largest there is, and it is counted in
+  ``failures.mirrored`` (not in the other failure kinds) and ``mirrored_rotations``.
 - Translation and rotation error means use only the bricks whose pose parsed (an unparseable pose
   has no error to average, and any stand-in value would be arbitrary and swamp the mean); such
   bricks fail their step and are counted in ``unparseable_pose`` and ``failures.unparseable``.
@@ -34,8 +40,9 @@ Scoring rules of `score` (each chosen so that nothing a model emits is dropped):
   prediction for the step exists (present, parseable or not), its selection score is 1. A missing
   selection does not fail the step, as the paper's step success is on pose estimation (the brick's
   identity is given by the target); it still scores 0 in selection accuracy.
-- ``failures`` counts target bricks whose pose is wrong: ``translation_only``, ``rotation_only``,
-  ``both``, or ``unparseable`` (missing or unparseable pose for that brick).
+- ``failures`` counts target bricks whose pose is wrong: ``mirrored`` (a reflection given as its
+  rotation, whatever its translation), ``translation_only``, ``rotation_only``, ``both``, or
+  ``unparseable`` (missing or unparseable pose for that brick).
 - ``overall`` is the mean over objects of per-object means (per-object: mean over its steps; for
   errors, over its steps that have a value). A metric with no value anywhere is None.
 - ``best_object`` is the one object with the highest step success (ties: lower mean translation
@@ -114,6 +121,16 @@ def project_to_rotation(M) -> tuple[np.ndarray, bool]:
     return r, bool(np.max(np.abs(m - r)) > PROJECTION_TOL)
 
 
+def is_mirrored(M) -> bool:
+    """Whether a predicted matrix is a reflection (finite, determinant < 0): wrong in every mode."""
+    m = np.asarray(M, dtype=np.float64).reshape(3, 3)
+    return bool(np.all(np.isfinite(m)) and np.linalg.det(m) < 0.0)
+
+
+MIRRORED_ERROR_DEG = 180.0
+"""The rotation error of a mirrored answer: the largest angle, so it never passes a threshold."""
+
+
 def translation_error(t_gt, t_pred) -> float:
     """Euclidean distance in LDU."""
     return float(np.linalg.norm(np.asarray(t_pred, dtype=np.float64) - np.asarray(t_gt, dtype=np.float64)))
@@ -139,8 +156,11 @@ def rotation_error_deg(R_gt, R_pred, symmetry=None) -> float:
     all turns about a, in closed form. With ``D = (R_gt S)^T R_pred``, ``tr(Rot(a, p) D) =
     a^T D a + cos p (tr D - a^T D a) + sin p tr(K_a D)``, maximal at ``p = atan2(tr(K_a D),
     tr D - a^T D a)``; the error is the angle of the residual ``Rot(a, p) D``. R_pred is first
-    replaced by its nearest rotation (`project_to_rotation`).
+    replaced by its nearest rotation (`project_to_rotation`); a mirrored R_pred (`is_mirrored`)
+    has error `MIRRORED_ERROR_DEG`.
     """
+    if is_mirrored(R_pred):
+        return MIRRORED_ERROR_DEG
     r_gt = np.asarray(R_gt, dtype=np.float64).reshape(3, 3)
     r_pred, _ = project_to_rotation(R_pred)
     rotations = list(getattr(symmetry, "rotations", ()) or ()) or [np.eye(3)]
@@ -169,6 +189,8 @@ class BrickResult:
     translation_ok: bool
     rotation_ok: bool
     projected: bool
+    mirrored: bool = False
+    """The answer's matrix was a reflection (`is_mirrored`): wrong, rotation error 180 degrees."""
 
     @property
     def ok(self) -> bool:
@@ -178,17 +200,19 @@ class BrickResult:
 def evaluate_brick(target: BrickTarget, answer: PoseAnswer, mode: str = "paper") -> BrickResult:
     """Errors and correctness of one predicted pose (the brick's identity is the target's)."""
     _check_mode(mode)
+    mirrored = is_mirrored(answer.R)
     r_pred, projected = project_to_rotation(answer.R)
+    projected = projected and not mirrored
     t_pred = np.asarray(answer.t, dtype=np.float64).reshape(3)
     t_err = translation_error(target.t, t_pred)
-    r_err = rotation_error_deg(target.R, r_pred, target.symmetry)
+    r_err = rotation_error_deg(target.R, answer.R if mirrored else r_pred, target.symmetry)
     if mode == "strict":
         t_ok = t_err <= 0.5 + _EPS
         r_ok = r_err <= 1.0 + _EPS
     else:
         t_ok = bool(np.all(np.abs(t_pred - target.t) <= 10.0 + _EPS))
         r_ok = r_err < 45.0 - _EPS
-    return BrickResult(t_err, r_err, bool(t_ok), bool(r_ok), projected)
+    return BrickResult(t_err, r_err, bool(t_ok), bool(r_ok and not mirrored), projected, mirrored)
 
 
 def _check_mode(mode: str) -> None:
@@ -318,8 +342,9 @@ def score(steps: list[StepTarget], predictions: dict, mode: str = "paper") -> di
         "unparseable_selection": 0,
         "unparseable_pose": 0,
         "projected_rotations": 0,
+        "mirrored_rotations": 0,
         "missing_predictions": 0,
-        "failures": {"translation_only": 0, "rotation_only": 0, "both": 0, "unparseable": 0},
+        "failures": {"mirrored": 0, "translation_only": 0, "rotation_only": 0, "both": 0, "unparseable": 0},
     }
     by_object: dict[str, list[StepResult]] = {}
     for step in steps:
@@ -336,7 +361,10 @@ def score(steps: list[StepTarget], predictions: dict, mode: str = "paper") -> di
                 fails["unparseable"] += 1
                 continue
             counts["projected_rotations"] += b.projected
-            if not b.translation_ok and not b.rotation_ok:
+            counts["mirrored_rotations"] += b.mirrored
+            if b.mirrored:
+                fails["mirrored"] += 1
+            elif not b.translation_ok and not b.rotation_ok:
                 fails["both"] += 1
             elif not b.translation_ok:
                 fails["translation_only"] += 1

@@ -107,7 +107,7 @@ class RandomPredictor(Predictor):
     def _draw(self, ctx, attempt: int) -> dict:
         key = zlib.crc32(ctx.row["step_id"].encode())
         rng = np.random.default_rng([self.seed, key, attempt])
-        return baselines.random_baseline(ctx.target, rng, catalog_rows(ctx.row))
+        return baselines.random_baseline(ctx.target, rng, catalog_rows(ctx.row), catalog=catalog_of(ctx.row))
 
     def answer(self, ctx, task):
         return self._draw(ctx, 0)[task]

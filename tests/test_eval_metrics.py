@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from eval.baselines import format_pose, format_selection, heuristic, oracle, random_baseline
+from eval.baselines import EMPTY_LABEL, format_pose, format_selection, heuristic, oracle, random_baseline
 from eval.metrics import (
     BrickTarget,
     StepTarget,
@@ -19,7 +19,7 @@ from eval.metrics import (
     selection_score,
     translation_error,
 )
-from eval.parse import PoseAnswer, Selection
+from eval.parse import PoseAnswer, Selection, parse_selection
 from factory import get_reader, load_part
 from factory.symmetry import Symmetry, axis_rotations, rotation_about
 
@@ -237,8 +237,8 @@ def test_oracle_is_perfect(mode, sym_3001):
     assert out["overall"]["translation_error_ldu"] < 1e-6 and out["overall"]["rotation_error_deg"] < 1e-4
     c = out["counts"]
     assert c["steps"] == len(steps) and c["objects"] == 5
-    assert c["unparseable"] == c["missing_predictions"] == c["projected_rotations"] == 0
-    assert c["failures"] == {"translation_only": 0, "rotation_only": 0, "both": 0, "unparseable": 0}
+    assert c["unparseable"] == c["missing_predictions"] == c["projected_rotations"] == c["mirrored_rotations"] == 0
+    assert c["failures"] == {"mirrored": 0, "translation_only": 0, "rotation_only": 0, "both": 0, "unparseable": 0}
 
 
 def test_random_baseline_is_near_chance():
@@ -304,7 +304,8 @@ def test_failure_kinds_and_projection():
         ("s4", "pose"): format_pose([((0, 0, 0), 3.0 * np.eye(3))]),  # scaled: projected, then right
     }
     out = score(steps, preds, "strict")
-    assert out["counts"]["failures"] == {"translation_only": 1, "rotation_only": 1, "both": 1, "unparseable": 1}
+    assert out["counts"]["failures"] == {"mirrored": 0, "translation_only": 1, "rotation_only": 1, "both": 1,
+                                         "unparseable": 1}
     assert out["counts"]["projected_rotations"] == 1
     assert out["counts"]["missing_predictions"] == 5  # no selection predictions at all
     assert out["overall"]["step_success"] == pytest.approx(1 / 5)
@@ -356,5 +357,53 @@ def test_heuristic_stacks_on_the_previous_brick():
     assert out["selection"] == format_selection([("3001.dat", 2, 1)])
     res = score_step(step, out["selection"], out["pose"], "strict")
     assert res.success and res.translation_error == 0.0
-    first = heuristic(step)  # no previous step, no catalog: origin, top-left cell
+    first = heuristic(step)  # no previous step, no catalog: origin, top-left cell, no part named
     assert score_step(step, first["selection"], first["pose"]).translation_error == pytest.approx(np.hypot(20, 24))
+    assert first["selection"] == format_selection([(EMPTY_LABEL, 1, 1)])
+
+
+def test_random_baseline_names_the_part_in_its_cell():
+    """A baseline that wrote the target's own name beside a random cell scored 100 % with any
+    scorer that reads names: each line must name what lies in the cell it picked."""
+    catalog = {(r, c): (f"30{r}{c}.dat", 4) for r in (1, 2) for c in range(1, 7)}
+    del catalog[(2, 6)]  # the last row is not full
+    steps = [StepTarget(f"s{i}", "o", (brick(part="9999.dat", cells=[(1, 1)]), brick(part="9998.dat", cells=[(2, 2)])))
+             for i in range(40)]
+    rng = np.random.default_rng(0)
+    names = []
+    for step in steps:
+        picks = parse_selection(random_baseline(step, rng, 2, 6, catalog=catalog)["selection"])
+        assert len(picks) == 2
+        for pick in picks:
+            assert pick.part == catalog[(pick.row, pick.col)][0]  # only cells that hold a brick
+            names.append(pick.part)
+    assert not {"9999.dat", "9998.dat"} & set(names) and len(set(names)) > 5
+    bare = random_baseline(steps[0], rng, 2, 6)["selection"]  # no catalog: no part named
+    assert bare.splitlines()[0].startswith(EMPTY_LABEL) and {p.part for p in parse_selection(bare)} == {""}
+
+
+MIRROR_Z = np.diag([1.0, 1.0, -1.0])
+
+
+@pytest.mark.parametrize("mode", ["strict", "paper"])
+@pytest.mark.parametrize("part", ["3001", "3039", "round"])
+def test_mirrored_rotation_is_wrong_in_every_mode(mode, part, sym_3001):
+    """The oracle's pose with its z column negated (det -1) scored 0 degrees and passed: the
+    nearest rotation to a reflection is a tie that the SVD broke arbitrarily. Symmetric (2x4 brick,
+    round), and asymmetric (slope) parts alike: wrong, 180 degrees, counted as mirrored."""
+    sym = {"3001": sym_3001, "3039": load_part(get_reader(), "3039").symmetry, "round": ROUND}[part]
+    r = rot((0, 1, 0), 90) if part != "round" else np.eye(3)
+    steps = [StepTarget("s", "o", (brick(r=r, t=(20, -24, 0), sym=sym),))]
+    good = oracle(steps[0])
+    for column in range(3):
+        flip = np.eye(3)
+        flip[column, column] = -1.0
+        mirrored = format_pose([((20, -24, 0), r @ flip)])
+        out = score(steps, {("s", "selection"): good["selection"], ("s", "pose"): mirrored}, mode)
+        assert out["overall"]["step_success"] == 0.0
+        assert out["overall"]["rotation_error_deg"] == 180.0 and out["overall"]["translation_error_ldu"] == 0.0
+        c = out["counts"]
+        assert c["mirrored_rotations"] == 1 and c["projected_rotations"] == 0
+        assert c["failures"] == {"mirrored": 1, "translation_only": 0, "rotation_only": 0, "both": 0, "unparseable": 0}
+    assert rotation_error_deg(r, -r, sym) == 180.0  # every column negated: det -1 as well
+    assert score(steps, {("s", "pose"): good["pose"]}, mode)["overall"]["step_success"] == 1.0
