@@ -1,6 +1,10 @@
-"""Score a predictions file against a dataset split: BC-Bench metrics in strict and paper modes.
+"""Score a predictions file against a dataset split: BC-Bench metrics in strict, paper and bc modes.
 
-`python -m eval.score --data OUT --pred preds.jsonl [--split test] [--mode strict|paper|both] [--json]`
+`python -m eval.score --data OUT --pred preds.jsonl [--split test] [--mode strict|paper|bc|both|all] [--json]`
+
+`strict` and `paper` are ours (`eval.metrics`); `bc` reproduces BC-Bench's released scorer
+(`eval.bc`: its definitions, and the released scripts' bugs with the choice made for each);
+`both` is strict and paper, `all` the three.
 
 The predictions file is what `eval.predict` writes: one JSON object per line,
 ``{"id": step id, "task": "selection" | "pose", "text": answer}``, and optionally
@@ -11,7 +15,7 @@ scores fewer answers than it holds would misreport a model. Steps without an ans
 (`eval.metrics.score` counts them in ``missing_predictions``).
 
 Output (the same shape for every `--mode`, so callers need no special case): a dict keyed by mode
-(``strict``, ``paper``, or both), each the `eval.metrics.score` result (``overall``,
+(``strict``, ``paper``, ``bc``), each the `eval.metrics.score` result (`eval.bc.score_bc` for bc) (``overall``,
 ``best_object``, ``counts``, ``mode``; rates are fractions in [0, 1], errors in LDU and degrees),
 plus ``split``. When the file holds revised answers, ``feedback`` holds the same metrics by mode
 over the answers after revision: a revised step is scored with its revised pose (and its original
@@ -32,10 +36,15 @@ from pathlib import Path
 
 from eval.chat import TASKS
 from eval.data import SPLITS, DatasetError, load_targets
+from eval.bc import MODE as BC_MODE
+from eval.bc import score_bc, score_pose
 from eval.metrics import MODES, score, score_step
 from factory.cli import run_guarded
 
-MODE_CHOICES = (*MODES, "both")
+SCORE_MODES = (*MODES, BC_MODE)
+"""Every scoring mode: ours (`eval.metrics`: strict, paper) and BC-Bench's released scorer (`eval.bc`)."""
+MODE_CHOICES = (*SCORE_MODES, "both", "all")
+"""`both`: strict and paper; `all`: strict, paper and bc."""
 
 
 class PredictionsError(ValueError):
@@ -100,7 +109,17 @@ def read_predictions(path, step_ids) -> tuple[dict, dict]:
 def _modes(mode: str) -> tuple[str, ...]:
     if mode not in MODE_CHOICES:
         raise PredictionsError(f"unknown mode {mode!r}; valid: {', '.join(MODE_CHOICES)}")
-    return MODES if mode == "both" else (mode,)
+    return {"both": MODES, "all": SCORE_MODES}.get(mode, (mode,))
+
+
+def _score(steps, answers: dict, mode: str) -> dict:
+    return score_bc(steps, answers) if mode == BC_MODE else score(steps, answers, mode)
+
+
+def _succeeds(step, selection, pose, mode: str) -> bool:
+    if mode == BC_MODE:  # BC-Bench's step success reads the pose only
+        return pose is not None and score_pose(step, pose).ok
+    return score_step(step, selection, pose, mode).success
 
 
 def score_predictions(steps, answers: dict, revised: dict | None = None, mode: str = "both") -> dict:
@@ -108,7 +127,7 @@ def score_predictions(steps, answers: dict, revised: dict | None = None, mode: s
     `revised` {id: revised pose text} a ``feedback`` section (see the module docstring); revised
     answers of ids not in `steps` are ignored, as `eval.metrics.score` ignores such answers."""
     modes = _modes(mode)
-    result: dict = {m: score(steps, answers, m) for m in modes}
+    result: dict = {m: _score(steps, answers, m) for m in modes}
     by_id = {s.id: s for s in steps}
     revised = {sid: text for sid, text in (revised or {}).items() if sid in by_id}
     if revised:
@@ -116,11 +135,11 @@ def score_predictions(steps, answers: dict, revised: dict | None = None, mode: s
         fixed = {}
         for m in modes:
             fixed[m] = sum(
-                not score_step(by_id[sid], answers.get((sid, "selection")), answers.get((sid, "pose")), m).success
-                and score_step(by_id[sid], answers.get((sid, "selection")), text, m).success
+                not _succeeds(by_id[sid], answers.get((sid, "selection")), answers.get((sid, "pose")), m)
+                and _succeeds(by_id[sid], answers.get((sid, "selection")), text, m)
                 for sid, text in revised.items())
         result["feedback"] = {"revised_steps": len(revised), "fixed": fixed,
-                              **{m: score(steps, after, m) for m in modes}}
+                              **{m: _score(steps, after, m) for m in modes}}
     return result
 
 
@@ -148,7 +167,7 @@ def _fmt(v, spec: str) -> str:
 
 def format_table(result: dict) -> str:
     """A short human-readable summary of a `score_file` result."""
-    modes = [m for m in MODES if m in result]
+    modes = [m for m in SCORE_MODES if m in result]
     first = result[modes[0]]["counts"]
     lines = [(f"split {result.get('split') or 'all'}: {first['steps']} steps of {first['objects']} objects; "
               f"missing answers {first['missing_predictions']}, unparseable {first['unparseable']}")]
@@ -198,7 +217,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", required=True, help="dataset folder")
     ap.add_argument("--pred", required=True, help="predictions file (JSONL, eval.predict's output)")
     ap.add_argument("--split", default="test", choices=SPLITS, help="default: test")
-    ap.add_argument("--mode", default="both", choices=MODE_CHOICES, help="correctness thresholds (default: both)")
+    ap.add_argument("--mode", default="both", choices=MODE_CHOICES, help="strict, paper (ours), bc (BC-Bench's released scorer), both (strict and paper) or all "
+                         "(default: both)")
     ap.add_argument("--json", action="store_true", help="print the metrics as JSON")
     ap.add_argument("--only-predicted", action="store_true",
                     help="score only the steps the file answers (after `eval.predict --limit`); default: "

@@ -27,13 +27,13 @@ def test_quick_bench_writes_report_and_plots(tmp_path):
     assert synth["objects"] == 5 and synth["steps"] >= 30 and synth["steps_per_s"] > 0
     ev = report["evaluation"]["synthetic"]["baselines"]
     oracle, rnd = ev["oracle"]["scores"], ev["random"]["scores"]
-    for mode in ("strict", "paper"):
+    for mode in ("strict", "paper", "bc"):
         assert oracle[mode]["overall"]["step_success"] == 1.0
         assert oracle[mode]["overall"]["selection_accuracy"] == 1.0
         assert rnd[mode]["overall"]["step_success"] < 1.0
     assert rnd["feedback"]["revised_steps"] > 0  # random answers get world feedback and a second try
     md = (out / "report.md").read_text()
-    assert "| oracle | 1.000 | 0.0 | 0.0 | 1.000 | 1.000 | 0 |" in md
+    assert "| oracle | 1.000 | 1.000 | 0.0 | 0.0 | 1.000 | 1.000 | 1.000 | 0 |" in md
     assert "random + feedback" in md
     # a re-run reuses the finished dataset (the builder resumes) and rewrites the report
     assert bench.main(["--out", str(out), "--quick", "--backends", "mujoco", "--models"]) == 0

@@ -75,6 +75,32 @@ def test_oracle_scores_perfect_through_the_command_lines(tiny_dataset, tmp_path,
         assert r["counts"]["steps"] == len(test_ids)
     table = _cli("eval.score", "--data", tiny_dataset, "--pred", pred, "--mode", "paper")
     assert table.returncode == 0 and "paper overall" in table.stdout and "strict" not in table.stdout
+    every = _cli("eval.score", "--data", tiny_dataset, "--pred", pred, "--mode", "all", "--json")
+    assert every.returncode == 0, every.stderr
+    bc = json.loads(every.stdout)["bc"]  # BC-Bench's released scorer (eval.bc)
+    assert bc["mode"] == "bc" and bc["overall"]["step_success"] == 1.0
+    assert bc["overall"]["selection_accuracy"] == 1.0 and bc["counts"]["steps"] == len(test_ids)
+    table = _cli("eval.score", "--data", tiny_dataset, "--pred", pred, "--mode", "all")
+    assert table.returncode == 0 and all(f"{m} overall" in table.stdout for m in ("strict", "paper", "bc"))
+
+
+def test_bc_mode_reads_names_so_the_random_baseline_must_not_leak_them(tiny_dataset, tmp_path):
+    """BC-Bench's scorer counts a selection whose part name is right: a baseline writing the
+    target's own name would score 1.0 there. The random baseline names what lies in its cell."""
+    from eval.data import catalog_of
+    from eval.parse import normalise_part, parse_selection
+
+    pred = _predict(tiny_dataset, "baseline:random", tmp_path / "r.jsonl", "--seed", "0")
+    r = score_cli.score_file(tiny_dataset, pred, "test", "all")
+    assert set(r) >= {"strict", "paper", "bc"} and r["bc"]["overall"]["step_success"] < 1.0
+    texts = {rec["id"]: rec["text"] for rec in _lines(pred) if rec["task"] == "selection"}
+    checked = 0
+    for row in iter_rows(tiny_dataset, "test"):
+        catalog = catalog_of(row)
+        for pick in parse_selection(texts[row["step_id"]]):
+            assert pick.part == normalise_part(catalog[(pick.row, pick.col)][0])
+            checked += 1
+    assert checked >= len(texts)
 
 
 def test_random_is_below_oracle_and_the_same_seed_writes_the_same_bytes(tiny_dataset, tmp_path):
