@@ -1,4 +1,5 @@
-"""Export a built dataset for other trainers: `python -m pipelines.export OUT --format llamafactory DEST`.
+"""Export a built dataset for other trainers and benchmarks:
+`python -m pipelines.export OUT --format llamafactory|bcbench DEST`.
 
 `llamafactory` writes, under DEST:
 - `images/{object_id}/{step:03d}_{name}.png`: the rows' PNG bytes as they are (each written once,
@@ -10,6 +11,9 @@
 - `dataset_info.json` registering each file (formatting `sharegpt`, role/content tags), so
   LLaMA-Factory takes `dataset_dir: DEST` and `dataset: {dataset_id}_selection_train,...`.
 Files are streamed (one object's rows at a time), so memory stays small on 40K steps.
+
+`bcbench` writes BC-Bench's released layout (pose ShareGPT JSON, step folders with brick_pose.json,
+tasks.json per object, split lists), paths relative to DEST: `pipelines.bcbench.write_bcbench`.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ from pathlib import Path
 from eval.metrics import TASKS
 from pipelines.dataset.config import check_name
 
-FORMATS = ("llamafactory",)
+FORMATS = ("llamafactory", "bcbench")
 
 
 def _user_text(messages) -> str:
@@ -30,6 +34,14 @@ def _user_text(messages) -> str:
         if m["role"] == "user":
             return "\n".join(c["text"] for c in m["content"] if c["type"] == "text")
     raise ValueError("conversation has no user message")
+
+
+def _system(messages, default: str) -> str:
+    """The task's own system text (an imported BC-Bench pose task keeps BC-Bench's), else `default`."""
+    for m in messages:
+        if m["role"] == "system":
+            return "\n".join(c["text"] for c in m["content"] if c["type"] == "text")
+    return default
 
 
 def _answer(messages) -> str:
@@ -73,6 +85,8 @@ def export_llamafactory(out, dest, splits=("train", "test"), tasks=TASKS) -> dic
                                     paths[name] = rel
                         for t in tasks:
                             msgs = row[f"{t}_messages"]
+                            if not msgs:  # a step without this task (an imported BC-Bench pose-only step)
+                                continue
                             imgs = [paths[n] for n in row[f"{t}_images"]]
                             rec = {
                                 "id": f"{row['step_id']}/{t}",
@@ -80,7 +94,7 @@ def export_llamafactory(out, dest, splits=("train", "test"), tasks=TASKS) -> dic
                                     {"role": "user", "content": "<image>" * len(imgs) + "\n" + _user_text(msgs)},
                                     {"role": "assistant", "content": _answer(msgs)},
                                 ],
-                                "system": row["system"],
+                                "system": _system(msgs, row["system"]),
                                 "images": imgs,
                             }
                             handles[t].write(("" if first[t] else ",\n") + json.dumps(rec, ensure_ascii=False))
@@ -113,19 +127,30 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--format", choices=FORMATS, required=True)
     ap.add_argument("dest", help="output folder")
     ap.add_argument("--splits", default="train,test", help="comma-separated (default train,test)")
-    ap.add_argument("--tasks", default="selection,pose", help="comma-separated (default selection,pose)")
+    ap.add_argument("--tasks", help="llamafactory: comma-separated (default selection,pose); bcbench writes both")
     args = ap.parse_args(argv)
 
     def body() -> int:
         if not (Path(args.out) / "meta" / "info.json").exists():
             print(f"error: {args.out} has no meta/info.json (not a finished dataset build)", file=sys.stderr)
             return 2
-        tasks = [t for t in args.tasks.split(",") if t]
+        splits = [s for s in args.splits.split(",") if s]
+        if args.format == "bcbench":
+            if args.tasks is not None:
+                print("error: --tasks applies to --format llamafactory; bcbench writes both tasks", file=sys.stderr)
+                return 2
+            from pipelines.bcbench import write_bcbench
+
+            summary = write_bcbench(args.out, args.dest, splits)
+            print(", ".join(f"{s}: {v['steps']} steps of {v['objects']} objects" for s, v in summary["splits"].items())
+                  + f" -> {args.dest}")
+            return 0
+        tasks = [t for t in (args.tasks or "selection,pose").split(",") if t]
         bad = [t for t in tasks if t not in TASKS]
         if bad:
             print(f"error: unknown task {bad[0]!r}; valid: {', '.join(TASKS)}", file=sys.stderr)
             return 2
-        counts = export_llamafactory(args.out, args.dest, [s for s in args.splits.split(",") if s], tasks)
+        counts = export_llamafactory(args.out, args.dest, splits, tasks)
         print(", ".join(f"{k}: {v}" for k, v in counts.items()) + f" -> {args.dest}")
         return 0
 
