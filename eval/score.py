@@ -17,7 +17,8 @@ scores fewer answers than it holds would misreport a model. Steps without an ans
 Output (the same shape for every `--mode`, so callers need no special case): a dict keyed by mode
 (``strict``, ``paper``, ``bc``), each the `eval.metrics.score` result (`eval.bc.score_bc` for bc) (``overall``,
 ``best_object``, ``counts``, ``mode``; rates are fractions in [0, 1], errors in LDU and degrees),
-plus ``split``. When the file holds revised answers, ``feedback`` holds the same metrics by mode
+plus ``split``, and ``notes`` when the dataset itself limits what the scores mean (an imported
+BC-Bench set scored without part symmetry: `dataset_notes`). When the file holds revised answers, ``feedback`` holds the same metrics by mode
 over the answers after revision: a revised step is scored with its revised pose (and its original
 selection); a step that was not revised keeps its original answers (a right answer, or one that
 does not parse, gets no feedback: `eval.feedback`). ``feedback.revised_steps`` counts revised
@@ -35,7 +36,7 @@ import sys
 from pathlib import Path
 
 from eval.chat import TASKS
-from eval.data import SPLITS, DatasetError, load_targets
+from eval.data import SPLITS, DatasetError, info, load_targets
 from eval.bc import MODE as BC_MODE
 from eval.bc import score_bc, score_pose
 from eval.metrics import MODES, score, score_step
@@ -143,6 +144,17 @@ def score_predictions(steps, answers: dict, revised: dict | None = None, mode: s
     return result
 
 
+def dataset_notes(data) -> list[str]:
+    """What a reader of the scores must know about the dataset itself: an imported BC-Bench set
+    without an LDraw library has no part symmetry, so a turned answer that is right for a
+    symmetric part scores as wrong (`pipelines.bcbench`)."""
+    imported = info(data).get("bcbench_import") or {}
+    symmetry = str(imported.get("symmetry", ""))
+    if symmetry.startswith("none"):
+        return [f"parts scored without symmetry: {symmetry} (import again with --ldraw DIR to score with it)"]
+    return []
+
+
 def score_file(data, pred_path, split: str | None = "test", mode: str = "both",
                only_predicted: bool = False) -> dict:
     """Score a predictions file against `split` (None: every split) of the dataset folder `data`.
@@ -157,8 +169,9 @@ def score_file(data, pred_path, split: str | None = "test", mode: str = "both",
     if only_predicted:
         answered = {sid for sid, _task in answers}
         steps = [s for s in steps if s.id in answered]
+    notes = dataset_notes(data)
     return {"split": split, "split_steps": n_split, "scored_steps": len(steps),
-            **score_predictions(steps, answers, revised, mode)}
+            **score_predictions(steps, answers, revised, mode), **({"notes": notes} if notes else {})}
 
 
 def _fmt(v, spec: str) -> str:
@@ -182,6 +195,7 @@ def format_table(result: dict) -> str:
                            f"{_fmt(row['rotation_error_deg'], '.2f'):>10}")
         return out
 
+    lines += [f"note: {n}" for n in result.get("notes", ())]
     lines += block(result, "")
     fb = result.get("feedback")
     if fb:

@@ -253,6 +253,18 @@ def test_import_symmetry_needs_a_library(release, tmp_path):
     plain = import_bcbench(release, tmp_path / "plain")
     assert "no LDraw library" in plain["symmetry"]
     assert {b.symmetry.order for t in load_targets(tmp_path / "plain", None) for b in t.bricks} == {1}
+    # and the scorer says so, in its JSON and its table
+    pred = tmp_path / "o.jsonl"
+    predict_file(tmp_path / "plain", "baseline:oracle", pred, split="test")
+    result = score_file(tmp_path / "plain", pred, "test", "paper")
+    assert len(result["notes"]) == 1 and "without symmetry" in result["notes"][0]
+    r = _run("eval.score", "--data", str(tmp_path / "plain"), "--pred", str(pred))
+    assert r.returncode == 0 and "note: parts scored without symmetry" in r.stdout
+    with_lib = import_bcbench(release, tmp_path / "lib", ldraw="embedded")
+    assert not with_lib["symmetry"].startswith("none")
+    pred = tmp_path / "l.jsonl"
+    predict_file(tmp_path / "lib", "baseline:oracle", pred, split="test")
+    assert "notes" not in score_file(tmp_path / "lib", pred, "test", "paper")
 
 
 @needs_ldraw
@@ -508,3 +520,23 @@ def test_other_sharegpt_files_of_a_release_are_ignored_and_listed(release, tmp_p
     (release / "LlamaFactory" / "data" / "selection_training.json").write_text(json.dumps(sel))
     s = import_bcbench(release, tmp_path / "out")
     assert s["ignored_json"] == ["LlamaFactory/data/selection_training.json"] and s["steps"]["test"] == 3
+
+
+def test_training_runs_on_an_imported_release(release, tmp_path):
+    """`make train` reads an imported BC-Bench set as it reads our own: the conversations' images
+    are all there (a step's `before`, `after`, `part`, `axes` and `catalog`)."""
+    pytest.importorskip("torch")
+    pytest.importorskip("transformers")
+    from train.__main__ import main
+
+    data = tmp_path / "imported"
+    import_bcbench(release, data, ldraw="embedded")
+    run = tmp_path / "run"
+    argv = ["--data", str(data), "--outdir", str(run), "--steps", "2", "--batch-size", "2", "--lora", "0",
+            "--lr", "1e-3", "--save-every", "2", "--workers", "0", "--eval-limit", "1", "--max-new-tokens", "8",
+            "--quiet"]
+    assert main(argv) == 0
+    summary = json.loads((run / "train_summary.json").read_text())
+    assert summary["steps"] == 2 and summary["examples"] == 4
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert set(metrics["after"]) >= {"strict", "paper"} and metrics["after"]["paper"]["counts"]["steps"] == 1
