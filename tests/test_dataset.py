@@ -560,3 +560,26 @@ def test_export_writes_only_under_its_destination(built, tmp_path):
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 2 and "dataset_id" in r.stderr and "info.json" in r.stderr
     assert not list(tmp_path.rglob("escaped*"))
+
+
+@pytest.mark.parametrize("dataset_id", ["null", "yes", "0.10", "1e3", "on", "a.b-c_d"])
+def test_card_front_matter_is_yaml_whatever_the_name(dataset_id):
+    """A hand-written front matter put `pretty_name: null` (YAML's null), `yes` (a boolean) and
+    `1e3` (a number) for names the id rule allows: the card is written by a YAML library, and
+    reads back as the strings and lists it was given."""
+    import yaml
+
+    from pipelines.dataset.card import dataset_card
+
+    config = _config(dataset_id=dataset_id)
+    counts = {s: {"objects": 1, "steps": 2, "bytes": 3} for s in ("train", "test")}
+    info = {"splits_present": ["train", "test"], "config_hash": "0123456789abcdef", "total": {"steps": 4},
+            "counts": counts, "statistics": {}, "schema_version": 1}
+    card = dataset_card(config, info)
+    assert card.startswith("---\n")
+    front = yaml.safe_load(card.split("---\n")[1])
+    assert front["pretty_name"] == dataset_id
+    assert front["configs"] == [{"config_name": "bf-0123456789ab", "data_files": [
+        {"split": "train", "path": "data/train-*"}, {"split": "test", "path": "data/test-*"}]}]
+    assert front["task_categories"] == ["image-text-to-text"] and front["size_categories"] == ["n<1K"]
+    assert front["tags"] == ["lego", "ldraw", "assembly", "synthetic"]

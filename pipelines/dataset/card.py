@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import yaml
+
 from pipelines.dataset.prompts import POSE_IMAGES, SELECTION_IMAGES
 
 
@@ -18,22 +20,17 @@ def dataset_card(config, info: dict) -> str:
     # The config's name carries the dataset's config hash: `datasets` caches a local folder under
     # its name and this YAML only, so two datasets in folders of the same name would otherwise
     # share (and serve each other) one cache entry.
-    yaml = ["---", "configs:", f"- config_name: bf-{info['config_hash'][:12]}", "  data_files:"]
-    for s in splits:
-        yaml += [f"  - split: {s}", f"    path: data/{s}-*"]
-    yaml += [
-        f"pretty_name: {config.dataset_id}",
-        "task_categories:",
-        "- image-text-to-text",
-        "tags:",
-        "- lego",
-        "- ldraw",
-        "- assembly",
-        "- synthetic" if config.source == "synthetic" else "- human-designs",
-        "size_categories:",
-        f"- {_size_category(info['total']['steps'])}",
-        "---",
-    ]
+    # Written by a YAML library: names the id rule allows, such as `null`, `yes` or `1e3`, are
+    # YAML's null, a boolean and a number when written by hand.
+    front = {
+        "configs": [{"config_name": f"bf-{info['config_hash'][:12]}",
+                     "data_files": [{"split": s, "path": f"data/{s}-*"} for s in splits]}],
+        "pretty_name": config.dataset_id,
+        "task_categories": ["image-text-to-text"],
+        "tags": ["lego", "ldraw", "assembly", "synthetic" if config.source == "synthetic" else "human-designs"],
+        "size_categories": [_size_category(info["total"]["steps"])],
+    }
+    header = "---\n" + yaml.safe_dump(front, sort_keys=False, default_flow_style=False, allow_unicode=True) + "---"
     c = info["counts"]
     stats = info["statistics"]
     stat_lines = []
@@ -47,7 +44,7 @@ def dataset_card(config, info: dict) -> str:
            "connection, collision, clutch and stability" if config.source == "synthetic"
            else "human-designed LDraw models, sub-assemblies shown as a manual shows them (their own steps, "
            "then one multi-brick step attaching them)")
-    return "\n".join(yaml) + f"""
+    return header + f"""
 
 # {config.dataset_id}
 
