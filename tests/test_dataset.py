@@ -583,3 +583,26 @@ def test_card_front_matter_is_yaml_whatever_the_name(dataset_id):
         {"split": "train", "path": "data/train-*"}, {"split": "test", "path": "data/test-*"}]}]
     assert front["task_categories"] == ["image-text-to-text"] and front["size_categories"] == ["n<1K"]
     assert front["tags"] == ["lego", "ldraw", "assembly", "synthetic"]
+
+
+def test_start_reads_only_the_markers_there(tmp_path, monkeypatch):
+    """`--n 10**8` sat silent for minutes before its first shard: the start read a marker per shard
+    (25 million). It lists the markers folder once and reads the markers there."""
+    import importlib
+
+    from pipelines.dataset.config import MAX_OBJECTS
+
+    build_mod = importlib.import_module("pipelines.dataset.build")  # the package exports a function `build`
+
+    config = _config(n=400_000)  # one object a shard: 400,000 shards
+    out = tmp_path / "big"
+    (out / "meta" / "shards").mkdir(parents=True)
+    for k in (3, 7, 400_000):  # the last is past this config's shards
+        (out / "meta" / "shards" / f"{k:05d}.json").write_text("{}")
+    (out / "meta" / "shards" / "notes.txt").write_text("not a marker")
+    calls = []
+    monkeypatch.setattr(build_mod, "read_marker", lambda o, k, c: calls.append(k) or ({} if k == 3 else None))
+    assert build_mod.finished_shards(config, out) == {3} and sorted(calls) == [3, 7]
+    assert build_mod.finished_shards(config, tmp_path / "none") == set()
+    with pytest.raises(ValueError, match="at most 10,000,000"):
+        _config(n=MAX_OBJECTS + 1)

@@ -63,6 +63,9 @@ class DatasetConfig:
             raise ValueError(f"source must be one of {SOURCES}, got {self.source!r}")
         if isinstance(self.n_objects, bool) or not isinstance(self.n_objects, int) or self.n_objects < 1:
             raise ValueError(f"the number of objects must be an integer >= 1, got {self.n_objects!r}")
+        if self.n_objects > MAX_OBJECTS:
+            raise ValueError(f"the number of objects must be at most {MAX_OBJECTS:,}, got {self.n_objects:,} "
+                             "(split a larger dataset into several)")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2 ** 63:
             raise ValueError(f"seed must be an integer in 0..2**63-1 (stored as int64), got {self.seed!r}")
         if not 32 <= self.size <= 2048 or not 32 <= self.tile <= 1024:
@@ -130,6 +133,10 @@ def _uniform(*key) -> float:
     h = hashlib.sha256("/".join(["brick-factory-split", *map(str, key)]).encode()).digest()
     return int.from_bytes(h[:8], "big") / 2.0**64
 
+
+MAX_OBJECTS = 10_000_000
+"""Objects one dataset folder holds: 2.5 million shards of 4 and hundreds of millions of steps,
+far past BC-Bench's 40K-step synthetic set; the shard list of a start stays about 100 MB."""
 
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")
 """A dataset or object id: it names files (export, the Hub) and the card's YAML, so letters,
