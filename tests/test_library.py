@@ -82,6 +82,26 @@ def test_missing_file_names_referencing_line_and_suggests(mini_library, write):
     assert "did you mean cube.dat" in msg
 
 
+def test_suggestions_never_show_names_outside_the_library(tmp_path, write):
+    """'did you mean' listed file names from folders linked out of the library (a `p` linked to
+    someone's home, say): suggestions come only from what the library would read."""
+    lib = tmp_path / "lib"
+    (lib / "parts").mkdir(parents=True)
+    (lib / "parts" / "cube.dat").write_text(BOX)
+    outside = tmp_path / "private"
+    outside.mkdir()
+    (outside / "cuba_secret.dat").write_text(BOX)
+    (outside / "cubes_secret.dat").write_text(BOX)
+    os.symlink(outside, lib / "p")  # a whole searched folder outside
+    os.symlink(outside / "cubes_secret.dat", lib / "parts" / "cubx_secret.dat")  # one file outside
+    reader = Reader(Library.from_dir(lib))
+    m = model(write, "1 4 0 0 0 1 0 0 0 1 0 0 0 1 cube_secret.dat\n")
+    with pytest.raises(LDrawMissingFileError) as err:
+        build_steps(reader, reader.open_model(m))
+    assert "secret" not in str(err.value).split("cannot find")[1].split("'", 2)[2]
+    assert "cube.dat" in str(err.value)
+
+
 def test_library_folder_must_look_like_one(tmp_path):
     with pytest.raises(LDrawError, match="expected folders 'parts' and 'p'"):
         Library.from_dir(tmp_path)

@@ -103,10 +103,21 @@ class DirSource:
         )
 
     def names(self) -> list[str]:
+        """Names of the files under the searched folders that `lookup` would read: entries (or
+        folders) linked to somewhere outside the root are left out, so that a 'did you mean'
+        message never shows what lies outside the library."""
         out = []
         for sub in ("", *LIBRARY_SEARCH):
-            out.extend(self._listing(os.path.join(self.root, sub)).keys())
+            folder = os.path.join(self.root, sub)
+            if not self._inside(folder):
+                continue
+            for low, real in self._listing(folder).items():
+                if self._inside(os.path.join(folder, real)):
+                    out.append(low)
         return out
+
+    def _inside(self, path: str) -> bool:
+        return os.path.commonpath([os.path.realpath(path), self.real_root]) == self.real_root
 
 
 def _read_file(path: str) -> bytes:
