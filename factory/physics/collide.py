@@ -10,9 +10,10 @@ slope): only a stud that crosses a wall or a face of the other part collides.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from dataclasses import dataclass
-from pathlib import Path
+from importlib import resources
 
 import mujoco
 import numpy as np
@@ -22,7 +23,10 @@ from factory.physics.geometry import INSET_LDU, CollisionShape, collision_shape
 from factory.physics.structure import Structure
 from factory.pose import LDU_M, Pose, points_to_mujoco
 
-TEMPLATES = Path(__file__).resolve().parents[2] / "mjcf_templates"
+@functools.cache
+def _template(name: str) -> str:
+    """An MJCF template of the `mjcf_templates` package (package data: found in a wheel too)."""
+    return resources.files("mjcf_templates").joinpath(name).read_text(encoding="utf-8")
 
 
 def _pieces(items) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -292,7 +296,7 @@ class CollisionScene:
             inner = self._geoms(collision_shape(part), meshes, -1, info, member)
             cand_geoms += f'<body pos="{_fmt(pos)}" quat="{_fmt(quat)}">{inner}</body>'
         floor_z = -floor_y * LDU_M
-        template = (TEMPLATES / "collision.xml").read_text()
+        template = _template("collision.xml")
         xml = template.format(
             assets="".join(f'<mesh name="{n}" vertex="{v}"/>' for n, v in meshes.items()),
             floor_z=f"{floor_z:.7g}",
