@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from factory.errors import LDrawLimitError
+
 STUD_RADIUS = 6.0
 STUD_HEIGHT = 4.0
 GRID = 10.0
@@ -21,6 +23,21 @@ GRID = 10.0
 
 UP = np.array([0.0, -1.0, 0.0])
 """LDraw's up: studs point this way, and a socket receives a stud moving this way."""
+
+MAX_SOCKET_WORK = 100_000_000
+"""Most triangle tests socket finding may spend on one part (all probe directions together): each
+ray tested against a triangle counts one (charged for all of a probe's 50 rays before they are
+cast), and so does each triangle a probe scans for its neighbourhood or its rim. Measured on the
+project's 2-core machine (shared) at 45-120 ns a test: the largest parts of the real LDraw subset
+need about 2 x 10^7 (41539.dat, 7,804 triangles, 2.0 x 10^7 tests, 0.8-1.6 s; 74323.dat, 10,089
+triangles, 2.0 x 10^7, 0.9-2.3 s), and a generated part of 128,000 triangles in 20 underside levels
+is refused after 7-9 s at 164 MB. Five times the largest real need, so it refuses in seconds, not minutes:
+without it a part of 12,000 triangles took 25 s and one of 1.2 million ran past a minute at 3.4 GB
+(the reader's 2,000,000-triangle cap bounds a part's size, not this work)."""
+
+CHUNK_PAIRS = 1 << 16
+"""Ray-triangle pairs tested in one numpy batch: a dozen temporaries of this many 3-vectors (1.5 MB
+each), so memory stays bounded whatever the part's triangle count."""
 
 
 @dataclass(frozen=True)
@@ -53,13 +70,40 @@ def studs_from_flat(studs: np.ndarray) -> tuple[Connector, ...]:
     return tuple(Connector(pos, axis, "stud") for pos, axis in rows)
 
 
+class _Work:
+    """Triangle tests spent on one part's sockets, refused past `MAX_SOCKET_WORK` (read when
+    spent, so a test can lower it) with the file named."""
+
+    def __init__(self, where: str | None, triangles: int):
+        self.where = where
+        self.triangles = triangles
+        self.spent = 0
+
+    def spend(self, tests: int) -> None:
+        self.spent += int(tests)
+        if self.spent > MAX_SOCKET_WORK:
+            raise LDrawLimitError(
+                f"finding the sockets of this part ({self.triangles:,} triangles) needs more than "
+                f"{MAX_SOCKET_WORK:,} ray-triangle tests; refusing it (the largest parts of the real "
+                "LDraw subset need about 20,000,000)", self.where)
+
+
 def first_hits(tris: np.ndarray, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """Distance along each ray to the first triangle it meets (inf where none); Moller-Trumbore.
 
     Both faces count: LDraw meshes are not always closed, and a probe must see every surface.
+    Triangles are tested in chunks of at most `CHUNK_PAIRS` ray-triangle pairs.
     """
+    best = np.full(len(origins), np.inf)
     if len(tris) == 0 or len(origins) == 0:
-        return np.full(len(origins), np.inf)
+        return best
+    step = max(1, CHUNK_PAIRS // len(origins))
+    for k in range(0, len(tris), step):
+        best = np.minimum(best, _first_hits(tris[k:k + step], origins, dirs))
+    return best
+
+
+def _first_hits(tris: np.ndarray, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     v0 = tris[:, 0]
     e1 = tris[:, 1] - v0
     e2 = tris[:, 2] - v0
@@ -106,10 +150,13 @@ def _distance_2d(tris: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.where(inside, 0.0, edge)
 
 
-def find_sockets(tris: np.ndarray, stud_columns=()) -> tuple[Connector, ...]:
+def find_sockets(tris: np.ndarray, stud_columns=(), work: _Work | None = None,
+                 where: str | None = None) -> tuple[Connector, ...]:
     """Sockets on the underside of a part, from its triangles (n, 3, 3) in LDU. `stud_columns`:
     the (x, z) of the part's own studs that point up, where a stud held only from two opposite
-    sides counts too (`_pinched`)."""
+    sides counts too (`_pinched`). Past `MAX_SOCKET_WORK` triangle tests (`work`, shared by a
+    part's probe directions) an `LDrawLimitError` naming `where` (the part's file)."""
+    work = work if work is not None else _Work(where, len(tris))
     columns = np.asarray(stud_columns, float).reshape(-1, 2)
     if len(tris) == 0:
         return ()
@@ -121,6 +168,10 @@ def find_sockets(tris: np.ndarray, stud_columns=()) -> tuple[Connector, ...]:
     hi = tris.max(axis=(0, 1))
     centres = tris.mean(axis=1)
     reach = np.linalg.norm(tris - centres[:, None], axis=2).max(axis=1)
+    # Sorted along x, so a probe scans only the triangles whose centres lie within reach in x.
+    order = np.argsort(centres[:, 0], kind="stable")
+    tris, centres, reach, facing = tris[order], centres[order], reach[order], facing[order]
+    widest = float(reach.max())
     xs = np.arange(np.ceil((lo[0] + STUD_RADIUS) / GRID), np.floor((hi[0] - STUD_RADIUS) / GRID) + 1) * GRID
     zs = np.arange(np.ceil((lo[2] + STUD_RADIUS) / GRID), np.floor((hi[2] - STUD_RADIUS) / GRID) + 1) * GRID
     found: list[Connector] = []
@@ -133,7 +184,7 @@ def find_sockets(tris: np.ndarray, stud_columns=()) -> tuple[Connector, ...]:
         for x in xs:
             for z in zs:
                 under = bool(len(columns)) and bool((np.abs(columns - [x, z]).max(axis=1) < 1e-3).any())
-                kind = _probe(tris, centres, reach, at_level, np.array([x, y0, z]), under)
+                kind = _probe(tris, centres, reach, at_level, np.array([x, y0, z]), under, work, widest)
                 if kind:
                     found.append(Connector((_r(x), _r(y0), _r(z)), tuple(UP.tolist()), kind))
     return tuple(sorted(found, key=lambda c: (c.pos[1], c.pos[0], c.pos[2])))
@@ -152,19 +203,21 @@ def _turn_to_up(axis: np.ndarray) -> np.ndarray:
     return r
 
 
-def sockets_facing(tris: np.ndarray, studs) -> tuple[Connector, ...]:
+def sockets_facing(tris: np.ndarray, studs, where: str | None = None) -> tuple[Connector, ...]:
     """Sockets entered along UP (the underside, `find_sockets`) and, for every other principal
     axis the part's own studs point along, the sockets entered along that axis: a part with studs
     on a side (a bracket) has its sockets at the back of that side, as a brick has them under its
     top. Other directions are not probed: a part has no reason to hold a stud there, and probing
-    every side of every part would cost five more probes per part."""
+    every side of every part would cost five more probes per part. Past `MAX_SOCKET_WORK` triangle
+    tests in all, an `LDrawLimitError` naming `where` (the part's file)."""
     studs = list(studs)
+    work = _Work(where, len(tris))
 
     def columns(r: np.ndarray) -> np.ndarray:
         # The (x, z) of the studs that point up once the part is turned by r.
         return np.array([(r @ c.pos)[[0, 2]] for c in studs if (r @ c.axis) @ UP > 0.999]).reshape(-1, 2)
 
-    found = list(find_sockets(tris, columns(np.eye(3))))
+    found = list(find_sockets(tris, columns(np.eye(3)), work))
     done = {tuple(UP)}
     for a in {c.axis for c in studs}:
         a = np.asarray(a, float)
@@ -176,20 +229,32 @@ def sockets_facing(tris: np.ndarray, studs) -> tuple[Connector, ...]:
             continue
         done.add(key)
         r = _turn_to_up(np.array(key))
-        for c in find_sockets(tris @ r.T, columns(r)):
+        for c in find_sockets(tris @ r.T, columns(r), work):
             pos = r.T @ np.array(c.pos)
             found.append(Connector(tuple(_r(v) for v in pos), tuple(_r(v) for v in key), c.kind))
     return tuple(sorted(found, key=lambda c: (c.axis, c.pos[1], c.pos[0], c.pos[2])))
 
 
-def _probe(tris, centres, reach, rim, c, under_stud: bool = False) -> str | None:
+def _probe(tris, centres, reach, rim, c, under_stud: bool = False, work: _Work | None = None,
+           widest: float | None = None) -> str | None:
+    work = work if work is not None else _Work(None, len(tris))
+    work.spend(len(rim))
+    widest = float(reach.max()) if widest is None else widest
     # A rim face at this level must touch the stud: the opening is the end of the material
     # around it (a ledge further from the stud, such as a rib inside a cavity, is not).
     rim_d = _distance_2d(rim[:, :, [0, 2]], c[[0, 2]]).min()
     if rim_d > STUD_RADIUS + 1.0:
         return None
-    near = np.hypot(centres[:, 0] - c[0], centres[:, 2] - c[2]) <= reach + 14.0
-    local = tris[near]
+    # Triangles sorted by centre x (`find_sockets`): only those within the widest reach in x can
+    # be near, and only those are scanned (and charged).
+    span = widest + 14.0
+    a = int(np.searchsorted(centres[:, 0], c[0] - span, side="left"))
+    b = int(np.searchsorted(centres[:, 0], c[0] + span, side="right"))
+    work.spend(b - a)
+    near = np.hypot(centres[a:b, 0] - c[0], centres[a:b, 2] - c[2]) <= reach[a:b] + 14.0
+    local = tris[a:b][near]
+    # Every ray below is tested against every local triangle: charged before it is cast.
+    work.spend(len(local) * (len(_DISC) + len(_CELL) + len(_DISC) + len(_DIRS8)))
     pts = np.stack([c[0] + _DISC[:, 0], np.full(len(_DISC), c[1]), c[2] + _DISC[:, 1]], 1)
     # Nothing below the opening, nor below the rim anywhere in the stud's 20x20 cell: the part
     # the stud belongs to fills that space (this rejects ledges inside a cavity) ...

@@ -33,6 +33,8 @@ class Part:
     moved_to: str | None
     """The part this number was renumbered to, when the file is a `~Moved to` stub."""
     flat: Flat
+    file: str | None = None
+    """The file it was read from (a library file, or the model that ships it), named in errors."""
 
     @cached_property
     def mesh(self) -> trimesh.Trimesh:
@@ -88,7 +90,7 @@ class Part:
 
     @cached_property
     def sockets(self) -> tuple[Connector, ...]:
-        return sockets_facing(self.flat.triangles, self.studs)
+        return sockets_facing(self.flat.triangles, self.studs, self.file or self.name)
 
     @cached_property
     def symmetry(self) -> Symmetry:
@@ -129,5 +131,6 @@ def load_part(reader: Reader, name, model: str | None = None) -> Part:
             description=res.file.description,
             moved_to=res.file.moved_to,
             flat=reader.flatten(res),
+            file=res.file.path,
         )
     return cache[res.key]

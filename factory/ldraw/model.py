@@ -97,6 +97,13 @@ def build_steps(reader: Reader, model: Model, frames: dict[str, Pose] | None = N
     return steps
 
 
+def count_parts(reader: Reader, model: Model) -> int:
+    """Parts the model places in all, its submodels expanded, counted without expanding them
+    (refused past `MAX_MODEL_PARTS`): a checker bounds its own work by it before `build_steps`."""
+    main = Resolved(model.main, f"{model.path}#{model.main.name.lower()}", "mpd", model)
+    return _count_parts(reader, main, (), {})
+
+
 def _count_parts(reader: Reader, res: Resolved, stack: tuple[str, ...], memo: dict[str, int]) -> int:
     if res.key in memo:
         return memo[res.key]

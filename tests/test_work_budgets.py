@@ -1,0 +1,109 @@
+"""Hostile input the readers accept but the checks could not finish (issue: hostile input): socket
+finding's work budget, a flat part in verify, verify's parts budget. Budgets are proven on scaled
+down inputs with the constant lowered, never on a real bomb."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import factory.connections as connections
+from factory.errors import LDrawLimitError
+from factory.ldraw import Library, Reader
+from factory.parts import load_part
+
+
+def _grid_part(k: int, levels: int) -> str:
+    """A part of k x k stud cells, each with a downward rim and a wall, at `levels` heights."""
+    out = ["0 Hostile grid\n0 Name: grid.dat\n0 !LDRAW_ORG Unofficial_Part\n"]
+    for level in range(levels):
+        y = -4.0 * level
+        for i in range(k):
+            for j in range(k):
+                x, z = i * 20.0, j * 20.0
+                out.append(f"4 16 {x-10} {y} {z-10} {x+10} {y} {z-10} {x+10} {y} {z-9} {x-10} {y} {z-9}\n")
+                out.append(f"4 16 {x-10} {y} {z-10} {x-10} {y-4} {z-10} {x+10} {y-4} {z-10} {x+10} {y} {z-10}\n")
+    return "".join(out)
+
+
+def test_socket_finding_past_its_budget_is_refused_naming_the_file(mini_library, monkeypatch):
+    path = mini_library / "parts" / "grid.dat"
+    path.write_text(_grid_part(3, 2))
+    monkeypatch.setattr(connections, "MAX_SOCKET_WORK", 5_000)
+    part = load_part(Reader(Library.from_dir(mini_library)), "grid.dat")
+    with pytest.raises(LDrawLimitError) as err:
+        part.sockets
+    assert str(path) in str(err.value) and "5,000 ray-triangle tests" in str(err.value)
+
+
+def test_part_command_refuses_it_in_one_line(mini_library, monkeypatch, capsys):
+    from factory.ldraw.__main__ import main
+
+    (mini_library / "parts" / "grid.dat").write_text(_grid_part(3, 2))
+    monkeypatch.setattr(connections, "MAX_SOCKET_WORK", 5_000)
+    assert main(["part", "grid.dat", "--ldraw", str(mini_library)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "grid.dat" in err[0] and "refusing" in err[0]
+
+
+def test_ray_casts_go_in_bounded_chunks_with_the_same_answer(monkeypatch, embedded_reader):
+    tris = load_part(embedded_reader, "3001").flat.triangles
+    whole = connections.find_sockets(tris)
+    seen = []
+    inner = connections._first_hits
+
+    def spy(t, o, d):
+        seen.append(len(t) * len(o))
+        return inner(t, o, d)
+
+    monkeypatch.setattr(connections, "CHUNK_PAIRS", 64)
+    monkeypatch.setattr(connections, "_first_hits", spy)
+    assert connections.find_sockets(tris) == whole and len(whole) > 0
+    assert seen and max(seen) <= 64
+
+
+def test_first_hits_chunked_equals_unchunked(monkeypatch):
+    rng = np.random.default_rng(0)
+    tris = rng.uniform(-10, 10, (300, 3, 3))
+    origins = rng.uniform(-10, 10, (20, 3))
+    dirs = rng.normal(size=(20, 3))
+    full = connections._first_hits(tris, origins, dirs)
+    monkeypatch.setattr(connections, "CHUNK_PAIRS", 50)
+    assert np.array_equal(connections.first_hits(tris, origins, dirs), full)
+
+
+FLAT = ("0 Flat thing\n0 Name: flat.dat\n0 !LDRAW_ORG Unofficial_Part\n"
+        "3 16 -40 0 -20 40 0 -20 40 0 20\n3 16 -40 0 -20 40 0 20 -40 0 20\n")
+
+
+def test_verify_refuses_a_flat_part_in_one_line(write, capsys, isolated_cache):
+    from pipelines.verify import main
+
+    path = write("flat.mpd", "0 FILE main.ldr\n0 Main\n1 1 0 0 0 1 0 0 0 1 0 0 0 1 flat.dat\n0 STEP\n"
+                 "1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat\n0 STEP\n"
+                 "1 4 100 0 0 1 0 0 0 1 0 0 0 1 flat.dat\n1 4 100 -5 0 1 0 0 0 1 0 0 0 1 flat.dat\n0 STEP\n"
+                 f"0 NOFILE\n0 FILE flat.dat\n{FLAT}0 NOFILE\n")
+    assert main([str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "flat.dat" in err[0] and str(path) in err[0] and "no volume" in err[0], err
+
+
+def _nested(levels: int, fan: int) -> str:
+    """An MPD whose every submodel places the next `fan` times: fan ** levels bricks."""
+    out = []
+    for i in range(levels):
+        child = f"m{i + 1}.ldr" if i + 1 < levels else "3001.dat"
+        out.append(f"0 FILE m{i}.ldr\n0 m{i}\n" + "".join(
+            f"1 16 {20 * k} 0 0 1 0 0 0 1 0 0 0 1 {child}\n" for k in range(fan)) + "0 NOFILE\n")
+    return "".join(out)
+
+
+def test_verify_refuses_a_model_past_its_parts_budget_up_front(write, capsys, monkeypatch):
+    import pipelines.verify as verify
+
+    path = write("nested.mpd", _nested(3, 4))  # 64 bricks
+    monkeypatch.setattr(verify, "MAX_VERIFY_PARTS", 50)
+    monkeypatch.setattr(verify, "build_steps", lambda *a, **k: pytest.fail("expanded before refusing"))
+    assert verify.main([str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(path) in err[0] and "64 parts" in err[0] and "at most 50" in err[0], err
