@@ -95,3 +95,35 @@ def test_a_model_that_places_no_parts_is_an_error(tmp_path, name, content):
         r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
         lines = r.stderr.strip().splitlines()
         assert r.returncode == 2 and len(lines) == 1 and name in lines[0] and "places no parts" in lines[0], r.stderr
+
+
+# -- the console script ------------------------------------------------------------------------------
+
+
+def test_console_script_lists_commands_and_refuses_unknown_ones(capsys):
+    from pipelines.commands import COMMANDS, main
+
+    assert main([]) == 2 and "commands:" in capsys.readouterr().out
+    assert main(["--help"]) == 0
+    out = capsys.readouterr().out
+    assert all(f"  {name} " in out for name in COMMANDS)
+    assert main(["synthesise"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown command 'synthesise'" in err and "synth" in err and err.count("\n") == 1
+
+
+def test_console_script_runs_each_command_as_its_module():
+    """`brick-factory NAME ARGS` is `python -m MODULE ARGS`: same output, same exit status."""
+    from pipelines.commands import COMMANDS
+
+    env = {k: v for k, v in os.environ.items() if k != "LDRAWDIR"}
+    for name in ("ldraw", "score", "verify"):
+        module = COMMANDS[name][0]
+        via = subprocess.run([sys.executable, "-m", "pipelines.commands", name, "--help"], cwd=ROOT, env=env,
+                             capture_output=True, text=True, timeout=120)
+        direct = subprocess.run([sys.executable, "-m", module, "--help"], cwd=ROOT, env=env, capture_output=True,
+                                text=True, timeout=120)
+        assert via.returncode == direct.returncode == 0 and via.stdout.split("\n", 1)[1] == direct.stdout.split("\n", 1)[1]
+    bad = subprocess.run([sys.executable, "-m", "pipelines.commands", "score", "--data", "/nonexistent", "--pred", "x"],
+                         cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "not a dataset folder" in bad.stderr

@@ -1,6 +1,6 @@
 """The package installs: a wheel built from this checkout, installed non-editable in a fresh
-virtual environment, samples an object and verifies a model from another folder (the physics
-templates and the example model travel as package data)."""
+virtual environment, samples an object and verifies a model from another folder through its console
+script `brick-factory` (the physics templates and the example model travel as package data)."""
 
 from __future__ import annotations
 
@@ -61,12 +61,15 @@ def test_wheel_installs_and_runs_from_another_folder(tmp_path):
     assert r.returncode == 0, r.stderr
     assert all(Path(p).is_relative_to(site) for p in r.stdout.split()), r.stdout  # not this checkout
 
-    r = _run([py, "-m", "pipelines.sample", "--n", "1", "--seed", "0", "--min-steps", "3", "--max-steps", "3",
+    entry = zipfile.ZipFile(wheel).read(next(n for n in names if n.endswith("entry_points.txt"))).decode()
+    assert "brick-factory = pipelines.commands:main" in entry
+    script = site / "bin" / "brick-factory"  # the console script; run by this environment's python
+    r = _run([py, script, "sample", "--n", "1", "--seed", "0", "--min-steps", "3", "--max-steps", "3",
               "--out", "objects"], cwd=work, env=env)
     assert r.returncode == 0, r.stderr
     assert len(list((work / "objects").glob("*.ldr"))) == 1
     example = site / "factory" / "data" / "examples" / "tower.mpd"
-    r = _run([py, "-m", "pipelines.verify", example, "--json"], cwd=work, env=env)
+    r = _run([py, script, "verify", example, "--json"], cwd=work, env=env)
     assert r.returncode == 0, r.stderr
     here = _run([sys.executable, "-m", "pipelines.verify", example, "--json"], cwd=ROOT,
                 env={**env, "PYTHONPATH": str(ROOT)})
