@@ -91,10 +91,10 @@ def run(config, args) -> int:
 
 def guarded(body) -> int:
     from factory.sampler import SamplerConfigError
-    from pipelines.dataset import ConfigMismatchError, FolderBusyError, ShardFailedError
+    from pipelines.dataset import ConfigMismatchError, FolderBusyError, ShardFailedError, ShardInputError
 
     return run_guarded(body, {ConfigMismatchError: 2, FolderBusyError: 2, SamplerConfigError: 2, ValueError: 2,
-                              ShardFailedError: 1, OSError: 2})
+                              ShardInputError: 2, ShardFailedError: 1, OSError: 2})
 
 
 def main(argv: list[str] | None = None) -> int:

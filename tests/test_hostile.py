@@ -43,3 +43,12 @@ def test_quick_subset_ends_within_limits_without_traceback(tmp_path):
     by = {(r.case, r.command): r for r in results}
     assert by["mpd_bomb", "steps"].status == 2 and "parts" in by["mpd_bomb", "steps"].first_line
     assert by["edge_bomb", "verify"].status == 2 and "edge lines" in by["edge_bomb", "verify"].first_line
+
+
+def test_designs_exits_2_on_a_bad_part_found_inside_a_shard(tmp_path):
+    """A part's reference cycle is found only when a shard expands the part: designs exited 1
+    ("re-run to retry", which cannot help); an input error exits 2 wherever it is found."""
+    run = _load("run")
+    (result,) = run.run_all(tmp_path, cases=["cycle"], commands=["designs"], timeout=60, mem_mb=2048)
+    assert result.status == 2 and not result.problem, (result.status, result.first_line)
+    assert "reference cycle" in result.stderr and "fix the input" in result.stderr and result.stderr.count("\n") == 1

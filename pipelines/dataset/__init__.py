@@ -6,7 +6,16 @@
 See docs/dataset.md: rows, layout, determinism and resume, the Ray backend, the designs source.
 """
 
-from pipelines.dataset.build import BACKENDS, FolderBusyError, ShardFailedError, build, finalize, prepare, summary_line
+from pipelines.dataset.build import (
+    BACKENDS,
+    FolderBusyError,
+    ShardFailedError,
+    ShardInputError,
+    build,
+    finalize,
+    prepare,
+    summary_line,
+)
 from pipelines.dataset.config import (
     SCHEMA_VERSION,
     ConfigMismatchError,
@@ -34,6 +43,7 @@ __all__ = [
     "DatasetConfig",
     "FolderBusyError",
     "ShardFailedError",
+    "ShardInputError",
     "build",
     "build_shard",
     "feedback_prompt",

@@ -17,6 +17,7 @@ from importlib import metadata
 from pathlib import Path
 
 from factory.atomic import write_atomic
+from factory.errors import LDrawError
 from pipelines.dataset.config import (
     SCHEMA_VERSION,
     SPLITS,
@@ -37,6 +38,12 @@ ENV_FOR_WORKERS = ("PYTHONPATH", "MUJOCO_GL", "BRICK_FACTORY_CACHE", "LDRAWDIR",
 
 class ShardFailedError(RuntimeError):
     pass
+
+
+class ShardInputError(ShardFailedError):
+    """Every failed shard failed on its input (an LDraw error: a bad model or part, a model past a
+    checker's budget), which a re-run cannot fix: the command exits 2, as for bad input found
+    before the build."""
 
 
 class FolderBusyError(RuntimeError):
@@ -347,6 +354,9 @@ def _build(config, out, backend, workers, progress, desc, batch, growers, t0) ->
             errors = runner(config, todo, out, workers, bar) if todo else []
     if errors:
         k, exc = errors[0]
+        if all(isinstance(e, LDrawError) for _, e in errors):
+            raise ShardInputError(f"{len(errors)} shard(s) failed on their input (first: shard {k}: {exc}); "
+                                  "finished shards are kept; fix the input and re-run")
         raise ShardFailedError(f"{len(errors)} shard(s) failed (first: shard {k}: {type(exc).__name__}: {exc}); "
                                "finished shards are kept, re-run the same command to retry the rest")
     summary = finalize(config, out)
