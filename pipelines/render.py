@@ -39,7 +39,7 @@ def _predicted(args, part):
         # A typical wrong answer: one stud off along X and turned 90 degrees about the part's Y axis.
         turn = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
         pose = Pose(part.pose.R @ turn, part.pose.t + np.array([20.0, 0.0, 0.0]))
-    return PlacedPart(part.part, part.colour, pose, "predicted")
+    return PlacedPart(part.part, part.colour, pose, "predicted", part.model)  # the model's own parts too
 
 
 def _json(meta: dict) -> str:
@@ -145,6 +145,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         from factory.ldraw import get_reader, read_steps
+        from factory.render.scene import MAX_SCENE_PARTS
         from factory.render import (
             RenderUnavailableError,
             bounds_of,
@@ -169,6 +170,10 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)
             return 2
         every = [p for s in steps for p in s.parts]
+        if len(every) > MAX_SCENE_PARTS:  # refused before any scene is built, naming the file
+            print(f"error: {args.model}: model places {len(every):,} parts; at most {MAX_SCENE_PARTS:,} are rendered",
+                  file=sys.stderr)
+            return 2
         before = [p for s in steps[: args.step] for p in s.parts]
         new = list(steps[args.step].parts)
         bounds = bounds_of(every, reader)

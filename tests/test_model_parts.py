@@ -80,6 +80,18 @@ def test_verify_finds_the_models_own_part(layout, write):
     assert recs[1]["connected"] and not recs[1]["collision"]
 
 
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_render_finds_the_models_own_part(layout, write, tmp_path):
+    """`pipelines.render` refused a step placing the model's own part ("cannot find 'mybrick.dat'"):
+    its feedback image drew the part again without saying whose it was."""
+    path = LAYOUTS[layout](write)
+    r = _cli("pipelines.render", str(path), "--step", "1", "--out", str(tmp_path / "out"), "--size", "64",
+             "--tile", "32")
+    assert r.returncode == 0, r.stderr
+    meta = json.loads((tmp_path / "out" / "step.json").read_text())
+    assert [p["part"] for p in meta["parts"]] == ["mybrick.dat"] and (tmp_path / "out" / "feedback.png").is_file()
+
+
 def test_designs_finds_the_models_own_part(write, tmp_path):
     import pyarrow.parquet as pq
 

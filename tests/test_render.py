@@ -510,3 +510,25 @@ def test_part_image_is_the_same_whatever_was_rendered_before(reader):
     assert np.array_equal(fresh, again)
     step = render_step(before, [placed("3039", 14, (40, -48, 10))], 128, reader=reader)
     assert np.array_equal(np.asarray(step["part_1"]), fresh)
+
+
+def test_a_model_past_the_scene_budget_is_refused_at_once(tmp_path, monkeypatch, capsys):
+    """A 20,000-part model ran past 60 s at 2 GB in `pipelines.render`: models past
+    `MAX_SCENE_PARTS` are refused up front with the file named (a scaled-down budget here), and the
+    library refuses such a scene too."""
+    from factory.errors import LDrawLimitError
+
+    model = tmp_path / "grid.ldr"
+    model.write_text("".join(f"1 4 {40 * i} 0 0 1 0 0 0 1 0 0 0 1 3001.dat\n" for i in range(12)))
+    from pipelines import render as render_cli
+
+    assert render_cli.main([str(model), "--step", "0", "--out", str(tmp_path / "o1")]) == 0  # within the budget
+    monkeypatch.setattr(render.scene, "MAX_SCENE_PARTS", 10)
+    parts = [placed("3001", 4, (40 * i, 0, 0)) for i in range(11)]
+    with pytest.raises(LDrawLimitError, match="at most 10 are rendered"):
+        render_step(parts[:1], parts[1:], 64, scene_parts=parts)
+    capsys.readouterr()
+    assert render_cli.main([str(model), "--step", "0", "--out", str(tmp_path / "o2")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"error: {model}: model places 12 parts; at most 10 are rendered\n"
+    assert not (tmp_path / "o2").exists()
