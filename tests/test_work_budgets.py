@@ -107,3 +107,50 @@ def test_verify_refuses_a_model_past_its_parts_budget_up_front(write, capsys, mo
     assert verify.main([str(path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(path) in err[0] and "64 parts" in err[0] and "at most 50" in err[0], err
+
+
+def _box_mesh():
+    v = np.array([[x, y, z] for x in (0.0, 40.0) for y in (0.0, 24.0) for z in (0.0, 20.0)])
+    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6],
+                  [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    return v, f
+
+
+def test_coacd_runs_bounded_in_a_child_and_gives_its_own_pieces(monkeypatch):
+    """coacd (native code) ran in the checking process with no bound: a soup of 12,000 random
+    triangles ran past 200 s, one of 1.2 million was killed for memory at 24 GB. It runs in a child
+    under a time and a memory limit (scaled down here), with the pieces coacd gives in-process."""
+    import coacd
+
+    from factory.errors import LDrawLimitError
+    from factory.physics import geometry
+
+    v, f = _box_mesh()
+    cfg = geometry.DecompositionConfig()
+    pieces = geometry._decompose(v, f, cfg, "box.dat")
+    coacd.set_log_level("error")
+    ref = coacd.run_coacd(coacd.Mesh(v, f), threshold=cfg.threshold, max_convex_hull=cfg.max_convex_hull,
+                          preprocess_mode="auto", preprocess_resolution=cfg.preprocess_resolution,
+                          mcts_iterations=cfg.mcts_iterations, mcts_nodes=cfg.mcts_nodes,
+                          mcts_max_depth=cfg.mcts_max_depth, seed=cfg.seed)
+    assert len(pieces) == len(ref) >= 1
+    assert all(np.array_equal(np.asarray(a, float), b) for (a, _), b in zip(ref, pieces))
+    monkeypatch.setattr(geometry, "COACD_SECONDS", 0.01)
+    with pytest.raises(LDrawLimitError, match=r"box.dat: decomposing box.dat \(12 triangles\).*more than 0.01 s"):
+        geometry._decompose(v, f, cfg, "box.dat")
+    monkeypatch.setattr(geometry, "COACD_SECONDS", 60)
+    monkeypatch.setattr(geometry, "COACD_MEMORY_BYTES", 32 << 20)  # too little to start Python with numpy
+    with pytest.raises(LDrawLimitError, match="failed within 32 MB of memory"):
+        geometry._decompose(v, f, cfg, "box.dat")
+
+
+def test_collision_geometry_refuses_a_part_past_its_triangle_budget(monkeypatch, tmp_path):
+    """A part of 1.2 million triangles (under the reader's 2,000,000 cap) was killed for memory at
+    24 GB in `pipelines.verify`, inside the collision decomposition: parts past
+    `MAX_COLLISION_TRIANGLES` are refused by the physics, naming the part (a scaled-down budget)."""
+    from factory.physics import geometry
+
+    part = load_part(Reader(Library.embedded()), "3001.dat")
+    monkeypatch.setattr(geometry, "MAX_COLLISION_TRIANGLES", 10)
+    with pytest.raises(LDrawLimitError, match=r"part 3001.dat has [\d,]+ triangles; .* at most 10"):
+        geometry.collision_shape(part, geometry.DecompositionConfig(inset_ldu=0.25 + 1e-9))  # not memoised

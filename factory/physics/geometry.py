@@ -151,23 +151,66 @@ def stud_prism(pos, axis, segments: int = 16) -> np.ndarray:
     return np.concatenate([base, base + STUD_HEIGHT * axis])
 
 
-def _decompose(vertices: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig) -> list[np.ndarray]:
-    import coacd
+MAX_COLLISION_TRIANGLES = 50_000
+"""Triangles of a part the collision decomposition takes. The real subset's largest part has
+10,089 (74323.dat); the decomposition's cost follows the surface's shape more than its size, and
+its worst case measured here, a soup of random triangles, took 141 s and 1.5 GB at 48,000
+triangles, more than 300 s and 7.5 GB at 240,000, and was killed for memory at 24 GB at 1.2
+million (in this process, before coacd). Renders and `factory.ldraw` take larger parts."""
 
-    coacd.set_log_level("error")
-    mesh = coacd.Mesh(vertices, faces)
-    pieces = coacd.run_coacd(
-        mesh,
-        threshold=cfg.threshold,
-        max_convex_hull=cfg.max_convex_hull,
-        preprocess_mode="auto",
-        preprocess_resolution=cfg.preprocess_resolution,
-        mcts_iterations=cfg.mcts_iterations,
-        mcts_nodes=cfg.mcts_nodes,
-        mcts_max_depth=cfg.mcts_max_depth,
-        seed=cfg.seed,
-    )
-    return [np.asarray(v, dtype=np.float64) for v, _ in pieces]
+COACD_SECONDS = 300
+"""Wall time one part's coacd decomposition may take. Real parts take 0.1-15 s here; a soup of
+12,000 random triangles ran past 200 s at 2.4 GB, and one of 1.2 million was killed for memory at
+24 GB after 96 s. coacd is native code that cannot be stopped from Python, so it runs in a child
+process under this limit and `COACD_MEMORY_BYTES`."""
+COACD_MEMORY_BYTES = 8 << 30
+"""Address space of that child process (the 1.2-million-triangle soup reached 24 GB)."""
+
+_COACD_CHILD = """
+import sys
+import numpy as np
+import coacd
+data = np.load(sys.argv[1])
+coacd.set_log_level("error")
+args = {k: v.item() for k, v in data.items() if k not in ("vertices", "faces", "preprocess_mode")}
+pieces = coacd.run_coacd(coacd.Mesh(data["vertices"], data["faces"]), preprocess_mode="auto", **args)
+np.savez(sys.argv[2], *[np.asarray(v, dtype=np.float64) for v, _ in pieces])
+"""
+
+
+def _limit_memory() -> None:  # runs in the child before coacd starts
+    import resource
+
+    resource.setrlimit(resource.RLIMIT_AS, (COACD_MEMORY_BYTES, COACD_MEMORY_BYTES))
+
+
+def _decompose(vertices: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig, name: str = "") -> list[np.ndarray]:
+    """coacd's convex pieces of the mesh, computed in a child process bounded by `COACD_SECONDS`
+    and `COACD_MEMORY_BYTES`; past either, an `LDrawLimitError` naming the part."""
+    import subprocess
+    import tempfile
+
+    from factory.errors import LDrawLimitError
+
+    with tempfile.TemporaryDirectory(prefix="bf-coacd-") as tmp:
+        src, out = os.path.join(tmp, "mesh.npz"), os.path.join(tmp, "pieces.npz")
+        np.savez(src, vertices=np.asarray(vertices, np.float64), faces=np.asarray(faces, np.int64),
+                 threshold=cfg.threshold, max_convex_hull=cfg.max_convex_hull,
+                 preprocess_resolution=cfg.preprocess_resolution, mcts_iterations=cfg.mcts_iterations,
+                 mcts_nodes=cfg.mcts_nodes, mcts_max_depth=cfg.mcts_max_depth, seed=cfg.seed)
+        what = f"decomposing {name or 'a part'} ({len(faces):,} triangles) into convex pieces"
+        try:
+            done = subprocess.run([sys.executable, "-c", _COACD_CHILD, src, out], capture_output=True, text=True,
+                                  timeout=COACD_SECONDS,
+                                  preexec_fn=_limit_memory if sys.platform.startswith("linux") else None)
+        except subprocess.TimeoutExpired:
+            raise LDrawLimitError(f"{what} took more than {COACD_SECONDS} s; refusing the part", name or None) from None
+        if done.returncode != 0 or not os.path.exists(out):
+            tail = (done.stderr.strip().splitlines() or ["no message"])[-1]
+            raise LDrawLimitError(f"{what} failed within {COACD_MEMORY_BYTES >> 20:,} MB of memory ({tail}); "
+                                  "refusing the part", name or None)
+        with np.load(out) as pieces:
+            return [pieces[f"arr_{i}"] for i in range(len(pieces.files))]
 
 
 _SIDES = ((0, 1.0), (0, -1.0), (2, 1.0), (2, -1.0), (1, -1.0))
@@ -509,7 +552,7 @@ def _decomposed(part: Part, verts: np.ndarray, faces: np.ndarray, cfg: Decomposi
     # coacd remeshes its input on a voxel grid, so its pieces bulge up to ~1 LDU out of the part.
     # Rebuild each piece as the hull of the part's own vertices it holds (within a snap
     # distance): pieces then follow the real surface.
-    pieces = (_snap(r, verts, cfg.snap_ldu) for r in _decompose(verts, faces, cfg))
+    pieces = (_snap(r, verts, cfg.snap_ldu) for r in _decompose(verts, faces, cfg, getattr(part, "file", None) or part.name))
     return [p for p in (inset_hull(r, cfg.inset_ldu) for r in pieces if r is not None) if p is not None]
 
 
@@ -533,6 +576,11 @@ def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()
     memo = part.__dict__.setdefault("_collision_shapes", {})
     if cfg in memo:
         return memo[cfg]
+    if len(part.flat.triangles) > MAX_COLLISION_TRIANGLES:
+        from factory.errors import LDrawLimitError
+
+        raise LDrawLimitError(f"part {part.name} has {len(part.flat.triangles):,} triangles; the physics checks "
+                              f"decompose parts of at most {MAX_COLLISION_TRIANGLES:,}", getattr(part, "file", None))
     verts, faces = _body_mesh(part)
     settings = asdict(cfg)
     refine = settings.pop("refine_cells")
