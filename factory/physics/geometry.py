@@ -167,7 +167,10 @@ COACD_MEMORY_BYTES = 8 << 30
 """Address space of that child process (the 1.2-million-triangle soup reached 24 GB)."""
 
 _COACD_CHILD = """
+import resource
 import sys
+limit = int(sys.argv[3])  # set before numpy and coacd load (a preexec_fn is unsafe in threaded workers)
+resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 import numpy as np
 import coacd
 data = np.load(sys.argv[1])
@@ -176,12 +179,6 @@ args = {k: v.item() for k, v in data.items() if k not in ("vertices", "faces", "
 pieces = coacd.run_coacd(coacd.Mesh(data["vertices"], data["faces"]), preprocess_mode="auto", **args)
 np.savez(sys.argv[2], *[np.asarray(v, dtype=np.float64) for v, _ in pieces])
 """
-
-
-def _limit_memory() -> None:  # runs in the child before coacd starts
-    import resource
-
-    resource.setrlimit(resource.RLIMIT_AS, (COACD_MEMORY_BYTES, COACD_MEMORY_BYTES))
 
 
 def _decompose(vertices: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig, name: str = "") -> list[np.ndarray]:
@@ -200,9 +197,8 @@ def _decompose(vertices: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig
                  mcts_nodes=cfg.mcts_nodes, mcts_max_depth=cfg.mcts_max_depth, seed=cfg.seed)
         what = f"decomposing {name or 'a part'} ({len(faces):,} triangles) into convex pieces"
         try:
-            done = subprocess.run([sys.executable, "-c", _COACD_CHILD, src, out], capture_output=True, text=True,
-                                  timeout=COACD_SECONDS,
-                                  preexec_fn=_limit_memory if sys.platform.startswith("linux") else None)
+            done = subprocess.run([sys.executable, "-c", _COACD_CHILD, src, out, str(int(COACD_MEMORY_BYTES))],
+                                  capture_output=True, text=True, timeout=COACD_SECONDS)
         except subprocess.TimeoutExpired:
             raise LDrawLimitError(f"{what} took more than {COACD_SECONDS} s; refusing the part", name or None) from None
         if done.returncode != 0 or not os.path.exists(out):
