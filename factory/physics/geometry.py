@@ -167,10 +167,12 @@ COACD_MEMORY_BYTES = 8 << 30
 """Address space of that child process (the 1.2-million-triangle soup reached 24 GB)."""
 
 _COACD_CHILD = """
-import resource
 import sys
-limit = int(sys.argv[3])  # set before numpy and coacd load (a preexec_fn is unsafe in threaded workers)
-resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+try:  # set before numpy and coacd load (a preexec_fn is unsafe in threaded workers); POSIX only
+    import resource
+    resource.setrlimit(resource.RLIMIT_AS, (int(sys.argv[3]), int(sys.argv[3])))
+except ImportError:
+    pass
 import numpy as np
 import coacd
 data = np.load(sys.argv[1])
