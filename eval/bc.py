@@ -123,7 +123,10 @@ from eval.metrics import (
     MIRRORED_ERROR_DEG,
     BrickTarget,
     StepTarget,
+    answer_text,
+    count_bricks,
     is_mirrored,
+    new_counts,
     project_to_rotation,
     rotation_error_deg,
     translation_error,
@@ -394,47 +397,16 @@ def best_per_metric(per_object: dict) -> dict:
 # -- scoring ----------------------------------------------------------------------------------
 
 
-def _text(predictions: dict, key):
-    value = predictions.get(key)
-    if value is None:
-        return None
-    return value if isinstance(value, str) else ""  # a non-string answer is unparseable
-
-
 def _new_counts(steps: list) -> dict:
-    return {
-        "steps": len(steps),
-        "objects": len({s.object_id for s in steps}),
-        "unparseable": 0,
-        "unparseable_selection": 0,
-        "unparseable_pose": 0,
-        "projected_rotations": 0,
-        "mirrored_rotations": 0,
-        "missing_predictions": 0,
-        "skipped_blank": 0,
-        "dropped_pose_steps": 0,
-        "failures": {"mirrored": 0, "translation_only": 0, "rotation_only": 0, "both": 0, "unparseable": 0},
-    }
+    """`eval.metrics`' counts, and the steps the released scripts skip or drop."""
+    return {**new_counts(steps), "objects": len({s.object_id for s in steps}), "skipped_blank": 0,
+            "dropped_pose_steps": 0}
 
 
 def _count_pose(counts: dict, pose: PoseResult) -> None:
     counts["unparseable_pose"] += not all(b is not None for b in pose.bricks)
     counts["dropped_pose_steps"] += not pose.parsed_any
-    fails = counts["failures"]
-    for b in pose.bricks:
-        if b is None:
-            fails["unparseable"] += 1
-            continue
-        counts["projected_rotations"] += b.projected
-        counts["mirrored_rotations"] += b.mirrored
-        if b.mirrored:
-            fails["mirrored"] += 1
-        elif not b.translation_ok and not b.rotation_ok:
-            fails["both"] += 1
-        elif not b.translation_ok:
-            fails["translation_only"] += 1
-        elif not b.rotation_ok:
-            fails["rotation_only"] += 1
+    count_bricks(counts, pose.bricks)
 
 
 def _per_object(selections: dict, poses: dict) -> dict:
@@ -464,7 +436,7 @@ def score_bc(steps: list, predictions: dict) -> dict:
         if not step.bricks:
             counts["skipped_blank"] += 1
             continue
-        sel, pose = _text(predictions, (step.id, "selection")), _text(predictions, (step.id, "pose"))
+        sel, pose = answer_text(predictions, (step.id, "selection")), answer_text(predictions, (step.id, "pose"))
         counts["missing_predictions"] += (sel is None) + (pose is None)
         if sel is not None:
             result = score_selection(step, sel)

@@ -319,11 +319,47 @@ def _object_metrics(results: list[StepResult]) -> dict:
     }
 
 
-def _text(predictions: dict, key):
+def answer_text(predictions: dict, key):
+    """The answer under `key`: None when missing, "" (unparseable) when not a string."""
     value = predictions.get(key)
     if value is None:
         return None
     return value if isinstance(value, str) else ""  # a non-string answer is unparseable
+
+
+def new_counts(steps: list) -> dict:
+    """The ``counts`` of a score over `steps`, every count at 0 (`objects` set at the end)."""
+    return {
+        "steps": len(steps),
+        "objects": 0,
+        "unparseable": 0,
+        "unparseable_selection": 0,
+        "unparseable_pose": 0,
+        "projected_rotations": 0,
+        "mirrored_rotations": 0,
+        "missing_predictions": 0,
+        "failures": {"mirrored": 0, "translation_only": 0, "rotation_only": 0, "both": 0, "unparseable": 0},
+    }
+
+
+def count_bricks(counts: dict, bricks) -> None:
+    """Add one step's bricks (results with `projected`, `mirrored`, `translation_ok`,
+    `rotation_ok`; None for no pose) to `counts`: projections, mirrors and the failure kinds."""
+    fails = counts["failures"]
+    for b in bricks:
+        if b is None:
+            fails["unparseable"] += 1
+            continue
+        counts["projected_rotations"] += b.projected
+        counts["mirrored_rotations"] += b.mirrored
+        if b.mirrored:
+            fails["mirrored"] += 1
+        elif not b.translation_ok and not b.rotation_ok:
+            fails["both"] += 1
+        elif not b.translation_ok:
+            fails["translation_only"] += 1
+        elif not b.rotation_ok:
+            fails["rotation_only"] += 1
 
 
 def score(steps: list[StepTarget], predictions: dict, mode: str = "paper") -> dict:
@@ -335,41 +371,17 @@ def score(steps: list[StepTarget], predictions: dict, mode: str = "paper") -> di
     ids = [s.id for s in steps]
     if len(set(ids)) != len(ids):
         raise ValueError("step ids must be unique")
-    counts = {
-        "steps": len(steps),
-        "objects": 0,
-        "unparseable": 0,
-        "unparseable_selection": 0,
-        "unparseable_pose": 0,
-        "projected_rotations": 0,
-        "mirrored_rotations": 0,
-        "missing_predictions": 0,
-        "failures": {"mirrored": 0, "translation_only": 0, "rotation_only": 0, "both": 0, "unparseable": 0},
-    }
+    counts = new_counts(steps)
     by_object: dict[str, list[StepResult]] = {}
     for step in steps:
-        sel = _text(predictions, (step.id, "selection"))
-        pose = _text(predictions, (step.id, "pose"))
+        sel = answer_text(predictions, (step.id, "selection"))
+        pose = answer_text(predictions, (step.id, "pose"))
         res = score_step(step, sel, pose, mode)
         by_object.setdefault(step.object_id, []).append(res)
         counts["missing_predictions"] += (sel is None) + (pose is None)
         counts["unparseable_selection"] += res.selection_status == "unparseable"
         counts["unparseable_pose"] += res.pose_status == "unparseable"
-        fails = counts["failures"]
-        for b in res.bricks:
-            if b is None:
-                fails["unparseable"] += 1
-                continue
-            counts["projected_rotations"] += b.projected
-            counts["mirrored_rotations"] += b.mirrored
-            if b.mirrored:
-                fails["mirrored"] += 1
-            elif not b.translation_ok and not b.rotation_ok:
-                fails["both"] += 1
-            elif not b.translation_ok:
-                fails["translation_only"] += 1
-            elif not b.rotation_ok:
-                fails["rotation_only"] += 1
+        count_bricks(counts, res.bricks)
     counts["unparseable"] = counts["unparseable_selection"] + counts["unparseable_pose"]
     counts["objects"] = len(by_object)
 

@@ -25,7 +25,9 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import subprocess
 import sys
+import tempfile
 import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -35,7 +37,7 @@ from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
 from factory.connections import STUD_HEIGHT, STUD_RADIUS
 from factory.cache import cache_root
-from factory.errors import LDrawError
+from factory.errors import LDrawError, LDrawLimitError
 from factory.parts import Part
 
 INSET_LDU = 0.25
@@ -186,11 +188,6 @@ np.savez(sys.argv[2], *[np.asarray(v, dtype=np.float64) for v, _ in pieces])
 def _decompose(vertices: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig, name: str = "") -> list[np.ndarray]:
     """coacd's convex pieces of the mesh, computed in a child process bounded by `COACD_SECONDS`
     and `COACD_MEMORY_BYTES`; past either, an `LDrawLimitError` naming the part."""
-    import subprocess
-    import tempfile
-
-    from factory.errors import LDrawLimitError
-
     with tempfile.TemporaryDirectory(prefix="bf-coacd-") as tmp:
         src, out = os.path.join(tmp, "mesh.npz"), os.path.join(tmp, "pieces.npz")
         np.savez(src, vertices=np.asarray(vertices, np.float64), faces=np.asarray(faces, np.int64),
@@ -575,8 +572,6 @@ def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()
     if cfg in memo:
         return memo[cfg]
     if len(part.flat.triangles) > MAX_COLLISION_TRIANGLES:
-        from factory.errors import LDrawLimitError
-
         raise LDrawLimitError(f"part {part.name} has {len(part.flat.triangles):,} triangles; the physics checks "
                               f"decompose parts of at most {MAX_COLLISION_TRIANGLES:,}", getattr(part, "file", None))
     verts, faces = _body_mesh(part)
