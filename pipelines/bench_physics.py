@@ -240,6 +240,40 @@ def _ctx_run(span: tuple[int, int]) -> list:
     return [sweep(_CTX["scene"], _CTX["s"], w, c).buildable for w, c, _ in _CTX["cases"][a:b]]
 
 
+def _shared_run(span: tuple[int, int], barrier) -> tuple[float, float, list]:
+    """One process's share of a batched whole check (`batched_processes`): its slice checked once
+    (compiles its shapes, untimed), then again once every process is ready; (start, end, answers)."""
+    a, b = span
+    brick = load_part(get_reader(), "3001")
+    poses = _CTX["poses"][a:b]
+    check(_CTX["s"], brick, poses, backend="mjx", floor_y=24.0, explain=False)
+    gc.collect()
+    gc.freeze()
+    _ALONE.clear()  # the warm-up's clutch answers: the timed call finds its own
+    barrier.wait()
+    t = time.time()
+    got = check(_CTX["s"], brick, poses, backend="mjx", floor_y=24.0, explain=False)
+    return t, time.time(), [(v.ok, v.reason) for v in got]
+
+
+def batched_processes(n: int, batch: int, procs: int) -> tuple[list, float]:
+    """(answers, seconds): the batch's whole checks on the batched path in `procs` processes that
+    share the default JAX device, each on a contiguous slice (so one process's host work overlaps
+    another's device work, as the factory's workers do); seconds from the first start to the last
+    end, every process compiled and waiting at a barrier before the clock starts."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    spawn = multiprocessing.get_context("spawn")  # not fork: JAX's threads may hold locks
+    step = -(-batch // procs)
+    spans = [(a, min(a + step, batch)) for a in range(0, batch, step)]
+    with spawn.Manager() as manager, ProcessPoolExecutor(
+            len(spans), mp_context=spawn, initializer=_ctx_init, initargs=("whole", n, batch)) as pool:
+        barrier = manager.Barrier(len(spans))  # every task waits for all: one task per process
+        done = list(pool.map(_shared_run, spans, [barrier] * len(spans)))
+    return [x for *_, got in done for x in got], max(d[1] for d in done) - min(d[0] for d in done)
+
+
 def cpu_reference(kind: str, n: int, batch: int, count: int, workers: int) -> tuple[list, float]:
     """(answers, seconds): the CPU reference on the first `count` of the batch's candidates, split
     over `workers` processes (started and warmed before the clock starts)."""
@@ -314,12 +348,14 @@ def measure_lp(sizes, batches, log=None, cpu_max: int = 128, cpu_workers: int = 
 
 
 def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int = 1,
-                  config: CheckConfig = CheckConfig(), batched: bool = True) -> list[dict]:
+                  config: CheckConfig = CheckConfig(), batched: bool = True, procs: int = 1) -> list[dict]:
     """Whole checks per second (every check a candidate goes through: connection, collision,
     clutch, buildability sweep, whole-structure loads; `check` as the sampler calls it, failing
     connections not sought): the batched path (`backend='mjx'`, default JAX device) on each batch
     and the reference (`'mujoco'`, in `cpu_workers` processes) on its first `cpu_max` candidates,
-    verdicts (accepted, reason) compared on those. `batched=False`: the reference alone."""
+    verdicts (accepted, reason) compared on those. `batched=False`: the reference alone.
+    `procs` > 1: the batched path in that many processes sharing the device (`batched_processes`),
+    with the default config."""
     from factory.physics import check as check_mod
 
     brick = load_part(get_reader(), "3001")
@@ -329,7 +365,12 @@ def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int
         for batch in batches:
             poses = candidates(s, batch)
             row = {"bricks": n, "batch": batch}
-            if batched:
+            got = answers = gpu_s = None
+            if batched and procs > 1:
+                answers, gpu_s = batched_processes(n, batch, procs)
+                row.update(procs=procs, gpu_per_s=round(batch / gpu_s, 1), accepted=sum(ok for ok, _ in answers),
+                           reasons=dict(Counter(r for _, r in answers if r)))
+            elif batched:
                 t = time.perf_counter()
                 check(s, brick, poses, backend="mjx", config=config, floor_y=24.0, explain=False)  # compiles
                 first_s = time.perf_counter() - t
@@ -348,8 +389,9 @@ def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int
                            accepted=sum(v.ok for v in got),
                            reasons=dict(Counter(v.reason for v in got if v.reason)))
             if cpu_max:
-                _with_reference(row, "whole", n, batch, cpu_max, cpu_workers,
-                                (gpu_s, [(v.ok, v.reason) for v in got]) if batched else None)
+                if got is not None:
+                    answers = [(v.ok, v.reason) for v in got]
+                _with_reference(row, "whole", n, batch, cpu_max, cpu_workers, (gpu_s, answers) if batched else None)
             rows.append(row)
             if log is not None:
                 log(row)
@@ -453,6 +495,9 @@ def main(argv=None) -> int:
     ap.add_argument("--growth", action="store_true",
                     help="lockstep growth: --objects objects of --steps parts each grown --batches at a time "
                          "with the first of --backends, steps per second per batch (same objects in every row)")
+    ap.add_argument("--procs", type=int, default=1,
+                    help="with --whole: processes that share the device on the batched path, each checking a "
+                         "contiguous slice of the batch (default 1)")
     ap.add_argument("--steps", type=int, default=30, help="with --growth: parts per object (default 30)")
     ap.add_argument("--objects", type=int, default=64, help="with --growth: objects grown (default 64)")
     args = ap.parse_args(argv)
@@ -465,7 +510,7 @@ def main(argv=None) -> int:
                              cpu_workers=args.cpu_workers, batched=not args.reference_only)
     elif args.whole:
         rows = measure_whole(sizes, batches, log=log, cpu_max=256 if args.cpu_max is None else args.cpu_max,
-                             cpu_workers=args.cpu_workers, batched=not args.reference_only)
+                             cpu_workers=args.cpu_workers, batched=not args.reference_only, procs=args.procs)
     elif args.lp:
         rows = measure_lp(sizes, batches, log=log, cpu_max=128 if args.cpu_max is None else args.cpu_max,
                           cpu_workers=args.cpu_workers, batched=not args.reference_only)
