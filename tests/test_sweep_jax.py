@@ -61,12 +61,24 @@ def test_the_hand_built_cases_give_the_reference_verdicts():
     r = exact(TOWER + [at("3020", 40, 24, 0)], [HANGING])
     assert r.buildable is False and r.blocked_by == (3,)
     for top in TOPS.values():
-        # Blocked on its axis only 140 LDU up: the reference then asks whether it comes in from
-        # the side (it does), on the CPU.
-        before = sweep_jax.COUNTS["referred"]
+        # Blocked on its axis only 140 LDU up: whether it comes in from the side (it does) is
+        # asked of the device too, in a second launch.
+        before = sweep_jax.COUNTS.copy()
         assert exact(COLUMN + [top], [at("3003", 0, -24, 0)]).buildable
-        assert sweep_jax.COUNTS["referred"] == before + 1
+        assert sweep_jax.COUNTS - before == {"device": 1}
     assert exact(COLUMN, [at("3003", 0, -24, 0)]).buildable
+    # The same, with 1x1 bricks beside the brick's way up at the height it would come in from the
+    # side (2 LDU clear of its straight path): every side is blocked, so the straight verdict
+    # stands, decided on the device as by the reference.
+    walled = COLUMN + [TOPS["plate"], at("3005", -32, -72, 0), at("3005", 0, -72, 32), at("3005", 0, -72, -32)]
+    unit = [at("3003", 0, -24, 0)]
+    scene, world, touched = scene_for(Structure(walled), unit)
+    reference = sweep(scene, Structure(walled), world, touched, max_penetration_ldu=TOL)
+    before = sweep_jax.COUNTS.copy()
+    r = exact(walled, unit)
+    assert sweep_jax.COUNTS - before == {"device": 1}
+    assert reference.buildable is False and reference.reason == "blocked"
+    assert (r.buildable, r.reason, r.blocked_by) == (False, "blocked", reference.blocked_by)
     side = rotation_about((0, 0, 1), 90)
     parts = [at("3001", 0, 0, 0), at("3001", 200, 0, 0, R=side)]
     r = exact(parts, [at("3001", 0, -24, 0), at("3001", 224, 0, 0, R=side)])

@@ -67,13 +67,15 @@ from factory.physics.geometry import INSET_LDU, collision_shape
 from factory.physics.jax_cache import enable as enable_compile_cache
 from factory.physics.keep_last import KeepLast
 from factory.physics.structure import Structure
-from factory.physics.sweep import (PRESS_LDU, MIN_STEP_LDU, SweepResult, _boxes, _overlap_intervals, approaches_from,
-                                   box_interval, seating_directions, sweep)
+from factory.physics.sweep import (PRESS_LDU, MIN_STEP_LDU, SweepResult, _boxes, _overlap_intervals, across,
+                                   approaches_from, box_interval, seating_directions, sweep)
 from factory.pose import Pose
 
 COMPILES: list[tuple] = []
 """(kernel kind, edge axes or not, pairs, unit table rows, structure table rows, candidates, and
 vertices, normals, edges of both pieces) of every launch shape compiled in this process."""
+_CLEAR, _BLOCKED, _UNDECIDED = 0, 1, 2
+"""States of a side sweep's unit (`_SweepJob.states`)."""
 COUNTS: Counter = Counter()
 """Candidates by how they were judged: 'device', 'referred' (swept on the CPU: only an undecided
 stud-body pair could block them), 'not-judged' (no approach), 'cpu' (tolerance below the insets)."""
@@ -617,49 +619,74 @@ def sweep_many(
 
 def sweep_groups(groups: Sequence[tuple]) -> list[list[SweepResult]]:
     """`sweep_many(*group)` of every group (each its own structure: objects grown in lockstep),
-    with the pairs of all groups in one launch per piece-bucket shape (`_intervals_many`)."""
+    with the pairs of all groups in one launch per piece-bucket shape (`_intervals_many`). Units
+    blocked on their axis only further out than `sweep.PRESS_LDU` are then swept from the side
+    (`_SweepJob.sides`), every group's in one more launch."""
     jobs = [_SweepJob(*g) for g in groups]
+    _launch_all(jobs)
+    sides = [(j, j.sides()) for j in jobs]
+    sides = [(j, sj) for j, sj in sides if sj is not None]
+    _launch_all([sj for _, sj in sides])
+    for j, sj in sides:
+        j.after_sides(sj)
+    return [j.results for j in jobs]  # type: ignore[misc]
+
+
+def _launch_all(jobs: Sequence[_SweepJob]) -> None:
     live = [j for j in jobs if j.pairs is not None]
     for j, res in zip(live, _intervals_many([j.launch_args() for j in live])):
         j.finish(res)
-    return [j.results for j in jobs]  # type: ignore[misc]
 
 
 class _SweepJob:
     """One `sweep_many` call: approaches and piece pairs on the host at construction (`pairs` None
-    when nothing is left for the device), the intervals from the device, then `finish`."""
+    when nothing is left for the device), the intervals from the device, then `finish`.
 
-    def __init__(self, scene, structure, units, connected, max_penetration_ldu=0.5, directions=None):
+    With `ways` (one direction per unit) the units are swept along those as given, with nothing
+    connected, and `finish` only records each unit's state (`states`): the side sweeps of
+    `sides`, whose verdicts their parent job draws (`after_sides`)."""
+
+    def __init__(self, scene, structure, units, connected, max_penetration_ldu=0.5, directions=None, ways=None):
         self.structure, self.units, self.connected = structure, units, connected
         self.tol = tol = max_penetration_ldu
         self.results: list[SweepResult | None] = [None] * len(units)
         self.pairs = None
+        self.side_of = ways is not None
+        self.pending: list[int] = []  # rows blocked only further out than PRESS_LDU: asked from the side
         if not units:
             return
-        dirs = []
-        found_all = approaches_from([directions[i] if directions is not None else seating_directions(structure, unit)
-                                     for i, unit in enumerate(units)])
-        for i, found in enumerate(found_all):
-            if found.direction is None:
-                COUNTS["not-judged"] += 1
-                self.results[i] = SweepResult(False if found.reason == "clamped" else None, found.reason, (), 0.0, 0.0, 0)
-            else:
-                dirs.append((i, found.direction))
+        if ways is not None:
+            dirs = list(enumerate(ways))
+        else:
+            dirs = []
+            found_all = approaches_from([directions[i] if directions is not None else seating_directions(structure, unit)
+                                         for i, unit in enumerate(units)])
+            for i, found in enumerate(found_all):
+                if found.direction is None:
+                    COUNTS["not-judged"] += 1
+                    self.results[i] = SweepResult(False if found.reason == "clamped" else None, found.reason, (), 0.0,
+                                                  0.0, 0)
+                else:
+                    dirs.append((i, found.direction))
         first = units[0]
         anchor = first[0][1]
         self.rel = rel = [(part, anchor.inverse() @ pose) for part, pose in first]
         self.scene = scene
+        self.idx = np.array([i for i, _ in dirs], np.int64)
+        self.states = np.zeros(len(self.idx), np.int8)  # side sweeps: _CLEAR until finished
         if not dirs:
             return
         self.sset, self.sboxes = sset, sboxes = _structure_set(structure)
         self.uset = uset = _unit_set(rel)
         if tol < uset.inset.max(initial=0.0) + sset.inset.max(initial=0.0):
             # Below both insets the separating-axis minimum is not the distance (module docstring).
-            for i, _ in dirs:
-                COUNTS["cpu"] += 1
-                self.results[i] = self.cpu(i)
+            self.states[:] = _UNDECIDED
+            if not self.side_of:
+                for i, _ in dirs:
+                    COUNTS["cpu"] += 1
+                    self.results[i] = self.cpu(i)
             return
-        self.idx = idx = np.array([i for i, _ in dirs])
+        idx = self.idx
         self.d = d = np.array([v for _, v in dirs])
         self.R = R = np.stack([units[i][0][1].R for i in idx])
         self.t = t = np.stack([units[i][0][1].t for i in idx])
@@ -668,6 +695,38 @@ class _SweepJob:
         sizes = [len(connected[i]) for i in idx]
         conn[np.repeat(np.arange(len(idx)), sizes), np.fromiter((q for i in idx for q in connected[i]), np.int64, sum(sizes))] = True
         self.pairs = _pairs_threaded(uset, sset, sboxes, rel, R, t, d, conn, tol, margin)
+
+    def sides(self) -> _SweepJob | None:
+        """The side sweeps of this job's pending units (`sweep._pressed_last`): each unit backed out
+        `PRESS_LDU` along its axis, studs out of their sockets (nothing connected), swept along the
+        four directions `across` the axis."""
+        if not self.pending:
+            return None
+        units, ways = [], []
+        for row in self.pending:
+            back = PRESS_LDU * self.d[row]
+            moved = [(part, Pose(pose.R, pose.t - back)) for part, pose in self.units[self.idx[row]]]
+            for way in across(self.d[row]):
+                units.append(moved)
+                ways.append(way)
+        return _SweepJob(self.scene, self.structure, units, [set()] * len(units), self.tol, ways=ways)
+
+    def after_sides(self, side: _SweepJob) -> None:
+        """Pending units' verdicts from their side sweeps: buildable when one side is clear; the
+        straight verdict (kept in `results`) when every side is blocked; else swept on the CPU."""
+        states = side.states.reshape(len(self.pending), 4)
+        self.scene = side.scene  # built there if it was needed
+        for row, st in zip(self.pending, states):
+            i = self.idx[row]
+            if (st == _CLEAR).any():
+                COUNTS["device"] += 1
+                self.results[i] = SweepResult(True, None, (), float("nan"), PRESS_LDU, 0)
+            elif (st == _BLOCKED).all():
+                COUNTS["device"] += 1
+            else:
+                COUNTS["referred"] += 1
+                self.results[i] = self.cpu(i)
+        self.pending = []
 
     def cpu(self, i: int) -> SweepResult:
         if self.scene is None:
@@ -722,15 +781,26 @@ class _SweepJob:
             blockers.setdefault(int(a), set()).add(int(b))
         maybe = np.zeros(len(idx), bool)
         maybe[hk[~hdec & plain]] = True
+        maybe_near = np.zeros(len(idx), bool)  # within the stretch pressed along: all a side entry needs
+        maybe_near[hk[~hdec & plain & (hlo < PRESS_LDU)]] = True
         # Blocked within the stretch it is pressed along (`sweep.PRESS_LDU`): no side approach helps.
         pressed = np.zeros(len(idx), bool)
         pressed[dk[dlo < PRESS_LDU]] = True
+        if self.side_of:
+            self.states = np.where(np.isfinite(top), _BLOCKED, np.where(maybe, _UNDECIDED, _CLEAR)).astype(np.int8)
+            return
         for row, i in enumerate(idx):
             if np.isfinite(top[row]) and not pressed[row]:
                 # Blocked only further out: whether the unit comes in from the side instead
-                # (`sweep._pressed_last`) is asked on the CPU.
-                COUNTS["referred"] += 1
-                results[i] = self.cpu(i)
+                # (`sweep._pressed_last`) is asked of the device too (`sides`), unless an undecided
+                # pair may block it, when the CPU sweeps it.
+                if maybe_near[row]:
+                    COUNTS["referred"] += 1
+                    results[i] = self.cpu(i)
+                else:
+                    self.pending.append(row)
+                    results[i] = SweepResult(False, "blocked", tuple(sorted(blockers.get(row, ()))), float("nan"),
+                                             round(float(top[row]), 4), 0)
             elif np.isfinite(top[row]):
                 COUNTS["device"] += 1
                 results[i] = SweepResult(False, "blocked", tuple(sorted(blockers.get(row, ()))), float("nan"),
