@@ -39,17 +39,17 @@ def run_guarded(body: Callable[[], int | None], extra: dict[type[BaseException],
 
 
 # -- flags generated from config dataclasses -------------------------------------------------------
-def add_config_args(ap, cls: type, *, skip=(), flags: dict[str, str] | None = None,
-                    aliases: dict[str, list[str]] | None = None, prefix: str = "") -> None:
+def add_config_args(ap, cls: type, *, skip=(), prefix: str = "") -> None:
     """One flag per field of the config dataclass `cls` (nested configs' fields too, their dests
-    prefixed `field.`): `--field-name` (or `flags[name]`), the field's default, and its docstring
-    with the default as help. `skip` names fields set otherwise; `aliases` adds spellings.
+    prefixed `field.`): `--field-name`, the field's default, and its docstring with the default as
+    help. `skip` names fields (dests) the command sets otherwise.
 
     Field types map to flags as: bool -> `--x/--no-x`; int, float, str (or `X | None`) -> one
     value; tuples -> comma-separated values (the flag may repeat); tuples of (name, weight) pairs
-    -> `name[:weight],...`. A field's `metadata={"choices": ...}` restricts its values.
+    -> `name[:weight],...`. A field's metadata may say more: `choices` (its valid values), `flag`
+    (another name, e.g. `check-backend` where `--backend` would be ambiguous) and `aliases` (more
+    spellings, e.g. `("--candidates",)`).
     """
-    flags, aliases = flags or {}, aliases or {}
     docs, types = field_docs(cls), field_types(cls)
     for f in dataclasses.fields(cls):
         key = prefix + f.name
@@ -57,7 +57,7 @@ def add_config_args(ap, cls: type, *, skip=(), flags: dict[str, str] | None = No
             continue
         sub = nested_config(types[f.name])
         if sub is not None:
-            add_config_args(ap, sub, skip=skip, flags=flags, aliases=aliases, prefix=key + ".")
+            add_config_args(ap, sub, skip=skip, prefix=key + ".")
             continue
         if f.default is not dataclasses.MISSING:
             default = f.default
@@ -65,7 +65,7 @@ def add_config_args(ap, cls: type, *, skip=(), flags: dict[str, str] | None = No
             default = f.default_factory()
         else:
             default = dataclasses.MISSING
-        names = ["--" + flags.get(key, f.name.replace("_", "-")), *aliases.get(key, [])]
+        names = ["--" + f.metadata.get("flag", f.name.replace("_", "-")), *f.metadata.get("aliases", ())]
         kw = _flag(optional_of(types[f.name]), f.metadata.get("choices"))
         kw.setdefault("metavar", None if "choices" in kw or "action" in kw else names[0][2:].upper().replace("-", "_"))
         text = docs.get(f.name, "").replace("%", "%%")
@@ -75,9 +75,10 @@ def add_config_args(ap, cls: type, *, skip=(), flags: dict[str, str] | None = No
             kw["default"] = default
             if isinstance(default, tuple):
                 text += f" (default: {_show(default)})".replace("%", "%%")
-            elif kw.get("action") is not argparse.BooleanOptionalAction:  # (that action says its default itself)
+            else:
                 text += " (default: %(default)r)"  # (argparse fills it in, after any set_defaults)
-        ap.add_argument(*names, dest=key, help=text, **kw)
+        action = ap.add_argument(*names, dest=key, help=text, **kw)
+        action.help = text  # (some Pythons' BooleanOptionalAction appends its default a second time)
 
 
 def config_from_args(cls: type, args: argparse.Namespace, prefix: str = "", **given):

@@ -84,11 +84,12 @@ def _tuples(value):
     return value
 
 
-def config_from_dict(cls: type, data, error: type[Exception] = ConfigError, where: str = ""):
+def config_from_dict(cls: type, data, error: type[Exception] = ConfigError, where: str | None = None):
     """`cls` built from `config_to_dict`'s form. Unknown keys, missing required fields and a
-    non-mapping are refused with `error`, naming the valid keys; lists become tuples and nested
-    configs are built from their dicts (through their own `from_dict` where they have one)."""
-    what = f"{where}{cls.__name__}"
+    non-mapping are refused with `error`, naming the valid keys (and where the mapping sits:
+    `where`, else the class name); lists become tuples and nested configs are built from their
+    dicts (through their own `from_dict` where they have one)."""
+    what = where or cls.__name__
     if not isinstance(data, dict):
         raise error(f"{what}: expected a mapping of settings, got {type(data).__name__}")
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
@@ -105,7 +106,7 @@ def config_from_dict(cls: type, data, error: type[Exception] = ConfigError, wher
         sub = nested_config(types[name])
         if sub is not None and isinstance(value, dict):
             kw[name] = (sub.from_dict(value) if hasattr(sub, "from_dict")
-                        else config_from_dict(sub, value, error, f"{what}.{name}: "))
+                        else config_from_dict(sub, value, error, f"{what}.{name}"))
         else:
             kw[name] = _tuples(value)
     return cls(**kw)

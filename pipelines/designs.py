@@ -57,14 +57,18 @@ def config_from_args(args) -> DatasetConfig:
                      sampler=None, ldraw=config.ldraw)
 
 
-def main(argv: list[str] | None = None) -> int:
+def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m pipelines.designs", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("models", nargs="+", help="LDraw model files")
     add_config_flags(ap, skip=("source", "n_objects", "models", "sampler"))
     add_run_args(ap)
     ap.set_defaults(objects_per_shard=1)
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
     return guarded(lambda: run(config_from_args(args), args))
 
 

@@ -108,7 +108,7 @@ def summarize(records: list[dict], wall: float, config: SamplerConfig, library: 
     }
 
 
-def main(argv: list[str] | None = None) -> int:
+def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m pipelines.sample", description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, required=True, help="number of objects")
     ap.add_argument("--out", required=True, help="output folder")
@@ -122,19 +122,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps-json", action="store_true", help="also list every step in summary.json")
     add_progress_flag(ap)
     # The sampler's settings: the same flags, defaults and check_batch rule as pipelines.synth's.
-    add_config_args(ap, SamplerConfig, skip=("check",), flags={"backend": "check-backend"},
-                    aliases={"candidates_per_step": ["--candidates"]})
+    add_config_args(ap, SamplerConfig, skip=("check",))
     renamed_flag(ap, "--backend", "--check-backend", "backend", choices=BACKENDS)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = parser()
     args = ap.parse_args(argv)
     if args.n < 0 or args.start < 0 or args.workers < 1 or args.batch < 1:
         ap.error("--n and --start must be >= 0, --workers and --batch >= 1")
 
     def body() -> int:
-        config = config_from_args(SamplerConfig, args)
+        config = sampler_config(args)
         _init(config, args.ldraw)  # validates against the library before any work
         return _run(args, config)
 
     return run_guarded(body, {SamplerConfigError: 2})
+
+
+def sampler_config(args) -> SamplerConfig:
+    """The `SamplerConfig` of parsed arguments (a flag per field, as `pipelines.synth` has)."""
+    return config_from_args(SamplerConfig, args)
 
 
 def _run(args, config: SamplerConfig) -> int:

@@ -22,11 +22,6 @@ def _ldraw(arg):
     return os.path.realpath(os.path.expanduser(key)) if key else None
 
 
-FLAGS = {"n_objects": "n", "sampler.backend": "check-backend"}
-"""Flags spelt otherwise than their field: `--n`, and `--check-backend` (the physics checks'
-backend; `--runner` says where shards run)."""
-ALIASES = {"png_compress_level": ["--png-level"], "sampler.candidates_per_step": ["--candidates"]}
-"""Short spellings kept beside the generated ones."""
 NOT_FLAGS = ("source", "models", "physics", "sampler.seed", "sampler.check")
 """`DatasetConfig` fields that `pipelines.synth` sets itself: the sampler's seed is the dataset's
 seed, and the check thresholds are not settings of a build."""
@@ -34,7 +29,7 @@ seed, and the check thresholds are not settings of a build."""
 
 def add_config_flags(ap: argparse.ArgumentParser, skip=NOT_FLAGS) -> None:
     """The flags of `DatasetConfig`'s fields (`factory.cli.add_config_args`), less `skip`."""
-    add_config_args(ap, DatasetConfig, skip=skip, flags=FLAGS, aliases=ALIASES)
+    add_config_args(ap, DatasetConfig, skip=skip)
 
 
 def config_from_args(args) -> DatasetConfig:
@@ -96,12 +91,16 @@ def guarded(body) -> int:
                               ShardInputError: 2, ShardFailedError: 1, OSError: 2})
 
 
-def main(argv: list[str] | None = None) -> int:
+def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m pipelines.synth", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     add_config_flags(ap)
     add_run_args(ap)
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
     return guarded(lambda: run(config_from_args(args), args))
 
 

@@ -98,7 +98,7 @@ class SamplerConfig:
     inside the current hull, one that grows the hull by h is exp(w h / (T H/n)) times less likely,
     H/n being the hull volume per part so far: at the defaults, growing it by one part's share
     makes a candidate e^(1/0.3) ~ 28x less likely."""
-    candidates_per_step: int = 64
+    candidates_per_step: int = field(default=64, metadata={"aliases": ("--candidates",)})
     """Feasible attachments checked per part draw: a random subset (drawn with the object's RNG)
     when there are more; all of them otherwise."""
     check_batch: int | None = None
@@ -111,7 +111,7 @@ class SamplerConfig:
     max_redraws: int = 8
     """Part draws after the first in one step when no candidate of the drawn part survives; then
     the object ends (`end_reason` 'stuck')."""
-    backend: str = field(default="mujoco", metadata={"choices": BACKENDS})
+    backend: str = field(default="mujoco", metadata={"choices": BACKENDS, "flag": "check-backend"})
     """Rollout backend of the physics check: 'mujoco' (CPU) or 'mjx' (batched, GPU)."""
     seed: int = 0
     """Seed of the whole run: object i draws from `np.random.default_rng([seed, i])` only."""

@@ -11,7 +11,7 @@ import hashlib
 import json
 import math
 import re
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 from factory.config import ConfigError, config_from_dict, config_to_dict
 from factory.sampler import SamplerConfig
@@ -37,7 +37,7 @@ class DatasetConfig:
 
     source: str
     """'synthetic' (objects from `factory.sampler`) or 'design' (human LDraw models)."""
-    n_objects: int
+    n_objects: int = field(metadata={"flag": "n"})
     """Objects in the dataset (synthetic: objects 0..n-1 of the sampler; design: one per model)."""
     seed: int = 0
     """Seed of the sampler (object i draws from `default_rng([seed, i])`) and of the split."""
@@ -51,7 +51,7 @@ class DatasetConfig:
     """Objects per shard (a shard is the unit of work and of resume)."""
     train_fraction: float = 0.8
     """Share of objects in the train split, decided per object from (seed, object id)."""
-    png_compress_level: int = 6
+    png_compress_level: int = field(default=6, metadata={"aliases": ("--png-level",)})
     """Deflate level of the PNG images (0-9; `pipelines.dataset.png`)."""
     sampler: SamplerConfig | None = None
     """Synthetic only: how objects are grown (default `SamplerConfig(seed=seed)`; its seed must
@@ -59,7 +59,8 @@ class DatasetConfig:
     models: tuple[dict, ...] = ()
     """Design only: one dict per model, {"object_id", "path", "sha256"}, in object order."""
     ldraw: str | None = None
-    """LDraw library folder (absolute), or None for the embedded library."""
+    """LDraw library folder (absolute), or None for the embedded library (the command lines take
+    $LDRAWDIR when --ldraw is not given)."""
     physics: bool = True
     """Design only: replay each model through the physics checks (`pipelines.verify`) and store
     the verdicts in the rows; without it the rows' physics record says it was not run."""
