@@ -75,7 +75,7 @@ def run(config, args) -> int:
     if synthetic:
         from factory import gpus
 
-        print(f"physics checks: {config.sampler.backend} (--check-backend); renders: {gpus.render_path()}",
+        print(f"physics: {config.sampler.backend} (--check-backend mujoco|mjx); renders: {gpus.render_path()}",
               file=sys.stderr, flush=True)
     summary = build(config, args.out, backend=args.runner, workers=args.workers,
                     progress=not args.no_progress, batch=args.batch, growers=args.growers)

@@ -592,7 +592,7 @@ def test_start_reads_only_the_markers_there(tmp_path, monkeypatch):
 
     build_mod = importlib.import_module("pipelines.dataset.build")  # the package exports a function `build`
 
-    config = _config(n=400_000)  # one object a shard: 400,000 shards
+    config = _config(n_objects=400_000)  # one object a shard: 400,000 shards
     out = tmp_path / "big"
     (out / "meta" / "shards").mkdir(parents=True)
     for k in (3, 7, 400_000):  # the last is past this config's shards
@@ -603,4 +603,4 @@ def test_start_reads_only_the_markers_there(tmp_path, monkeypatch):
     assert build_mod.finished_shards(config, out) == {3} and sorted(calls) == [3, 7]
     assert build_mod.finished_shards(config, tmp_path / "none") == set()
     with pytest.raises(ValueError, match="at most 10,000,000"):
-        _config(n=MAX_OBJECTS + 1)
+        _config(n_objects=MAX_OBJECTS + 1)
