@@ -106,7 +106,7 @@ def _flag(tp, choices) -> dict:
         if typing.get_origin(item) is tuple:  # (name, weight) pairs
             key = typing.get_args(item)[0]
             return {"action": _ListAction, "item": lambda s: _pair(s, key), "metavar": "NAME[:WEIGHT],..."}
-        return {"action": _ListAction, "item": item, "choices_": choices, "metavar": "A,B,..."}
+        return {"action": _ListAction, "item": item, "valid": choices, "metavar": "A,B,..."}
     kw: dict = {"type": tp}
     if choices:
         kw["choices"] = tuple(choices)
@@ -124,8 +124,8 @@ def _pair(text: str, key) -> tuple:
 class _ListAction(argparse.Action):
     """Comma-separated values; a repeated flag adds to the list (the default is replaced, not extended)."""
 
-    def __init__(self, option_strings, dest, item=str, choices_=None, **kw):
-        self.item, self.valid = item, choices_
+    def __init__(self, option_strings, dest, item=str, valid=None, **kw):
+        self.item, self.valid = item, valid
         super().__init__(option_strings, dest, **kw)
 
     def __call__(self, parser, namespace, values, option_string=None):

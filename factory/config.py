@@ -100,10 +100,10 @@ def config_from_dict(cls: type, data, error: type[Exception] = ConfigError, wher
                and f.default_factory is dataclasses.MISSING]
     if missing:
         raise error(f"{what}: missing required key(s) {', '.join(map(repr, missing))}")
-    types = field_types(cls)
+    hints = field_types(cls)
     kw = {}
     for name, value in data.items():
-        sub = nested_config(types[name])
+        sub = nested_config(hints[name])
         if sub is not None and isinstance(value, dict):
             kw[name] = (sub.from_dict(value) if hasattr(sub, "from_dict")
                         else config_from_dict(sub, value, error, f"{what}.{name}"))
