@@ -6,7 +6,8 @@ STAMP := $(VENV)/.installed
 N ?= 8
 SEED ?= 0
 OUT ?= out/synth
-BACKEND ?= local
+RUNNER ?= local
+CHECK_BACKEND ?= mujoco
 WORKERS ?= $(shell nproc 2>/dev/null || echo 2)
 DATA ?= $(OUT)
 OUTDIR ?= checkpoints/run
@@ -26,9 +27,10 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 # The main job: sample N physics-verified objects, render every step, write sharded Parquet to OUT
-# (embedded part library unless LDRAWDIR is set). Re-running resumes; a changed config is refused.
+# (embedded part library unless LDRAWDIR is set). RUNNER=local|ray says where shards run,
+# CHECK_BACKEND=mujoco|mjx how the physics checks run. Re-running resumes; a changed config is refused.
 synth: setup
-	$(PY) -m pipelines.synth --n $(N) --out $(OUT) --seed $(SEED) --backend $(BACKEND) --workers $(WORKERS)
+	$(PY) -m pipelines.synth --n $(N) --out $(OUT) --seed $(SEED) --runner $(RUNNER) --check-backend $(CHECK_BACKEND) --workers $(WORKERS)
 
 # Human-designed models into the same rows (source "design").
 designs: setup

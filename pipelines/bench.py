@@ -135,15 +135,14 @@ def render_section(models: list[tuple[Path, str | None]]) -> dict:
 
 def synth_section(work: Path, quick: bool) -> dict:
     """A small synthetic build: objects of 6-10 bricks so that it runs in about a minute here."""
-    from pipelines.dataset import build
-    from pipelines.synth import config_from_args
+    from factory.sampler import SamplerConfig
+    from pipelines.dataset import DatasetConfig, build
 
     n = 5 if quick else 20
-    ns = argparse.Namespace(n=n, seed=0, min_steps=6, max_steps=10, candidates=None, check_batch=None, parts=None,
-                            check_backend="mujoco", size=256, tile=128, png_level=6, objects_per_shard=1, ldraw=None,
-                            dataset_id="bench-synth")
+    config = DatasetConfig.synthetic(n, seed=0, sampler=SamplerConfig(min_steps=6, max_steps=10), objects_per_shard=1,
+                                     dataset_id="bench-synth")
     out = work / "synth"
-    summary = build(config_from_args(ns), out, workers=min(2, os.cpu_count() or 1), progress=False)
+    summary = build(config, out, workers=min(2, os.cpu_count() or 1), progress=False)
     steps = summary["total"]["steps"]
     built = summary["shards_built"]
     return {
@@ -158,14 +157,13 @@ def synth_section(work: Path, quick: bool) -> dict:
 
 def designs_section(work: Path, models: list[Path], ldraw: str) -> dict:
     from pipelines.dataset import build
-    from pipelines.designs import config_from_args
+    from pipelines.designs import design_config
 
     # No physics replay: the baselines need the targets and images only, and the replay would first
     # decompose every real part with coacd (minutes on a new machine; physics.md, pipelines.verify).
-    ns = argparse.Namespace(models=[str(m) for m in models], seed=0, no_physics=True, ldraw=ldraw,
-                            size=256, tile=128, png_level=6, objects_per_shard=1, dataset_id="bench-designs")
+    config = design_config(models, ldraw, seed=0, physics=False, objects_per_shard=1, dataset_id="bench-designs")
     out = work / "designs"
-    summary = build(config_from_args(ns), out, workers=1, progress=False)
+    summary = build(config, out, workers=1, progress=False)
     return {"out": str(out), "objects": summary["total"]["objects"], "steps": summary["total"]["steps"],
             "wall_s": summary["wall_seconds"], "counts": summary["counts"]}
 

@@ -38,7 +38,7 @@ from factory.physics.statics import _ALONE, LoadBase, judge_many
 from factory.physics.attach import feasible_poses, lowest_y
 from factory.physics.structure import Placed, Structure
 from factory.physics.sweep import _boxes
-from factory.sampler import Sampler, SamplerConfig, default_check_batch
+from factory.sampler import Sampler, SamplerConfig
 
 
 GROWN = Path(__file__).with_name("grown_3001.json")
@@ -457,8 +457,7 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None) ->
     whole growth (the same objects whatever the batch, so rows compare on the same inputs). One
     other object is grown first, untimed (parts loaded, first kernels compiled); the compiles of
     shapes it did not meet fall in the rows. Seconds per check stage from `check.STAGE_SECONDS`."""
-    sampler = Sampler(SamplerConfig(seed=0, min_steps=steps, max_steps=steps, backend=backend,
-                                    check_batch=default_check_batch(backend)), None)
+    sampler = Sampler(SamplerConfig(seed=0, min_steps=steps, max_steps=steps, backend=backend), None)
     list(sampler.grow([objects], batch=1))
     rows = []
     for batch in batches:

@@ -15,7 +15,9 @@ import os
 import re
 import sys
 
-from pipelines.synth import _ldraw, add_run_args, guarded, run
+from factory.cli import config_from_args as config_of
+from pipelines.dataset.config import DatasetConfig
+from pipelines.synth import _ldraw, add_config_flags, add_run_args, guarded, run
 
 
 def object_ids(paths) -> list[str]:
@@ -30,34 +32,43 @@ def object_ids(paths) -> list[str]:
     return out
 
 
-def config_from_args(args):
+def design_config(paths, ldraw: str | None = None, **fields) -> DatasetConfig:
+    """The `DatasetConfig` of the LDraw model files `paths`, one object each (a missing file, a
+    model that places no parts or a part missing from the library raise here); `ldraw` is a
+    library folder or None (the embedded library); `fields` are further `DatasetConfig` fields."""
     from factory import read_steps
-    from pipelines.dataset import DatasetConfig
     from pipelines.dataset.sources import file_sha256
 
-    paths = [os.path.realpath(p) for p in args.models]
+    ldraw = os.path.realpath(os.path.expanduser(ldraw)) if ldraw else None
+    paths = [os.path.realpath(p) for p in paths]
     for p in paths:
         if not os.path.isfile(p):
             raise ValueError(f"no such model file: {p}")
-        if not read_steps(p, _ldraw(args.ldraw)):  # bad files and missing parts fail here, exit 2
+        if not read_steps(p, ldraw):  # bad files and missing parts fail here, exit 2
             raise ValueError(f"{p} places no parts")
     models = [{"object_id": oid, "path": p, "sha256": file_sha256(p)} for oid, p in zip(object_ids(paths), paths)]
-    return DatasetConfig("design", len(models), seed=args.seed, size=args.size, tile=args.tile, png_compress_level=args.png_level,
-                         objects_per_shard=args.objects_per_shard, models=tuple(models),
-                         ldraw=_ldraw(args.ldraw), physics=not args.no_physics,
-                         **({"dataset_id": args.dataset_id} if args.dataset_id else {}))
+    return DatasetConfig("design", len(models), models=tuple(models), ldraw=ldraw, **fields)
 
 
-def main(argv: list[str] | None = None) -> int:
+def config_from_args(args) -> DatasetConfig:
+    """The design `DatasetConfig` of parsed arguments (`--ldraw` defaults to $LDRAWDIR)."""
+    config = design_config(args.models, _ldraw(args.ldraw))
+    return config_of(DatasetConfig, args, source="design", n_objects=config.n_objects, models=config.models,
+                     sampler=None, ldraw=config.ldraw)
+
+
+def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m pipelines.designs", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("models", nargs="+", help="LDraw model files")
-    ap.add_argument("--out", required=True, help="output folder")
-    ap.add_argument("--seed", type=int, default=0, help="seed of the train/test split")
-    ap.add_argument("--no-physics", action="store_true", help="do not replay the physics checks")
+    add_config_flags(ap, skip=("source", "n_objects", "models", "sampler"))
     add_run_args(ap)
     ap.set_defaults(objects_per_shard=1)
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
     return guarded(lambda: run(config_from_args(args), args))
 
 

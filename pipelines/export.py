@@ -1,5 +1,5 @@
 """Export a built dataset for other trainers and benchmarks:
-`python -m pipelines.export OUT --format llamafactory|bcbench DEST`.
+`python -m pipelines.export DATA --format llamafactory|bcbench DEST` (DATA: the dataset folder read).
 
 `llamafactory` writes, under DEST:
 - `images/{object_id}/{step:03d}_{name}.png`: the rows' PNG bytes as they are (each written once,
@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
 
     ap = argparse.ArgumentParser(prog="python -m pipelines.export", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("out", help="a dataset folder written by pipelines.synth or pipelines.designs")
+    ap.add_argument("data", help="the dataset folder to export (written by pipelines.synth or pipelines.designs)")
     ap.add_argument("--format", choices=FORMATS, required=True)
     ap.add_argument("dest", help="output folder")
     ap.add_argument("--splits", default="train,test", help="comma-separated (default train,test)")
@@ -131,8 +131,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     def body() -> int:
-        if not (Path(args.out) / "meta" / "info.json").exists():
-            print(f"error: {args.out} has no meta/info.json (not a finished dataset build)", file=sys.stderr)
+        if not (Path(args.data) / "meta" / "info.json").exists():
+            print(f"error: {args.data} has no meta/info.json (not a finished dataset build)", file=sys.stderr)
             return 2
         splits = [s for s in args.splits.split(",") if s]
         if args.format == "bcbench":
@@ -141,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
                 return 2
             from pipelines.bcbench import write_bcbench
 
-            summary = write_bcbench(args.out, args.dest, splits)
+            summary = write_bcbench(args.data, args.dest, splits)
             print(", ".join(f"{s}: {v['steps']} steps of {v['objects']} objects" for s, v in summary["splits"].items())
                   + f" -> {args.dest}")
             return 0
@@ -150,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
         if bad:
             print(f"error: unknown task {bad[0]!r}; valid: {', '.join(TASKS)}", file=sys.stderr)
             return 2
-        counts = export_llamafactory(args.out, args.dest, splits, tasks)
+        counts = export_llamafactory(args.data, args.dest, splits, tasks)
         print(", ".join(f"{k}: {v}" for k, v in counts.items()) + f" -> {args.dest}")
         return 0
 

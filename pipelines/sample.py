@@ -1,8 +1,8 @@
 """Sample physics-verified objects to LDraw files.
 
-`python -m pipelines.sample --n N --seed S --out DIR [--ldraw DIR] [--backend mujoco|mjx]
+`python -m pipelines.sample --n N --seed S --out DIR [--ldraw DIR] [--check-backend mujoco|mjx]
 [--start I] [--workers W] [--batch B] [--min-steps A --max-steps B --candidates K --check-batch C
---density-weight W --temperature T]`
+--density-weight W --temperature T ...]` (a flag per `SamplerConfig` field, as `pipelines.synth` has)
 
 Writes `DIR/object_00000.ldr ...` (object i of seed S, the same whatever --start, --workers or the
 machine) and `DIR/summary.json`: per object its steps, density, end reason, rejections by rule
@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from factory.cli import run_guarded
+from factory.cli import add_config_args, add_progress_flag, config_from_args, renamed_flag, run_guarded
 from factory.physics.check import BACKENDS
-from factory.sampler import Sampler, SamplerConfig, SamplerConfigError, default_check_batch
+from factory.sampler import Sampler, SamplerConfig, SamplerConfigError
 from factory.atomic import write_atomic
 from pipelines import workers
 
@@ -86,7 +86,9 @@ def summarize(records: list[dict], wall: float, config: SamplerConfig, library: 
         rejected.update(r["rejected"])
     steps = [r["steps"] for r in records]
     return {
-        "config": config.to_json(),
+        # (parts and colours as mappings here, as this file has always had them; the dataset's
+        # meta/config.json keeps `to_dict`'s ordered pairs)
+        "config": {**config.to_dict(), "parts": dict(config.parts), "colours": {str(c): w for c, w in config.colours}},
         "library": library,
         "workers": workers,
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count()},
@@ -106,43 +108,42 @@ def summarize(records: list[dict], wall: float, config: SamplerConfig, library: 
     }
 
 
-def main(argv: list[str] | None = None) -> int:
+def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m pipelines.sample", description=__doc__.split("\n\n")[0])
-    d = SamplerConfig()
     ap.add_argument("--n", type=int, required=True, help="number of objects")
-    ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", required=True, help="output folder")
     ap.add_argument("--ldraw", help="LDraw library folder (default: $LDRAWDIR, else the embedded library)")
-    ap.add_argument("--backend", choices=BACKENDS, default=d.backend)
     ap.add_argument("--start", type=int, default=0, help="index of the first object (default 0)")
     ap.add_argument("--workers", type=int, default=1, help="processes (objects do not depend on it)")
     ap.add_argument("--batch", type=int, default=1,
                     help="objects grown together in lockstep per process, their checks asked in one call "
                          "per step (objects do not depend on it; with mjx the round's collision tests, sweeps and load "
                          "programs go to the device together)")
-    ap.add_argument("--min-steps", type=int, default=d.min_steps)
-    ap.add_argument("--max-steps", type=int, default=d.max_steps)
-    ap.add_argument("--candidates", type=int, default=d.candidates_per_step, help="candidates per step")
-    ap.add_argument("--check-batch", type=int, default=None,
-                    help="candidates per checker call (default 1 with mujoco, --candidates with mjx)")
-    ap.add_argument("--density-weight", type=float, default=d.density_weight, help="0 turns the reward off")
-    ap.add_argument("--temperature", type=float, default=d.temperature)
     ap.add_argument("--steps-json", action="store_true", help="also list every step in summary.json")
+    add_progress_flag(ap)
+    # The sampler's settings: the same flags, defaults and check_batch rule as pipelines.synth's.
+    add_config_args(ap, SamplerConfig, skip=("check",))
+    renamed_flag(ap, "--backend", "--check-backend", "backend", choices=BACKENDS)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = parser()
     args = ap.parse_args(argv)
     if args.n < 0 or args.start < 0 or args.workers < 1 or args.batch < 1:
         ap.error("--n and --start must be >= 0, --workers and --batch >= 1")
-    check_batch = args.check_batch or default_check_batch(args.backend, args.candidates)
 
     def body() -> int:
-        config = SamplerConfig(
-            min_steps=args.min_steps, max_steps=args.max_steps, density_weight=args.density_weight,
-            temperature=args.temperature, candidates_per_step=args.candidates, check_batch=check_batch,
-            backend=args.backend, seed=args.seed,
-        )
+        config = sampler_config(args)
         _init(config, args.ldraw)  # validates against the library before any work
         return _run(args, config)
 
     return run_guarded(body, {SamplerConfigError: 2})
+
+
+def sampler_config(args) -> SamplerConfig:
+    """The `SamplerConfig` of parsed arguments (a flag per field, as `pipelines.synth` has)."""
+    return config_from_args(SamplerConfig, args)
 
 
 def _run(args, config: SamplerConfig) -> int:
@@ -163,7 +164,7 @@ def _run(args, config: SamplerConfig) -> int:
     else:
         results = (x for c in chunks for x in _timed(c, args.batch))
     try:
-        bar = tqdm(results, total=args.n, unit="obj", desc="sampling", dynamic_ncols=True)
+        bar = tqdm(results, total=args.n, unit="obj", desc="sampling", dynamic_ncols=True, disable=args.no_progress)
         for assembly, seconds in bar:
             name = f"object_{assembly.index:05d}.ldr"
             assembly.to_ldr(out / name)

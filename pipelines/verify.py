@@ -1,6 +1,6 @@
 """Replay a human-designed model's build steps through the physics checks.
 
-`python -m pipelines.verify MODEL [--ldraw DIR] [--backend mujoco|mjx] --json`
+`python -m pipelines.verify MODEL [--ldraw DIR] [--check-backend mujoco|mjx] --json`
 
 Each placed part is checked against the parts placed before it in the same sub-assembly (the first
 part of a sub-assembly, or one laid on the table beside it, needs no connection; a part may hang
@@ -21,7 +21,7 @@ from collections import Counter
 import numpy as np
 from dataclasses import dataclass, field
 
-from factory.cli import run_guarded
+from factory.cli import renamed_flag, run_guarded
 from factory.errors import LDrawError, LDrawLimitError
 from factory.ldraw import NO_PARTS, build_steps, get_reader
 from factory.ldraw.model import count_parts
@@ -292,7 +292,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m pipelines.verify", description=__doc__.split("\n\n")[0])
     ap.add_argument("model")
     ap.add_argument("--ldraw", help="LDraw library folder (default: $LDRAWDIR, else the embedded library)")
-    ap.add_argument("--backend", choices=BACKENDS, default="mujoco")
+    ap.add_argument("--check-backend", dest="backend", choices=BACKENDS, default="mujoco",
+                    help="physics checks on the CPU (mujoco, default) or batched in JAX (mjx)")
+    renamed_flag(ap, "--backend", "--check-backend", "backend", choices=BACKENDS)
     ap.add_argument("--json", action="store_true", help="print JSON lines (the only format)")
     ap.add_argument("--faults", action="store_true",
                     help="also inject faults into accepted parts and end with a summary line")

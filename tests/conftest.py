@@ -110,19 +110,16 @@ def _box_text() -> str:
 BOX = _box_text()
 
 
-def tiny_dataset_config(**changes):
+def tiny_dataset_config(n_objects: int = 3, min_steps: int = 2, max_steps: int = 3, **fields):
     """The config of the session's tiny synthetic dataset: 3 sampled objects of 2-3 steps, 128 px
-    views, one object per shard (changes override fields of the command line's namespace)."""
-    import argparse
+    views, one object per shard (`fields` override further `DatasetConfig` fields). The same
+    build as `test_dataset.CLI_ARGS` on the command line."""
+    from factory.sampler import SamplerConfig
+    from pipelines.dataset import DatasetConfig
 
-    from pipelines.synth import config_from_args
-
-    ns = argparse.Namespace(n=3, seed=0, min_steps=2, max_steps=3, candidates=16, check_batch=None, parts=None,
-                            check_backend="mujoco", size=128, tile=64, png_level=6, objects_per_shard=1, ldraw=None,
-                            dataset_id=None)
-    for k, v in changes.items():
-        setattr(ns, k, v)
-    return config_from_args(ns)
+    sampler = SamplerConfig(min_steps=min_steps, max_steps=max_steps, candidates_per_step=16)
+    return DatasetConfig.synthetic(n_objects, seed=0, sampler=sampler,
+                                   **{"size": 128, "tile": 64, "objects_per_shard": 1, **fields})
 
 
 @pytest.fixture(scope="session")

@@ -103,7 +103,7 @@ def test_config_hash_round_trip_and_diff():
     assert again.hash == cfg.hash and again == cfg
     assert _config(size=96).hash != cfg.hash
     # the sampler's part order survives sorted-key JSON (it drives the draws)
-    assert [p for p, _ in again.sampler["parts"]] == [p for p, _ in cfg.sampler["parts"]]
+    assert [p for p, _ in again.sampler.parts] == [p for p, _ in cfg.sampler.parts]
 
 
 def test_features_match_datasets():
@@ -337,7 +337,6 @@ def test_lockstep_build_gives_the_same_bytes_and_keeps_grown_objects(built, tmp_
     give the same files; objects grown before a kill are taken from the spool, not grown again."""
     from factory.sampler import Sampler
     from pipelines.dataset import spool
-    from pipelines.dataset.sources import sampler_config_from_json
 
     out = tmp_path / "lockstep"
     s = build(_config(), out, workers=3, batch=3, growers=2, progress=False)
@@ -347,7 +346,7 @@ def test_lockstep_build_gives_the_same_bytes_and_keeps_grown_objects(built, tmp_
     # A build killed after growing object 1: the resumed one uses it (its seconds show it).
     config = _config()
     again = tmp_path / "resumed"
-    a = Sampler(sampler_config_from_json(config.sampler), config.ldraw).sample(1)
+    a = Sampler(config.sampler, config.ldraw).sample(1)
     spool.put(again, 1, a, 1234.5)
     assert spool.get(again, 1, config.seed)[1] == 1234.5 and spool.get(again, 1, config.seed + 1) is None
     build(config, again, batch=2, progress=False)
@@ -410,10 +409,9 @@ def test_gpu_share_of_a_numbered_worker(monkeypatch):
 def test_largest_shards_are_scheduled_first():
     from factory.sampler.sampler import target_steps
     from pipelines.dataset.build import largest_first
-    from pipelines.dataset.sources import sampler_config_from_json
 
-    config = tiny_dataset_config(n=12, min_steps=2, max_steps=40)
-    cfg = sampler_config_from_json(config.sampler)
+    config = tiny_dataset_config(n_objects=12, min_steps=2, max_steps=40)
+    cfg = config.sampler
     order = largest_first(config, list(range(config.num_shards)))
     assert sorted(order) == list(range(config.num_shards))
     work = [sum(target_steps(cfg, i) ** 2 for i in config.shard_objects(k)) for k in order]
@@ -421,7 +419,7 @@ def test_largest_shards_are_scheduled_first():
 
 
 def test_png_level_reaches_the_config_and_its_hash():
-    six, one = tiny_dataset_config(), tiny_dataset_config(png_level=1)
+    six, one = tiny_dataset_config(), tiny_dataset_config(png_compress_level=1)
     assert (six.png_compress_level, one.png_compress_level) == (6, 1) and six.hash != one.hash
 
 
@@ -594,7 +592,7 @@ def test_start_reads_only_the_markers_there(tmp_path, monkeypatch):
 
     build_mod = importlib.import_module("pipelines.dataset.build")  # the package exports a function `build`
 
-    config = _config(n=400_000)  # one object a shard: 400,000 shards
+    config = _config(n_objects=400_000)  # one object a shard: 400,000 shards
     out = tmp_path / "big"
     (out / "meta" / "shards").mkdir(parents=True)
     for k in (3, 7, 400_000):  # the last is past this config's shards
@@ -605,4 +603,4 @@ def test_start_reads_only_the_markers_there(tmp_path, monkeypatch):
     assert build_mod.finished_shards(config, out) == {3} and sorted(calls) == [3, 7]
     assert build_mod.finished_shards(config, tmp_path / "none") == set()
     with pytest.raises(ValueError, match="at most 10,000,000"):
-        _config(n=MAX_OBJECTS + 1)
+        _config(n_objects=MAX_OBJECTS + 1)

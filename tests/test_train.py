@@ -257,7 +257,7 @@ def test_command_line_trains_evaluates_and_leaves_a_loadable_model(tiny_dataset,
     run = tmp_path / "cli"
     argv = ["--data", str(tiny_dataset), "--outdir", str(run), "--steps", "3", "--batch-size", "2", "--lora", "0",
             "--lr", "1e-3", "--save-every", "2", "--workers", "0", "--eval-limit", "1", "--max-new-tokens", "8",
-            "--quiet"]
+            "--no-progress"]
     assert main(argv) == 0
     for name in ("base/config.json", "checkpoint-000002/model.safetensors", "checkpoint-000003/trainer_state.pt",
                  "final/model.safetensors", "final/train_config.json", "log.jsonl", "loss.png",
@@ -278,5 +278,5 @@ def test_command_line_trains_evaluates_and_leaves_a_loadable_model(tiny_dataset,
     HFPredictor(AutoModelForImageTextToText.from_pretrained(str(run / "final")), load_processor(run / "final"))
     # a changed setting is refused with a clear one-line error, exit status 2
     capsys.readouterr()
-    assert main([*argv[:-1], "--lr", "5e-4", "--quiet"]) == 2
+    assert main([*argv[:-1], "--lr", "5e-4", "--no-progress"]) == 2
     assert "lr: 0.001 -> 0.0005" in capsys.readouterr().err

@@ -9,10 +9,11 @@ what to evaluate afterwards) may change between runs; the rest may not.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from eval.metrics import TASKS
+from factory.config import ConfigError as _ConfigError, config_from_dict, config_to_dict
 
 DTYPES = ("auto", "bf16", "fp32")
 DEVICES = ("auto", "cpu", "cuda")
@@ -27,7 +28,7 @@ RESUME_FREE = ("outdir", "workers", "save_every", "log_every", "keep_checkpoints
 CONFIG_FILE = "train_config.json"
 
 
-class ConfigError(ValueError):
+class ConfigError(_ConfigError):
     """A setting out of range, or a config that cannot resume a checkpoint."""
 
 
@@ -42,7 +43,7 @@ class TrainConfig:
     """The run folder: base model, checkpoints, logs, final model, metrics."""
     model: str | None = None
     """A local model folder to fine-tune; None builds the tiny Qwen2-VL into OUTDIR/base first."""
-    tasks: tuple[str, ...] = TASKS
+    tasks: tuple[str, ...] = field(default=TASKS, metadata={"choices": TASKS})
     """Tasks to train on; each (row, task) is one example. Feedback folders give pose only."""
     steps: int = 200
     """Optimizer steps (each `batch_size * grad_accum` examples)."""
@@ -95,15 +96,15 @@ class TrainConfig:
     """Write a line to log.jsonl every this many steps."""
     seed: int = 0
     """Seed of the model build, LoRA init, data order and dropout."""
-    dtype: str = "auto"
+    dtype: str = field(default="auto", metadata={"choices": DTYPES})
     """Compute precision: auto (bf16 autocast on CUDA, fp32 on CPU), bf16, or fp32."""
-    device: str = "auto"
+    device: str = field(default="auto", metadata={"choices": DEVICES})
     """auto (cuda when available), cpu or cuda."""
     eval: bool = True
     """Predict and score the test split with the base and the trained model after training."""
     eval_limit: int | None = None
     """Steps of the eval split to predict (None: all)."""
-    eval_split: str = "test"
+    eval_split: str = field(default="test", metadata={"choices": SPLITS})
     """Split predicted after training."""
     max_new_tokens: int = 256
     """Generation budget per answer in the evaluation."""
@@ -147,23 +148,16 @@ class TrainConfig:
 
     # -- (de)serialisation --------------------------------------------------------------------------
     def to_dict(self) -> dict:
-        d = asdict(self)
-        for k, v in d.items():
-            if isinstance(v, tuple):
-                d[k] = list(v)
-        return d
+        """Every field as JSON values (`factory.config`)."""
+        return config_to_dict(self)
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=1, sort_keys=True)
 
     @classmethod
     def from_dict(cls, d: dict) -> "TrainConfig":
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ConfigError(f"unknown config field(s) {', '.join(unknown)}; valid: {', '.join(sorted(names))}")
-        d = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
-        return cls(**d)
+        """The inverse of `to_dict`; unknown keys are refused, naming the valid ones."""
+        return config_from_dict(cls, d, ConfigError)
 
     @classmethod
     def from_json(cls, text: str) -> "TrainConfig":

@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Mapping, Sequence, Union
 
+from factory.config import ConfigError, config_from_dict, config_to_dict
 from factory.embedded.catalog import INVERTED_SLOPE, PARTS, SLOPE, TILE
 from factory.physics.check import BACKENDS, CheckConfig
 
@@ -15,7 +16,7 @@ MAX_STEPS = 1000
 instead of growing (and holding its structure's load programs) for hours."""
 
 
-class SamplerConfigError(ValueError):
+class SamplerConfigError(ConfigError):
     """A sampler setting is invalid; the message names the setting and the valid choices."""
 
 
@@ -97,27 +98,31 @@ class SamplerConfig:
     inside the current hull, one that grows the hull by h is exp(w h / (T H/n)) times less likely,
     H/n being the hull volume per part so far: at the defaults, growing it by one part's share
     makes a candidate e^(1/0.3) ~ 28x less likely."""
-    candidates_per_step: int = 64
+    candidates_per_step: int = field(default=64, metadata={"aliases": ("--candidates",)})
     """Feasible attachments checked per part draw: a random subset (drawn with the object's RNG)
     when there are more; all of them otherwise."""
-    check_batch: int = 1
+    check_batch: int | None = None
     """Candidates sent to the checker at once, in decreasing order of softmax key, until a batch
     holds a survivor. Changes only the cost, never the object: the chosen placement, the rejection
-    counts and `checked` stop at the first survivor (see `Sampler`). 1 on the CPU, where every
-    check past the first survivor is wasted (6 objects grew in 28.7 s at 1 against 36.1 s at 8,
-    the same files); large (`default_check_batch`) for the 'mjx' backend on a GPU."""
+    counts and `checked` stop at the first survivor (see `Sampler`). None (the default) takes
+    `default_check_batch(backend, candidates_per_step)`: 1 on the CPU, where every check past the
+    first survivor is wasted (6 objects grew in 28.7 s at 1 against 36.1 s at 8, the same files);
+    every candidate of a draw for the 'mjx' backend on a GPU (one device call)."""
     max_redraws: int = 8
     """Part draws after the first in one step when no candidate of the drawn part survives; then
     the object ends (`end_reason` 'stuck')."""
-    backend: str = "mujoco"
+    backend: str = field(default="mujoco", metadata={"choices": BACKENDS, "flag": "check-backend"})
     """Rollout backend of the physics check: 'mujoco' (CPU) or 'mjx' (batched, GPU)."""
     seed: int = 0
     """Seed of the whole run: object i draws from `np.random.default_rng([seed, i])` only."""
     check: CheckConfig = field(default_factory=CheckConfig)
-    """Thresholds of the physics checks."""
+    """Thresholds of the physics checks (written by `to_dict` only when they differ from the
+    defaults, so the hashes of datasets built before they were recorded stay the same)."""
 
     def __post_init__(self):
         object.__setattr__(self, "parts", _weights("parts", self.parts, part_key))
+        if self.check_batch is None and isinstance(self.candidates_per_step, int):
+            object.__setattr__(self, "check_batch", default_check_batch(self.backend, self.candidates_per_step))
         object.__setattr__(self, "colours", _weights("colours", self.colours, _colour_key))
         for name in ("min_steps", "max_steps", "candidates_per_step", "check_batch", "max_redraws", "seed"):
             v = getattr(self, name)
@@ -146,23 +151,21 @@ class SamplerConfig:
                 f"unknown backend {self.backend!r}; valid choices: {', '.join(BACKENDS)}"
             )
 
-    def to_json(self) -> dict:
-        return {
-            "parts": {k: w for k, w in self.parts},
-            "colours": {str(k): w for k, w in self.colours},
-            "min_steps": self.min_steps,
-            "max_steps": self.max_steps,
-            "density_weight": self.density_weight,
-            "temperature": self.temperature,
-            "candidates_per_step": self.candidates_per_step,
-            "check_batch": self.check_batch,
-            "max_redraws": self.max_redraws,
-            "backend": self.backend,
-            "seed": self.seed,
-        }
+    def to_dict(self) -> dict:
+        """The settings as JSON values (`factory.config`); parts and colours as ordered
+        [name, weight] lists, since their order drives the draws."""
+        out = config_to_dict(self)
+        if self.check == CheckConfig():
+            del out["check"]
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "SamplerConfig":
+        """The inverse of `to_dict`; unknown keys are refused, naming the valid ones."""
+        return config_from_dict(cls, data, SamplerConfigError)
 
 
-def default_check_batch(backend: str, candidates_per_step: int = SamplerConfig.candidates_per_step) -> int:
+def default_check_batch(backend: str, candidates_per_step: int) -> int:
     """`check_batch` for a checker backend: 1 for MuJoCo C on the CPU (no check past the first
     survivor), every candidate of a draw for the batched 'mjx' checks (one device call)."""
     return candidates_per_step if backend == "mjx" else 1

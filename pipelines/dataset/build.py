@@ -300,10 +300,8 @@ def largest_first(config: DatasetConfig, shards: list[int]) -> list[int]:
     if config.source != "synthetic" or sum(len(config.shard_objects(k)) for k in shards) > LARGEST_FIRST_MAX:
         return shards
     from factory.sampler.sampler import target_steps
-    from pipelines.dataset.sources import sampler_config_from_json
 
-    cfg = sampler_config_from_json(config.sampler)
-    work = {k: sum(target_steps(cfg, i) ** 2 for i in config.shard_objects(k)) for k in shards}
+    work = {k: sum(target_steps(config.sampler, i) ** 2 for i in config.shard_objects(k)) for k in shards}
     return sorted(shards, key=lambda k: (-work[k], k))
 
 

@@ -11,7 +11,10 @@ import hashlib
 import json
 import math
 import re
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, replace
+
+from factory.config import ConfigError, config_from_dict, config_to_dict
+from factory.sampler import SamplerConfig
 
 SCHEMA_VERSION = 1
 """Version of the row layout (`schema.py`); part of the config hash."""
@@ -34,7 +37,8 @@ class DatasetConfig:
 
     source: str
     """'synthetic' (objects from `factory.sampler`) or 'design' (human LDraw models)."""
-    n_objects: int
+    n_objects: int = field(metadata={"flag": "n"})
+    """Objects in the dataset (synthetic: objects 0..n-1 of the sampler; design: one per model)."""
     seed: int = 0
     """Seed of the sampler (object i draws from `default_rng([seed, i])`) and of the split."""
     dataset_id: str = ""
@@ -44,57 +48,95 @@ class DatasetConfig:
     tile: int = 128
     """Pixels per catalog tile."""
     objects_per_shard: int = 4
+    """Objects per shard (a shard is the unit of work and of resume)."""
     train_fraction: float = 0.8
     """Share of objects in the train split, decided per object from (seed, object id)."""
-    png_compress_level: int = 6
+    png_compress_level: int = field(default=6, metadata={"aliases": ("--png-level",)})
     """Deflate level of the PNG images (0-9; `pipelines.dataset.png`)."""
-    sampler: dict = field(default_factory=dict)
-    """`SamplerConfig.to_json()` (synthetic only; its seed equals `seed`)."""
-    models: tuple = ()
+    sampler: SamplerConfig | None = None
+    """Synthetic only: how objects are grown (default `SamplerConfig(seed=seed)`; its seed must
+    equal `seed`). None for designs."""
+    models: tuple[dict, ...] = ()
     """Design only: one dict per model, {"object_id", "path", "sha256"}, in object order."""
     ldraw: str | None = None
-    """LDraw library folder (absolute), or None for the embedded library."""
+    """LDraw library folder (absolute), or None for the embedded library (the command lines take
+    $LDRAWDIR when --ldraw is not given)."""
     physics: bool = True
     """Design only: replay each model through the physics checks (`pipelines.verify`) and store
     the verdicts in the rows; without it the rows' physics record says it was not run."""
 
     def __post_init__(self):
         if self.source not in SOURCES:
-            raise ValueError(f"source must be one of {SOURCES}, got {self.source!r}")
+            raise ConfigError(f"source must be one of {', '.join(SOURCES)}, got {self.source!r}")
         if isinstance(self.n_objects, bool) or not isinstance(self.n_objects, int) or self.n_objects < 1:
-            raise ValueError(f"the number of objects must be an integer >= 1, got {self.n_objects!r}")
+            raise ConfigError(f"the number of objects must be an integer >= 1, got {self.n_objects!r}")
         if self.n_objects > MAX_OBJECTS:
-            raise ValueError(f"the number of objects must be at most {MAX_OBJECTS:,}, got {self.n_objects:,} "
-                             "(split a larger dataset into several)")
+            raise ConfigError(f"the number of objects must be at most {MAX_OBJECTS:,}, got {self.n_objects:,} "
+                              "(split a larger dataset into several)")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2 ** 63:
-            raise ValueError(f"seed must be an integer in 0..2**63-1 (stored as int64), got {self.seed!r}")
+            raise ConfigError(f"seed must be an integer in 0..2**63-1 (stored as int64), got {self.seed!r}")
         if not 32 <= self.size <= 2048 or not 32 <= self.tile <= 1024:
-            raise ValueError("size must be in 32..2048 and tile in 32..1024")
+            raise ConfigError("size must be in 32..2048 and tile in 32..1024")
         if not isinstance(self.objects_per_shard, int) or self.objects_per_shard < 1:
-            raise ValueError(f"objects_per_shard must be an integer >= 1, got {self.objects_per_shard!r}")
+            raise ConfigError(f"objects_per_shard must be an integer >= 1, got {self.objects_per_shard!r}")
         if not 0.0 <= self.train_fraction <= 1.0:
-            raise ValueError(f"train_fraction must be in [0, 1], got {self.train_fraction}")
+            raise ConfigError(f"train_fraction must be in [0, 1], got {self.train_fraction}")
         if not 0 <= self.png_compress_level <= 9:
-            raise ValueError(f"png_compress_level must be in 0..9, got {self.png_compress_level}")
+            raise ConfigError(f"png_compress_level must be in 0..9, got {self.png_compress_level}")
         if not self.dataset_id:
             default = "brick-factory-synth" if self.source == "synthetic" else "brick-factory-designs"
             object.__setattr__(self, "dataset_id", default)
         check_name(self.dataset_id, "dataset_id")
         object.__setattr__(self, "models", tuple(dict(m) for m in self.models))
         if self.source == "design" and len(self.models) != self.n_objects:
-            raise ValueError("a design config needs one model entry per object")
+            raise ConfigError("a design config needs one model entry per object")
+        if self.source == "synthetic" and self.sampler is None:
+            object.__setattr__(self, "sampler", SamplerConfig(seed=self.seed))
+        if self.source == "synthetic" and not isinstance(self.sampler, SamplerConfig):
+            raise ConfigError(f"sampler must be a SamplerConfig for a synthetic dataset, got {type(self.sampler).__name__}")
+        if self.source == "synthetic" and self.sampler.seed != self.seed:
+            raise ConfigError(f"sampler.seed ({self.sampler.seed}) must equal seed ({self.seed}): object i of the "
+                              "dataset is object i of the sampler (DatasetConfig.synthetic sets it)")
+        if self.source == "design" and self.sampler is not None:
+            raise ConfigError("a design dataset has no sampler (give sampler=None)")
 
-    # -- identity ---------------------------------------------------------------------------------
+    @classmethod
+    def synthetic(cls, n_objects: int, seed: int = 0, sampler: SamplerConfig | None = None,
+                  **fields) -> "DatasetConfig":
+        """A synthetic dataset of `n_objects` objects grown by `sampler` (default settings when
+        None), its seed set to `seed`; `fields` are further `DatasetConfig` fields."""
+        sampler = replace(sampler or SamplerConfig(), seed=seed)
+        return cls("synthetic", n_objects, seed=seed, sampler=sampler, **fields)
+
+    # -- (de)serialisation and identity -------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """Every field as JSON values (`factory.config`)."""
+        return config_to_dict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "DatasetConfig":
+        """The inverse of `to_dict`; unknown keys are refused, naming the valid ones."""
+        return config_from_dict(cls, data, ConfigError)
+
     def to_json(self) -> dict:
-        out = asdict(self)
-        out["models"] = [dict(m) for m in self.models]
+        """`to_dict()` plus `schema_version`: the record hashed and written to `meta/`. A design's
+        sampler is `{}` there, as in folders written before the field was typed, so their hashes
+        (and resumes) are unchanged."""
+        out = self.to_dict()
+        out["sampler"] = out["sampler"] or {}
         out["schema_version"] = SCHEMA_VERSION
         return json.loads(_canonical(out))
 
     @classmethod
     def from_json(cls, data: dict) -> "DatasetConfig":
-        names = {f.name for f in fields(cls)}
-        return cls(**{k: (tuple(v) if k == "models" else v) for k, v in data.items() if k in names})
+        """The inverse of `to_json` (a record of another schema version is refused)."""
+        data = dict(data)
+        version = data.pop("schema_version", SCHEMA_VERSION)
+        if version != SCHEMA_VERSION:
+            raise ConfigError(f"config of row schema version {version!r}; this code reads version {SCHEMA_VERSION}")
+        if data.get("sampler") == {}:
+            data["sampler"] = None
+        return cls.from_dict(data)
 
     @property
     def hash(self) -> str:

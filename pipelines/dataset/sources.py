@@ -81,31 +81,13 @@ def verdict_json(verdict) -> dict | None:
 
 
 # -- synthetic ---------------------------------------------------------------------------------------
-def sampler_config_json(config) -> dict:
-    """`SamplerConfig.to_json()` with parts and colours as ordered [name, weight] lists (their
-    order drives the sampler's draws, so it must survive sorted-key JSON)."""
-    out = dict(config.to_json())
-    out["parts"] = [[k, float(w)] for k, w in config.parts]
-    out["colours"] = [[int(c), float(w)] for c, w in config.colours]
-    return out
-
-
-def sampler_config_from_json(data: dict):
-    from factory.sampler import SamplerConfig
-
-    kw = dict(data)
-    kw["parts"] = [tuple(p) for p in kw["parts"]]
-    kw["colours"] = [(int(c), w) for c, w in kw["colours"]]
-    return SamplerConfig(**kw)
-
-
 class SyntheticSource:
     """Objects from `factory.sampler.Sampler`: one step per placed part, its sampler verdict."""
 
-    def __init__(self, sampler_json: dict, ldraw: str | None = None):
+    def __init__(self, config, ldraw: str | None = None):
         from factory.sampler import Sampler
 
-        self.sampler = Sampler(sampler_config_from_json(sampler_json), ldraw)
+        self.sampler = Sampler(config, ldraw)
 
     def object(self, index: int, object_id: str, grown=None) -> ObjectSpec:
         """Object `index`, sampled here, or `grown` = (assembly, seconds) when it was grown ahead

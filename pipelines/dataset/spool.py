@@ -21,7 +21,6 @@ from pathlib import Path
 from factory.atomic import write_atomic
 from factory.sampler import Sampler
 from pipelines.dataset.config import DatasetConfig
-from pipelines.dataset.sources import sampler_config_from_json
 
 SPOOL_VERSION = 1
 """Bumped when what is written here changes; an entry of another version is grown again."""
@@ -77,7 +76,7 @@ def grow(config_json: dict, indices: list[int], out, batch: int) -> int:
     or a Ray task). Objects already here are not grown again. Returns how many it grew."""
     config = DatasetConfig.from_json(config_json)
     todo = [i for i in indices if not has(out, i)]
-    sampler = Sampler(sampler_config_from_json(config.sampler), config.ldraw)
+    sampler = Sampler(config.sampler, config.ldraw)
     t0 = time.perf_counter()
     for a in sampler.grow(todo, batch):
         t1 = time.perf_counter()
