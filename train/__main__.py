@@ -5,7 +5,7 @@ with the untrained model on the test split.
         [--steps N] [--batch-size B] [--grad-accum G] [--lr LR] [--warmup W] [--lora 1|0]
         [--save-every K] [--seed S] [--eval-limit N] [--no-eval] [--device auto|cpu|cuda] ...
 
-Without --model the tiny Qwen2-VL is built into RUN/base first. Re-running the same command
+Without --model a tiny model of --base-family (default qwen2-vl) is built into RUN/base first. Re-running the same command
 resumes from the last checkpoint; other settings in an existing RUN are refused. See
 `train.loop` for the folder's contents and `train.config.TrainConfig` for every setting.
 """
@@ -16,7 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from train.config import DEVICES, DTYPES, LORA_TARGETS, SPLITS, ConfigError, TrainConfig
+from train.config import DEVICES, DTYPES, FAMILY_NAMES, LORA_TARGETS, SPLITS, ConfigError, TrainConfig
 
 
 def _bool(v: str) -> bool:
@@ -49,6 +49,8 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--lora", default="auto", help="1: LoRA adapters, 0: full fine-tuning, auto (default): LoRA "
                     "for a --model checkpoint, full fine-tuning for a model built from a config")
     ap.add_argument("--base-size", default=d.base_size, help="model built when no --model is given: tiny or small")
+    ap.add_argument("--base-family", default=d.base_family,
+                    help=f"family of the model built when no --model is given: {', '.join(FAMILY_NAMES)}")
     ap.add_argument("--lora-r", type=int, default=d.lora_r)
     ap.add_argument("--lora-alpha", type=int, default=d.lora_alpha)
     ap.add_argument("--lora-dropout", type=float, default=d.lora_dropout)
@@ -83,7 +85,7 @@ def config_from_args(args) -> TrainConfig:
         model=str(Path(args.model).resolve()) if args.model else None, tasks=args.tasks, steps=args.steps,
         batch_size=args.batch_size, grad_accum=args.grad_accum, lr=args.lr, warmup=args.warmup,
         weight_decay=args.weight_decay, max_grad_norm=args.max_grad_norm, lora=(args.model is not None) if str(args.lora).lower() == "auto" else _bool(str(args.lora)),
-        base_size=args.base_size, lora_r=args.lora_r,
+        base_size=args.base_size, base_family=args.base_family, lora_r=args.lora_r,
         lora_alpha=args.lora_alpha, lora_dropout=args.lora_dropout, lora_targets=args.lora_targets,
         gradient_checkpointing=args.gradient_checkpointing, max_pixels=args.max_pixels,
         max_length=args.max_length, shuffle_window=args.shuffle_window, workers=args.workers,
