@@ -73,6 +73,18 @@ def test_family_names_and_refusals(tiny_dataset):
         TrainConfig(data=(str(tiny_dataset),), outdir="x", base_family="llava")
 
 
+def test_command_line_builds_a_family_folder(folders, tiny_dataset, tmp_path, capsys):
+    from train.tiny import main
+
+    assert main(["--family", "llava", "--data", str(tiny_dataset), "--out", str(tmp_path / "x")]) == 2
+    assert "--family 'llava' is not valid; valid: qwen2-vl, qwen2.5-vl, qwen3-vl, gemma3, internvl3" in \
+        capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+    assert main(["--family", "gemma3", "--data", str(tiny_dataset), "--out", str(tmp_path / "g")]) == 0
+    for file in ("model.safetensors", "tokenizer.json", "chat_template.jinja", "processor_config.json"):
+        assert (tmp_path / "g" / file).read_bytes() == (folders("gemma3") / file).read_bytes(), file
+
+
 @pytest.mark.parametrize("name", FAMILIES)
 def test_folder_loads_through_the_auto_classes(name, folders, texts, tmp_path):
     from transformers import AutoConfig, AutoModelForImageTextToText

@@ -4,7 +4,8 @@ In transformers 5.x the processors of Qwen2-VL, Qwen2.5-VL, Qwen3-VL and InternV
 video processor, and that needs torchvision: on a machine without it (our CPU machines: PyPI's
 torchvision 0.28.0, the release made for torch 2.13.0, installs beside the CPU build of torch but
 fails to import, "operator torchvision::nms does not exist") `AutoProcessor.from_pretrained`
-raises ImportError for every such checkpoint, although we never process video. `load_processor`
+fails for every such checkpoint (ImportError, or a ValueError naming torchvision), although we
+never process video. `load_processor`
 then builds the same processor class without its video part (`image_only_class`: identical text
 and image handling; the image processor falls back to its PIL backend). Where torchvision is
 installed (the GPU machines) it is plain `AutoProcessor.from_pretrained`. Processors without a
@@ -44,7 +45,7 @@ def image_only_class(base):
     # less the video processor
     __init__.__signature__ = sig
     # named like `base`, so `save_pretrained` records the real processor class
-    return type(base.__name__, (base,), {"__init__": __init__, "__module__": __name__, "image_only": True})
+    return type(base.__name__, (base,), {"__init__": __init__, "__module__": __name__})
 
 
 def has_video_processor(cls) -> bool:
@@ -59,7 +60,6 @@ def make_processor(cls, image_processor, tokenizer, chat_template: str, **kwargs
     if has_video_processor(cls):
         try:
             import torchvision  # noqa: F401  (the video processor needs it)
-            from transformers import AutoVideoProcessor  # noqa: F401
         except ImportError:
             cls = image_only_class(cls)
         else:

@@ -38,7 +38,6 @@ QWEN_SPECIAL = (
     "<|vision_start|>", "<|vision_end|>", "<|vision_pad|>", "<|image_pad|>", "<|video_pad|>",
 )
 """Qwen2-VL's special tokens, in its id order (ids 0.. here: the tiny vocabulary has no gap)."""
-SPECIAL_TOKENS = QWEN_SPECIAL
 
 PATCH = 14
 MERGE = 2
