@@ -104,7 +104,9 @@ class HFPredictor:
         side = getattr(tok, "padding_side", "right")
         tok.padding_side = "left"  # new tokens must follow every prompt directly
         try:
-            inputs = self.processor(text=texts, images=images or None, padding=True, return_tensors="pt")
+            # the chat template rendered the special tokens (Gemma's <bos> too): none added again
+            inputs = self.processor(text=texts, images=images or None, padding=True, return_tensors="pt",
+                                    add_special_tokens=False)
         finally:
             tok.padding_side = side
         device = getattr(self.model, "device", None) or next(self.model.parameters()).device

@@ -51,7 +51,7 @@ def _base_cfg(dataset, outdir, **kw):
 def test_tiny_model_loads_back_and_is_deterministic(tiny_dataset, tiny_model, tmp_path):
     from transformers import AutoModelForImageTextToText
 
-    from train.tiny import SPECIAL_TOKENS, build_tiny_model, dataset_texts
+    from train.tiny import QWEN_SPECIAL, build_tiny_model, dataset_texts
 
     again = build_tiny_model(tmp_path / "again", dataset_texts([tiny_dataset]), seed=0)
     for name in ("model.safetensors", "tokenizer.json", "config.json"):
@@ -60,7 +60,7 @@ def test_tiny_model_loads_back_and_is_deterministic(tiny_dataset, tiny_model, tm
     from train.processor import load_processor
 
     tok = load_processor(tiny_model).tokenizer
-    ids = {t: tok.convert_tokens_to_ids(t) for t in SPECIAL_TOKENS}
+    ids = {t: tok.convert_tokens_to_ids(t) for t in QWEN_SPECIAL}
     assert model.config.image_token_id == ids["<|image_pad|>"]
     assert model.config.vision_start_token_id == ids["<|vision_start|>"]
     assert tok.eos_token == END and model.config.text_config.eos_token_id == ids[END]

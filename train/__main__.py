@@ -7,7 +7,7 @@ with the untrained model on the test split.
 
 A flag per `TrainConfig` field, with its default and meaning (`--help`).
 
-Without --model the tiny Qwen2-VL is built into RUN/base first. Re-running the same command
+Without --model a tiny model of --base-family (default qwen2-vl) is built into RUN/base first. Re-running the same command
 resumes from the last checkpoint; other settings in an existing RUN are refused. See
 `train.loop` for the folder's contents and `train.config.TrainConfig` for every setting.
 """

@@ -27,6 +27,10 @@ RESUME_FREE = ("outdir", "workers", "save_every", "log_every", "keep_checkpoints
 
 CONFIG_FILE = "train_config.json"
 
+FAMILY_NAMES = ("qwen2-vl", "qwen2.5-vl", "qwen3-vl", "gemma3", "internvl3")
+"""The model families `train.tiny` builds (`train.tiny.FAMILIES` is keyed by these names; kept here
+so a config is checked without importing transformers)."""
+
 
 class ConfigError(_ConfigError):
     """A setting out of range, or a config that cannot resume a checkpoint."""
@@ -42,7 +46,8 @@ class TrainConfig:
     outdir: str
     """The run folder: base model, checkpoints, logs, final model, metrics."""
     model: str | None = None
-    """A local model folder to fine-tune; None builds the tiny Qwen2-VL into OUTDIR/base first."""
+    """A local model folder to fine-tune (any supported family, see docs/training.md); None builds a
+    tiny model of `base_family` into OUTDIR/base first."""
     tasks: tuple[str, ...] = field(default=TASKS, metadata={"choices": TASKS})
     """Tasks to train on; each (row, task) is one example. Feedback folders give pose only."""
     steps: int = 200
@@ -65,6 +70,9 @@ class TrainConfig:
     built from a config (adapters on random weights learn little)."""
     base_size: str = "tiny"
     """Size of the model built from a config when `model` is None: tiny or small (`train.tiny.SIZES`)."""
+    base_family: str = field(default="qwen2-vl", metadata={"choices": FAMILY_NAMES})
+    """Model family built from a config when `model` is None (`train.tiny.FAMILIES`): qwen2-vl,
+    qwen2.5-vl, qwen3-vl, gemma3 or internvl3."""
     lora_r: int = 16
     """LoRA rank."""
     lora_alpha: int = 32
@@ -115,6 +123,7 @@ class TrainConfig:
                 raise ConfigError(f"{name}={value!r} is not valid; valid: {', '.join(map(str, valid))}")
 
         choice("base_size", self.base_size, ("tiny", "small"))
+        choice("base_family", self.base_family, FAMILY_NAMES)
 
         if not self.data:
             raise ConfigError("data: give at least one dataset folder (--data OUT)")

@@ -9,10 +9,15 @@ so a position (epoch, index) names an example, a resumed run continues at the sa
 without reading what it skips, and its data order is the uninterrupted run's.
 
 Labels: -100 everywhere but the final assistant turn's answer and its end-of-turn token
-(`<|im_end|>` for Qwen). The prompt is rendered with `add_generation_prompt=True` and must be a
-prefix of the full conversation, as text and as tokens; its length plus the image tokens the
-processor inserts is where the answer starts. A multi-turn world-feedback conversation (an earlier
-wrong answer, the feedback, the right answer) is trained on its last answer only.
+(`<|im_end|>` for Qwen and InternVL, `<end_of_turn>` for Gemma 3), for every family's chat
+template. The prompt is rendered with `add_generation_prompt=True` and must be a prefix of the
+full conversation as text; the answer is found after it, so what a template puts between the two
+(Qwen3-VL Thinking's empty `<think>\n\n</think>\n\n`) is context, not trained. The text up to
+the answer must tokenize to a prefix of the conversation's tokens, and the processor's tokens
+(image placeholders expanded, all in the prompt) must end with the tokenizer's tokens from the
+answer on: the answer's position is then exact, whatever the family's image expansion. A
+multi-turn world-feedback conversation (an earlier wrong answer, the feedback, the right answer)
+is trained on its last answer only.
 
 An example longer than `max_length` tokens is skipped and counted, never truncated: a cut answer
 would teach a wrong one, and cut image tokens break the model's image alignment.
@@ -43,7 +48,9 @@ class EncodeError(ValueError):
 
 # -- the answer span ---------------------------------------------------------------------------------
 def _ids(tokenizer, text: str) -> list[int]:
-    return list(tokenizer(text)["input_ids"])
+    # the chat template renders every special token itself (Gemma's <bos> included): adding them
+    # again would double the BOS of tokenizers that add one
+    return list(tokenizer(text, add_special_tokens=False)["input_ids"])
 
 
 def encode(processor, messages: list[dict], images: list, max_length: int | None = None) -> dict | None:
@@ -57,29 +64,30 @@ def encode(processor, messages: list[dict], images: list, max_length: int | None
     if not full.startswith(prompt):
         raise EncodeError("the chat template renders the prompt differently with the answer appended")
     suffix = full[len(prompt):]
-    at = suffix.find(answer)
-    if at < 0:
+    at = suffix.find(answer.strip())  # templates that trim text parts (Gemma) render it stripped
+    if not answer.strip() or at < 0:
         raise EncodeError("the answer text is not in the rendered conversation")
-    tail = suffix[at + len(answer):]  # the end of the turn, e.g. "<|im_end|>\n"
+    begin = len(prompt) + at  # what the template puts between the prompt and the answer (Qwen3-VL's
+    # empty think block) is context, like the prompt
+    tail = suffix[at + len(answer.strip()):]  # the end of the turn, e.g. "<|im_end|>\n"
     end_marker = tail.strip()  # trained on (the model must learn to stop); trailing whitespace not
-    cut = len(prompt) + at + len(answer) + (tail.index(end_marker) + len(end_marker) if end_marker else 0)
-    target_text = full[:cut]
+    cut = begin + len(answer.strip()) + (tail.index(end_marker) + len(end_marker) if end_marker else 0)
     tok = processor.tokenizer
-    p_ids, t_ids, f_ids = _ids(tok, prompt), _ids(tok, target_text), _ids(tok, full)
-    if t_ids[:len(p_ids)] != p_ids or f_ids[:len(t_ids)] != t_ids:
-        raise EncodeError("the prompt's tokens are not a prefix of the conversation's tokens")
-    enc = processor(text=[full], images=list(images) or None, return_tensors="pt")
+    b_ids, t_ids, f_ids = _ids(tok, full[:begin]), _ids(tok, full[:cut]), _ids(tok, full)
+    if t_ids[:len(b_ids)] != b_ids or f_ids[:len(t_ids)] != t_ids:
+        raise EncodeError("the tokens before the answer are not a prefix of the conversation's tokens")
+    enc = processor(text=[full], images=list(images) or None, return_tensors="pt", add_special_tokens=False)
     ids = enc["input_ids"][0]
-    image_id = getattr(processor, "image_token_id", None)
-    extra = 0
-    if image_id is not None and images:
-        extra = int((ids == image_id).sum()) - sum(1 for t in f_ids if t == image_id)
-    if len(ids) != len(f_ids) + extra:
-        raise EncodeError("the processor's tokens do not match the tokenizer's plus the image tokens")
+    # the processor expands each image placeholder (into image tokens, and for Gemma and InternVL
+    # begin/end markers too); images are in the prompt, so the answer and what follows it are the
+    # tokenizer's tokens, shifted by the expansion
+    extra = len(ids) - len(f_ids)
+    if extra < 0 or ids[len(b_ids) + extra:].tolist() != f_ids[len(b_ids):]:
+        raise EncodeError("the processor's tokens do not end with the tokenizer's tokens of the answer")
     if max_length is not None and len(ids) > max_length:
         return None
     labels = torch.full_like(ids, IGNORE)
-    start, stop = len(p_ids) + extra, len(t_ids) + extra
+    start, stop = len(b_ids) + extra, len(t_ids) + extra
     labels[start:stop] = ids[start:stop]
     out = {k: (v[0] if v.dim() > 1 and v.shape[0] == 1 and v.shape[-1] == len(ids) else v)
            for k, v in enc.items() if isinstance(v, torch.Tensor)}

@@ -6,8 +6,8 @@ checkpoints that resume to the same trajectory, per-step logs.
 1. `RUN/train_config.json` is compared with `config`: a run folder made under other settings is
    refused (`ConfigError`, listing the differences), except for the settings in
    `config.RESUME_FREE`;
-2. the base model is `config.model`, or the tiny Qwen2-VL built into `RUN/base/` from the train
-   split's texts (kept, so the untrained model can be evaluated as `hf:RUN/base`);
+2. the base model is `config.model`, or a tiny model of `config.base_family` built into
+   `RUN/base/` from the train split's texts (kept, so the untrained model can be evaluated as `hf:RUN/base`);
 3. with a checkpoint in the folder, weights, optimizer, scheduler, RNG and the data position are
    restored and training continues at the saved step: the examples, dropout masks and updates are
    those the uninterrupted run would have had;
@@ -93,16 +93,16 @@ def base_model_path(config: TrainConfig, progress: bool = False) -> Path:
 
         if not (Path(config.model) / "config.json").is_file():
             raise ModelError(f"{config.model}: not a model folder (no config.json); give a local folder saved "
-                             "with save_pretrained, or leave out --model for the tiny Qwen2-VL")
+                             "with save_pretrained, or leave out --model for a tiny model built from a config")
         return Path(config.model)
     base = Path(config.outdir) / BASE
     if not (base / "config.json").is_file():
         from train.tiny import build_tiny_model, dataset_texts
 
         if progress:
-            print(f"building the tiny Qwen2-VL base model into {base}", flush=True)
+            print(f"building the {config.base_size} {config.base_family} base model into {base}", flush=True)
         build_tiny_model(base, dataset_texts(config.data), seed=config.seed, max_pixels=config.max_pixels,
-                         size=config.base_size)
+                         size=config.base_size, family_name=config.base_family)
     return base
 
 

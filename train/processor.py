@@ -1,16 +1,21 @@
 """A checkpoint's processor, loaded and saved with or without torchvision.
 
-In transformers 5.x a Qwen2-VL processor always carries a video processor, and that needs
-torchvision: on a machine without it (our CPU machines: torchvision's PyPI wheels are CUDA builds
-that do not load on the CPU build of torch) `AutoProcessor.from_pretrained` raises ImportError for
-every Qwen2-VL checkpoint, although we never process video. `load_processor` then builds the same
-processor without its video part (`ImageOnlyQwen2VLProcessor`: identical text and image handling,
-images through the PIL backend of `Qwen2VLImageProcessor`). Where torchvision is installed (the GPU
-machines) it is plain `AutoProcessor.from_pretrained`.
+In transformers 5.x the processors of Qwen2-VL, Qwen2.5-VL, Qwen3-VL and InternVL always carry a
+video processor, and that needs torchvision: on a machine without it (our CPU machines: PyPI's
+torchvision 0.28.0, the release made for torch 2.13.0, installs beside the CPU build of torch but
+fails to import, "operator torchvision::nms does not exist") `AutoProcessor.from_pretrained`
+fails for every such checkpoint (ImportError, or a ValueError naming torchvision), although we
+never process video. `load_processor`
+then builds the same processor class without its video part (`image_only_class`: identical text
+and image handling; the image processor falls back to its PIL backend). Where torchvision is
+installed (the GPU machines) it is plain `AutoProcessor.from_pretrained`. Processors without a
+video part (Gemma 3) load the plain way everywhere.
 
-`save_processor` writes the layout of the Qwen2-VL hub repositories (tokenizer files,
-`chat_template.jinja`, `preprocessor_config.json` naming `Qwen2VLProcessor`) for the image-only
-processor, so a folder saved on either kind of machine loads on both.
+`save_processor` is the processor's own `save_pretrained` plus the image processor's
+`preprocessor_config.json`, as the hub repositories have it (the image-only class is named like
+its full class, so the folder declares the real `processor_class`). A folder saved without
+torchvision has no video processor config; `load_processor` loads it image-only on either kind
+of machine.
 """
 
 from __future__ import annotations
@@ -18,41 +23,63 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-PROCESSOR_CLASS = "Qwen2VLProcessor"
+
+def image_only_class(base):
+    """A subclass of the processor class `base` without the video processor (see the module docstring)."""
+    import inspect
+
+    full = inspect.signature(base.__init__)
+    sig = full.replace(parameters=[p for n, p in full.parameters.items() if n != "video_processor"])
+
+    # Named parameters, not *args: ProcessorMixin.from_pretrained passes the saved settings that
+    # `__init__`'s code names (image_seq_length is InternVL's; the other families have none).
+    def __init__(self, image_processor=None, tokenizer=None, chat_template=None, image_seq_length=None, **kwargs):
+        kwargs.pop("video_processor", None)  # a saved full processor's config may name its own
+        if image_seq_length is not None:
+            kwargs["image_seq_length"] = image_seq_length
+        # `base.__init__` hands (image, tokenizer, video) on to ProcessorMixin, which pairs them with
+        # this class's attributes (image, tokenizer): the video slot is dropped.
+        base.__init__(self, image_processor, tokenizer, None, chat_template=chat_template, **kwargs)
+
+    # ProcessorMixin reads the attributes and the settings to save off the signature: `base`'s
+    # less the video processor
+    __init__.__signature__ = sig
+    # named like `base`, so `save_pretrained` records the real processor class
+    return type(base.__name__, (base,), {"__init__": __init__, "__module__": __name__})
 
 
-def _image_only_class():
-    from transformers import Qwen2VLProcessor
+def has_video_processor(cls) -> bool:
+    import inspect
 
-    class ImageOnlyQwen2VLProcessor(Qwen2VLProcessor):
-        """`Qwen2VLProcessor` less the video processor (which needs torchvision)."""
-
-        def __init__(self, image_processor=None, tokenizer=None, chat_template=None, **kwargs):
-            # Qwen2VLProcessor.__init__ passes (image, tokenizer, video) on to ProcessorMixin, which
-            # pairs them with this signature's attributes (image, tokenizer): the video slot is dropped.
-            super().__init__(image_processor, tokenizer, None, chat_template=chat_template, **kwargs)
-
-    return ImageOnlyQwen2VLProcessor
+    return "video_processor" in inspect.signature(cls.__init__).parameters
 
 
-def image_only_processor(image_processor, tokenizer, chat_template: str | None = None):
-    """A Qwen2-VL processor from its parts, without a video processor."""
-    return _image_only_class()(image_processor=image_processor, tokenizer=tokenizer,
-                               chat_template=chat_template or tokenizer.chat_template)
+def make_processor(cls, image_processor, tokenizer, chat_template: str, **kwargs):
+    """`cls(image_processor, tokenizer, video_processor)` where torchvision is there, else the
+    image-only `cls` (for a class without a video processor: `cls(image_processor, tokenizer)`)."""
+    if has_video_processor(cls):
+        try:
+            import torchvision  # noqa: F401  (the video processor needs it)
+        except ImportError:
+            cls = image_only_class(cls)
+        else:
+            video = _video_processor_for(cls)
+            return cls(image_processor=image_processor, tokenizer=tokenizer, video_processor=video,
+                       chat_template=chat_template, **kwargs)
+    return cls(image_processor=image_processor, tokenizer=tokenizer, chat_template=chat_template, **kwargs)
 
 
-def make_qwen2vl_processor(image_processor, tokenizer, chat_template: str):
-    """`Qwen2VLProcessor(image_processor, tokenizer)` where torchvision is there, else the image-only one."""
-    try:
-        import torchvision  # noqa: F401  (the video processor needs it)
-        from transformers import Qwen2VLProcessor, Qwen2VLVideoProcessor
-    except ImportError:
-        return image_only_processor(image_processor, tokenizer, chat_template)
-    return Qwen2VLProcessor(image_processor=image_processor, tokenizer=tokenizer,
-                            video_processor=Qwen2VLVideoProcessor(), chat_template=chat_template)
+def _video_processor_for(cls):
+    """The default video processor of the processor class `cls` (only where torchvision imports)."""
+    import transformers
+
+    name = {"Qwen2VLProcessor": "Qwen2VLVideoProcessor", "Qwen2_5_VLProcessor": "Qwen2VLVideoProcessor",
+            "Qwen3VLProcessor": "Qwen3VLVideoProcessor", "InternVLProcessor": "InternVLVideoProcessor"}[cls.__name__]
+    return getattr(transformers, name)()
 
 
-def _declared_class(path: Path) -> str | None:
+def declared_class(path: Path) -> str | None:
+    """The `processor_class` a model folder's processor or tokenizer config names."""
     for name in ("processor_config.json", "preprocessor_config.json", "tokenizer_config.json"):
         f = path / name
         if f.is_file():
@@ -64,29 +91,34 @@ def _declared_class(path: Path) -> str | None:
 
 def load_processor(path, max_pixels: int | None = None):
     """The processor of a checkpoint folder (see the module docstring); `max_pixels` caps each
-    image's pixels (and so its image tokens) when given."""
+    image's pixels (and so its image tokens) where the image processor resizes by pixel count."""
+    import transformers
     from transformers import AutoProcessor
 
     path = Path(path)
     try:
         processor = AutoProcessor.from_pretrained(str(path))
-    except ImportError as exc:
-        if "torchvision" not in str(exc).lower() or _declared_class(path) != PROCESSOR_CLASS:
+    except (ImportError, ValueError, OSError) as exc:
+        # ImportError or ValueError naming torchvision: the video processor needs it; OSError: a
+        # folder saved without torchvision has no video processor config
+        name = declared_class(path)
+        base = getattr(transformers, name, None) if name else None
+        if base is None or not has_video_processor(base):
             raise
-        from transformers import AutoImageProcessor, AutoTokenizer
-
-        tokenizer = AutoTokenizer.from_pretrained(str(path))
-        template = path / "chat_template.jinja"
-        chat = template.read_text() if template.is_file() else None
-        processor = image_only_processor(AutoImageProcessor.from_pretrained(str(path)), tokenizer, chat)
+        if not isinstance(exc, OSError) and "torchvision" not in str(exc).lower():
+            raise
+        if isinstance(exc, OSError) and (path / "video_preprocessor_config.json").is_file():
+            raise
+        processor = image_only_class(base).from_pretrained(str(path))
     if max_pixels:
         set_max_pixels(processor, int(max_pixels))
     return processor
 
 
 def set_max_pixels(processor, max_pixels: int) -> None:
-    """Cap the pixels of each image (Qwen2-VL image processors: `size["longest_edge"]`, a dict or
-    a `SizeDict` dataclass depending on the transformers version)."""
+    """Cap the pixels of each image (Qwen-VL image processors: `size["longest_edge"]`, a dict or
+    a `SizeDict` dataclass depending on the transformers version). Image processors that resize
+    to a fixed size (Gemma 3, InternVL) have no such cap and are left as they are."""
     import dataclasses
 
     ip = processor.image_processor
@@ -106,20 +138,7 @@ def save_processor(processor, path) -> None:
     torchvision is installed, by `AutoProcessor.from_pretrained`)."""
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
-    if type(processor).__name__ != "ImageOnlyQwen2VLProcessor":
-        processor.save_pretrained(str(path))
-        return
-    tok = processor.tokenizer
-    if processor.chat_template and not tok.chat_template:
-        tok.chat_template = processor.chat_template
-    tok.save_pretrained(str(path))
+    processor.save_pretrained(str(path))
+    # the image processor's own file too, as the hub repositories have it (older loaders and
+    # `AutoImageProcessor` read it there)
     processor.image_processor.save_pretrained(str(path))
-    for name, key in (("preprocessor_config.json", "image_processor_type"), ("tokenizer_config.json", None)):
-        f = path / name
-        cfg = json.loads(f.read_text())
-        cfg["processor_class"] = PROCESSOR_CLASS
-        if key:
-            cfg[key] = "Qwen2VLImageProcessor"
-        f.write_text(json.dumps(cfg, indent=2, sort_keys=True) + "\n")
-    if processor.chat_template and not (path / "chat_template.jinja").is_file():
-        (path / "chat_template.jinja").write_text(processor.chat_template)
