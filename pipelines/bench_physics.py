@@ -240,27 +240,43 @@ def _ctx_run(span: tuple[int, int]) -> list:
     return [sweep(_CTX["scene"], _CTX["s"], w, c).buildable for w, c, _ in _CTX["cases"][a:b]]
 
 
+def _batched_answers(a: int, b: int) -> list:
+    """The batched path's answers for candidates a..b-1 of this process's inputs (`_ctx_init`), as
+    the reference's `_ctx_run` gives them."""
+    from factory.physics.sweep_jax import sweep_many
+
+    kind, s = _CTX["kind"], _CTX["s"]
+    if kind == "whole":
+        got = check(s, load_part(get_reader(), "3001"), _CTX["poses"][a:b], backend="mjx", floor_y=24.0, explain=False)
+        return [(v.ok, v.reason) for v in got]
+    if kind == "loads":
+        return [(v.stands, v.reason) for v in load_stage(s, _CTX["poses"][a:b], True, conns=_CTX["conns"][a:b])]
+    cases = _CTX["cases"][a:b]
+    got = sweep_many(_CTX["scene"], s, [c[0] for c in cases], [c[1] for c in cases], directions=[c[2] for c in cases])
+    return [r.buildable for r in got]
+
+
 def _shared_run(span: tuple[int, int], barrier) -> tuple[float, float, list]:
-    """One process's share of a batched whole check (`batched_processes`): its slice checked once
-    (compiles its shapes, untimed), then again once every process is ready; (start, end, answers)."""
+    """One process's share of a batch on the batched path (`batched_processes`): its slice judged
+    once (compiles its shapes, untimed), then again once every process is ready; (start, end,
+    answers)."""
     a, b = span
-    brick = load_part(get_reader(), "3001")
-    poses = _CTX["poses"][a:b]
-    check(_CTX["s"], brick, poses, backend="mjx", floor_y=24.0, explain=False)
+    _batched_answers(a, b)
     gc.collect()
     gc.freeze()
     _ALONE.clear()  # the warm-up's clutch answers: the timed call finds its own
     barrier.wait()
     t = time.time()
-    got = check(_CTX["s"], brick, poses, backend="mjx", floor_y=24.0, explain=False)
-    return t, time.time(), [(v.ok, v.reason) for v in got]
+    got = _batched_answers(a, b)
+    return t, time.time(), got
 
 
-def batched_processes(n: int, batch: int, procs: int) -> tuple[list, float]:
-    """(answers, seconds): the batch's whole checks on the batched path in `procs` processes that
-    share the default JAX device, each on a contiguous slice (so one process's host work overlaps
-    another's device work, as the factory's workers do); seconds from the first start to the last
-    end, every process compiled and waiting at a barrier before the clock starts."""
+def batched_processes(kind: str, n: int, batch: int, procs: int) -> tuple[list, float]:
+    """(answers, seconds): the batch on the batched path ('whole', 'loads' or 'sweep') in `procs`
+    processes that share the default JAX device, each on a contiguous slice, so that one
+    process's host work overlaps another's device work, as the factory's workers do. Seconds from
+    the first start to the last end, every process compiled and waiting at a barrier before the
+    clock starts."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
@@ -268,7 +284,7 @@ def batched_processes(n: int, batch: int, procs: int) -> tuple[list, float]:
     step = -(-batch // procs)
     spans = [(a, min(a + step, batch)) for a in range(0, batch, step)]
     with spawn.Manager() as manager, ProcessPoolExecutor(
-            len(spans), mp_context=spawn, initializer=_ctx_init, initargs=("whole", n, batch)) as pool:
+            len(spans), mp_context=spawn, initializer=_ctx_init, initargs=(kind, n, batch)) as pool:
         barrier = manager.Barrier(len(spans))  # every task waits for all: one task per process
         done = list(pool.map(_shared_run, spans, [barrier] * len(spans)))
     return [x for *_, got in done for x in got], max(d[1] for d in done) - min(d[0] for d in done)
@@ -310,11 +326,12 @@ def _with_reference(row: dict, kind: str, n: int, batch: int, cpu_max: int, cpu_
 
 
 def measure_lp(sizes, batches, log=None, cpu_max: int = 128, cpu_workers: int = 1,
-               config: CheckConfig = CheckConfig(), batched: bool = True) -> list[dict]:
+               config: CheckConfig = CheckConfig(), batched: bool = True, procs: int = 1) -> list[dict]:
     """Load checks per second from the candidates' connections (`load_stage`; the sweep is timed
     from them too): the batched path (default JAX device) on each batch, the CPU reference (HiGHS)
     on its first `cpu_max` candidates in `cpu_workers` processes; verdicts compared on those.
-    `batched=False`: the reference alone."""
+    `batched=False`: the reference alone. `procs` > 1: the batched path in that many processes
+    sharing the device (`batched_processes`), with the default config."""
     from factory.physics import lp_jax
 
     rows = []
@@ -324,6 +341,16 @@ def measure_lp(sizes, batches, log=None, cpu_max: int = 128, cpu_workers: int = 
         for batch in batches:
             poses = candidates(s, batch)
             row = {"bricks": n, "batch": batch}
+            if batched and procs > 1:
+                answers, jax_s = batched_processes("loads", n, batch, procs)
+                row.update(procs=procs, jax_per_s=round(batch / jax_s, 1),
+                           overloaded=sum(r == "overload" for _, r in answers))
+                if cpu_max:
+                    _with_reference(row, "loads", n, batch, cpu_max, cpu_workers, (jax_s, answers))
+                rows.append(row)
+                if log is not None:
+                    log(row)
+                continue
             if batched:
                 conns = [_unit_connections(s, [(brick, p)]) for p in poses]
                 compiles = len(lp_jax.COMPILES)
@@ -367,7 +394,7 @@ def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int
             row = {"bricks": n, "batch": batch}
             got = answers = gpu_s = None
             if batched and procs > 1:
-                answers, gpu_s = batched_processes(n, batch, procs)
+                answers, gpu_s = batched_processes("whole", n, batch, procs)
                 row.update(procs=procs, gpu_per_s=round(batch / gpu_s, 1), accepted=sum(ok for ok, _ in answers),
                            reasons=dict(Counter(r for _, r in answers if r)))
             elif batched:
@@ -399,13 +426,14 @@ def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int
 
 
 def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), cpu_max: int = 512, log=None,
-                  cpu_workers: int = 1, batched: bool = True) -> list[dict]:
+                  cpu_workers: int = 1, batched: bool = True, procs: int = 1) -> list[dict]:
     """Sweep candidates per second, the batched path (`sweep_jax`, default JAX device) and the CPU
     reference (`sweep.sweep`, in `cpu_workers` processes), on the same candidates: `sweep_pool`,
     drawn with replacement to fill each batch. The reference runs on the first `cpu_max` of them
     (its cost is per candidate), where the verdicts are compared too. Both are timed from the
     connections found (as `check_units` has them), the reference from its own `approach`.
-    `batched=False`: the reference alone."""
+    `batched=False`: the reference alone. `procs` > 1: the batched path in that many processes
+    sharing the device (`batched_processes`)."""
     from factory.physics.collide import CollisionScene
     from factory.physics.sweep_jax import COMPILES, COUNTS, sweep_many
 
@@ -422,6 +450,16 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
                 ref, cpu_s = cpu_reference("sweep", n, batch, min(cpu_max, batch), cpu_workers)
                 row = {"bricks": n, "batch": batch, "distinct_candidates": len(pool), "cpu_workers": cpu_workers,
                        "cpu_per_s": round(len(ref) / cpu_s, 1), "cpu_compared": len(ref)}
+                rows.append(row)
+                if log is not None:
+                    log(row)
+                continue
+            if procs > 1:
+                answers, jax_s = batched_processes("sweep", n, batch, procs)
+                row = {"bricks": n, "batch": batch, "distinct_candidates": len(pool), "procs": procs,
+                       "jax_per_s": round(batch / jax_s, 1), "blocked": sum(a is False for a in answers)}
+                if cpu_max:
+                    _with_reference(row, "sweep", n, batch, cpu_max, cpu_workers, (jax_s, answers))
                 rows.append(row)
                 if log is not None:
                     log(row)
@@ -495,8 +533,8 @@ def main(argv=None) -> int:
                     help="lockstep growth: --objects objects of --steps parts each grown --batches at a time "
                          "with the first of --backends, steps per second per batch (same objects in every row)")
     ap.add_argument("--procs", type=int, default=1,
-                    help="with --whole: processes that share the device on the batched path, each checking a "
-                         "contiguous slice of the batch (default 1)")
+                    help="with --sweep, --lp or --whole: processes that share the device on the batched path, each "
+                         "judging a contiguous slice of the batch (default 1)")
     ap.add_argument("--steps", type=int, default=30, help="with --growth: parts per object (default 30)")
     ap.add_argument("--objects", type=int, default=64, help="with --growth: objects grown (default 64)")
     args = ap.parse_args(argv)
@@ -506,13 +544,13 @@ def main(argv=None) -> int:
         rows = measure_growth(args.backends.split(",")[0], batches, args.steps, args.objects, log=log)
     elif args.sweep:
         rows = measure_sweep(sizes, batches, 512 if args.cpu_max is None else args.cpu_max, log=log,
-                             cpu_workers=args.cpu_workers, batched=not args.reference_only)
+                             cpu_workers=args.cpu_workers, batched=not args.reference_only, procs=args.procs)
     elif args.whole:
         rows = measure_whole(sizes, batches, log=log, cpu_max=256 if args.cpu_max is None else args.cpu_max,
                              cpu_workers=args.cpu_workers, batched=not args.reference_only, procs=args.procs)
     elif args.lp:
         rows = measure_lp(sizes, batches, log=log, cpu_max=128 if args.cpu_max is None else args.cpu_max,
-                          cpu_workers=args.cpu_workers, batched=not args.reference_only)
+                          cpu_workers=args.cpu_workers, batched=not args.reference_only, procs=args.procs)
     else:
         rows = measure(args.backends.split(","), sizes, batches, log=log, full_max=args.full_max)
     if args.out:
