@@ -25,6 +25,7 @@ from eval.chat import clean_messages, columns_for, task_chat
 from eval.data import TARGET_COLUMNS, step_target
 from eval.metrics import evaluate_brick
 from eval.parse import parse_pose
+from factory.dataset.prompts import feedback_turn, text_part
 
 FEEDBACK_MODE = "paper"
 """The mode whose step failure triggers feedback."""
@@ -101,8 +102,6 @@ def feedback_render(row: dict, predicted_text, before: list[dict], reader, size:
 def revision_messages(row: dict, predicted_text: str, errors: list[dict]) -> list[dict]:
     """The row's pose prompt (Parquet message format), the wrong answer and the feedback turn that
     asks for a revision: what a model is asked at evaluation, and a correction row's prompt."""
-    from pipelines.dataset.prompts import feedback_turn, text_part
-
     prompt = list(row["pose_messages"])
     if prompt and prompt[-1]["role"] == "assistant":
         prompt = prompt[:-1]

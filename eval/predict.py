@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from eval import baselines
-from eval.chat import TASKS, columns_for, task_chat
+from eval.chat import columns_for, task_chat
 from eval.data import (
     SPLITS,
     TARGET_COLUMNS,
@@ -58,6 +58,7 @@ from eval.feedback import Feedback, assembly_rows, before_rows, feedback_columns
 from eval.metrics import StepTarget
 from factory.atomic import umask
 from factory.cli import run_guarded
+from factory.dataset.tasks import TASKS
 
 BASELINES = ("baseline:random", "baseline:oracle", "baseline:heuristic")
 MODEL_CHOICES = (*BASELINES, "hf:PATH")
@@ -175,7 +176,7 @@ def iter_predictions(data, predictor: Predictor, split: str | None = "test", tas
         columns += feedback_columns()
         from factory.ldraw import get_reader
 
-        config = info(data)["config"]
+        config = info(data).config
         reader, size = get_reader(config.get("ldraw")), int(config["size"])
     columns = list(dict.fromkeys(columns))
     n_rows = count_rows(data, split)

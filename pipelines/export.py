@@ -23,7 +23,8 @@ import json
 import sys
 from pathlib import Path
 
-from eval.metrics import TASKS
+from factory.dataset.info import read_info
+from factory.dataset.tasks import TASKS
 from pipelines.dataset.config import check_name
 
 FORMATS = ("llamafactory", "bcbench")
@@ -56,8 +57,7 @@ def export_llamafactory(out, dest, splits=("train", "test"), tasks=TASKS) -> dic
     import pyarrow.parquet as pq
 
     out, dest = Path(out), Path(dest)
-    info = json.loads((out / "meta" / "info.json").read_text())
-    did = check_name(info.get("dataset_id"), "dataset_id", f"{out / 'meta' / 'info.json'}: ")
+    did = check_name(read_info(out).dataset_id, "dataset_id", f"{out / 'meta' / 'info.json'}: ")
     dest.mkdir(parents=True, exist_ok=True)
     counts: dict[str, int] = {}
     registry = {}

@@ -78,7 +78,7 @@ def make_processor(tokenizer, min_pixels: int = MIN_PIXELS, max_pixels: int = MA
     """A `Qwen2VLProcessor` around a `tokenizers.Tokenizer` trained by `train_tokenizer`."""
     from transformers import PreTrainedTokenizerFast, Qwen2VLImageProcessor
 
-    from train.processor import make_qwen2vl_processor
+    from eval.processor import make_qwen2vl_processor
 
     fast = PreTrainedTokenizerFast(
         tokenizer_object=tokenizer, bos_token=None, eos_token="<|im_end|>", pad_token="<|endoftext|>",
@@ -137,7 +137,7 @@ def build_tiny_model(out_dir, texts: Iterable[str], vocab_size: int = 1024, seed
     import torch
     from transformers import GenerationConfig, Qwen2VLForConditionalGeneration
 
-    from train.processor import save_processor
+    from eval.processor import save_processor
 
     out = Path(out_dir)
     tok = train_tokenizer(texts, vocab_size)

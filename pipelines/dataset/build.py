@@ -17,9 +17,9 @@ from importlib import metadata
 from pathlib import Path
 
 from factory.atomic import write_atomic
+from factory.dataset.info import Counts, DatasetInfo, write_info
 from factory.errors import LDrawError
 from pipelines.dataset.config import (
-    SCHEMA_VERSION,
     SPLITS,
     ConfigMismatchError,
     DatasetConfig,
@@ -422,22 +422,22 @@ def finalize(config: DatasetConfig, out) -> dict:
             stages[k] = stages.get(k, 0.0) + v
         objects += m["objects"]
     total = {k: sum(counts[s][k] for s in SPLITS) for k in ("objects", "steps", "bytes")}
-    info = {
-        "schema_version": SCHEMA_VERSION,
-        "dataset_id": config.dataset_id,
-        "source": config.source,
-        "seed": config.seed,
-        "config_hash": config.hash,
-        "config": config.to_json(),
-        "counts": counts,
-        "total": total,
-        "num_shards": config.num_shards,
-        "statistics": {g: dict(sorted(c.items())) for g, c in sorted(stats.items())},
-        "package_versions": _versions(),
-        "splits_present": [s for s in SPLITS if counts[s]["steps"] > 0],
-    }
+    typed = DatasetInfo(
+        dataset_id=config.dataset_id,
+        source=config.source,
+        config=config.to_json(),
+        counts={s: Counts(**c) for s, c in counts.items()},
+        total=Counts(**total),
+        splits_present=tuple(s for s in SPLITS if counts[s]["steps"] > 0),
+        seed=config.seed,
+        config_hash=config.hash,
+        num_shards=config.num_shards,
+        statistics={g: dict(sorted(c.items())) for g, c in sorted(stats.items())},
+        package_versions=_versions(),
+    )
+    write_info(out, typed)
+    info = typed.to_dict()
     meta = out / "meta"
-    write_atomic(meta / "info.json", json_bytes(info))
     write_atomic(meta / "objects.jsonl",
                  "".join(json.dumps(o, sort_keys=True) + "\n" for o in objects).encode())
     write_gallery(config, out, info)

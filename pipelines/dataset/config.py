@@ -13,11 +13,9 @@ import math
 import re
 from dataclasses import asdict, dataclass, field, fields
 
-SCHEMA_VERSION = 1
-"""Version of the row layout (`schema.py`); part of the config hash."""
+from factory.dataset import SCHEMA_VERSION, SPLITS, json_bytes  # noqa: F401 - the row contract, re-exported
 
 SOURCES = ("synthetic", "design")
-SPLITS = ("train", "test")
 
 
 class ConfigMismatchError(RuntimeError):
@@ -184,7 +182,3 @@ def diff_configs(old: dict, new: dict, prefix: str = "") -> list[str]:
             out.append(f"{prefix}{k}: {sa} -> {sb}")
     return out
 
-
-def json_bytes(obj) -> bytes:
-    """Deterministic, readable JSON (sorted keys, 1-space indent, trailing newline)."""
-    return (json.dumps(obj, sort_keys=True, indent=1, ensure_ascii=False, allow_nan=False) + "\n").encode()
