@@ -50,11 +50,16 @@ def shard_files(out, split: str | None = None) -> list[Path]:
 
 def iter_rows(out, split: str | None = None, columns=None) -> Iterator[dict]:
     """Rows as dicts, one row group (one object) in memory at a time."""
-    cols = list(columns) if columns is not None else None
     for f in shard_files(out, split):
-        pf = pq.ParquetFile(f)
-        for g in range(pf.num_row_groups):
-            yield from pf.read_row_group(g, columns=cols).to_pylist()
+        yield from iter_file(f, columns)
+
+
+def iter_file(path, columns=None) -> Iterator[dict]:
+    """The rows of one shard file (`shard_files`), one row group at a time."""
+    cols = list(columns) if columns is not None else None
+    pf = pq.ParquetFile(path)
+    for g in range(pf.num_row_groups):
+        yield from pf.read_row_group(g, columns=cols).to_pylist()
 
 
 def iter_objects(rows) -> Iterator[list[dict]]:

@@ -26,6 +26,8 @@ from eval.data import TARGET_COLUMNS, step_target
 from eval.metrics import evaluate_brick
 from eval.parse import parse_pose
 from factory.dataset.prompts import feedback_turn, text_part
+from factory.ldraw import PlacedPart
+from factory.pose import Pose
 
 FEEDBACK_MODE = "paper"
 """The mode whose step failure triggers feedback."""
@@ -61,9 +63,6 @@ def before_rows(object_rows: list[dict], row: dict) -> list[dict]:
 
 def placed_parts(rows: list[dict]) -> list:
     """The bricks of `rows` as `PlacedPart`s (poses in the assembly's frame)."""
-    from factory.ldraw import PlacedPart
-    from factory.pose import Pose
-
     return [PlacedPart(b["part"], int(b["colour"]), Pose(np.asarray(b["R"], float), np.asarray(b["T"], float)),
                        r["step_id"]) for r in rows for b in r["bricks"]]
 
@@ -86,8 +85,8 @@ def feedback_render(row: dict, predicted_text, before: list[dict], reader, size:
                     scene: list[dict] | None = None):
     """The answer's bricks in red on the before-assembly (`render_feedback`), framed on the bounds
     of `scene` rows (default: before and this row), as the dataset framed the row's own views."""
-    from factory.ldraw import PlacedPart
-    from factory.pose import Pose
+    # Importing factory.render picks and loads a GL backend (an error where there is none): only
+    # this render needs it, so scoring and text-only prediction run on machines without GL.
     from factory.render import bounds_of, render_feedback
 
     blocks = parse_pose(predicted_text)

@@ -8,17 +8,24 @@ gallery from the completion markers and the data files.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
+import resource
+import socket
 import sys
 import time
+from concurrent.futures import as_completed
 from contextlib import ExitStack, contextmanager
 from importlib import metadata
 from pathlib import Path
 
+from tqdm import tqdm
+
 from factory.atomic import write_atomic
 from factory.dataset.info import Counts, DatasetInfo, write_info
 from factory.errors import LDrawError
+from factory.sampler.sampler import target_steps
 from pipelines.dataset.config import (
     SPLITS,
     ConfigMismatchError,
@@ -27,7 +34,10 @@ from pipelines.dataset.config import (
     json_bytes,
 )
 from pipelines.dataset import spool
+from pipelines.dataset.card import dataset_card
+from pipelines.dataset.gallery import write_gallery
 from pipelines.dataset.shards import build_shard, marker_path, object_source, read_marker, remove_stranded
+from pipelines.dataset.sources import sampler_config_from_json
 from pipelines.workers import ONE_THREAD, one_thread_each
 from pipelines.workers import pool as workers_pool
 
@@ -56,9 +66,6 @@ def holding(out):
     holder (pid, host, start). A second run on the folder is refused (`FolderBusyError`) instead of
     deleting the first's temporary files; the lock ends with the holding process however it ends,
     and the file is removed when the build ends, so a finished folder holds no trace of it."""
-    import fcntl
-    import socket
-
     path = Path(out) / "meta" / "build.lock"
     path.parent.mkdir(parents=True, exist_ok=True)
     while True:
@@ -141,8 +148,6 @@ def _run_local(config, todo, out, workers, bar):
             except Exception as exc:  # noqa: BLE001 - reported with the shard number
                 errors.append((k, exc))
         return errors
-    from concurrent.futures import as_completed
-
     with workers_pool(workers) as pool:
         futures = {pool.submit(build_shard, config.to_json(), k, str(out)): k for k in todo}
         for fut in as_completed(futures):
@@ -160,7 +165,7 @@ def _ray_tasks(workers: int):
     """`build_shard` as a Ray task, on the running Ray, else on a local instance (`workers` CPUs) or
     the cluster at `$RAY_ADDRESS` (then `out` must be a folder every node sees, e.g. a shared
     filesystem); a Ray started here is shut down after."""
-    import ray
+    import ray  # the optional `ray` extra, loaded only for --backend ray
 
     started = False
     if not ray.is_initialized():
@@ -299,9 +304,6 @@ def largest_first(config: DatasetConfig, shards: list[int]) -> list[int]:
     short ones and the workers end together; other sources in order. The data do not depend on it."""
     if config.source != "synthetic" or sum(len(config.shard_objects(k)) for k in shards) > LARGEST_FIRST_MAX:
         return shards
-    from factory.sampler.sampler import target_steps
-    from pipelines.dataset.sources import sampler_config_from_json
-
     cfg = sampler_config_from_json(config.sampler)
     work = {k: sum(target_steps(cfg, i) ** 2 for i in config.shard_objects(k)) for k in shards}
     return sorted(shards, key=lambda k: (-work[k], k))
@@ -338,8 +340,6 @@ def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, 
 
 
 def _build(config, out, backend, workers, progress, desc, batch, growers, t0) -> dict:
-    from tqdm import tqdm
-
     out = prepare(config, out)
     remove_stranded(out)
     done = finished_shards(config, out)
@@ -377,8 +377,6 @@ def _build(config, out, backend, workers, progress, desc, batch, growers, t0) ->
 def _peak_rss_mb() -> dict:
     """Peak resident memory of this process and of its largest finished worker process (MB; Linux
     reports KB). Ray workers are not children of this process and are not counted."""
-    import resource
-
     own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     child = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     return {"main": round(own, 1), "largest_worker": round(child, 1)}
@@ -398,9 +396,6 @@ def _versions() -> dict:
 
 def finalize(config: DatasetConfig, out) -> dict:
     """`meta/info.json`, `meta/objects.jsonl`, `README.md` and `gallery/` from the markers."""
-    from pipelines.dataset.card import dataset_card
-    from pipelines.dataset.gallery import write_gallery
-
     out = Path(out)
     markers = [read_marker(out, k, config) for k in range(config.num_shards)]
     if any(m is None for m in markers):
