@@ -233,7 +233,7 @@ def test_feedback_rows_train_the_revision(tiny_dataset, tmp_path, processor):
     src_rows = [r for r in iter_rows(tiny_dataset, "train") if r["object_id"] == row["object_id"]]
     src = next(r for r in src_rows if r["step_id"] == row["step_id"])
     predicted = row["pose_messages"][2]["content"][0]["text"]
-    fb = feedback_example(src, predicted, before_rows(src_rows, src), get_reader(None), int(meta["config"]["size"]),
+    fb = feedback_example(src, predicted, before_rows(src_rows, src), get_reader(None), int(meta.config["size"]),
                           scene=assembly_rows(src_rows, src))
     assert clean_messages(row["pose_messages"][:-1]) == fb.messages
 

@@ -23,16 +23,11 @@ from pathlib import Path
 from tqdm import tqdm
 
 from factory.atomic import write_atomic
-from factory.dataset.info import Counts, DatasetInfo, write_info
+from factory.dataset.info import Counts, DatasetInfo, json_bytes, write_info
+from factory.dataset.tasks import SPLITS
 from factory.errors import LDrawError
 from factory.sampler.sampler import target_steps
-from pipelines.dataset.config import (
-    SPLITS,
-    ConfigMismatchError,
-    DatasetConfig,
-    diff_configs,
-    json_bytes,
-)
+from pipelines.dataset.config import ConfigMismatchError, DatasetConfig, diff_configs
 from pipelines.dataset import spool
 from pipelines.dataset.card import dataset_card
 from pipelines.dataset.gallery import write_gallery

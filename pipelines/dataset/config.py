@@ -13,7 +13,7 @@ import math
 import re
 from dataclasses import asdict, dataclass, field, fields
 
-from factory.dataset import SCHEMA_VERSION, SPLITS, json_bytes  # noqa: F401 - the row contract, re-exported
+from factory.dataset.schema import SCHEMA_VERSION
 
 SOURCES = ("synthetic", "design")
 
