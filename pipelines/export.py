@@ -61,12 +61,13 @@ def export_llamafactory(out, dest, splits=("train", "test"), tasks=TASKS) -> dic
     atomically: images through `write_atomic`, the record files to a temporary name renamed when
     complete, `dataset_info.json` last."""
     out, dest = Path(out), Path(dest)
-    did = check_name(read_info(out).dataset_id, "dataset_id", f"{out / 'meta' / 'info.json'}: ")
+    meta = read_info(out)
+    did = check_name(meta.dataset_id, "dataset_id", f"{out / 'meta' / 'info.json'}: ")
     dest.mkdir(parents=True, exist_ok=True)
     counts: dict[str, int] = {}
     registry = {}
     for split in splits:
-        files = shard_files(out, split)
+        files = shard_files(out, split) if split in meta.splits_present else []  # no rows: empty files
         names = {t: f"{did}_{t}_{split}" for t in tasks}
         finals = {t: dest / f"{names[t]}.json" for t in tasks}
         tmps = {t: p.with_name(f".{p.name}.{os.getpid()}.tmp") for t, p in finals.items()}
