@@ -873,7 +873,7 @@ def _catalog(step: Step, picks) -> list[dict]:
 
 
 def step_row(step: Step, geometry: _Geometry, dataset_id: str, num_steps: int, level: int = 6) -> dict:
-    """One imported step as a row of `pipelines.dataset.schema.FIELDS`."""
+    """One imported step as a row of `factory.dataset.schema.FIELDS`."""
     ext = (step.task or {}).get(EXTENSION) or {}
     n = len(step.bricks)
     gt = str((step.task or {}).get("ground_truth") or "")
@@ -943,7 +943,7 @@ def import_bcbench(src, out, ldraw=None, dataset_id: str = "bcbench", default_sp
                    objects_per_shard: int = 8, png_level: int = 6) -> dict:
     """Turn the BC-Bench layout under `src` (`read_bcbench`) into our dataset format in `out`
     (absent or empty): `data/{split}-NNNNN-of-NNNNN.parquet` (one row group per object, the row
-    schema of `pipelines.dataset.schema`) and `meta/info.json`. `ldraw`: an LDraw library folder,
+    schema of `factory.dataset.schema`) and `meta/info.json`. `ldraw`: an LDraw library folder,
     or "embedded" (our default library), for the parts' symmetry, sizes and colour names; None:
     no symmetry. Written to a temporary folder renamed to `out` at the end. Returns the summary
     (also in info.json under `bcbench_import`)."""
