@@ -1,10 +1,7 @@
 """Reference answers: the oracle, chance, and a simple non-learned heuristic, in the answer formats.
 
-The formatters are the single writer of both answer formats: the oracle uses them, and the
-dataset builder reuses them for the training answers, so what we train on is exactly what
-`eval.parse` reads back (round-trip tested). Numbers are rounded to 6 decimals (1e-6 LDU and
-1e-6 in a matrix entry are far below every threshold) and printed shortest, with ``.0`` on whole
-numbers as in the brief's example; -0.0 prints as 0.0.
+The answers are written by the dataset contract's formatters (`factory.dataset.answers`), the
+one writer of both formats, which the dataset builder also uses for the training answers.
 
 Baselines give a scale to read model numbers against:
 
@@ -29,7 +26,7 @@ from collections import Counter
 import numpy as np
 
 from eval.metrics import StepTarget, match_cells
-from eval.parse import normalise_part
+from factory.dataset.answers import format_pose, format_selection
 from factory.symmetry import axis_rotations
 
 BRICK_HEIGHT_LDU = 24.0
@@ -37,34 +34,6 @@ GRID_LDU = 20
 RANDOM_RANGE_LDU = 200
 EMPTY_LABEL = "unknown.dat"
 """The part label of a picked cell the baselines do not know the part of (never a target's name)."""
-
-
-def _num(v: float, decimals: int = 6) -> str:
-    r = round(float(v), decimals) + 0.0  # + 0.0 turns -0.0 into 0.0
-    return repr(r)
-
-
-def format_selection(selections) -> str:
-    """Lines ``3023.dat, row 6, col 3`` from `Selection`s or (part, row, col) tuples."""
-    lines = []
-    for s in selections:
-        part, row, col = (s.part, s.row, s.col) if hasattr(s, "row") else s
-        lines.append(f"{normalise_part(str(part))}, row {int(row)}, col {int(col)}")
-    return "\n".join(lines)
-
-
-def format_pose(poses, decimals: int = 6) -> str:
-    """``Brick N:`` blocks from (t, R) pairs or objects with ``.t`` and ``.R`` (Pose, PoseAnswer)."""
-    blocks = []
-    for n, p in enumerate(poses, start=1):
-        t, r = (p.t, p.R) if hasattr(p, "R") else p
-        t = np.asarray(t, dtype=np.float64).reshape(3)
-        r = np.asarray(r, dtype=np.float64).reshape(3, 3)
-        lines = [f"Brick {n}:", "Translation:", ", ".join(f"{a}={_num(v, decimals)}" for a, v in zip("xyz", t))]
-        lines.append("Rotation:")
-        lines += ["[" + ", ".join(_num(v, decimals) for v in row) + "]" for row in r]
-        blocks.append("\n".join(lines))
-    return "\n\n".join(blocks)
 
 
 def oracle(step: StepTarget) -> dict[str, str]:

@@ -11,12 +11,7 @@ import io
 
 from PIL import Image
 
-from eval.metrics import TASKS
-
-
-def _check_task(task: str) -> None:
-    if task not in TASKS:
-        raise ValueError(f"unknown task {task!r}; valid: {', '.join(TASKS)}")
+from factory.dataset.tasks import check_task, image_columns
 
 
 def clean_messages(messages) -> list[dict]:
@@ -42,13 +37,6 @@ def decode_image(value) -> Image.Image:
         return im.convert("RGB")
 
 
-def image_columns(task: str) -> tuple[str, ...]:
-    from pipelines.dataset.prompts import POSE_IMAGES, SELECTION_IMAGES
-
-    _check_task(task)
-    return SELECTION_IMAGES if task == "selection" else POSE_IMAGES
-
-
 def columns_for(task: str) -> list[str]:
     """The Parquet columns `task_chat` reads for `task`."""
     return ["step_id", f"{task}_messages", f"{task}_images", f"{task}_answer", *image_columns(task)]
@@ -57,7 +45,7 @@ def columns_for(task: str) -> list[str]:
 def task_chat(row: dict, task: str, with_answer: bool = False) -> tuple[list[dict], list[Image.Image], str]:
     """(messages, images, answer) of `task` in `row`; the assistant turn is kept only when
     `with_answer` (training), so a predictor's prompt ends where the model must answer."""
-    _check_task(task)
+    check_task(task)
     messages = clean_messages(row[f"{task}_messages"])
     if not with_answer and messages and messages[-1]["role"] == "assistant":
         messages = messages[:-1]

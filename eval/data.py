@@ -1,13 +1,11 @@
 """Reading a dataset folder (`make synth` / `pipelines.designs` output) for scoring, prediction and
-training: rows streamed shard by shard and row group by row group (never the whole dataset in
-memory), and rows turned into the scorer's `StepTarget`s.
-
-Every reader of our Parquet outside the builder goes through here, so a layout change is made once.
+training: its `meta/info.json` (`factory.dataset.DatasetInfo`), its shard files, rows streamed shard
+by shard and row group by row group (never the whole dataset in memory), and rows turned into the
+scorer's `StepTarget`s.
 """
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -15,9 +13,9 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from eval.metrics import BrickTarget, StepTarget
+from factory.dataset.info import DatasetInfo, InfoError, read_info
+from factory.dataset.tasks import SPLITS
 from factory.symmetry import Symmetry
-
-SPLITS = ("train", "test")
 
 TARGET_COLUMNS = ("step_id", "object_id", "step_index", "num_steps", "split", "source", "assembly",
                   "step_kind", "bricks", "catalog_parts")
@@ -28,13 +26,15 @@ class DatasetError(ValueError):
     """A folder that is not a dataset, or a split that is not in it."""
 
 
-def info(out) -> dict:
-    """`OUT/meta/info.json`, with a clear error when the folder is not a dataset."""
-    path = Path(out) / "meta" / "info.json"
-    if not path.is_file():
+def info(out) -> DatasetInfo:
+    """`OUT/meta/info.json`, checked and typed, with a clear error when the folder is not a dataset."""
+    if not (Path(out) / "meta" / "info.json").is_file():
         raise DatasetError(f"{out}: not a dataset folder (no meta/info.json); make one with `make synth` "
                            f"or `python -m pipelines.designs`")
-    return json.loads(path.read_text())
+    try:
+        return read_info(out)
+    except InfoError as exc:
+        raise DatasetError(str(exc)) from None
 
 
 def shard_files(out, split: str | None = None) -> list[Path]:
@@ -50,11 +50,16 @@ def shard_files(out, split: str | None = None) -> list[Path]:
 
 def iter_rows(out, split: str | None = None, columns=None) -> Iterator[dict]:
     """Rows as dicts, one row group (one object) in memory at a time."""
-    cols = list(columns) if columns is not None else None
     for f in shard_files(out, split):
-        pf = pq.ParquetFile(f)
-        for g in range(pf.num_row_groups):
-            yield from pf.read_row_group(g, columns=cols).to_pylist()
+        yield from iter_file(f, columns)
+
+
+def iter_file(path, columns=None) -> Iterator[dict]:
+    """The rows of one shard file (`shard_files`), one row group at a time."""
+    cols = list(columns) if columns is not None else None
+    pf = pq.ParquetFile(path)
+    for g in range(pf.num_row_groups):
+        yield from pf.read_row_group(g, columns=cols).to_pylist()
 
 
 def iter_objects(rows) -> Iterator[list[dict]]:

@@ -25,6 +25,9 @@ from eval.chat import clean_messages, columns_for, task_chat
 from eval.data import TARGET_COLUMNS, step_target
 from eval.metrics import evaluate_brick
 from eval.parse import parse_pose
+from factory.dataset.prompts import feedback_turn, text_part
+from factory.ldraw import PlacedPart
+from factory.pose import Pose
 
 FEEDBACK_MODE = "paper"
 """The mode whose step failure triggers feedback."""
@@ -60,9 +63,6 @@ def before_rows(object_rows: list[dict], row: dict) -> list[dict]:
 
 def placed_parts(rows: list[dict]) -> list:
     """The bricks of `rows` as `PlacedPart`s (poses in the assembly's frame)."""
-    from factory.ldraw import PlacedPart
-    from factory.pose import Pose
-
     return [PlacedPart(b["part"], int(b["colour"]), Pose(np.asarray(b["R"], float), np.asarray(b["T"], float)),
                        r["step_id"]) for r in rows for b in r["bricks"]]
 
@@ -85,8 +85,8 @@ def feedback_render(row: dict, predicted_text, before: list[dict], reader, size:
                     scene: list[dict] | None = None):
     """The answer's bricks in red on the before-assembly (`render_feedback`), framed on the bounds
     of `scene` rows (default: before and this row), as the dataset framed the row's own views."""
-    from factory.ldraw import PlacedPart
-    from factory.pose import Pose
+    # Importing factory.render picks and loads a GL backend (an error where there is none): only
+    # this render needs it, so scoring and text-only prediction run on machines without GL.
     from factory.render import bounds_of, render_feedback
 
     blocks = parse_pose(predicted_text)
@@ -101,8 +101,6 @@ def feedback_render(row: dict, predicted_text, before: list[dict], reader, size:
 def revision_messages(row: dict, predicted_text: str, errors: list[dict]) -> list[dict]:
     """The row's pose prompt (Parquet message format), the wrong answer and the feedback turn that
     asks for a revision: what a model is asked at evaluation, and a correction row's prompt."""
-    from pipelines.dataset.prompts import feedback_turn, text_part
-
     prompt = list(row["pose_messages"])
     if prompt and prompt[-1]["role"] == "assistant":
         prompt = prompt[:-1]

@@ -8,13 +8,17 @@ model already in memory (the trainer's evaluation during training).
 
 Decoding is greedy (no sampling, one beam), so the same model gives the same text for the same
 prompt: evaluation files are reproducible. Only the new tokens are decoded, special tokens skipped.
-torch and transformers are imported here only, so the baselines run without them.
+torch and transformers are imported inside the functions that need them (optional heavy
+dependencies, the `train` extra), so the baselines run without them. The processor is loaded through
+`eval.processor.load_processor`, which also loads Qwen2-VL processors without torchvision.
 """
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
+
+from eval.processor import load_processor
 
 
 class CheckpointError(ValueError):
@@ -32,19 +36,6 @@ def _torch_dtype(dtype, device: str):
             raise CheckpointError(f"unknown dtype {dtype!r} (e.g. bfloat16, float16, float32)")
         return value
     return dtype
-
-
-def load_processor(path):
-    """`AutoProcessor.from_pretrained(path)`, through `train.processor.load_processor` where the
-    trainer is installed: it also loads Qwen2-VL processors on machines without torchvision (which
-    transformers 5 requires for their video part, although we never process video)."""
-    try:
-        from train.processor import load_processor as train_load_processor
-    except ImportError:
-        from transformers import AutoProcessor
-
-        return AutoProcessor.from_pretrained(str(path))
-    return train_load_processor(path)
 
 
 def _has_processor(path: Path) -> bool:

@@ -64,7 +64,6 @@ from factory.pose import nearest_rotation_matrix
 from factory.symmetry import Symmetry
 
 MODES = ("strict", "paper")
-TASKS = ("selection", "pose")
 PROJECTION_TOL = 1e-3
 """Max entry difference between a parsed matrix and its nearest rotation before it counts as projected."""
 _EPS = 1e-9

@@ -35,6 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from factory.dataset.answers import normalise_part
+
 MAX_CHARS = 2_000_000
 """Longer outputs are cut here: no real answer is this long, and it bounds the work."""
 
@@ -117,14 +119,6 @@ _LINE_PREFIX = re.compile(
     r"[ \t]*+(?:[-+>\u2022][ \t]*+|\d{1,3}[.)][ \t]++)?(?:[a-z][\w ]{0,40}:[ \t]*+)?\Z", re.IGNORECASE
 )
 _LINE_SUFFIX = re.compile(r"[ \t.,;)\]]*+\Z")
-
-
-def normalise_part(name: str) -> str:
-    """`3023`, `3023.DAT` and `3023.dat` all become `3023.dat`; "" stays ""."""
-    name = name.strip().lower()
-    if not name:
-        return ""
-    return name if name.endswith(".dat") else name + ".dat"
 
 
 def parse_selection(text) -> list[Selection]:

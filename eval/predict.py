@@ -39,9 +39,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from eval import baselines
-from eval.chat import TASKS, columns_for, task_chat
+from eval.chat import columns_for, task_chat
 from eval.data import (
     SPLITS,
     TARGET_COLUMNS,
@@ -55,9 +56,12 @@ from eval.data import (
     step_target,
 )
 from eval.feedback import Feedback, assembly_rows, before_rows, feedback_columns, feedback_example
+from eval.hf import CheckpointError, HFPredictor
 from eval.metrics import StepTarget
 from factory.atomic import umask
 from factory.cli import run_guarded
+from factory.dataset.tasks import TASKS
+from factory.ldraw import get_reader
 
 BASELINES = ("baseline:random", "baseline:oracle", "baseline:heuristic")
 MODEL_CHOICES = (*BASELINES, "hf:PATH")
@@ -149,8 +153,6 @@ def make_predictor(spec: str, seed: int = 0, max_new_tokens: int = 256, device: 
     if spec == "baseline:heuristic":
         return HeuristicPredictor()
     if spec.startswith("hf:") and len(spec) > 3:
-        from eval.hf import HFPredictor
-
         return ModelPredictor(HFPredictor.from_path(spec[3:], device=device), max_new_tokens)
     raise ModelSpecError(f"unknown model {spec!r}; valid: {', '.join(MODEL_CHOICES)}")
 
@@ -173,9 +175,7 @@ def iter_predictions(data, predictor: Predictor, split: str | None = "test", tas
     reader = size = None
     if feedback and "pose" in tasks:
         columns += feedback_columns()
-        from factory.ldraw import get_reader
-
-        config = info(data)["config"]
+        config = info(data).config
         reader, size = get_reader(config.get("ldraw")), int(config["size"])
     columns = list(dict.fromkeys(columns))
     n_rows = count_rows(data, split)
@@ -183,8 +183,6 @@ def iter_predictions(data, predictor: Predictor, split: str | None = "test", tas
     # A limit picks steps spread evenly over the split (every n_rows/limit-th), so a small
     # evaluation still covers every object and every stage of assembly.
     chosen = None if total == n_rows else {int(i * n_rows / total) for i in range(total)}
-    from tqdm import tqdm
-
     bar = tqdm(total=total, unit="step", desc="predict", disable=not progress, file=sys.stderr)
     done = 0
     index = -1
@@ -269,8 +267,6 @@ def run(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from eval.hf import CheckpointError
-
     ap = argparse.ArgumentParser(prog="python -m eval.predict", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", required=True, help="dataset folder (make synth / pipelines.designs output)")

@@ -35,12 +35,12 @@ import math
 import sys
 from pathlib import Path
 
-from eval.chat import TASKS
-from eval.data import SPLITS, DatasetError, info, load_targets
 from eval.bc import MODE as BC_MODE
 from eval.bc import score_bc, score_pose
+from eval.data import SPLITS, DatasetError, info, load_targets
 from eval.metrics import MODES, score, score_step
 from factory.cli import run_guarded
+from factory.dataset.tasks import TASKS
 
 SCORE_MODES = (*MODES, BC_MODE)
 """Every scoring mode: ours (`eval.metrics`: strict, paper) and BC-Bench's released scorer (`eval.bc`)."""
@@ -148,7 +148,7 @@ def dataset_notes(data) -> list[str]:
     """What a reader of the scores must know about the dataset itself: an imported BC-Bench set
     without an LDraw library has no part symmetry, so a turned answer that is right for a
     symmetric part scores as wrong (`pipelines.bcbench`)."""
-    imported = info(data).get("bcbench_import") or {}
+    imported = info(data).details.get("bcbench_import") or {}
     symmetry = str(imported.get("symmetry", ""))
     if symmetry.startswith("none"):
         return [f"parts scored without symmetry: {symmetry} (import again with --ldraw DIR to score with it)"]

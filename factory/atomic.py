@@ -6,6 +6,7 @@ Whole files (dataset metadata, gallery, sampled models, reports, training summar
 
 from __future__ import annotations
 
+import io
 import os
 import tempfile
 from pathlib import Path
@@ -43,3 +44,10 @@ def write_atomic(path: str | os.PathLike, data: bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def write_figure(fig, path: str | os.PathLike, **savefig) -> None:
+    """A matplotlib figure saved to `path` through `write_atomic` (format from the file's suffix)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format=Path(path).suffix.lstrip(".") or "png", **savefig)
+    write_atomic(path, buf.getvalue())

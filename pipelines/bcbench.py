@@ -32,6 +32,7 @@ scripts), so our data comes back unchanged.
 
 from __future__ import annotations
 
+import argparse
 import io
 import json
 import math
@@ -45,8 +46,24 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from PIL import Image, ImageDraw, ImageFont
 
 from factory.atomic import umask
+from factory.cli import run_guarded
+from factory.dataset import prompts
+from factory.dataset.answers import format_pose, format_selection, normalise_part
+from factory.dataset.info import Counts, DatasetInfo, read_info, write_info
+from factory.dataset.schema import SCHEMA
+from factory.dataset.tasks import POSE_IMAGES, SELECTION_IMAGES, SPLITS
+from factory.errors import LDrawError
+from factory.ldraw import Library, Reader, get_reader
+from factory.ldraw.colours import ColourTable
+from factory.parts import LDU_CM, load_part
+from pipelines.dataset.config import check_name
+from pipelines.dataset.png import SIGNATURE, png_bytes
+from pipelines.dataset.shards import WRITER_OPTIONS
 
 VIEW_FOLDER = "0"
 """`view_folder` of the steps we write (BC-Bench's name a camera setting, e.g. "340"; ours have one)."""
@@ -101,7 +118,6 @@ def _dir_mode(path: Path) -> None:
 class _Staging:
     """A temporary folder beside `final`, renamed to it at the end (or removed on failure), so
     `final` holds a whole result or nothing. `final` must be absent or an empty folder."""
-
     def __init__(self, final, what: str):
         self.final = Path(final)
         if self.final.exists() and (not self.final.is_dir() or any(self.final.iterdir())):
@@ -129,8 +145,6 @@ def six_views(png: bytes) -> dict[str, np.ndarray] | None:
     """Our six-view composite (`factory.render.images.six_view_composite`: 3 x 2 labelled square
     tiles, 2 px grey gaps) cut into its views without their label strips, by our view name; None
     when the image is not laid out so (then no per-view files are written)."""
-    from PIL import Image
-
     with Image.open(io.BytesIO(png)) as im:
         a = np.asarray(im.convert("RGB"))
     H, W = a.shape[:2]
@@ -234,13 +248,6 @@ def write_bcbench(out, dest, splits=("train", "test"), png_level: int = 6) -> di
     One object's rows are in memory at a time; everything is written to a temporary folder renamed
     to `dest` at the end.
     """
-    import pyarrow.parquet as pq
-
-    from pipelines.dataset.config import check_name
-    from pipelines.dataset.png import png_bytes
-
-    from pipelines.dataset.config import SPLITS
-
     bad = [s for s in splits if s not in SPLITS]
     if bad:
         raise BCBenchError(f"unknown split {bad[0]!r}; valid: {', '.join(SPLITS)}")
@@ -248,8 +255,7 @@ def write_bcbench(out, dest, splits=("train", "test"), png_level: int = 6) -> di
     info_path = out / "meta" / "info.json"
     if not info_path.is_file():
         raise BCBenchError(f"{out}: not a dataset folder (no meta/info.json)")
-    info = json.loads(info_path.read_text())
-    did = check_name(info.get("dataset_id"), "dataset_id", f"{info_path}: ")
+    did = check_name(read_info(out).dataset_id, "dataset_id", f"{info_path}: ")
     summary = {"dest": str(dest), "splits": {}, "view_files": 0}
     registry = {}
     with _Staging(dest, "destination") as tmp:
@@ -337,7 +343,6 @@ class PoseBrick:
 @dataclass
 class Step:
     """One step found in both files (or in the pose file alone when SRC has no tasks.json)."""
-
     object: str
     step_k: int
     split: str
@@ -361,7 +366,6 @@ class Step:
 @dataclass
 class BCBenchData:
     """What `read_bcbench` found under SRC: the steps to import, in (object, step) order, and the counts."""
-
     src: Path
     steps: list[Step]
     blank: int
@@ -482,8 +486,6 @@ def _read_bricks(path: Path) -> tuple[bool, list[PoseBrick]]:
             raise _fail(path, f"{at}.transform", "a 3x3 rotation matrix as three rows of three numbers", m)
         R = tuple(tuple(_number(v, path, f"{at}.transform[{r}][{c}]") for c, v in enumerate(row))
                   for r, row in enumerate(m))
-        from eval.parse import normalise_part
-
         out.append(PoseBrick(normalise_part(name), colour, t, R))
     return blank, out
 
@@ -583,8 +585,6 @@ def _split_lists(paths: list[Path]) -> dict[str, set]:
 
 def _cells_per_brick(step: Step, task: dict, task_file: Path, i: int) -> None:
     """Join a task to the pose bricks: check the parts, give each brick its candidate cells."""
-    from eval.parse import normalise_part
-
     gt = [normalise_part(b) for b in task["gt_bricks"]]
     pose = [b.part for b in step.bricks]
     if Counter(gt) != Counter(pose):
@@ -616,8 +616,6 @@ def read_bcbench(src, default_split: str = "test") -> BCBenchData:
     split list (a step missing from a lone test.json is train), else the pose file's name
     (`test`/`testing` or `train`/`training` in it), else `default_split`.
     """
-    from pipelines.dataset.config import SPLITS
-
     if default_split not in SPLITS:
         raise BCBenchError(f"default split must be one of {', '.join(SPLITS)}, got {default_split!r}")
     src = Path(src)
@@ -738,12 +736,9 @@ def read_bcbench(src, default_split: str = "test") -> BCBenchData:
 # ============================================================================================
 def _png(path: Path, level: int) -> bytes:
     """The file's bytes when it is a PNG, else the image re-encoded as PNG."""
-    from pipelines.dataset.png import SIGNATURE, png_bytes
-
     data = path.read_bytes()
     if data.startswith(SIGNATURE):
         return data
-    from PIL import Image
 
     try:
         with Image.open(io.BytesIO(data)) as im:
@@ -754,10 +749,6 @@ def _png(path: Path, level: int) -> bytes:
 
 def _parts_grid(paths: list[Path], level: int) -> bytes:
     """Several part renders as one image, side by side (4 a row), each labelled `Brick k`."""
-    from PIL import Image, ImageDraw, ImageFont
-
-    from pipelines.dataset.png import png_bytes
-
     ims = []
     for p in paths:
         try:
@@ -784,8 +775,6 @@ def _parts_grid(paths: list[Path], level: int) -> bytes:
 def selection_text(n_bricks: int, kind: str) -> str:
     """The selection prompt of an imported step (BC-Bench's tasks carry none; their images differ
     from ours in view order and box style, so our prompt's description of them is not used)."""
-    from pipelines.dataset.prompts import SELECTION_FORMAT
-
     bricks = "1 brick" if n_bricks == 1 else f"{n_bricks} bricks"
     lines = [
         "Task: brick selection.",
@@ -798,7 +787,7 @@ def selection_text(n_bricks: int, kind: str) -> str:
         lines.append(f"This step attaches a sub-assembly of {bricks}.")
     lines.append(f"This step adds {bricks}. For each added brick, give the catalog cell that holds it, one line "
                  "per brick, in the format:")
-    lines.append(SELECTION_FORMAT)
+    lines.append(prompts.SELECTION_FORMAT)
     return "\n".join(lines)
 
 
@@ -806,23 +795,20 @@ def _pose_user(human: str, n_images: int) -> list[dict]:
     """The human turn as content parts, images in place: image 0 before, 1 after, the last the
     axes composite, those between the part render(s), which become the one `part` image (its
     first placeholder keeps it, the others are dropped)."""
-    from pipelines.dataset.prompts import POSE_IMAGES, image_part, text_part
-
     column = ["before", "after"] + ["part"] * (n_images - 3) + ["axes"]
     parts, used = [], set()
     pieces = human.split("<image>")
     for i, text in enumerate(pieces):
         if text:
-            parts.append(text_part(text))
+            parts.append(prompts.text_part(text))
         if i < len(pieces) - 1 and column[i] not in used:
             used.add(column[i])
-            parts.append(image_part(POSE_IMAGES.index(column[i])))
+            parts.append(prompts.image_part(POSE_IMAGES.index(column[i])))
     return parts
 
 
 class _Geometry:
     """Symmetry, size and colour names from an LDraw library (or none)."""
-
     def __init__(self, ldraw):
         self.reader = None
         self.colours = None
@@ -832,8 +818,6 @@ class _Geometry:
         self._cache: dict[str, tuple] = {}
         if ldraw is None:
             return
-        from factory.ldraw import Library, Reader, get_reader
-        from factory.ldraw.colours import ColourTable
 
         if str(ldraw) == "embedded":
             self.reader = Reader(Library.embedded())
@@ -854,8 +838,6 @@ class _Geometry:
         if self.reader is None:
             return None, None
         if name not in self._cache:
-            from factory.errors import LDrawError
-            from factory.parts import LDU_CM, load_part
 
             try:
                 p = load_part(self.reader, name)
@@ -891,10 +873,7 @@ def _catalog(step: Step, picks) -> list[dict]:
 
 
 def step_row(step: Step, geometry: _Geometry, dataset_id: str, num_steps: int, level: int = 6) -> dict:
-    """One imported step as a row of `pipelines.dataset.schema.FIELDS`."""
-    from eval.baselines import format_pose, format_selection
-    from pipelines.dataset import prompts
-
+    """One imported step as a row of `factory.dataset.schema.FIELDS`."""
     ext = (step.task or {}).get(EXTENSION) or {}
     n = len(step.bricks)
     gt = str((step.task or {}).get("ground_truth") or "")
@@ -925,9 +904,9 @@ def step_row(step: Step, geometry: _Geometry, dataset_id: str, num_steps: int, l
                      {"role": "assistant", "content": [prompts.text_part(pose_answer)]}]
     if step.task is not None:
         sel_answer = format_selection(picks)
-        sel_messages = prompts.conversation(prompts.SYSTEM_TEXT, len(prompts.SELECTION_IMAGES),
+        sel_messages = prompts.conversation(prompts.SYSTEM_TEXT, len(SELECTION_IMAGES),
                                             selection_text(n, kind), sel_answer)
-        sel_images = list(prompts.SELECTION_IMAGES)
+        sel_images = list(SELECTION_IMAGES)
     else:
         sel_answer, sel_messages, sel_images = "", [], []
     return {
@@ -955,7 +934,7 @@ def step_row(step: Step, geometry: _Geometry, dataset_id: str, num_steps: int, l
         "selection_images": sel_images,
         "selection_answer": sel_answer,
         "pose_messages": pose_messages,
-        "pose_images": list(prompts.POSE_IMAGES),
+        "pose_images": list(POSE_IMAGES),
         "pose_answer": pose_answer,
     }
 
@@ -964,17 +943,10 @@ def import_bcbench(src, out, ldraw=None, dataset_id: str = "bcbench", default_sp
                    objects_per_shard: int = 8, png_level: int = 6) -> dict:
     """Turn the BC-Bench layout under `src` (`read_bcbench`) into our dataset format in `out`
     (absent or empty): `data/{split}-NNNNN-of-NNNNN.parquet` (one row group per object, the row
-    schema of `pipelines.dataset.schema`) and `meta/info.json`. `ldraw`: an LDraw library folder,
+    schema of `factory.dataset.schema`) and `meta/info.json`. `ldraw`: an LDraw library folder,
     or "embedded" (our default library), for the parts' symmetry, sizes and colour names; None:
     no symmetry. Written to a temporary folder renamed to `out` at the end. Returns the summary
     (also in info.json under `bcbench_import`)."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    from pipelines.dataset.config import SCHEMA_VERSION, SPLITS, check_name, json_bytes
-    from pipelines.dataset.schema import SCHEMA
-    from pipelines.dataset.shards import WRITER_OPTIONS
-
     check_name(dataset_id, "dataset_id")
     if isinstance(objects_per_shard, bool) or not isinstance(objects_per_shard, int) or objects_per_shard < 1:
         raise BCBenchError(f"objects_per_shard must be an integer >= 1, got {objects_per_shard!r}")
@@ -1020,20 +992,17 @@ def import_bcbench(src, out, ldraw=None, dataset_id: str = "bcbench", default_sp
             "split_lists": [str(p.relative_to(data.src)) for p in data.split_lists],
         }
         total = {key: sum(counts[s][key] for s in SPLITS) for key in ("objects", "steps", "bytes")}
-        info = {
-            "schema_version": SCHEMA_VERSION,
-            "dataset_id": dataset_id,
-            "source": "bcbench",
-            "seed": 0,
-            "config": {"source": "bcbench", "ldraw": geometry.ldraw_path, "size": FEEDBACK_SIZE},
-            "counts": counts,
-            "total": total,
-            "splits_present": [s for s in SPLITS if counts[s]["steps"] > 0],
-            "tasks": list(data.tasks),
-            "blank_steps_skipped": data.blank,
-            "bcbench_import": summary,
-        }
-        (tmp / "meta" / "info.json").write_bytes(json_bytes(info))
+        write_info(tmp, DatasetInfo(
+            dataset_id=dataset_id,
+            source="bcbench",
+            seed=0,
+            config={"source": "bcbench", "ldraw": geometry.ldraw_path, "size": FEEDBACK_SIZE},
+            counts={s: Counts(**c) for s, c in counts.items()},
+            total=Counts(**total),
+            splits_present=tuple(s for s in SPLITS if counts[s]["steps"] > 0),
+            tasks=tuple(data.tasks),
+            details={"blank_steps_skipped": data.blank, "bcbench_import": summary},
+        ))
     return summary
 
 
@@ -1051,10 +1020,6 @@ def summary_line(summary: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     """`python -m pipelines.bcbench import SRC OUT [--ldraw DIR|embedded] [--dataset-id ID]
     [--default-split test|train]`."""
-    import argparse
-
-    from factory.cli import run_guarded
-
     ap = argparse.ArgumentParser(prog="python -m pipelines.bcbench", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="command", required=True)

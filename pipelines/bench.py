@@ -32,7 +32,7 @@ from importlib import metadata
 from pathlib import Path
 
 from factory.cli import run_guarded
-from factory.atomic import write_atomic
+from factory.atomic import write_atomic, write_figure
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "factory" / "data" / "examples" / "tower.mpd"
@@ -232,7 +232,7 @@ def plots(report: dict, out: Path) -> list[str]:
         ax.set_title("Physics checker throughput")
         ax.legend()
         fig.tight_layout()
-        fig.savefig(out / "physics.png", dpi=100)
+        write_figure(fig, out / "physics.png", dpi=100)
         plt.close(fig)
         written.append("physics.png")
     rend = report.get("render", {}).get("rows", [])
@@ -247,7 +247,7 @@ def plots(report: dict, out: Path) -> list[str]:
         ax.set_title("Render throughput")
         ax.legend()
         fig.tight_layout()
-        fig.savefig(out / "render.png", dpi=100)
+        write_figure(fig, out / "render.png", dpi=100)
         plt.close(fig)
         written.append("render.png")
     ev = report.get("evaluation", {})
@@ -267,7 +267,7 @@ def plots(report: dict, out: Path) -> list[str]:
             ax.set_title(f"Baselines on {name} ({e['split']})")
         axes[0][0].legend(fontsize=8)
         fig.tight_layout()
-        fig.savefig(out / "eval.png", dpi=100)
+        write_figure(fig, out / "eval.png", dpi=100)
         plt.close(fig)
         written.append("eval.png")
     return written

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from factory import Pose, get_reader, load_part
+from factory.atomic import write_atomic
 from factory.physics.check import STAGE_SECONDS, CheckConfig, check
 from factory.physics.check import _unit_connections
 from factory.physics.statics import _ALONE, LoadBase, judge_many
@@ -555,8 +556,7 @@ def main(argv=None) -> int:
         rows = measure(args.backends.split(","), sizes, batches, log=log, full_max=args.full_max)
     if args.out:
         meta = {"machine": platform.node(), "processor": platform.processor(), "rows": rows}
-        with open(args.out, "w") as fh:
-            json.dump(meta, fh, indent=1)
+        write_atomic(args.out, json.dumps(meta, indent=1).encode())
     return 0
 
 

@@ -20,10 +20,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
-from eval.metrics import TASKS
+from eval.data import iter_file, shard_files
+from factory.atomic import write_atomic
+from factory.cli import run_guarded
+from factory.dataset.info import read_info
+from factory.dataset.tasks import TASKS
 from pipelines.dataset.config import check_name
 
 FORMATS = ("llamafactory", "bcbench")
@@ -52,59 +57,64 @@ def _answer(messages) -> str:
 
 
 def export_llamafactory(out, dest, splits=("train", "test"), tasks=TASKS) -> dict:
-    """Write the LLaMA-Factory files; returns {dataset name: record count}."""
-    import pyarrow.parquet as pq
-
+    """Write the LLaMA-Factory files; returns {dataset name: record count}. Each file is written
+    atomically: images through `write_atomic`, the record files to a temporary name renamed when
+    complete, `dataset_info.json` last."""
     out, dest = Path(out), Path(dest)
-    info = json.loads((out / "meta" / "info.json").read_text())
-    did = check_name(info.get("dataset_id"), "dataset_id", f"{out / 'meta' / 'info.json'}: ")
+    meta = read_info(out)
+    did = check_name(meta.dataset_id, "dataset_id", f"{out / 'meta' / 'info.json'}: ")
     dest.mkdir(parents=True, exist_ok=True)
     counts: dict[str, int] = {}
     registry = {}
     for split in splits:
-        files = sorted((out / "data").glob(f"{split}-*.parquet"))
+        files = shard_files(out, split) if split in meta.splits_present else []  # no rows: empty files
         names = {t: f"{did}_{t}_{split}" for t in tasks}
-        handles = {t: open(dest / f"{names[t]}.json", "w", encoding="utf-8") for t in tasks}
+        finals = {t: dest / f"{names[t]}.json" for t in tasks}
+        tmps = {t: p.with_name(f".{p.name}.{os.getpid()}.tmp") for t, p in finals.items()}
+        handles = {t: open(tmps[t], "w", encoding="utf-8") for t in tasks}
         first = {t: True for t in tasks}
         try:
             for h in handles.values():
                 h.write("[\n")
             for f in files:
-                pf = pq.ParquetFile(f)
-                for g in range(pf.num_row_groups):
-                    for row in pf.read_row_group(g).to_pylist():
-                        check_name(row["object_id"], "object_id", f"{f}: ")  # paths stay under dest
-                        folder = dest / "images" / row["object_id"]
-                        folder.mkdir(parents=True, exist_ok=True)
-                        paths = {}
-                        for t in tasks:
-                            for name in row[f"{t}_images"]:
-                                if name not in paths:
-                                    rel = f"images/{row['object_id']}/{row['step_index']:03d}_{name}.png"
-                                    (dest / rel).write_bytes(row[name]["bytes"])
-                                    paths[name] = rel
-                        for t in tasks:
-                            msgs = row[f"{t}_messages"]
-                            if not msgs:  # a step without this task (an imported BC-Bench pose-only step)
-                                continue
-                            imgs = [paths[n] for n in row[f"{t}_images"]]
-                            rec = {
-                                "id": f"{row['step_id']}/{t}",
-                                "messages": [
-                                    {"role": "user", "content": "<image>" * len(imgs) + "\n" + _user_text(msgs)},
-                                    {"role": "assistant", "content": _answer(msgs)},
-                                ],
-                                "system": _system(msgs, row["system"]),
-                                "images": imgs,
-                            }
-                            handles[t].write(("" if first[t] else ",\n") + json.dumps(rec, ensure_ascii=False))
-                            first[t] = False
-                            counts[names[t]] = counts.get(names[t], 0) + 1
+                for row in iter_file(f):
+                    check_name(row["object_id"], "object_id", f"{f}: ")  # paths stay under dest
+                    folder = dest / "images" / row["object_id"]
+                    folder.mkdir(parents=True, exist_ok=True)
+                    paths = {}
+                    for t in tasks:
+                        for name in row[f"{t}_images"]:
+                            if name not in paths:
+                                rel = f"images/{row['object_id']}/{row['step_index']:03d}_{name}.png"
+                                write_atomic(dest / rel, row[name]["bytes"])
+                                paths[name] = rel
+                    for t in tasks:
+                        msgs = row[f"{t}_messages"]
+                        if not msgs:  # a step without this task (an imported BC-Bench pose-only step)
+                            continue
+                        imgs = [paths[n] for n in row[f"{t}_images"]]
+                        rec = {
+                            "id": f"{row['step_id']}/{t}",
+                            "messages": [
+                                {"role": "user", "content": "<image>" * len(imgs) + "\n" + _user_text(msgs)},
+                                {"role": "assistant", "content": _answer(msgs)},
+                            ],
+                            "system": _system(msgs, row["system"]),
+                            "images": imgs,
+                        }
+                        handles[t].write(("" if first[t] else ",\n") + json.dumps(rec, ensure_ascii=False))
+                        first[t] = False
+                        counts[names[t]] = counts.get(names[t], 0) + 1
             for h in handles.values():
                 h.write("\n]\n")
-        finally:
-            for h in handles.values():
+        except BaseException:
+            for t, h in handles.items():
                 h.close()
+                tmps[t].unlink(missing_ok=True)
+            raise
+        for t, h in handles.items():
+            h.close()
+            os.replace(tmps[t], finals[t])
         for t in tasks:
             counts.setdefault(names[t], 0)
             registry[names[t]] = {
@@ -114,13 +124,11 @@ def export_llamafactory(out, dest, splits=("train", "test"), tasks=TASKS) -> dic
                 "tags": {"role_tag": "role", "content_tag": "content", "user_tag": "user",
                          "assistant_tag": "assistant"},
             }
-    (dest / "dataset_info.json").write_text(json.dumps(registry, indent=2, sort_keys=True) + "\n")
+    write_atomic(dest / "dataset_info.json", (json.dumps(registry, indent=2, sort_keys=True) + "\n").encode())
     return counts
 
 
 def main(argv: list[str] | None = None) -> int:
-    from factory.cli import run_guarded
-
     ap = argparse.ArgumentParser(prog="python -m pipelines.export", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("data", help="the dataset folder to export (written by pipelines.synth or pipelines.designs)")

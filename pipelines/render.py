@@ -14,6 +14,7 @@ is framed on the whole model's bounds, so views of different steps line up.
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import sys
 import time
@@ -21,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from factory.atomic import write_atomic
 from factory.cli import run_guarded
 from factory.errors import LDrawError
 
@@ -191,7 +193,9 @@ def main(argv: list[str] | None = None) -> int:
 
         images = dict(res.images, catalog=catalog, feedback=feedback)
         for name, img in images.items():
-            img.save(out / f"{name}.png", optimize=False)
+            buf = io.BytesIO()
+            img.save(buf, format="PNG", optimize=False)
+            write_atomic(out / f"{name}.png", buf.getvalue())
         # The step's parts are the first len(new) entries of `remaining`.
         where = {order[k]: cells[k] for k in range(len(order))}
         meta = {
@@ -214,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
                         "iso_height": res.framing.iso_height},
             "images": sorted(f"{n}.png" for n in images),
         }
-        (out / "step.json").write_text(_json(meta) + "\n")
+        write_atomic(out / "step.json", (_json(meta) + "\n").encode())
         print(f"wrote {len(images)} images and step.json to {out} in {time.perf_counter() - t0:.1f} s")
         return 0
 

@@ -2,13 +2,9 @@
 
 `python -m pipelines.verify MODEL [--ldraw DIR] [--check-backend mujoco|mjx] --json`
 
-Each placed part is checked against the parts placed before it in the same sub-assembly (the first
-part of a sub-assembly, or one laid on the table beside it, needs no connection; a part may hang
-from another part of its own step); a completed sub-assembly is checked as one rigid unit against
-the parts of its parent placed before it. Each sub-assembly is checked in its own frame (as its
-author built it) and is held in hand while built: only the main model must stand on the ground,
-sub-assemblies are judged on their connections.
-One JSON object per placed part, and one with `"unit": true` per sub-assembly attachment.
+The replay is `factory.replay.verify_model` (see its module docstring for how parts and
+sub-assemblies are judged). One JSON object per placed part, and one with `"unit": true` per
+sub-assembly attachment; with `--faults`, also the injected faults and a summary line.
 """
 
 from __future__ import annotations
@@ -16,276 +12,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections import Counter
-
-import numpy as np
-from dataclasses import dataclass, field
 
 from factory.cli import renamed_flag, run_guarded
-from factory.errors import LDrawError, LDrawLimitError
-from factory.ldraw import NO_PARTS, build_steps, get_reader
-from factory.ldraw.model import count_parts
-from factory.parts import box_corners, load_part
-from factory.physics.geometry import require_solid
-from factory.physics.check import BACKENDS, CheckConfig, Verdict, check_units
-from factory.physics.statics import Link
-from factory.physics.structure import Placed, Structure, canonical_key, connectors, match
-from factory.pose import Pose
-from factory.symmetry import rotation_about
-
-
-@dataclass
-class _Assembly:
-    tag: str
-    frame: Pose
-    structure: Structure = field(default_factory=Structure)
-    last_step: int = 0
-
-
-def _record(verdict: Verdict, **extra) -> dict:
-    return {
-        **extra,
-        "collision": bool(verdict.collision),
-        "max_penetration_ldu": verdict.max_penetration_ldu,
-        "connected": verdict.connected,
-        "connections": verdict.connections,
-        "stable": verdict.stable,
-        "load": verdict.load,
-        "failing": [f.to_json() for f in verdict.failing],
-        # Buildability in the design's own order: None where not judged (rejected before the
-        # sweep, no stud connection, or connections on two axes: `approach` says which).
-        "buildable": verdict.buildable,
-        "approach": verdict.approach,
-        "blocked_by": list(verdict.blocked_by),
-        "reason": verdict.reason,
-    }
-
-
-def _faults(structure, local: Placed, backend, config, standing, step, index, finished=None):
-    # Faults follow the part's connection: 'up' is away from the studs it sits on (or hangs from),
-    # 'sideways' is across that axis, 'turn' is about it through the part's origin.
-    axes = []
-    sp, sa, _ = structure.studs
-    kp, ka, _ = structure.sockets
-
-    cp, ca = connectors(local.part, local.pose, "sockets")
-    for i, _ in match(sp, sa, cp, ca):
-        axes.append(sa[i])  # a structure stud in our socket: we sit on it, away = its axis
-    cp, ca = connectors(local.part, local.pose, "studs")
-    for _, j in match(cp, ca, kp, ka):
-        axes.append(-ka[j])  # our stud in a structure socket above: away = against its axis
-    up = np.mean(axes, axis=0)
-    up = up / np.linalg.norm(up)
-    side = np.cross(up, [0.0, 0.0, 1.0]) if abs(up[2]) < 0.9 else np.cross(up, [1.0, 0.0, 0.0])
-    side = side / np.linalg.norm(side)
-    for name in FAULTS:
-        if name == "turn":
-            moved = Pose(rotation_about(up, 90.0) @ local.pose.R, local.pose.t)
-            if canonical_key(local.part, moved) == canonical_key(local.part, local.pose) or np.allclose(
-                _envelope(local.part, moved), _envelope(local.part, local.pose), atol=1.0
-            ):
-                # The part looks the same turned, or fills the same box (a 1x1 or 2x2 part: only
-                # its slope or face turns): nothing it could clash with moves, no fault to inject.
-                continue
-        elif name == "lift":
-            moved = Pose(local.pose.R, local.pose.t + 8.0 * up)
-        else:
-            moved = Pose(local.pose.R, local.pose.t + 10.0 * side)
-        (v,) = check_units(structure, [[Placed(local.part, local.colour, moved)]], backend, config,
-                           standing=standing)
-        yield _record(v, step=step, index=index, part=local.part.name, color=local.colour, fault=name)
-        if name == "turn" and finished is not None:
-            # The same turn in the finished design: every other part of the assembly in place,
-            # those built later too (a turn that fits the parts built so far can still clash
-            # with the parts the design puts around it).
-            others = Structure([q for q in finished if q is not local])
-            (v,) = check_units(others, [[Placed(local.part, local.colour, moved)]], backend, config,
-                               standing=standing)
-            yield _record(v, step=step, index=index, part=local.part.name, color=local.colour,
-                          fault=TURN_FINISHED)
-
-
-def _links(index: int, verdict: Verdict) -> list[Link]:
-    """Rigid links of a part placed at `index` that is held by connections the checker does not
-    model (its verdict's `held_by`), so the whole-structure loads carry it through them."""
-    return [Link(index, j, tuple(float(v) for v in verdict.pose.t)) for j in verdict.held_by]
-
-
-def _add_unit(structure: Structure, unit: list[Placed], inner_links, verdict: Verdict) -> None:
-    """Add a finished sub-assembly's parts to its parent, with its own rigid links (renumbered) and,
-    if the unit is held by an unmodelled connection, a link from its first part."""
-    base = len(structure)
-    for k, p in enumerate(unit):
-        structure.add(p, _links(base, verdict) if k == 0 else ())
-    structure.links.extend(Link(l.a + base, l.b + base, l.point) for l in inner_links)
-
-
-def _envelope(part, pose: Pose) -> np.ndarray:
-    """The axis-aligned box (LDU) a part fills at a pose."""
-    world = pose.apply(box_corners(part.bbox))
-    return np.stack([world.min(0), world.max(0)])
-
-
-def _on_table(structure: Structure, unit: list[Placed]) -> bool:
-    """A first part, or one laid on the table beside the structure (its bottom within half a plate
-    of the structure's lowest point): it needs no connection yet (a base layer is bridged later)."""
-    if not len(structure):
-        return True
-    return Structure(list(unit)).floor_y() >= structure.floor_y() - 4.0
-
-
-MAX_VERIFY_PARTS = 400
-"""Most parts a model may place for `verify_model`, refused up front (counted before its steps are
-expanded): each part is checked against all placed before it, so the time grows about as the square
-of the parts. Measured here (2 shared cores, stacked 2x4 bricks, no faults): 100 parts 4.3 s, 400
-parts 48 s, so 400 ends within a minute (faults take several times that); the largest model of
-the real set places 200 (Vintage Car). A 2 KB MPD expanding to 10^5 parts ran 48 s before MuJoCo's
-`mj_stackAlloc: out of memory`; the reader's own cap (`MAX_MODEL_PARTS`, 200,000) bounds reading,
-not checking."""
-
-FAULTS = ("shift", "lift", "turn")
-"""Injected faults: 10 LDU sideways, 8 LDU up (off its studs), a quarter turn about the stud axis
-through the part's origin (only where that changes the geometry). Each is checked against the
-parts placed before it; the turn also against the finished design (`TURN_FINISHED`)."""
-TURN_FINISHED = "turn-in-finished-design"
-
-
-def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckConfig = CheckConfig(),
-                 faults: bool = False):
-    """Yield one record per placed part and per sub-assembly attachment, in build order.
-
-    With `faults`, every accepted stud-connected part is also checked shifted, lifted and turned
-    (records with a `"fault"` key), against the same structure.
-    """
-    reader = get_reader(ldraw)
-    frames: dict[str, Pose] = {}
-    blocks: dict[str, int] = {}
-    model = reader.open_model(model_path)
-    placed = count_parts(reader, model)
-    if placed > MAX_VERIFY_PARTS:
-        raise LDrawLimitError(f"model places {placed:,} parts; verify checks at most {MAX_VERIFY_PARTS:,} "
-                              "(each part is checked against all placed before it)", str(model_path))
-    steps = build_steps(reader, model, frames, blocks)
-    if not steps:
-        raise LDrawError(NO_PARTS, str(model_path))
-    open_: list[_Assembly] = []
-    # Every part of each assembly in its own frame, in build order; a finished sub-assembly also
-    # belongs to its parents (for the turn fault judged in the finished design).
-    locals_of: dict[int, list[Placed]] = {}
-    finished: dict[str, list[Placed]] = {}
-    for step in steps:
-        to_local = frames[step.assembly].inverse()
-        locals_of[id(step)] = [Placed(load_part(reader, p), p.colour, to_local @ p.pose) for p in step.parts]
-        for q in locals_of[id(step)]:
-            require_solid(q.part)  # a flat part: one line naming it, not a traceback from the checks
-        finished.setdefault(step.assembly, []).extend(locals_of[id(step)])
-    for depth in range(max((t.count("/") for t in finished), default=0), 0, -1):
-        for tag in [t for t in finished if t.count("/") == depth]:
-            parent = tag.rsplit("/", 1)[0]
-            move = frames[parent].inverse() @ frames[tag]
-            finished.setdefault(parent, []).extend(Placed(q.part, q.colour, move @ q.pose) for q in finished[tag])
-
-    def going_in_with(tag: str) -> list[Placed]:
-        """The parts that go in with sub-assembly `tag`, in its parent's frame: the later
-        sub-assemblies its parent's file references in the same STEP block, and the parts that
-        block places itself (a wagon rests its front on the drawbar built beside it)."""
-        parent = tag.rsplit("/", 1)[0]
-        siblings = [t for t in finished if t.rsplit("/", 1)[0] == parent and blocks.get(t) == blocks[tag]]
-        out = []
-        for t in siblings[siblings.index(tag) + 1:]:
-            move = frames[parent].inverse() @ frames[t]
-            out += [Placed(q.part, q.colour, move @ q.pose) for q in finished[t]]
-        for step in steps:
-            if step.assembly == parent and step.block == blocks[tag]:
-                out += locals_of[id(step)]
-        return out
-
-    def close_until(tag: str):
-        while open_ and not (tag == open_[-1].tag or tag.startswith(open_[-1].tag + "/")):
-            done = open_.pop()
-            parent = open_[-1] if open_ else None
-            if parent is None or not done.structure.placed:
-                continue
-            to_parent = parent.frame.inverse() @ done.frame
-            unit = [Placed(p.part, p.colour, to_parent @ p.pose) for p in done.structure.placed]
-            (v,) = check_units(parent.structure, [unit], backend, config,
-                               require_connection=not _on_table(parent.structure, unit),
-                               standing=parent.tag == "main", unit_links=done.structure.links)
-            along = going_in_with(done.tag) if v.reason in ("no-connection", "unstable") else []
-            if along:
-                # As the parts of one step: it may rest on what goes in with it.
-                judged_on = Structure(parent.structure.placed + along)
-                judged_on.links.extend(parent.structure.links)
-                (v,) = check_units(judged_on, [unit], backend, config, standing=parent.tag == "main",
-                                   unit_links=done.structure.links)
-            yield _record(v, step=done.last_step, index=0, part=done.tag.rsplit("/", 1)[-1],
-                          color=unit[0].colour, unit=True, assembly=done.tag)
-            _add_unit(parent.structure, unit, done.structure.links, v)
-
-    for step in steps:
-        yield from close_until(step.assembly)
-        # Open the step's sub-assembly and any ancestor not yet open (one with no part of its own
-        # before this child's steps).
-        path = step.assembly.split("/")
-        for depth in range(1, len(path) + 1):
-            tag = "/".join(path[:depth])
-            if not any(a.tag == tag for a in open_):
-                open_.append(_Assembly(tag, frames[tag]))
-        asm = open_[-1]
-        asm.last_step = step.index
-        locals_ = locals_of[id(step)]
-        for index, (placed, local) in enumerate(zip(step.parts, locals_)):
-            standing = asm.tag == "main"
-            judged_on = asm.structure
-            (v,) = check_units(judged_on, [[local]], backend, config,
-                               require_connection=not _on_table(judged_on, [local]), standing=standing)
-            if v.reason in ("no-connection", "unstable") and index + 1 < len(locals_):
-                # Parts of one step go in together: a part may hang from one listed after it, and
-                # the step is judged standing once all its parts are in.
-                judged_on = Structure(asm.structure.placed + locals_[index + 1 :])
-                judged_on.links.extend(asm.structure.links)
-                (v,) = check_units(judged_on, [[local]], backend, config, standing=standing)
-            yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour)
-            if faults and v.ok and v.connected:
-                # Faults move the part off the connections it was accepted on: those of the
-                # structure it was judged against (with the later parts of its step, if it hangs).
-                yield from _faults(judged_on, local, backend, config, standing, step.index, index,
-                                   finished[asm.tag])
-            asm.structure.add(local, _links(len(asm.structure), v))
-    yield from close_until("")
-
-
-RIGHT_REASONS = {"shift": {"collision", "no-connection"}, "lift": {"no-connection"},
-                 "turn": {"collision", "no-connection"}, TURN_FINISHED: {"collision", "no-connection"}}
-
-
-def summarize(records: list[dict]) -> dict:
-    """Fidelity (share of stud-connected placements accepted) and fault rejection rates."""
-    plain = [r for r in records if "fault" not in r]
-    judged = [r for r in plain if r["reason"] != "unsupported-connection"]
-    out = {
-        "placements": len(plain),
-        "unsupported_connection": len(plain) - len(judged),
-        "accepted": sum(r["reason"] is None for r in judged),
-        "fidelity": (sum(r["reason"] is None for r in judged) / len(judged)) if judged else None,
-        "rejections": dict(Counter(r["reason"] for r in judged if r["reason"])),
-        # Steps a person built in this order that the sweep finds unbuildable, and those whose
-        # approach was not judged (connections on two axes).
-        "not_buildable": sum(r.get("buildable") is False for r in judged),
-        "approach_not_judged": dict(Counter(r["approach"] for r in judged
-                                            if r.get("buildable") is None and r.get("approach"))),
-        "faults": {},
-    }
-    for name in (*FAULTS, TURN_FINISHED):
-        rs = [r for r in records if r.get("fault") == name]
-        if rs:
-            out["faults"][name] = {
-                "injected": len(rs),
-                "rejected": sum(r["reason"] is not None for r in rs) / len(rs),
-                "right_reason": sum(r["reason"] in RIGHT_REASONS[name] for r in rs) / len(rs),
-                "reasons": dict(Counter(str(r["reason"]) for r in rs)),
-            }
-    return out
+from factory.physics.check import BACKENDS
+from factory.replay import summarize, verify_model
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -299,6 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--faults", action="store_true",
                     help="also inject faults into accepted parts and end with a summary line")
     args = ap.parse_args(argv)
+
     def body() -> None:
         records = []
         for record in verify_model(args.model, args.ldraw, args.backend, faults=args.faults):
@@ -308,6 +39,7 @@ def main(argv: list[str] | None = None) -> int:
             print(json.dumps({"summary": summarize(records)}), flush=True)
 
     return run_guarded(body)
+
 
 if __name__ == "__main__":
     sys.exit(main())

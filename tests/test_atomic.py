@@ -42,3 +42,19 @@ def test_written_files_follow_the_umask(tmp_path, umask, mode):
     finally:
         os.umask(old)
     assert path.stat().st_mode & 0o777 == mode
+
+
+def test_a_figure_is_written_whole_as_savefig_would(tmp_path):
+    matplotlib = pytest.importorskip("matplotlib")  # the `bench` extra
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from factory.atomic import write_figure
+
+    fig, ax = plt.subplots(figsize=(2, 2))
+    ax.plot([0, 1], [1, 0])
+    fig.savefig(tmp_path / "plain.png", dpi=50)
+    write_figure(fig, tmp_path / "plots" / "atomic.png", dpi=50)
+    plt.close(fig)
+    assert (tmp_path / "plots" / "atomic.png").read_bytes() == (tmp_path / "plain.png").read_bytes()
+    assert os.listdir(tmp_path / "plots") == ["atomic.png"]

@@ -32,7 +32,7 @@ from pipelines.bcbench import (
     read_bcbench,
     six_views,
 )
-from pipelines.dataset.schema import SCHEMA
+from factory.dataset.schema import SCHEMA
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -33,7 +33,7 @@ from pipelines.dataset import (
     feedback_prompt,
     split_of,
 )
-from pipelines.dataset.schema import IMAGE_COLUMNS, SCHEMA, features_json
+from factory.dataset.schema import IMAGE_COLUMNS, SCHEMA, features_json
 from conftest import assert_workers_end_with_killed_parent, tiny_dataset_config
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -15,7 +15,7 @@ from factory.physics.geometry import collision_shape
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
 from factory.symmetry import rotation_about
-from pipelines.verify import _on_table
+from factory.replay import _on_table
 
 I3 = np.eye(3)
 TURN = np.diag([-1.0, 1.0, -1.0])  # half a turn about the stud axis
@@ -289,7 +289,7 @@ def test_sub_assemblies_of_one_step_go_in_together(write, step, reason):
     # at one end (it tips alone) and a 1x1 brick under its other end, in one step of the main
     # model: judged with what goes in with it, it stands. A step later, it tips. (Embedded parts:
     # the test needs no ../shared.)
-    from pipelines.verify import verify_model
+    from factory.replay import verify_model
 
     path = write("seesaw.mpd", SEESAW.format(step=step))
     units = {r["assembly"]: r for r in verify_model(path, None) if r.get("unit")}

@@ -233,7 +233,7 @@ def test_verify_command_on_the_example_model():
 
 
 def test_faults_of_a_part_hanging_from_a_later_part_of_its_step(tmp_path):
-    from pipelines.verify import verify_model
+    from factory.replay import verify_model
 
     # Step 2 lists a 1x1 plate first: it hangs under the 2x4 plate listed after it in the same
     # step (which sits on the 2x2 brick). Its faults move it off that plate's sockets.
@@ -304,7 +304,7 @@ def test_hinge_halves_are_excused_only_on_one_axis(real_reader):
 
 
 def test_turn_faults_only_where_the_part_fills_another_box():
-    from pipelines.verify import _envelope
+    from factory.replay import _envelope
 
     turn = rotation_about((0, -1, 0), 90)
     square, long = part("3003"), part("3001")

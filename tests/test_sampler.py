@@ -76,7 +76,7 @@ def test_to_ldr_reads_back_to_the_same_steps(objects, tmp_path):
 
 
 def test_sampled_objects_pass_the_checks_independently(objects, tmp_path):
-    from pipelines.verify import verify_model
+    from factory.replay import verify_model
 
     reader = get_reader()
     for a in objects:

@@ -24,7 +24,7 @@ def tiny_model(tiny_dataset, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def processor(tiny_model):
-    from train.processor import load_processor
+    from eval.processor import load_processor
 
     return load_processor(tiny_model)
 
@@ -57,7 +57,7 @@ def test_tiny_model_loads_back_and_is_deterministic(tiny_dataset, tiny_model, tm
     for name in ("model.safetensors", "tokenizer.json", "config.json"):
         assert (again / name).read_bytes() == (tiny_model / name).read_bytes(), name
     model = AutoModelForImageTextToText.from_pretrained(str(tiny_model))
-    from train.processor import load_processor
+    from eval.processor import load_processor
 
     tok = load_processor(tiny_model).tokenizer
     ids = {t: tok.convert_tokens_to_ids(t) for t in QWEN_SPECIAL}
@@ -220,7 +220,7 @@ def test_feedback_rows_train_the_revision(tiny_dataset, tmp_path, processor):
     out = tmp_path / "fb"
     summary = build_feedback(tiny_dataset, preds, out)
     meta = info(out)
-    assert meta["kind"] == "feedback" and meta["tasks"] == ["pose"]
+    assert meta.source == "feedback" and meta.tasks == ("pose",) and meta.extra_images == ("feedback",)
     assert summary["total"]["steps"] >= 1
     assert sum(summary["reasons"].get(k, 0) for k in ("built", "right", "unparseable", "missing", "failed")) == 6
 
@@ -233,7 +233,7 @@ def test_feedback_rows_train_the_revision(tiny_dataset, tmp_path, processor):
     src_rows = [r for r in iter_rows(tiny_dataset, "train") if r["object_id"] == row["object_id"]]
     src = next(r for r in src_rows if r["step_id"] == row["step_id"])
     predicted = row["pose_messages"][2]["content"][0]["text"]
-    fb = feedback_example(src, predicted, before_rows(src_rows, src), get_reader(None), int(meta["config"]["size"]),
+    fb = feedback_example(src, predicted, before_rows(src_rows, src), get_reader(None), int(meta.config["size"]),
                           scene=assembly_rows(src_rows, src))
     assert clean_messages(row["pose_messages"][:-1]) == fb.messages
 
@@ -273,7 +273,7 @@ def test_command_line_trains_evaluates_and_leaves_a_loadable_model(tiny_dataset,
     assert len((run / "preds_after.jsonl").read_text().splitlines()) == 2
     AutoModelForImageTextToText.from_pretrained(str(run / "final"))
     from eval.hf import HFPredictor
-    from train.processor import load_processor
+    from eval.processor import load_processor
 
     HFPredictor(AutoModelForImageTextToText.from_pretrained(str(run / "final")), load_processor(run / "final"))
     # a changed setting is refused with a clear one-line error, exit status 2

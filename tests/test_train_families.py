@@ -90,7 +90,7 @@ def test_folder_loads_through_the_auto_classes(name, folders, texts, tmp_path):
     from transformers import AutoConfig, AutoModelForImageTextToText
 
     from train import templates
-    from train.processor import load_processor
+    from eval.processor import load_processor
     from train.tiny import build_tiny_model
 
     model_cls, processor_cls, template, end, _, image_token = EXPECTED[name]
@@ -116,7 +116,7 @@ def test_folder_loads_through_the_auto_classes(name, folders, texts, tmp_path):
 def test_labels_are_the_answer_and_end_of_turn_token_by_token(name, task, folders, tiny_dataset):
     from eval.chat import task_chat
     from train.data import encode
-    from train.processor import load_processor
+    from eval.processor import load_processor
 
     *_, end, placeholder, image_token = EXPECTED[name]
     processor = load_processor(folders(name))
@@ -149,7 +149,7 @@ def test_labels_are_the_answer_and_end_of_turn_token_by_token(name, task, folder
 def test_only_the_final_answer_of_a_feedback_chat_is_trained(name, folders, tiny_dataset):
     from eval.chat import task_chat
     from train.data import encode
-    from train.processor import load_processor
+    from eval.processor import load_processor
 
     end = EXPECTED[name][3]
     processor = load_processor(folders(name))
@@ -171,7 +171,7 @@ def test_trains_resumes_and_evaluates_from_a_local_folder(name, folders, tiny_da
 
     from train import checkpoint as ckpt
     from train.__main__ import main
-    from train.processor import load_processor
+    from eval.processor import load_processor
 
     folder = folders(name)
     run = tmp_path / "run"

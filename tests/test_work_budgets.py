@@ -99,11 +99,12 @@ def _nested(levels: int, fan: int) -> str:
 
 
 def test_verify_refuses_a_model_past_its_parts_budget_up_front(write, capsys, monkeypatch):
+    import factory.replay as replay
     import pipelines.verify as verify
 
     path = write("nested.mpd", _nested(3, 4))  # 64 bricks
-    monkeypatch.setattr(verify, "MAX_VERIFY_PARTS", 50)
-    monkeypatch.setattr(verify, "build_steps", lambda *a, **k: pytest.fail("expanded before refusing"))
+    monkeypatch.setattr(replay, "MAX_VERIFY_PARTS", 50)
+    monkeypatch.setattr(replay, "build_steps", lambda *a, **k: pytest.fail("expanded before refusing"))
     assert verify.main([str(path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(path) in err[0] and "64 parts" in err[0] and "at most 50" in err[0], err

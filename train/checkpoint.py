@@ -84,7 +84,7 @@ def latest(run) -> Path | None:
 
 def save(run, step: int, model, processor, config, state: dict, keep: int = 0) -> Path:
     """Write checkpoint `step` (see the module docstring); keep the newest `keep` (0: all)."""
-    from train.processor import save_processor
+    from eval.processor import save_processor
 
     run = Path(run)
     name = checkpoint_name(step)

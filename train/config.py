@@ -12,8 +12,8 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from eval.metrics import TASKS
 from factory.config import ConfigError as _ConfigError, config_from_dict, config_to_dict
+from factory.dataset.tasks import TASKS
 
 DTYPES = ("auto", "bf16", "fp32")
 DEVICES = ("auto", "cpu", "cuda")

@@ -34,8 +34,9 @@ import pyarrow.parquet as pq
 import torch
 from torch.utils.data import IterableDataset
 
-from eval.chat import TASKS, columns_for, task_chat
+from eval.chat import columns_for, task_chat
 from eval.data import info, shard_files
+from factory.dataset.tasks import TASKS
 from train.config import ConfigError
 
 IGNORE = -100
@@ -127,7 +128,7 @@ class Group:
 
 def folder_tasks(folder) -> tuple[str, ...]:
     """The tasks a dataset folder provides: `meta/info.json` "tasks" (feedback folders: pose), else all."""
-    return tuple(info(folder).get("tasks") or TASKS)
+    return info(folder).available_tasks
 
 
 def list_groups(folders, tasks, split: str = "train") -> list[Group]:
@@ -168,7 +169,7 @@ def _worker_init(processor_path: str, max_pixels: int | None, max_length: int | 
     # per core) in every worker, 8 workers on 16 cores encoded 5.6 examples/s on the GPU machine
     # instead of the ~20/s per worker one thread gives.
     torch.set_num_threads(1)
-    from train.processor import load_processor
+    from eval.processor import load_processor
 
     _WORKER.update(processor=load_processor(processor_path, max_pixels), max_length=max_length)
 

@@ -31,11 +31,11 @@ def eval_folder(config: TrainConfig) -> str:
 
 def _predictor(path, config: TrainConfig, device):
     """An `eval.predict.ModelPredictor` of the model folder `path` (processor via
-    `train.processor.load_processor`, which also works without torchvision)."""
+    `eval.processor.load_processor`, which also works without torchvision)."""
     from eval.hf import HFPredictor
     from eval.predict import ModelPredictor
     from train.model import load_base
-    from train.processor import load_processor
+    from eval.processor import load_processor
 
     import torch
 

@@ -9,18 +9,17 @@ prompt, the wrong answer (assistant), the feedback turn (user, with the `feedbac
 right answer (assistant), and `pose_images` = the pose images then `feedback`. The trainer learns
 the last turn only, so the model is taught to revise a wrong pose given what the simulator showed.
 
-OUT_FB is a dataset folder in the row format of `pipelines.dataset.schema` plus one image column,
+OUT_FB is a dataset folder in the row format of `factory.dataset.schema` plus one image column,
 `feedback`: `data/train-00000-of-00001.parquet` (one row group per object, written to a temporary
-file and renamed) and `meta/info.json` (written last) with ``"kind": "feedback"``, ``"tasks":
-["pose"]`` (so `python -m train --data OUT --data OUT_FB` trains only pose on it) and where the
-predictions and the dataset came from. Answers that get no example are counted by reason
+file and renamed) and `meta/info.json` (a `factory.dataset.DatasetInfo`, written last) with
+``"source": "feedback"``, ``"tasks": ["pose"]`` (so `python -m train --data OUT --data OUT_FB`
+trains only pose on it) and where the predictions and the dataset came from. Answers that get no example are counted by reason
 (right, unparseable, missing, failed to render) and reported.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from collections import Counter
@@ -28,47 +27,45 @@ from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.parquet as pq
+from tqdm import tqdm
 
-FEEDBACK_COLUMN = "feedback"
+from eval.data import DatasetError, info, iter_objects, iter_rows, load_targets
+from eval.feedback import assembly_rows, before_rows, feedback_example, revision_messages
+from eval.parse import parse_pose
+from eval.score import PredictionsError, read_predictions
+from factory.cli import run_guarded
+from factory.dataset.info import Counts, DatasetInfo, write_info
+from factory.dataset.prompts import text_part
+from factory.dataset.schema import arrow_schema
+from factory.dataset.tasks import FEEDBACK_IMAGES
+from factory.ldraw import get_reader
+from factory.render.scene import clear_cache
+from pipelines.dataset.png import png_bytes
+from pipelines.dataset.shards import WRITER_OPTIONS
+from pipelines.dataset.sources import file_sha256
+
+(FEEDBACK_COLUMN,) = FEEDBACK_IMAGES
 OUT_FILE = "train-00000-of-00001.parquet"
 
 
 def feedback_schema() -> pa.Schema:
     """The dataset's Arrow schema plus the `feedback` image column (HF `Image` in the metadata)."""
-    from pipelines.dataset.schema import IMAGE, SCHEMA, features_json
-
-    features = {**features_json(), FEEDBACK_COLUMN: {"_type": "Image"}}
-    meta = {"huggingface": json.dumps({"info": {"features": features}}, sort_keys=False)}
-    return pa.schema([*SCHEMA, pa.field(FEEDBACK_COLUMN, IMAGE)], metadata=meta)
+    return arrow_schema(FEEDBACK_IMAGES)
 
 
 def correction_messages(row: dict, predicted: str, errors: list[dict]) -> list[dict]:
     """The row's pose conversation (Parquet format) with the wrong answer, the feedback turn and the
     right answer appended: what `eval.feedback.feedback_example` asks, then its target."""
-    from eval.feedback import revision_messages
-    from pipelines.dataset.prompts import text_part
-
     return [*revision_messages(row, predicted, errors),
             {"role": "assistant", "content": [text_part(row["pose_answer"])]}]
 
 
 def build_feedback(data, pred, out, split: str = "train", progress: bool = False) -> dict:
     """Write the correction dataset OUT from predictions `pred` on `split` of `data`; returns the counts."""
-    from eval.data import info, iter_objects, iter_rows, load_targets
-    from pipelines.dataset.sources import file_sha256
-    from eval.feedback import assembly_rows, before_rows, feedback_example
-    from eval.parse import parse_pose
-    from eval.score import read_predictions
-    from factory.ldraw import get_reader
-    from factory.render.scene import clear_cache
-    from pipelines.dataset.png import png_bytes
-    from pipelines.dataset.shards import WRITER_OPTIONS
-    from train.checkpoint import write_atomic_text
-
     data, pred, out = Path(data), Path(pred), Path(out)
     src = info(data)
     answers, _ = read_predictions(pred, [s.id for s in load_targets(data, split)])
-    config = src["config"]
+    config = src.config
     reader, size = get_reader(config.get("ldraw")), int(config["size"])
     level = int(config.get("png_compress_level", 6))
     schema = feedback_schema()
@@ -79,8 +76,6 @@ def build_feedback(data, pred, out, split: str = "train", progress: bool = False
     final = out / "data" / OUT_FILE
     tmp = final.with_name(f".{final.name}.{os.getpid()}.tmp")
     writer = pq.ParquetWriter(str(tmp), schema, **WRITER_OPTIONS)
-    from tqdm import tqdm
-
     bar = tqdm(unit="step", desc="feedback", disable=not progress, file=sys.stderr)
     try:
         for rows in iter_objects(iter_rows(data, split)):
@@ -124,32 +119,31 @@ def build_feedback(data, pred, out, split: str = "train", progress: bool = False
         raise
     finally:
         bar.close()
-    summary = {
-        "kind": "feedback",
-        "tasks": ["pose"],
-        "dataset_id": f"{src.get('dataset_id', 'dataset')}-feedback",
-        "source_dataset": str(data.resolve()),
-        "source_dataset_id": src.get("dataset_id"),
-        "source_config_hash": src.get("config_hash"),
-        "source_split": split,
-        "predictions": str(pred.resolve()),
-        "predictions_sha256": file_sha256(pred),
-        "counts": {"train": {"objects": objects, "steps": counts["built"]}},
-        "reasons": dict(sorted(counts.items())),
-        "splits_present": ["train"],
-        "total": {"objects": objects, "steps": counts["built"]},
-        "config": config,
-        "schema_extra_columns": [FEEDBACK_COLUMN],
-    }
-    write_atomic_text(out / "meta" / "info.json", json.dumps(summary, indent=1, sort_keys=True) + "\n")
-    return summary
+    written = Counts(objects, counts["built"])
+    meta = DatasetInfo(
+        dataset_id=f"{src.dataset_id}-feedback",
+        source="feedback",
+        config=config,
+        counts={"train": written},
+        total=written,
+        splits_present=("train",),
+        tasks=("pose",),
+        extra_images=FEEDBACK_IMAGES,
+        details={
+            "source_dataset": str(data.resolve()),
+            "source_dataset_id": src.dataset_id,
+            "source_config_hash": src.config_hash,
+            "source_split": split,
+            "predictions": str(pred.resolve()),
+            "predictions_sha256": file_sha256(pred),
+            "reasons": dict(sorted(counts.items())),
+        },
+    )
+    write_info(out, meta)
+    return meta.to_dict()
 
 
 def main(argv: list[str] | None = None) -> int:
-    from eval.data import DatasetError
-    from eval.score import PredictionsError
-    from factory.cli import run_guarded
-
     ap = argparse.ArgumentParser(prog="python -m train.feedback", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", required=True, help="dataset folder the predictions answer")

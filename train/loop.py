@@ -203,7 +203,7 @@ def _gpu_mem_gb(device: torch.device) -> float | None:
 def build(config: TrainConfig, device: torch.device, resume_from: Path | None, progress: bool = False):
     """(model, processor, base path) for a fresh run or a checkpoint to resume."""
     from train.model import add_lora, load_adapter_weights, load_base
-    from train.processor import load_processor
+    from eval.processor import load_processor
 
     base = base_model_path(config, progress)
     processor = load_processor(base, config.max_pixels)
@@ -332,7 +332,7 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
 def save_final(config: TrainConfig, model, processor, base: Path) -> Path:
     """`RUN/final/`: the trained model as plain transformers weights (LoRA merged), processor, config."""
     from train.model import merged
-    from train.processor import save_processor
+    from eval.processor import save_processor
 
     run = Path(config.outdir)
     final = run / FINAL

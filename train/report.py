@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from factory.atomic import write_figure
+
 SUMMARY_FILE = "train_summary.json"
 PLOT_FILE = "loss.png"
 
@@ -41,7 +43,7 @@ def plot_loss(run, records: list[dict]) -> Path | None:
     ax.legend()
     fig.tight_layout()
     out = Path(run) / PLOT_FILE
-    fig.savefig(out)
+    write_figure(fig, out)
     plt.close(fig)
     return out
 

@@ -13,7 +13,7 @@ exercise what a real checkpoint would, in seconds on a CPU. The special tokens' 
 are the tokenizer's, so the model finds its image tokens.
 
 The result is a plain `save_pretrained` folder: `AutoModelForImageTextToText.from_pretrained(dir)`
-and `AutoProcessor.from_pretrained(dir)` (or `train.processor.load_processor` without torchvision)
+and `AutoProcessor.from_pretrained(dir)` (or `eval.processor.load_processor` without torchvision)
 load it. Built twice with the same texts, family and seed, the files are identical.
 
     python -m train.tiny --family gemma3 --data OUT --out MODEL_DIR   # then: make train MODEL=MODEL_DIR
@@ -280,7 +280,7 @@ def make_processor(tokenizer, max_pixels: int = MAX_PIXELS, fam: str | Family = 
     import transformers
     from transformers import PreTrainedTokenizerFast
 
-    from train.processor import make_processor as processor_of
+    from eval.processor import make_processor as processor_of
 
     fam = family(fam) if isinstance(fam, str) else fam
     named = set(fam.tokens.values()) | set(fam.named.values())
@@ -318,7 +318,7 @@ def build_tiny_model(out_dir, texts: Iterable[str], vocab_size: int = 1024, seed
     import torch
     from transformers import AutoModelForImageTextToText, GenerationConfig
 
-    from train.processor import save_processor
+    from eval.processor import save_processor
 
     fam = family(family_name)
     if size not in SIZES:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from factory.atomic import write_atomic
 from factory.embedded.builder import header, part_file, primitives
 from factory.embedded.catalog import PARTS
 from factory.embedded.colours import ldconfig
@@ -31,7 +32,5 @@ def write_library(root: str | Path) -> Path:
     """Write the generated library under `root` (created if needed); returns `root`."""
     root = Path(root)
     for rel, text in generate_library().items():
-        path = root / rel
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text, encoding="utf-8", newline="\n")
+        write_atomic(root / rel, text.encode("utf-8"))
     return root

@@ -3,9 +3,19 @@
     from pipelines.dataset import DatasetConfig, build, build_shard
     summary = build(config, "out/synth", backend="local", workers=2)
 
-See docs/dataset.md: rows, layout, determinism and resume, the Ray backend, the designs source.
+The row contract (tasks, prompts, answer formats, schema, meta/info.json) is `factory.dataset`;
+the names below from it are re-exported. See docs/dataset.md: rows, layout, determinism and
+resume, the Ray backend, the designs source.
 """
 
+from factory.dataset import POSE_IMAGES, SCHEMA_VERSION, SELECTION_IMAGES
+from factory.dataset.prompts import (
+    SYSTEM_TEXT,
+    feedback_prompt,
+    feedback_turn,
+    pose_prompt,
+    selection_prompt,
+)
 from pipelines.dataset.build import (
     BACKENDS,
     FolderBusyError,
@@ -16,21 +26,7 @@ from pipelines.dataset.build import (
     prepare,
     summary_line,
 )
-from pipelines.dataset.config import (
-    SCHEMA_VERSION,
-    ConfigMismatchError,
-    DatasetConfig,
-    split_of,
-)
-from pipelines.dataset.prompts import (
-    POSE_IMAGES,
-    SELECTION_IMAGES,
-    SYSTEM_TEXT,
-    feedback_prompt,
-    feedback_turn,
-    pose_prompt,
-    selection_prompt,
-)
+from pipelines.dataset.config import ConfigMismatchError, DatasetConfig, split_of
 from pipelines.dataset.shards import build_shard
 
 __all__ = [

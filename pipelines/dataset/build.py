@@ -8,25 +8,29 @@ gallery from the completion markers and the data files.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
+import resource
+import socket
 import sys
 import time
+from concurrent.futures import as_completed
 from contextlib import ExitStack, contextmanager
 from importlib import metadata
 from pathlib import Path
 
+from tqdm import tqdm
+
 from factory.atomic import write_atomic
+from factory.dataset.info import Counts, DatasetInfo, json_bytes, write_info
+from factory.dataset.tasks import SPLITS
 from factory.errors import LDrawError
-from pipelines.dataset.config import (
-    SCHEMA_VERSION,
-    SPLITS,
-    ConfigMismatchError,
-    DatasetConfig,
-    diff_configs,
-    json_bytes,
-)
+from factory.sampler.sampler import target_steps
+from pipelines.dataset.config import ConfigMismatchError, DatasetConfig, diff_configs
 from pipelines.dataset import spool
+from pipelines.dataset.card import dataset_card
+from pipelines.dataset.gallery import write_gallery
 from pipelines.dataset.shards import build_shard, marker_path, object_source, read_marker, remove_stranded
 from pipelines.workers import ONE_THREAD, one_thread_each
 from pipelines.workers import pool as workers_pool
@@ -56,9 +60,6 @@ def holding(out):
     holder (pid, host, start). A second run on the folder is refused (`FolderBusyError`) instead of
     deleting the first's temporary files; the lock ends with the holding process however it ends,
     and the file is removed when the build ends, so a finished folder holds no trace of it."""
-    import fcntl
-    import socket
-
     path = Path(out) / "meta" / "build.lock"
     path.parent.mkdir(parents=True, exist_ok=True)
     while True:
@@ -141,8 +142,6 @@ def _run_local(config, todo, out, workers, bar):
             except Exception as exc:  # noqa: BLE001 - reported with the shard number
                 errors.append((k, exc))
         return errors
-    from concurrent.futures import as_completed
-
     with workers_pool(workers) as pool:
         futures = {pool.submit(build_shard, config.to_json(), k, str(out)): k for k in todo}
         for fut in as_completed(futures):
@@ -160,7 +159,7 @@ def _ray_tasks(workers: int):
     """`build_shard` as a Ray task, on the running Ray, else on a local instance (`workers` CPUs) or
     the cluster at `$RAY_ADDRESS` (then `out` must be a folder every node sees, e.g. a shared
     filesystem); a Ray started here is shut down after."""
-    import ray
+    import ray  # the optional `ray` extra, loaded only for --backend ray
 
     started = False
     if not ray.is_initialized():
@@ -299,8 +298,6 @@ def largest_first(config: DatasetConfig, shards: list[int]) -> list[int]:
     short ones and the workers end together; other sources in order. The data do not depend on it."""
     if config.source != "synthetic" or sum(len(config.shard_objects(k)) for k in shards) > LARGEST_FIRST_MAX:
         return shards
-    from factory.sampler.sampler import target_steps
-
     work = {k: sum(target_steps(config.sampler, i) ** 2 for i in config.shard_objects(k)) for k in shards}
     return sorted(shards, key=lambda k: (-work[k], k))
 
@@ -336,8 +333,6 @@ def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, 
 
 
 def _build(config, out, backend, workers, progress, desc, batch, growers, t0) -> dict:
-    from tqdm import tqdm
-
     out = prepare(config, out)
     remove_stranded(out)
     done = finished_shards(config, out)
@@ -375,8 +370,6 @@ def _build(config, out, backend, workers, progress, desc, batch, growers, t0) ->
 def _peak_rss_mb() -> dict:
     """Peak resident memory of this process and of its largest finished worker process (MB; Linux
     reports KB). Ray workers are not children of this process and are not counted."""
-    import resource
-
     own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     child = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     return {"main": round(own, 1), "largest_worker": round(child, 1)}
@@ -396,9 +389,6 @@ def _versions() -> dict:
 
 def finalize(config: DatasetConfig, out) -> dict:
     """`meta/info.json`, `meta/objects.jsonl`, `README.md` and `gallery/` from the markers."""
-    from pipelines.dataset.card import dataset_card
-    from pipelines.dataset.gallery import write_gallery
-
     out = Path(out)
     markers = [read_marker(out, k, config) for k in range(config.num_shards)]
     if any(m is None for m in markers):
@@ -420,22 +410,22 @@ def finalize(config: DatasetConfig, out) -> dict:
             stages[k] = stages.get(k, 0.0) + v
         objects += m["objects"]
     total = {k: sum(counts[s][k] for s in SPLITS) for k in ("objects", "steps", "bytes")}
-    info = {
-        "schema_version": SCHEMA_VERSION,
-        "dataset_id": config.dataset_id,
-        "source": config.source,
-        "seed": config.seed,
-        "config_hash": config.hash,
-        "config": config.to_json(),
-        "counts": counts,
-        "total": total,
-        "num_shards": config.num_shards,
-        "statistics": {g: dict(sorted(c.items())) for g, c in sorted(stats.items())},
-        "package_versions": _versions(),
-        "splits_present": [s for s in SPLITS if counts[s]["steps"] > 0],
-    }
+    typed = DatasetInfo(
+        dataset_id=config.dataset_id,
+        source=config.source,
+        config=config.to_json(),
+        counts={s: Counts(**c) for s, c in counts.items()},
+        total=Counts(**total),
+        splits_present=tuple(s for s in SPLITS if counts[s]["steps"] > 0),
+        seed=config.seed,
+        config_hash=config.hash,
+        num_shards=config.num_shards,
+        statistics={g: dict(sorted(c.items())) for g, c in sorted(stats.items())},
+        package_versions=_versions(),
+    )
+    write_info(out, typed)
+    info = typed.to_dict()
     meta = out / "meta"
-    write_atomic(meta / "info.json", json_bytes(info))
     write_atomic(meta / "objects.jsonl",
                  "".join(json.dumps(o, sort_keys=True) + "\n" for o in objects).encode())
     write_gallery(config, out, info)

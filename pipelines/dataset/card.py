@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import yaml
 
-from pipelines.dataset.prompts import POSE_IMAGES, SELECTION_IMAGES
+from factory.dataset.tasks import POSE_IMAGES, SELECTION_IMAGES
 
 
 def _size_category(n: int) -> str:

@@ -16,11 +16,9 @@ from dataclasses import dataclass, field, replace
 from factory.config import ConfigError, config_from_dict, config_to_dict
 from factory.sampler import SamplerConfig
 
-SCHEMA_VERSION = 1
-"""Version of the row layout (`schema.py`); part of the config hash."""
+from factory.dataset.schema import SCHEMA_VERSION
 
 SOURCES = ("synthetic", "design")
-SPLITS = ("train", "test")
 
 
 class ConfigMismatchError(RuntimeError):
@@ -226,7 +224,3 @@ def diff_configs(old: dict, new: dict, prefix: str = "") -> list[str]:
             out.append(f"{prefix}{k}: {sa} -> {sb}")
     return out
 
-
-def json_bytes(obj) -> bytes:
-    """Deterministic, readable JSON (sorted keys, 1-space indent, trailing newline)."""
-    return (json.dumps(obj, sort_keys=True, indent=1, ensure_ascii=False, allow_nan=False) + "\n").encode()

@@ -10,7 +10,7 @@ import pyarrow.parquet as pq
 from PIL import Image
 
 from factory.atomic import write_atomic
-from pipelines.dataset.config import SPLITS
+from factory.dataset.tasks import SPLITS
 from pipelines.dataset.png import png_bytes
 
 MAX_SAMPLES = 12

@@ -8,10 +8,11 @@ import time
 
 import numpy as np
 
-from eval.parse import normalise_part
+from factory.dataset import prompts
+from factory.dataset.answers import normalise_part
+from factory.dataset.tasks import POSE_IMAGES, SELECTION_IMAGES
 from factory.ldraw import get_reader
 from factory.parts import LDU_CM, load_part
-from pipelines.dataset import prompts
 from pipelines.dataset.png import png_bytes
 from pipelines.dataset.sources import _py
 
@@ -184,13 +185,13 @@ def _rows(obj, config, split, timings, reader, colours) -> list[dict]:
                               for (n, c, _), rc in zip(entries, cells)],
             "physics": json.dumps(_py(step.physics), sort_keys=True, separators=(",", ":"), allow_nan=False),
             "system": prompts.SYSTEM_TEXT,
-            "selection_messages": prompts.conversation(prompts.SYSTEM_TEXT, len(prompts.SELECTION_IMAGES),
+            "selection_messages": prompts.conversation(prompts.SYSTEM_TEXT, len(SELECTION_IMAGES),
                                                        sel_text, sel_answer),
-            "selection_images": list(prompts.SELECTION_IMAGES),
+            "selection_images": list(SELECTION_IMAGES),
             "selection_answer": sel_answer,
-            "pose_messages": prompts.conversation(prompts.SYSTEM_TEXT, len(prompts.POSE_IMAGES), pose_text,
+            "pose_messages": prompts.conversation(prompts.SYSTEM_TEXT, len(POSE_IMAGES), pose_text,
                                                   pose_answer),
-            "pose_images": list(prompts.POSE_IMAGES),
+            "pose_images": list(POSE_IMAGES),
             "pose_answer": pose_answer,
         })
     return rows

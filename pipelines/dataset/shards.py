@@ -28,9 +28,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from factory.atomic import write_atomic
+from factory.dataset.info import json_bytes
+from factory.dataset.schema import SCHEMA
+from factory.dataset.tasks import SPLITS
 from pipelines.dataset import spool
-from pipelines.dataset.config import SPLITS, DatasetConfig, json_bytes
-from pipelines.dataset.schema import SCHEMA
+from pipelines.dataset.config import DatasetConfig
 
 WRITER_OPTIONS = dict(
     compression="zstd",

@@ -22,7 +22,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from factory.ldraw import PlacedPart, build_steps, get_reader
+from factory.ldraw.subassembly import UnitDone, walk
 from factory.pose import Pose
+from factory.replay import verify_model
+from factory.sampler import Sampler, SamplerConfig
 
 
 @dataclass
@@ -85,8 +88,6 @@ class SyntheticSource:
     """Objects from `factory.sampler.Sampler`: one step per placed part, its sampler verdict."""
 
     def __init__(self, config, ldraw: str | None = None):
-        from factory.sampler import Sampler
-
         self.sampler = Sampler(config, ldraw)
 
     def object(self, index: int, object_id: str, grown=None) -> ObjectSpec:
@@ -128,8 +129,6 @@ def _physics_records(path, ldraw, enabled: bool):
     """verify_model's records, keyed by (build step, part index) and by sub-assembly tag."""
     if not enabled:
         return None, None, 0.0
-    from pipelines.verify import verify_model
-
     t = time.perf_counter()
     parts, units = {}, {}
     for r in verify_model(path, ldraw):
@@ -141,21 +140,9 @@ def _physics_records(path, ldraw, enabled: bool):
     return parts, units, time.perf_counter() - t
 
 
-def _inverse(p: Pose) -> Pose:
-    """The exact inverse (`Pose.inverse` transposes, which is off by ~1e-5 LDU for the rounded,
-    not quite orthonormal matrices of real files such as 0.707107)."""
-    inv = np.linalg.inv(p.R)
-    return Pose(inv, -inv @ p.t)
-
-
-class _Open:
-    def __init__(self, tag: str, frame: Pose):
-        self.tag, self.frame, self.placed = tag, frame, []
-
-
 def manual_steps(model_path, ldraw=None, physics: bool = True) -> tuple[list[Step], dict, float]:
-    """A human design's steps in manual order (see the module docstring), the count of physics
-    flags by reason, and the seconds the physics replay took."""
+    """A human design's steps in manual order (see the module docstring; `factory.ldraw.subassembly.walk`),
+    the count of physics flags by reason, and the seconds the physics replay took."""
     reader = get_reader(ldraw)
     frames: dict[str, Pose] = {}
     build = build_steps(reader, reader.open_model(model_path), frames)
@@ -163,7 +150,8 @@ def manual_steps(model_path, ldraw=None, physics: bool = True) -> tuple[list[Ste
     inventory = Counter((p.part, p.colour, p.model) for s in build for p in s.parts)
     out: list[Step] = []
     flags: Counter = Counter()
-    open_: list[_Open] = []
+    placed: dict[str, list[PlacedPart]] = {}
+    """The parts of every open assembly, in its own frame."""
     not_run = {"source": "none", "note": "physics replay not run"}
 
     def emit(tag, kind, before, new, record):
@@ -172,45 +160,34 @@ def manual_steps(model_path, ldraw=None, physics: bool = True) -> tuple[list[Ste
             offered += [(p.part, p.colour, p.model) for p in new]
         out.append(Step(tag, kind, tuple(before), tuple(new), tuple(offered), record))
 
-    def close_until(tag: str):
-        while open_ and not (tag == open_[-1].tag or tag.startswith(open_[-1].tag + "/")):
-            done = open_.pop()
-            if not open_ or not done.placed:
-                continue
-            parent = open_[-1]
-            to_parent = _inverse(parent.frame) @ done.frame
-            new = [PlacedPart(p.part, p.colour, to_parent @ p.pose, p.source, p.model) for p in done.placed]
+    for event in walk(build, frames):
+        if isinstance(event, UnitDone):
+            new = [PlacedPart(p.part, p.colour, event.to_parent @ p.pose, p.source, p.model)
+                   for p in placed.pop(event.tag)]
             if unit_rec is None:
                 record = dict(not_run)
             else:
-                unit = unit_rec.get(done.tag)
+                unit = unit_rec.get(event.tag)
                 record = {"source": "verify", "unit": unit, "bricks": []}
                 if unit and unit.get("reason"):
                     flags[unit["reason"]] += 1
-            emit(parent.tag, "module", parent.placed, new, record)
-            parent.placed.extend(new)
-
-    for step in build:
-        close_until(step.assembly)
-        path = step.assembly.split("/")
-        for depth in range(1, len(path) + 1):
-            tag = "/".join(path[:depth])
-            if not any(a.tag == tag for a in open_):
-                open_.append(_Open(tag, frames.get(tag, Pose.identity())))
-        asm = open_[-1]
-        to_local = _inverse(asm.frame)
-        new = [PlacedPart(p.part, p.colour, to_local @ p.pose, p.source, p.model) for p in step.parts]
+            parent = placed.setdefault(event.parent, [])
+            emit(event.parent, "module", parent, new, record)
+            parent.extend(new)
+            continue
+        step = event.step
+        new = [PlacedPart(p.part, p.colour, event.to_local @ p.pose, p.source, p.model) for p in step.parts]
         if part_rec is None:
             record = dict(not_run)
         else:
             bricks = [part_rec.get((step.index, i)) for i in range(len(new))]
             record = {"source": "verify", "unit": None, "bricks": bricks}
             flags.update(b["reason"] for b in bricks if b and b.get("reason"))
-        emit(asm.tag, "part", asm.placed, new, record)
+        asm = placed.setdefault(step.assembly, [])
+        emit(step.assembly, "part", asm, new, record)
         for p in step.parts:
             inventory[(p.part, p.colour, p.model)] -= 1
-        asm.placed.extend(new)
-    close_until("")
+        asm.extend(new)
     # Every assembly's final parts (its last step's before + new), for framing.
     last: dict[str, tuple] = {}
     for s in out:

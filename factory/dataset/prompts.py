@@ -4,11 +4,11 @@ Conversations use TRL's vision `messages` format: a list of {"role", "content"} 
 list of parts, {"type": "image"} (the images come separately, in order) or {"type": "text",
 "text": ...}. In the Parquet rows every content part has the same three keys (`type`, `text`,
 `index`; the unused ones are null), as Arrow needs one struct type; `index` is the position of
-the image in the task's image list (`SELECTION_IMAGES`, `POSE_IMAGES`). No key is named
+the image in the task's image list (`factory.dataset.tasks.image_columns`). No key is named
 `image`, so chat templates that test `'image' in part` treat text parts as text.
 
-Answers are written by `eval.baselines.format_selection` / `format_pose`, the formatters the
-evaluator's parser is tested against, so what a model is trained on is what the scorer reads.
+Answers are written by `factory.dataset.answers.format_selection` / `format_pose`, the formatters
+the evaluator's parser is tested against, so what a model is trained on is what the scorer reads.
 """
 
 from __future__ import annotations
@@ -17,14 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from eval.baselines import format_pose, format_selection
-
-SELECTION_IMAGES = ("before", "after", "catalog")
-"""Image columns of the brick selection conversation, in prompt order."""
-POSE_IMAGES = ("before", "after", "part", "axes")
-"""Image columns of the pose estimation conversation, in prompt order."""
-FEEDBACK_IMAGES = ("feedback",)
-"""The image of a world-feedback turn (`factory.render.render_feedback` of the prediction)."""
+from factory.dataset.answers import format_pose, format_selection
 
 SYSTEM_TEXT = (
     "You are an expert LEGO builder reading step-by-step building instructions rendered from LDraw "
@@ -156,7 +149,7 @@ def feedback_prompt(errors: Sequence[dict]) -> str:
     rotation matrix it was drawn with; never the per-axis offsets.
 
     `errors`: per brick, {"translation_error": float, "rotation_error": float, "R": 3x3}.
-    The image to show with it (`FEEDBACK_IMAGES`) is `render_feedback` of the prediction.
+    The image to show with it (`factory.dataset.tasks.FEEDBACK_IMAGES`) is `render_feedback` of the prediction.
     """
     lines = [
         "Your previous answer was executed in the simulator. The image shows the assembly in muted "

@@ -12,6 +12,10 @@ import json
 
 import pyarrow as pa
 
+SCHEMA_VERSION = 1
+"""Version of the row layout (this module) and of `meta/info.json` (`factory.dataset.info`); part of
+a build's config hash."""
+
 IMAGE_COLUMNS = ("before", "after", "isometric", "part", "axes", "catalog")
 
 IMAGE = pa.struct([("bytes", pa.binary()), ("path", pa.string())])
@@ -76,14 +80,22 @@ def _feature(t: pa.DataType, image: bool = False) -> dict:
     return {"dtype": names[t], "_type": "Value"}
 
 
-def features_json() -> dict:
-    """The Hugging Face `Features.to_dict()` of the rows."""
-    return {name: _feature(t, name in IMAGE_COLUMNS) for name, t in FIELDS}
+def features_json(extra_images: tuple[str, ...] = ()) -> dict:
+    """The Hugging Face `Features.to_dict()` of the rows (with `extra_images` image columns last)."""
+    out = {name: _feature(t, name in IMAGE_COLUMNS) for name, t in FIELDS}
+    out.update({name: _feature(IMAGE, True) for name in extra_images})
+    return out
 
 
-def arrow_schema() -> pa.Schema:
-    meta = {"huggingface": json.dumps({"info": {"features": features_json()}}, sort_keys=False)}
-    return pa.schema([pa.field(n, t) for n, t in FIELDS], metadata=meta)
+def arrow_schema(extra_images: tuple[str, ...] = ()) -> pa.Schema:
+    """The rows' Arrow schema; `extra_images`: image columns added after the others (a world-feedback
+    dataset's `feedback`), declared as HF `Image` features too."""
+    clash = [n for n in extra_images if n in dict(FIELDS)]
+    if clash:
+        raise ValueError(f"extra image column {clash[0]!r} is already a row column")
+    meta = {"huggingface": json.dumps({"info": {"features": features_json(extra_images)}}, sort_keys=False)}
+    fields = [pa.field(n, t) for n, t in FIELDS] + [pa.field(n, IMAGE) for n in extra_images]
+    return pa.schema(fields, metadata=meta)
 
 
 SCHEMA = arrow_schema()
