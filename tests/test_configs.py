@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from conftest import tiny_dataset_config
-from eval.metrics import TASKS
+from factory.dataset.tasks import TASKS
 from factory.cli import config_from_args
 from factory.config import ConfigError, config_from_dict, config_to_dict, field_docs
 from factory.embedded.catalog import PARTS
