@@ -5,7 +5,8 @@ The top-level package `factory` is also factory_boy's (its `factory/__init__.py`
 folder: whichever is installed last overwrites the other's shared files, and uninstalling either
 removes them from both. Our own `factory/__init__.py` cannot report that, since it is one of the
 files overwritten; this check lives in `pipelines`, which no other distribution ships, and runs when
-`pipelines` is imported (every command line and the `brick-factory` console script import it first).
+`pipelines` is imported: by the `brick-factory` console script (it imports `pipelines.commands`
+before running any command, `eval`'s and `train`'s included) and by every `python -m pipelines...`.
 
 It compares the installed files of our top-level packages with the hashes pip recorded in the
 distribution's RECORD, and names any other installed distribution that claims the same top-level
