@@ -20,10 +20,11 @@ MODEL ?=
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml
+# pyproject.toml declares ranges; constraints.txt pins the exact versions the project is tested with.
+$(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[mjx,ray,train,bench,dev]'
+	$(PY) -m pip install --quiet -c constraints.txt --upgrade pip
+	$(PY) -m pip install --quiet -c constraints.txt -e '.[mjx,ray,train,bench,dev]'
 	touch $(STAMP)
 
 # The main job: sample N physics-verified objects, render every step, write sharded Parquet to OUT

@@ -81,7 +81,7 @@ def pose_errors(row: dict, predicted_text) -> list[dict] | None:
              "R": np.asarray(a.R, dtype=np.float64).tolist()} for r, a in zip(results, answers)]
 
 
-def feedback_render(row: dict, predicted_text, before: list[dict], reader, size: int,
+def feedback_render(row: dict, predicted_text, before: list[dict], renderer, size: int,
                     scene: list[dict] | None = None):
     """The answer's bricks in red on the before-assembly (`render_feedback`), framed on the bounds
     of `scene` rows (default: before and this row), as the dataset framed the row's own views."""
@@ -93,8 +93,8 @@ def feedback_render(row: dict, predicted_text, before: list[dict], reader, size:
     predicted = [PlacedPart(b["part"], int(b["colour"]), Pose(blocks[i + 1].R, blocks[i + 1].t), "prediction")
                  for i, b in enumerate(row["bricks"]) if (i + 1) in blocks]
     scene_parts = placed_parts(scene if scene is not None else [*before, row])
-    bounds = bounds_of(scene_parts, reader) if scene_parts else None
-    return render_feedback(placed_parts(before), predicted, size, reader=reader, bounds=bounds,
+    bounds = bounds_of(scene_parts, renderer.reader) if scene_parts else None
+    return render_feedback(renderer, placed_parts(before), predicted, size, bounds=bounds,
                            scene_parts=scene_parts or None)
 
 
@@ -108,12 +108,13 @@ def revision_messages(row: dict, predicted_text: str, errors: list[dict]) -> lis
             feedback_turn(errors, image_index=len(row["pose_images"]))]
 
 
-def feedback_example(row: dict, predicted_text, before: list[dict], reader, size: int, *,
+def feedback_example(row: dict, predicted_text, before: list[dict], renderer, size: int, *,
                      scene: list[dict] | None = None) -> Feedback | None:
     """The revision conversation for a pose answer, or None when it gets no feedback.
 
     `row`: a dataset row with `feedback_columns()`; `before`: the rows of its before-assembly
-    (`before_rows`); `reader`: `factory.ldraw.get_reader(info["config"]["ldraw"])`; `size`: the
+    (`before_rows`); `renderer`: a `factory.render.Renderer` of the dataset's library
+    (`get_reader(info["config"]["ldraw"])`), one per object as the builder renders; `size`: the
     dataset's view size (`info["config"]["size"]`); `scene`: the rows of the whole assembly
     (`assembly_rows`) to frame the render like the row's own images (default: before and row).
     """
@@ -121,6 +122,6 @@ def feedback_example(row: dict, predicted_text, before: list[dict], reader, size
     if errors is None:
         return None
     _, images, _ = task_chat(row, "pose")
-    image = feedback_render(row, predicted_text, before, reader, size, scene)
+    image = feedback_render(row, predicted_text, before, renderer, size, scene)
     return Feedback(clean_messages(revision_messages(row, predicted_text, errors)), [*images, image], errors)
 

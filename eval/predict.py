@@ -35,6 +35,7 @@ import sys
 import tempfile
 import zlib
 from collections.abc import Iterator
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -175,6 +176,8 @@ def iter_predictions(data, predictor: Predictor, split: str | None = "test", tas
     reader = size = None
     if feedback and "pose" in tasks:
         columns += feedback_columns()
+        from factory.render import Renderer  # GL only when feedback images are rendered
+
         config = info(data).config
         reader, size = get_reader(config.get("ldraw")), int(config["size"])
     columns = list(dict.fromkeys(columns))
@@ -189,30 +192,28 @@ def iter_predictions(data, predictor: Predictor, split: str | None = "test", tas
     try:
         for rows in iter_objects(iter_rows(data, split, columns)):
             previous: dict[str, StepTarget] = {}
-            for row in rows:
-                if done >= total:
-                    return
-                index += 1
-                target = step_target(row)
-                ctx = StepContext(row, target, previous.get(row["assembly"]), rows)
-                previous[row["assembly"]] = target
-                if chosen is not None and index not in chosen:
-                    continue
-                for task in tasks:
-                    text = predictor.answer(ctx, task)
-                    yield {"id": row["step_id"], "task": task, "text": text}
-                    if task == "pose" and reader is not None:
-                        fb = feedback_example(row, text, before_rows(rows, row), reader, size,
-                                              scene=assembly_rows(rows, row))
-                        if fb is not None:
-                            yield {"id": row["step_id"], "task": "pose", "text": predictor.revise(ctx, fb, text),
-                                   "revised": True}
-                done += 1
-                bar.update(1)
-            if reader is not None:
-                from factory.render.scene import clear_cache
-
-                clear_cache()  # free the object's render scenes before the next object
+            # One renderer per object (its feedback renders share scenes), freed before the next object.
+            with Renderer(reader) if reader is not None else nullcontext() as renderer:
+                for row in rows:
+                    if done >= total:
+                        return
+                    index += 1
+                    target = step_target(row)
+                    ctx = StepContext(row, target, previous.get(row["assembly"]), rows)
+                    previous[row["assembly"]] = target
+                    if chosen is not None and index not in chosen:
+                        continue
+                    for task in tasks:
+                        text = predictor.answer(ctx, task)
+                        yield {"id": row["step_id"], "task": task, "text": text}
+                        if task == "pose" and reader is not None:
+                            fb = feedback_example(row, text, before_rows(rows, row), renderer, size,
+                                                  scene=assembly_rows(rows, row))
+                            if fb is not None:
+                                yield {"id": row["step_id"], "task": "pose", "text": predictor.revise(ctx, fb, text),
+                                       "revised": True}
+                    done += 1
+                    bar.update(1)
     finally:
         bar.close()
 

@@ -65,43 +65,44 @@ def view_rates(model, ldraw, sizes, repeats: int = 3) -> list[dict]:
     seconds of one full step render (every image of a step but the catalog)."""
     from factory.ldraw import get_reader, read_steps
     from factory.parts import load_part
-    from factory.render import ALL_VIEWS, Framing, bounds_of, render_step_full
+    from factory.render import ALL_VIEWS, Framing, Renderer, bounds_of, render_step_full
     from factory.render.images import EDGE_PX
-    from factory.render.scene import Item, colour_table, scene_for
+    from factory.render.scene import Item
     from factory.render.views import render_rgb, render_seg
 
     reader = get_reader(ldraw)
     steps = read_steps(model, ldraw)
     every = [p for s in steps for p in s.parts]
     items = [Item(load_part(reader, p), p.colour, p.pose) for p in every]
-    colours = colour_table(reader)
     framing = Framing.from_bounds(bounds_of(every, reader))
     out = []
-    for size in sizes:
-        t = time.perf_counter()
-        scene = scene_for([it.part for it in items], EDGE_PX * framing.height / size)
-        render_rgb(scene, items, colours, "Front", framing, size)
-        render_seg(scene, items, colours, "Front", framing, size)
-        setup = time.perf_counter() - t
-        tris = sum(int(scene.model.mesh_facenum[scene.model.geom_dataid[g]]) for g in range(scene.model.ngeom))
-        row = {"model": Path(model).name, "steps": len(steps), "parts": len(every), "size": size,
-               "triangles": tris, "setup_s": round(setup, 2)}
-        for kind, fn in (("rgb", render_rgb), ("seg", render_seg)):
-            rates = []
-            for _ in range(repeats):
-                t = time.perf_counter()
-                for v in ALL_VIEWS:
-                    fn(scene, items, colours, v, framing, size)
-                rates.append(len(ALL_VIEWS) / (time.perf_counter() - t))
-            row[f"{kind}_views_per_s"] = round(max(rates), 1)
-            row[f"{kind}_views_per_s_median"] = round(sorted(rates)[len(rates) // 2], 1)
-        k = len(steps) // 2
-        before = [p for s in steps[:k] for p in s.parts]
-        t = time.perf_counter()
-        render_step_full(before, list(steps[k].parts), size, reader=reader, bounds=bounds_of(every, reader),
-                         scene_parts=every)
-        row["step_render_s"] = round(time.perf_counter() - t, 3)
-        out.append(row)
+    with Renderer(reader) as renderer:
+        colours = renderer.colours
+        for size in sizes:
+            t = time.perf_counter()
+            scene = renderer.scene_for([it.part for it in items], EDGE_PX * framing.height / size)
+            render_rgb(scene, items, colours, "Front", framing, size)
+            render_seg(scene, items, colours, "Front", framing, size)
+            setup = time.perf_counter() - t
+            tris = sum(int(scene.model.mesh_facenum[scene.model.geom_dataid[g]]) for g in range(scene.model.ngeom))
+            row = {"model": Path(model).name, "steps": len(steps), "parts": len(every), "size": size,
+                   "triangles": tris, "setup_s": round(setup, 2)}
+            for kind, fn in (("rgb", render_rgb), ("seg", render_seg)):
+                rates = []
+                for _ in range(repeats):
+                    t = time.perf_counter()
+                    for v in ALL_VIEWS:
+                        fn(scene, items, colours, v, framing, size)
+                    rates.append(len(ALL_VIEWS) / (time.perf_counter() - t))
+                row[f"{kind}_views_per_s"] = round(max(rates), 1)
+                row[f"{kind}_views_per_s_median"] = round(sorted(rates)[len(rates) // 2], 1)
+            k = len(steps) // 2
+            before = [p for s in steps[:k] for p in s.parts]
+            t = time.perf_counter()
+            render_step_full(renderer, before, list(steps[k].parts), size, bounds=bounds_of(every, reader),
+                             scene_parts=every)
+            row["step_render_s"] = round(time.perf_counter() - t, 3)
+            out.append(row)
     return out
 
 
@@ -149,6 +150,7 @@ def main(argv: list[str] | None = None) -> int:
         from factory.ldraw import get_reader, read_steps
         from factory.render.scene import MAX_SCENE_PARTS
         from factory.render import (
+            Renderer,
             RenderUnavailableError,
             bounds_of,
             render_catalog,
@@ -182,14 +184,15 @@ def main(argv: list[str] | None = None) -> int:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
 
-        res = render_step_full(before, new, args.size, reader=reader, bounds=bounds, scene_parts=every)
         remaining = [p for s in steps[args.step:] for p in s.parts]
         order = sorted(range(len(remaining)),
                        key=lambda i: (remaining[i].part.lower(), remaining[i].colour, i))
         candidates = [remaining[i] for i in order]
-        catalog, cells = render_catalog(candidates, tile=args.tile, reader=reader)
-        feedback = render_feedback(before, [_predicted(args, new[0])], args.size, reader=reader,
-                                   bounds=bounds, scene_parts=every)
+        with Renderer(reader) as renderer:
+            res = render_step_full(renderer, before, new, args.size, bounds=bounds, scene_parts=every)
+            catalog, cells = render_catalog(renderer, candidates, tile=args.tile)
+            feedback = render_feedback(renderer, before, [_predicted(args, new[0])], args.size, bounds=bounds,
+                                       scene_parts=every)
 
         images = dict(res.images, catalog=catalog, feedback=feedback)
         for name, img in images.items():

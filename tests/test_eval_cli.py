@@ -255,13 +255,14 @@ def test_feedback_example_renders_the_prediction_in_red(tiny_dataset):
     from eval.baselines import format_pose, oracle
     from eval.feedback import assembly_rows, before_rows, feedback_columns, feedback_example
     from factory.ldraw import get_reader
+    from factory.render import Renderer
 
     rows = list(iter_rows(tiny_dataset, "test", feedback_columns()))
     row = rows[-1]
     target = step_target(row)
-    reader = get_reader(None)
+    renderer = Renderer(get_reader(None))
     wrong = format_pose([(b.t + np.array([40.0, 0.0, 0.0]), b.R) for b in target.bricks])
-    fb = feedback_example(row, wrong, before_rows(rows, row), reader, 96, scene=assembly_rows(rows, row))
+    fb = feedback_example(row, wrong, before_rows(rows, row), renderer, 96, scene=assembly_rows(rows, row))
     assert fb is not None
     messages, images, errors = fb
     assert [m["role"] for m in messages][-3:] == ["user", "assistant", "user"]
@@ -277,8 +278,9 @@ def test_feedback_example_renders_the_prediction_in_red(tiny_dataset):
     red = (a[..., 0] > 180) & (a[..., 1] < 80) & (a[..., 2] < 80)
     assert red.sum() > 50
     # a right answer and one that does not parse get no feedback
-    assert feedback_example(row, oracle(target)["pose"], before_rows(rows, row), reader, 96) is None
-    assert feedback_example(row, "no idea", before_rows(rows, row), reader, 96) is None
+    assert feedback_example(row, oracle(target)["pose"], before_rows(rows, row), renderer, 96) is None
+    assert feedback_example(row, "no idea", before_rows(rows, row), renderer, 96) is None
+    renderer.close()
 
 
 def test_a_model_is_asked_again_with_the_feedback_chat(tiny_dataset):

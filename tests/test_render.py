@@ -32,7 +32,9 @@ from factory.render import (
     ORTHO_VIEWS,
     VIEWS,
     Framing,
+    PartImages,
     RenderUnavailableError,
+    Renderer,
     compose,
     gl,
     project,
@@ -44,7 +46,7 @@ from factory.render import (
 )
 from factory.parts import box_corners
 from factory.render.images import _axes_margins, bounds_of
-from factory.render.scene import Item, colour_table, scene_for
+from factory.render.scene import Item
 from factory.render.views import render_rgb, render_seg
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -59,10 +61,16 @@ def placed(part: str, colour: int, t, R=None) -> PlacedPart:
 @pytest.fixture(scope="module")
 def reader(embedded_reader):
     try:
-        gl.context()
+        gl.Context().close()
     except RenderUnavailableError as exc:  # pragma: no cover - machines without GL
         pytest.skip(str(exc))
     return embedded_reader
+
+
+@pytest.fixture(scope="module")
+def renderer(reader):
+    with Renderer(reader) as r:
+        yield r
 
 
 def six_tile(img, index: int, size: int) -> np.ndarray:
@@ -107,16 +115,16 @@ def test_projection_round_trips_through_the_tick_mapping(view, center, height, p
 
 
 # -- pixel mapping: a marker lands where project() says --------------------------------------------
-def test_marker_lands_at_the_projected_pixels_in_every_view(reader):
+def test_marker_lands_at_the_projected_pixels_in_every_view(reader, renderer):
     size = 128
     t = np.array([37.0, -23.0, 51.0])  # off-centre on all three axes, so a flipped sign shows
     part = render.images.load_part(reader, "3024")  # 1 x 1 plate: a small marker
     framing = Framing.from_bounds(np.array([[-100.0] * 3, [100.0] * 3]))
-    scene = scene_for([part], render.images.EDGE_PX * framing.height / size)
+    scene = renderer.scene_for([part], render.images.EDGE_PX * framing.height / size)
     item = Item(part, 14, Pose(np.eye(3), t))
     corners = box_corners(np.asarray(part.bbox) + t)
     for view in ORTHO_VIEWS:
-        seg = render_seg(scene, [item], colour_table(reader), view, framing, size)
+        seg = render_seg(scene, [item], renderer.colours, view, framing, size)
         ys, xs = np.nonzero(seg == 0)
         proj = framing.project(view, corners, size)
         # Pixel (i, j) is covered when its centre is: the mask spans floor(min+.5) .. ceil(max-.5).
@@ -124,7 +132,7 @@ def test_marker_lands_at_the_projected_pixels_in_every_view(reader):
         assert abs(xs.max() + 1 - proj[:, 0].max()) <= 1.0, view
         assert abs(ys.min() - proj[:, 1].min()) <= 1.0, view
         assert abs(ys.max() + 1 - proj[:, 1].max()) <= 1.0, view
-        rgb = render_rgb(scene, [item], colour_table(reader), view, framing, size)
+        rgb = render_rgb(scene, [item], renderer.colours, view, framing, size)
         cy, cx = np.argwhere((rgb != 255).any(-1)).mean(0)
         px, py = project(view, (corners.min(0) + corners.max(0)) / 2, framing, size)
         assert abs(cx + 0.5 - px) <= 1.5 and abs(cy + 0.5 - py) <= 1.5, view
@@ -132,10 +140,10 @@ def test_marker_lands_at_the_projected_pixels_in_every_view(reader):
 
 # -- a step: red boxes, segmentation ---------------------------------------------------------------
 @pytest.fixture(scope="module")
-def step(reader):
+def step(reader, renderer):
     before = [placed("3001", 71, (0, 0, 0))]  # grey 2 x 4 brick, top at y=0
     new = [placed("3003", 1, (10, -24, 0))]  # blue 2 x 2 brick on top of it, off-centre
-    return before, new, render_step_full(before, new, 256, reader=reader)
+    return before, new, render_step_full(renderer, before, new, 256)
 
 
 def test_red_box_contains_the_new_part_and_is_tight(step, reader):
@@ -184,10 +192,10 @@ def test_step_images_and_sizes(step):
     assert res.images["after"].size == res.images["before"].size
 
 
-def test_same_framing_before_and_after(reader):
+def test_same_framing_before_and_after(reader, renderer):
     before = [placed("3001", 71, (0, 0, 0))]
     new = [placed("3001", 4, (0, -24, 0))]
-    res = render_step_full(before, new, 128, reader=reader, parts=False)
+    res = render_step_full(renderer, before, new, 128, parts=False)
     assert res.framing == Framing.from_bounds(bounds_of(before + new, reader))
     # The grey brick sits at the same pixels before and after the step.
     for k, view in enumerate(ORTHO_VIEWS):
@@ -238,15 +246,15 @@ def test_tick_labels_agree_with_the_pixel_mapping(step):
 
 # -- outlines --------------------------------------------------------------------------------------
 @pytest.mark.parametrize("colour", [4, 14, 72])  # red, yellow, dark bluish grey
-def test_adjacent_same_colour_bricks_are_distinguishable(reader, colour):
+def test_adjacent_same_colour_bricks_are_distinguishable(reader, colour, renderer):
     size = 192
     side = [placed("3001", colour, (-40, 0, 0)), placed("3001", colour, (40, 0, 0))]  # touching at x = 0
     stack = [placed("3001", colour, (0, 0, 0)), placed("3001", colour, (0, -24, 0))]  # touching at y = 0
     for parts, axis in ((side, 0), (stack, 1)):
         f = Framing.from_bounds(bounds_of(parts, reader))
         items = [Item(render.images.load_part(reader, p.part), p.colour, p.pose) for p in parts]
-        scene = scene_for([it.part for it in items], render.images.EDGE_PX * f.height / size)
-        img = render_rgb(scene, items, colour_table(reader), "Front", f, size).astype(float)
+        scene = renderer.scene_for([it.part for it in items], render.images.EDGE_PX * f.height / size)
+        img = render_rgb(scene, items, renderer.colours, "Front", f, size).astype(float)
         lum = img @ np.array([0.299, 0.587, 0.114])
         sx, sy = project("Front", (0.0, 12.0 if axis == 0 else 0.0, -20.0), f, size)
         if axis == 0:  # vertical seam at x = 0, sampled down the face's middle rows
@@ -260,15 +268,15 @@ def test_adjacent_same_colour_bricks_are_distinguishable(reader, colour):
         assert seam_lum < 0.6 * face.mean(), (axis, seam_lum, face.mean())
 
 
-def test_a_scene_redraws_whatever_items_it_is_given(reader):
+def test_a_scene_redraws_whatever_items_it_is_given(reader, renderer):
     """Views of one set of parts reuse its poses and colours; other items, even equal copies or a
     colour change, are drawn as given."""
     size = 128
     parts = [placed("3001", 4, (0, 0, 0)), placed("3001", 1, (0, -24, 0))]
     f = Framing.from_bounds(bounds_of(parts, reader))
     items = [Item(render.images.load_part(reader, p.part), p.colour, p.pose) for p in parts]
-    scene = scene_for([it.part for it in items], render.images.EDGE_PX * f.height / size)
-    colours = colour_table(reader)
+    scene = renderer.scene_for([it.part for it in items], render.images.EDGE_PX * f.height / size)
+    colours = renderer.colours
     both = render_rgb(scene, items, colours, "Front", f, size)
     lower = render_rgb(scene, items[:1], colours, "Front", f, size)
     recoloured = render_rgb(scene, [items[0], Item(items[1].part, 14, items[1].pose)], colours, "Front", f, size)
@@ -280,9 +288,9 @@ def test_a_scene_redraws_whatever_items_it_is_given(reader):
 
 
 # -- catalog ---------------------------------------------------------------------------------------
-def test_catalog_cells_are_where_the_grid_says(reader):
+def test_catalog_cells_are_where_the_grid_says(reader, renderer):
     parts = [("3001", 71)] * 3 + [("3024", 71), ("3003", 71), ("3001", 4), ("3023", 71), ("3024", 71)]
-    img, cells = render_catalog(parts, tile=96, reader=reader)
+    img, cells = render_catalog(renderer, parts, tile=96)
     assert cells == [(1, 1), (1, 2), (1, 3), (1, 4), (1, 5), (1, 6), (2, 1), (2, 2)]
     strip = compose.label_strip_height(96)
     th = 96 + strip
@@ -308,12 +316,12 @@ def test_catalog_cells_are_where_the_grid_says(reader):
 
     assert area(tile(*cells[3])) < 0.3 * area(tile(*cells[0]))
     with pytest.raises(ValueError):
-        render_catalog([], reader=reader)
+        render_catalog(renderer, [])
 
 
 # -- part and feedback renders -------------------------------------------------------------------
-def test_part_render_draws_labelled_axes_from_the_origin(reader):
-    img = np.asarray(render_part("3001", 71, size=192, reader=reader)).astype(int)
+def test_part_render_draws_labelled_axes_from_the_origin(reader, renderer):
+    img = np.asarray(render_part(renderer, "3001", 71, size=192)).astype(int)
     strip = compose.label_strip_height(192)
     body = img[strip:]
     for name in "XYZ":
@@ -326,10 +334,10 @@ def test_part_render_draws_labelled_axes_from_the_origin(reader):
     assert ys[:, 0].max() > xs[:, 0].max()
 
 
-def test_feedback_draws_the_prediction_in_red(reader):
+def test_feedback_draws_the_prediction_in_red(reader, renderer):
     before = [placed("3001", 1, (0, 0, 0))]
     wrong = [placed("3003", 14, (60, -24, 0), R=np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]]))]
-    img = np.asarray(render_feedback(before, wrong, 128, reader=reader)).astype(int)
+    img = np.asarray(render_feedback(renderer, before, wrong, 128)).astype(int)
     strip = compose.label_strip_height(128)
     top = img[strip : strip + 128, 0:128]  # the Top view
     red = (top[..., 0] > 180) & (top[..., 1] < 60) & (top[..., 2] < 60)
@@ -346,12 +354,12 @@ def _png(img) -> bytes:
     return buf.getvalue()
 
 
-def test_same_input_gives_identical_png_bytes(reader):
+def test_same_input_gives_identical_png_bytes(reader, renderer):
     before = [placed("3001", 4, (0, 0, 0)), placed("3001", 4, (0, 0, 40))]
     new = [placed("3039", 14, (0, -24, 10))]
-    a = render_step(before, new, 128, reader=reader)
-    render.scene.clear_cache()  # freshly compiled scenes and new GL contexts
-    b = render_step(before, new, 128, reader=reader)
+    a = render_step(renderer, before, new, 128)
+    with Renderer(reader) as fresh:  # freshly compiled scenes and a new GL context
+        b = render_step(fresh, before, new, 128)
     assert a.keys() == b.keys()
     for k in a:
         assert _png(a[k]) == _png(b[k]), k
@@ -410,9 +418,9 @@ def test_cli_missing_model_and_bad_ldraw(tmp_path):
     assert res.returncode == 2 and "not an LDraw library" in res.stderr
 
 
-def test_feedback_accepts_a_matrix_that_is_not_a_rotation(reader):
+def test_feedback_accepts_a_matrix_that_is_not_a_rotation(reader, renderer):
     bad = [placed("3003", 14, (0, -24, 0), R=np.array([[2.0, 0, 0], [0, 1, 0], [0, 0, -1]]))]
-    img = render_feedback([placed("3001", 1, (0, 0, 0))], bad, 64, reader=reader)
+    img = render_feedback(renderer, [placed("3001", 1, (0, 0, 0))], bad, 64)
     assert img.size[0] == 4 * 64 + 3 * GAP
 
 
@@ -461,7 +469,7 @@ def test_a_chosen_egl_device_that_is_not_there_falls_back(monkeypatch):
     if gl.configure() != "egl":
         pytest.skip("the EGL backend is not the one in use")
     script = ("import os; from factory import gpus; gpus.count = lambda: 64; "
-              "from factory.render import gl; c = gl.context(); "
+              "from factory.render import gl; c = gl.Context(); "
               "print(c.backend, os.environ.get('MUJOCO_EGL_DEVICE_ID'))")
     env = {k: v for k, v in os.environ.items() if k != "MUJOCO_EGL_DEVICE_ID"}
     env[gpus.SLOT_ENV] = "63"
@@ -471,17 +479,17 @@ def test_a_chosen_egl_device_that_is_not_there_falls_back(monkeypatch):
     assert out.stdout.split()[-2:] == ["egl", "None"]
 
 
-def test_axes_views_made_from_the_previous_step_match_rendered_ones(reader):
+def test_axes_views_made_from_the_previous_step_match_rendered_ones(reader, renderer):
     """A step's 'before' axes views come from the previous step's plain views and segmentation
     (background turned light) instead of seven renders: the same image but for antialiased
     silhouette pixels, which blend with white instead of the light grey."""
     scene_parts = [placed("3001", 15, (0, 0, 0)), placed("3003", 4, (30, -24, 10)),
                    placed("3020", 1, (0, -48, 0))]
     bounds = bounds_of(scene_parts, reader)
-    kw = dict(reader=reader, bounds=bounds, scene_parts=scene_parts, parts=False)
-    first = render_step_full(scene_parts[:1], scene_parts[1:2], 128, **kw)
-    alone = render_step_full(scene_parts[:2], scene_parts[2:], 128, before_views=first.after_views, **kw)
-    reused = render_step_full(scene_parts[:2], scene_parts[2:], 128, before_views=first.after_views,
+    kw = dict(bounds=bounds, scene_parts=scene_parts, parts=False)
+    first = render_step_full(renderer, scene_parts[:1], scene_parts[1:2], 128, **kw)
+    alone = render_step_full(renderer, scene_parts[:2], scene_parts[2:], 128, before_views=first.after_views, **kw)
+    reused = render_step_full(renderer, scene_parts[:2], scene_parts[2:], 128, before_views=first.after_views,
                               before_isometric=first.after_isometric, before_segmentation=first.segmentation, **kw)
     a = np.asarray(alone.images["axes"]).astype(int)
     b = np.asarray(reused.images["axes"]).astype(int)
@@ -495,21 +503,24 @@ def test_axes_views_made_from_the_previous_step_match_rendered_ones(reader):
 
 
 def test_part_image_is_the_same_whatever_was_rendered_before(reader):
-    """Part renders outlive `clear_cache` (the dataset builder clears per object), so they must not
-    depend on the scenes a process built before: the same pixels from a fresh process state and
-    after a step whose scene holds the part among others."""
-    from factory.render.images import _PARTS, render_part
-
-    render.scene.clear_cache()
-    _PARTS.clear()
-    fresh = np.asarray(render_part("3039", 14, 128, reader=reader))
+    """Part images (`PartImages`) outlive the renderer that drew them (the dataset builder keeps them
+    across its per-object renderers), so they must not depend on the scenes a renderer built
+    before: the same pixels from a fresh renderer and after a step whose scene holds the part among
+    others, and a kept image is what a later renderer returns."""
+    with Renderer(reader) as first:
+        fresh = np.asarray(render_part(first, "3039", 14, 128))
+    images = PartImages()
     before = [placed("3001", 4, (0, 0, 0)), placed("3039", 14, (0, -24, 10))]
-    render_step(before, [placed("3039", 14, (40, -24, 10))], 128, reader=reader)
-    _PARTS.clear()
-    again = np.asarray(render_part("3039", 14, 128, reader=reader))
+    with Renderer(reader, part_images=images) as second:
+        render_step(second, before, [placed("3039", 14, (40, -24, 10))], 128)
+        assert len(images) == 1
+        again = np.asarray(render_part(second, "3039", 14, 128))
     assert np.array_equal(fresh, again)
-    step = render_step(before, [placed("3039", 14, (40, -48, 10))], 128, reader=reader)
+    with Renderer(reader, part_images=images) as third:
+        step = render_step(third, before, [placed("3039", 14, (40, -24, 10))], 128)
     assert np.array_equal(np.asarray(step["part_1"]), fresh)
+    with pytest.raises(RuntimeError, match="closed"):
+        render_part(third, "3039", 14, 128)
 
 
 def test_a_model_past_the_scene_budget_is_refused_at_once(tmp_path, monkeypatch, capsys):
@@ -525,10 +536,28 @@ def test_a_model_past_the_scene_budget_is_refused_at_once(tmp_path, monkeypatch,
     assert render_cli.main([str(model), "--step", "0", "--out", str(tmp_path / "o1")]) == 0  # within the budget
     monkeypatch.setattr(render.scene, "MAX_SCENE_PARTS", 10)
     parts = [placed("3001", 4, (40 * i, 0, 0)) for i in range(11)]
-    with pytest.raises(LDrawLimitError, match="at most 10 are rendered"):
-        render_step(parts[:1], parts[1:], 64, scene_parts=parts)
+    with Renderer(max_scene_parts=10) as small, pytest.raises(LDrawLimitError, match="at most 10 are rendered"):
+        render_step(small, parts[:1], parts[1:], 64, scene_parts=parts)
     capsys.readouterr()
     assert render_cli.main([str(model), "--step", "0", "--out", str(tmp_path / "o2")]) == 2
     err = capsys.readouterr().err
     assert err == f"error: {model}: model places 12 parts; at most 10 are rendered\n"
     assert not (tmp_path / "o2").exists()
+
+
+def test_a_renderer_frees_what_it_drops_and_everything_on_exit(reader):
+    """A scene dropped from a renderer's kept set frees its render contexts at once; leaving the
+    `with` block frees the rest and the GL context, and the renderer refuses to render again."""
+    framing = Framing.from_bounds(np.array([[-60.0] * 3, [60.0] * 3]))
+    brick, plate = (render.images.load_part(reader, name) for name in ("3001", "3024"))
+    with Renderer(reader, max_singles=1) as r:
+        first = r.scene_for([brick], 1.0)
+        render_rgb(first, [Item(brick, 4, Pose.identity())], r.colours, "Front", framing, 64)
+        assert first.has_contexts()
+        second = r.scene_for([plate], 1.0)  # a second one-part scene: the first is dropped
+        render_rgb(second, [Item(plate, 1, Pose.identity())], r.colours, "Front", framing, 64)
+        assert not first.has_contexts() and second.has_contexts()
+        assert r.scene_for([plate], 1.0) is second
+    assert not second.has_contexts()
+    with pytest.raises(RuntimeError, match="closed"):
+        r.scene_for([plate], 1.0)

@@ -212,6 +212,7 @@ def test_feedback_rows_train_the_revision(tiny_dataset, tmp_path, processor):
     from eval.feedback import assembly_rows, before_rows, feedback_example
     from eval.predict import RandomPredictor, write_predictions
     from factory.ldraw import get_reader
+    from factory.render import Renderer
     from train.data import ExampleStream, encode
     from train.feedback import build_feedback
 
@@ -233,8 +234,9 @@ def test_feedback_rows_train_the_revision(tiny_dataset, tmp_path, processor):
     src_rows = [r for r in iter_rows(tiny_dataset, "train") if r["object_id"] == row["object_id"]]
     src = next(r for r in src_rows if r["step_id"] == row["step_id"])
     predicted = row["pose_messages"][2]["content"][0]["text"]
-    fb = feedback_example(src, predicted, before_rows(src_rows, src), get_reader(None), int(meta.config["size"]),
-                          scene=assembly_rows(src_rows, src))
+    with Renderer(get_reader(None)) as renderer:
+        fb = feedback_example(src, predicted, before_rows(src_rows, src), renderer, int(meta.config["size"]),
+                              scene=assembly_rows(src_rows, src))
     assert clean_messages(row["pose_messages"][:-1]) == fb.messages
 
     messages, images, answer = task_chat(row, "pose", with_answer=True)

@@ -23,7 +23,9 @@ def _run(cmd, cwd, env=None, timeout=600) -> subprocess.CompletedProcess:
                           check=False)
 
 
-def test_wheel_installs_and_runs_from_another_folder(tmp_path):
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> Path:
+    tmp_path = tmp_path_factory.mktemp("wheel")
     # Built from a copy of the files git knows of (tracked, or new and not ignored): a build in the
     # checkout would reuse its `build/` folder, stale files included.
     src = tmp_path / "src"
@@ -42,6 +44,17 @@ def test_wheel_installs_and_runs_from_another_folder(tmp_path):
     names = set(zipfile.ZipFile(wheel).namelist())
     assert {"mjcf_templates/collision.xml", "factory/data/examples/tower.mpd", "pipelines/grown_3001.json"} <= names
 
+    meta = zipfile.ZipFile(wheel).read(next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()
+    assert "License-Expression: MIT" in meta and any(n.endswith(".dist-info/licenses/LICENSE") for n in names)
+    # Ranges, not pins, so the package installs beside other tools; only MuJoCo is exact.
+    reqs = [line.split(":", 1)[1].split(";")[0].strip() for line in meta.splitlines() if line.startswith("Requires-Dist:")]
+    pinned = [r for r in reqs if "==" in r]
+    assert pinned and all(r.startswith("mujoco") and r.endswith("==3.17.0") for r in pinned), pinned
+    return wheel
+
+
+def _fresh_venv(tmp_path: Path, wheel: Path) -> tuple[Path, Path]:
+    """A virtual environment with the wheel installed non-editable; (its python, its site-packages)."""
     # A fresh environment: the dependencies come from this one (a path in a .pth file, whose own
     # .pth files, this checkout's editable install among them, are not read), the package from the wheel.
     venv = tmp_path / "venv"
@@ -49,11 +62,21 @@ def test_wheel_installs_and_runs_from_another_folder(tmp_path):
     py = venv / "bin" / "python"
     site = Path(_run([py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], cwd=tmp_path).stdout.strip())
     (site / "deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
-    r = _run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-index", "--target", site, wheel], cwd=tmp_path)
+    r = _run([sys.executable, "-m", "pip", "--python", py, "install", "-q", "--no-deps", "--no-index", wheel],
+             cwd=tmp_path)
     assert r.returncode == 0, r.stderr
+    return py, site
 
+
+def _env(tmp_path: Path) -> dict:
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "LDRAWDIR")}
     env["BRICK_FACTORY_CACHE"] = str(tmp_path / "cache")
+    return env
+
+
+def test_wheel_installs_and_runs_from_another_folder(tmp_path, wheel):
+    py, site = _fresh_venv(tmp_path, wheel)
+    env = _env(tmp_path)
     work = tmp_path / "elsewhere"
     work.mkdir()
     r = _run([py, "-c", "import factory, mjcf_templates; print(factory.__file__); print(mjcf_templates.__file__)"],
@@ -61,9 +84,10 @@ def test_wheel_installs_and_runs_from_another_folder(tmp_path):
     assert r.returncode == 0, r.stderr
     assert all(Path(p).is_relative_to(site) for p in r.stdout.split()), r.stdout  # not this checkout
 
+    names = zipfile.ZipFile(wheel).namelist()
     entry = zipfile.ZipFile(wheel).read(next(n for n in names if n.endswith("entry_points.txt"))).decode()
     assert "brick-factory = pipelines.commands:main" in entry
-    script = site / "bin" / "brick-factory"  # the console script; run by this environment's python
+    script = py.parent / "brick-factory"  # the console script; run by this environment's python
     r = _run([py, script, "sample", "--n", "1", "--seed", "0", "--min-steps", "3", "--max-steps", "3",
               "--out", "objects"], cwd=work, env=env)
     assert r.returncode == 0, r.stderr
@@ -77,3 +101,43 @@ def test_wheel_installs_and_runs_from_another_folder(tmp_path):
     verdicts = [json.loads(line) for line in r.stdout.splitlines()]
     assert len(verdicts) > 3 and all("collision" in v and "stable" in v for v in verdicts)
     assert r.stdout == here.stdout  # the installed package judges as the checkout does
+
+
+def test_another_distribution_of_factory_is_refused_with_a_clear_error(tmp_path, wheel):
+    """factory_boy also installs a top-level `factory` (with `__init__.py` and `errors.py`, like ours):
+    pip merges the two into one folder, overwriting the shared files, and uninstalling it removes
+    them from ours. A small distribution shipping those two files plays its part here; commands then
+    refuse to run, naming it and the changed files, instead of failing on a missing name."""
+    py, site = _fresh_venv(tmp_path, wheel)
+    env = _env(tmp_path)
+    script = py.parent / "brick-factory"
+    example = site / "factory" / "data" / "examples" / "tower.mpd"
+    assert _run([py, script, "verify", example, "--json"], cwd=tmp_path, env=env).returncode == 0
+
+    other = tmp_path / "other"
+    (other / "factory").mkdir(parents=True)
+    (other / "factory" / "__init__.py").write_text("class Factory:\n    pass\n")
+    (other / "factory" / "errors.py").write_text("class FactoryError(Exception):\n    pass\n")
+    (other / "pyproject.toml").write_text(
+        '[build-system]\nrequires = ["setuptools>=77"]\nbuild-backend = "setuptools.build_meta"\n'
+        '[project]\nname = "other-factory"\nversion = "1.0"\n[tool.setuptools]\npackages = ["factory"]\n')
+    r = _run([sys.executable, "-m", "pip", "wheel", other, "--no-deps", "--no-build-isolation", "-q",
+              "-w", tmp_path / "other-wheels"], cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    (other_wheel,) = (tmp_path / "other-wheels").glob("*.whl")
+    pip = [sys.executable, "-m", "pip", "--python", py]
+    assert _run([*pip, "install", "-q", "--no-deps", "--no-index", other_wheel], cwd=tmp_path).returncode == 0
+
+    r = _run([py, script, "verify", example, "--json"], cwd=tmp_path, env=env)
+    assert r.returncode != 0 and "InstallClashError" in r.stderr, r.stderr
+    assert "other-factory" in r.stderr and "factory/__init__.py (overwritten)" in r.stderr
+    assert "factory/errors.py (overwritten)" in r.stderr and "uninstall other-factory" in r.stderr
+
+    assert _run([*pip, "uninstall", "-y", "-q", "other-factory"], cwd=tmp_path).returncode == 0
+    r = _run([py, script, "verify", example, "--json"], cwd=tmp_path, env=env)
+    assert r.returncode != 0 and "factory/errors.py (missing)" in r.stderr, r.stderr
+    assert "reinstall brick-factory" in r.stderr
+
+    r = _run([*pip, "install", "-q", "--no-deps", "--no-index", "--force-reinstall", wheel], cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert _run([py, script, "verify", example, "--json"], cwd=tmp_path, env=env).returncode == 0

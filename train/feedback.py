@@ -39,7 +39,7 @@ from factory.dataset.prompts import text_part
 from factory.dataset.schema import arrow_schema
 from factory.dataset.tasks import FEEDBACK_IMAGES
 from factory.ldraw import get_reader
-from factory.render.scene import clear_cache
+from factory.render import Renderer
 from pipelines.dataset.png import png_bytes
 from pipelines.dataset.shards import WRITER_OPTIONS
 from pipelines.dataset.sources import file_sha256
@@ -80,34 +80,35 @@ def build_feedback(data, pred, out, split: str = "train", progress: bool = False
     try:
         for rows in iter_objects(iter_rows(data, split)):
             built = []
-            for row in rows:
-                bar.update(1)
-                text = answers.get((row["step_id"], "pose"))
-                if text is None:
-                    counts["missing"] += 1
-                    continue
-                blocks = parse_pose(text)
-                if any((i + 1) not in blocks for i in range(len(row["bricks"]))):
-                    counts["unparseable"] += 1
-                    continue
-                try:
-                    fb = feedback_example(row, text, before_rows(rows, row), reader, size,
-                                          scene=assembly_rows(rows, row))
-                except Exception as exc:  # a pose the renderer cannot draw: count it, go on
-                    counts["failed"] += 1
-                    counts[f"failed:{type(exc).__name__}"] += 1
-                    continue
-                if fb is None:
-                    counts["right"] += 1
-                    continue
-                new = dict(row)
-                new["dataset_id"] = f"{row['dataset_id']}-feedback"
-                new["pose_messages"] = correction_messages(row, text, fb.errors)
-                new["pose_images"] = [*row["pose_images"], FEEDBACK_COLUMN]
-                new[FEEDBACK_COLUMN] = {"bytes": png_bytes(fb.images[-1], level), "path": None}
-                built.append({f.name: new.get(f.name) for f in schema})
-                counts["built"] += 1
-            clear_cache()
+            # One renderer per object (its feedback renders share scenes), freed before the next object.
+            with Renderer(reader) as renderer:
+                for row in rows:
+                    bar.update(1)
+                    text = answers.get((row["step_id"], "pose"))
+                    if text is None:
+                        counts["missing"] += 1
+                        continue
+                    blocks = parse_pose(text)
+                    if any((i + 1) not in blocks for i in range(len(row["bricks"]))):
+                        counts["unparseable"] += 1
+                        continue
+                    try:
+                        fb = feedback_example(row, text, before_rows(rows, row), renderer, size,
+                                              scene=assembly_rows(rows, row))
+                    except Exception as exc:  # a pose the renderer cannot draw: count it, go on
+                        counts["failed"] += 1
+                        counts[f"failed:{type(exc).__name__}"] += 1
+                        continue
+                    if fb is None:
+                        counts["right"] += 1
+                        continue
+                    new = dict(row)
+                    new["dataset_id"] = f"{row['dataset_id']}-feedback"
+                    new["pose_messages"] = correction_messages(row, text, fb.errors)
+                    new["pose_images"] = [*row["pose_images"], FEEDBACK_COLUMN]
+                    new[FEEDBACK_COLUMN] = {"bytes": png_bytes(fb.images[-1], level), "path": None}
+                    built.append({f.name: new.get(f.name) for f in schema})
+                    counts["built"] += 1
             if built:
                 writer.write_table(pa.Table.from_pylist(built, schema=schema))
                 objects += 1

@@ -1,5 +1,8 @@
 """Renders for vision-language models: six orthographic views, isometric, part, catalog, feedback.
 
+Every render takes a `Renderer` (a context manager owning the GL context, the compiled scenes and
+the image caches): `with Renderer(reader) as r: render_step(r, before, new)`.
+
 Importing this package chooses the headless OpenGL backend (`factory.render.gl`) before MuJoCo's GL
 modules load. See docs/render.md.
 """
@@ -31,6 +34,7 @@ from factory.render.images import (
     render_views,
     six_view_composite,
 )
+from factory.render.renderer import PartImages, Renderer
 
 __all__ = [
     "ALL_VIEWS",
@@ -38,7 +42,9 @@ __all__ = [
     "ORTHO_VIEWS",
     "VIEWS",
     "Framing",
+    "PartImages",
     "RenderUnavailableError",
+    "Renderer",
     "StepRender",
     "View",
     "bounds_of",

@@ -1,4 +1,4 @@
-"""Headless OpenGL for MuJoCo's renderer: pick a backend, make one context per process, free it at exit.
+"""Headless OpenGL for MuJoCo's renderer: pick a backend; a `Context` that frees what lives in it.
 
 Backends, in order: `MUJOCO_GL` if it names `egl` or `osmesa` (the user's choice, no fallback); else EGL
 when `libEGL` is installed (Mesa llvmpipe on a CPU machine, the NVIDIA driver on a GPU); else OSMesa
@@ -69,7 +69,8 @@ def configure() -> str:
 
 
 class Context:
-    """The process's one GL context, made current, with the MuJoCo render contexts living in it."""
+    """A GL context, made current, with the MuJoCo render contexts living in it (a
+    `factory.render.renderer.Renderer` owns one; a process may hold several)."""
 
     def __init__(self):
         backend = configure()
@@ -98,6 +99,10 @@ class Context:
         # runs before them: free everything while the display is still alive.
         atexit.register(self.close)
 
+    @property
+    def alive(self) -> bool:
+        return self._gl is not None
+
     def make_current(self) -> None:
         self._gl.make_current()
 
@@ -106,8 +111,10 @@ class Context:
         self._owners.add(owner)
 
     def close(self) -> None:
+        """Free the adopted owners, then the context (idempotent)."""
         if self._gl is None:
             return
+        atexit.unregister(self.close)
         try:
             self._gl.make_current()
             for owner in list(self._owners):
@@ -115,15 +122,3 @@ class Context:
         finally:
             self._gl.free()
             self._gl = None
-
-
-_CONTEXT: Context | None = None
-
-
-def context() -> Context:
-    """The process-wide GL context, created on first use and made current."""
-    global _CONTEXT
-    if _CONTEXT is None or _CONTEXT._gl is None:
-        _CONTEXT = Context()
-    _CONTEXT.make_current()
-    return _CONTEXT

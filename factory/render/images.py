@@ -1,12 +1,13 @@
 """The image set of an assembly step, and the catalog, part and feedback renders.
 
-Every function takes `PlacedPart`s (part file name, colour code, pose in LDU) and a `Reader` for the
-parts and colours (default: `get_reader()`, i.e. `$LDRAWDIR` or the embedded library).
+Every render takes a `Renderer` first (its reader gives the parts and colours; its GL context and
+kept scenes draw them) and `PlacedPart`s (part file name, colour code, pose in LDU). `bounds_of` and
+`framing_for` need no renderer: a `Reader` (default: `get_reader()`, i.e. `$LDRAWDIR` or the embedded
+library).
 """
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -25,7 +26,9 @@ from factory.render.cameras import (
     VIEWS,
     Framing,
 )
-from factory.render.scene import BACKGROUND, ON_CLEAR, Item, Scene, colour_table, scene_for
+from factory.render.geometry import part_geometry
+from factory.render.renderer import Renderer
+from factory.render.scene import BACKGROUND, Item, Scene
 from factory.render.views import render_rgb, render_seg
 
 EDGE_PX = 0.9
@@ -34,20 +37,6 @@ BOX_PAD = 2
 """Pixels between a part's segmentation bounds and its red dashed box."""
 FEEDBACK_RGBA = (0.93, 0.06, 0.06, 1.0)
 FEEDBACK_EDGE = (0.35, 0.0, 0.0, 1.0)
-
-_TILES: dict[tuple, Image.Image] = {}
-"""Catalog tiles by (reader, part, colour, common height, tile size): a catalog shrinks by a brick
-per step and keeps its scale until its tallest part is used up, so most tiles repeat. Cleared with
-the scenes (`clear_cache`), like them per object in the dataset builder."""
-_PARTS: OrderedDict[tuple, tuple[Reader, Image.Image]] = OrderedDict()
-"""Part renders by (reader, model, part, colour, size), least recently used first. Kept across
-`clear_cache`: `render_part` draws each in a scene of that part alone, so an image is the same
-whatever the process rendered before, and each object of a dataset need not compile its parts'
-scenes again (38 of a 40-step object's 40 part images were compiled afresh when they were cleared
-per object)."""
-MAX_PART_IMAGES = 256
-"""Part renders kept (about 0.2 MB each at 256 px)."""
-ON_CLEAR.append(_TILES.clear)
 
 
 def _reader(reader: Reader | None) -> Reader:
@@ -58,10 +47,10 @@ def _items(placed: Sequence[PlacedPart], reader: Reader) -> list[Item]:
     return [Item(load_part(reader, p), p.colour, p.pose) for p in placed]
 
 
-def _scene(items: Sequence[Item], framing_height: float, size: int, universe: Sequence[PlacedPart] | None,
-           reader: Reader) -> Scene:
-    uni = [load_part(reader, p) for p in universe] if universe is not None else None
-    return scene_for([it.part for it in items], EDGE_PX * framing_height / size, universe=uni)
+def _scene(renderer: Renderer, items: Sequence[Item], framing_height: float, size: int,
+           universe: Sequence[PlacedPart] | None) -> Scene:
+    uni = [load_part(renderer.reader, p) for p in universe] if universe is not None else None
+    return renderer.scene_for([it.part for it in items], EDGE_PX * framing_height / size, universe=uni)
 
 
 def framing_for(placed: Sequence[PlacedPart], reader: Reader | None = None, margin: float = 0.08) -> Framing:
@@ -72,8 +61,6 @@ def framing_for(placed: Sequence[PlacedPart], reader: Reader | None = None, marg
 
 def bounds_of(placed: Sequence[PlacedPart], reader: Reader | None = None) -> np.ndarray:
     """Axis-aligned bounds [[min xyz], [max xyz]] (LDU) of placed parts (zeros when empty)."""
-    from factory.render.geometry import part_geometry
-
     reader = _reader(reader)
     pts = []
     for p in placed:
@@ -114,8 +101,8 @@ class StepRender:
     step's axes views (`before_views`, `before_isometric`, `before_segmentation`)."""
 
 
-def render_step(before: Sequence[PlacedPart], new: Sequence[PlacedPart], size: int = 256, *,
-                reader: Reader | None = None, bounds=None, scene_parts: Sequence[PlacedPart] | None = None,
+def render_step(renderer: Renderer, before: Sequence[PlacedPart], new: Sequence[PlacedPart], size: int = 256, *,
+                bounds=None, scene_parts: Sequence[PlacedPart] | None = None,
                 axes_state: str = "before") -> dict[str, Image.Image]:
     """The BC-Bench images of one step, as {name: image}.
 
@@ -128,12 +115,12 @@ def render_step(before: Sequence[PlacedPart], new: Sequence[PlacedPart], size: i
     step of a model is framed alike; default: the bounds of before + new. `scene_parts` (e.g. every
     part of the model) lets one compiled scene serve all steps.
     """
-    return render_step_full(before, new, size, reader=reader, bounds=bounds, scene_parts=scene_parts,
+    return render_step_full(renderer, before, new, size, bounds=bounds, scene_parts=scene_parts,
                             axes_state=axes_state).images
 
 
-def render_step_full(before: Sequence[PlacedPart], new: Sequence[PlacedPart], size: int = 256, *,
-                     reader: Reader | None = None, bounds=None,
+def render_step_full(renderer: Renderer, before: Sequence[PlacedPart], new: Sequence[PlacedPart],
+                     size: int = 256, *, bounds=None,
                      scene_parts: Sequence[PlacedPart] | None = None, axes_state: str = "before",
                      parts: bool = True, before_views: Sequence[np.ndarray] | None = None,
                      before_isometric: np.ndarray | None = None,
@@ -147,12 +134,11 @@ def render_step_full(before: Sequence[PlacedPart], new: Sequence[PlacedPart], si
     """
     if axes_state not in ("before", "after"):
         raise ValueError("axes_state must be 'before' or 'after'")
-    reader = _reader(reader)
-    colours = colour_table(reader)
+    reader, colours = renderer.reader, renderer.colours
     b_items, n_items = _items(before, reader), _items(new, reader)
     after = b_items + n_items
     framing = Framing.from_bounds(bounds if bounds is not None else bounds_of([*before, *new], reader))
-    scene = _scene(after, framing.height, size, scene_parts, reader)
+    scene = _scene(renderer, after, framing.height, size, scene_parts)
 
     if before_views is None:
         before_views = _views(scene, b_items, colours, framing, size)
@@ -183,13 +169,13 @@ def render_step_full(before: Sequence[PlacedPart], new: Sequence[PlacedPart], si
     }
     if parts:
         for j, p in enumerate(new, 1):
-            key = (id(reader), p.model, p.part.lower(), int(p.colour), size)
-            if key not in _PARTS or _PARTS[key][0] is not reader:  # the reader held: its id stays its
-                _PARTS[key] = (reader, render_part(load_part(reader, p), p.colour, size=size, reader=reader))
-                while len(_PARTS) > MAX_PART_IMAGES:
-                    _PARTS.popitem(last=False)
-            _PARTS.move_to_end(key)
-            images[f"part_{j}"] = _PARTS[key][1].copy()
+            key = (p.model, p.part.lower(), int(p.colour), size)
+            image = renderer.part_images.get(reader, key)
+            if image is None:
+                image = render_part(renderer, load_part(reader, p), p.colour, size=size)
+                renderer.part_images.put(reader, key, image)
+                image = image.copy()
+            images[f"part_{j}"] = image
     shown = b_items if axes_state == "before" else after
     given = None
     if axes_state == "before" and before_isometric is not None and before_segmentation is not None:
@@ -261,30 +247,27 @@ def _triad(tile: Image.Image, framing: Framing, size: int, ml: int) -> None:
 
 
 # -- single renders --------------------------------------------------------------------------
-def render_axes(placed: Sequence[PlacedPart], size: int = 256, *, reader: Reader | None = None, bounds=None,
+def render_axes(renderer: Renderer, placed: Sequence[PlacedPart], size: int = 256, *, bounds=None,
                 scene_parts: Sequence[PlacedPart] | None = None) -> Image.Image:
     """7 views (six orthographic and isometric) with LDU tick labels on a light background."""
-    reader = _reader(reader)
-    items = _items(placed, reader)
-    framing = Framing.from_bounds(bounds if bounds is not None else bounds_of(placed, reader))
-    scene = _scene(items, framing.height, size, scene_parts, reader)
-    return _axes_composite(scene, items, colour_table(reader), framing, size)
+    items = _items(placed, renderer.reader)
+    framing = Framing.from_bounds(bounds if bounds is not None else bounds_of(placed, renderer.reader))
+    scene = _scene(renderer, items, framing.height, size, scene_parts)
+    return _axes_composite(scene, items, renderer.colours, framing, size)
 
 
-def render_views(placed: Sequence[PlacedPart], size: int = 256, *, reader: Reader | None = None, bounds=None,
+def render_views(renderer: Renderer, placed: Sequence[PlacedPart], size: int = 256, *, bounds=None,
                  views: Sequence[str] = ORTHO_VIEWS, scene_parts=None) -> list[np.ndarray]:
     """Plain RGB arrays of `placed` in the given views (a common framing from `bounds`)."""
-    reader = _reader(reader)
-    items = _items(placed, reader)
-    framing = Framing.from_bounds(bounds if bounds is not None else bounds_of(placed, reader))
-    scene = _scene(items, framing.height, size, scene_parts, reader)
-    return _views(scene, items, colour_table(reader), framing, size, views)
+    items = _items(placed, renderer.reader)
+    framing = Framing.from_bounds(bounds if bounds is not None else bounds_of(placed, renderer.reader))
+    scene = _scene(renderer, items, framing.height, size, scene_parts)
+    return _views(scene, items, renderer.colours, framing, size, views)
 
 
-def render_part(part: str | Part, colour: int = 16, size: int = 256, *, reader: Reader | None = None) -> Image.Image:
+def render_part(renderer: Renderer, part: str | Part, colour: int = 16, size: int = 256) -> Image.Image:
     """The part alone in its own LDraw frame (isometric), its axes drawn from its origin and labelled."""
-    reader = _reader(reader)
-    p = part if isinstance(part, Part) else load_part(reader, part)
+    p = part if isinstance(part, Part) else load_part(renderer.reader, part)
     item = Item(p, colour, Pose.identity())
     bb = np.asarray(p.bbox, float)
     ext = float((bb[1] - bb[0]).max()) or 20.0
@@ -292,8 +275,8 @@ def render_part(part: str | Part, colour: int = 16, size: int = 256, *, reader: 
     lo = np.minimum(bb[0], 0)
     hi = np.maximum(bb[1], tips.max(0))
     framing = Framing.from_bounds(np.stack([lo, hi]), margin=0.1)
-    scene = scene_for([p], EDGE_PX * framing.iso_height / size, alone=True)
-    img = Image.fromarray(render_rgb(scene, [item], colour_table(reader), ISOMETRIC, framing, size))
+    scene = renderer.scene_for([p], EDGE_PX * framing.iso_height / size, alone=True)
+    img = Image.fromarray(render_rgb(scene, [item], renderer.colours, ISOMETRIC, framing, size))
     d = ImageDraw.Draw(img)
     o = framing.project(ISOMETRIC, np.zeros(3), size)
     fs = max(10, compose.font_size(size))
@@ -307,9 +290,8 @@ def render_part(part: str | Part, colour: int = 16, size: int = 256, *, reader: 
                             if size >= 384 else f"{p.name}: own LDraw frame")
 
 
-def render_catalog(parts: Sequence[tuple[str, int] | tuple[str, int, str | None] | PlacedPart], tile: int = 128,
-                   cols: int = 6, *,
-                   reader: Reader | None = None) -> tuple[Image.Image, list[tuple[int, int]]]:
+def render_catalog(renderer: Renderer, parts: Sequence[tuple[str, int] | tuple[str, int, str | None] | PlacedPart],
+                   tile: int = 128, cols: int = 6) -> tuple[Image.Image, list[tuple[int, int]]]:
     """A grid of candidate parts (part name, colour), one tile each at a common scale.
 
     Tiles run left to right, top to bottom, `cols` to a row; each shows the part alone (isometric, in
@@ -317,8 +299,7 @@ def render_catalog(parts: Sequence[tuple[str, int] | tuple[str, int, str | None]
     item, the model's path, names a part the model ships (`PlacedPart.model`). Returns the
     image and, for each input, its (row, col), both 1-indexed from the top-left.
     """
-    reader = _reader(reader)
-    colours = colour_table(reader)
+    reader, colours = renderer.reader, renderer.colours
     entries = [(p.part, p.colour, p.model) if isinstance(p, PlacedPart)
                else (p[0], int(p[1]), p[2] if len(p) > 2 else None) for p in parts]
     if not entries:
@@ -330,15 +311,15 @@ def render_catalog(parts: Sequence[tuple[str, int] | tuple[str, int, str | None]
     scene = None
     tiles, cells = [], []
     for i, (p, (_name, colour, model)) in enumerate(zip(loaded, entries)):
-        key = (id(reader), model, p.name.lower(), colour, height, tile)
-        if key not in _TILES:
+        key = (model, p.name.lower(), colour, height, tile)
+        if key not in renderer.tiles:
             if scene is None:
-                scene = scene_for(distinct, EDGE_PX * height / tile)
+                scene = renderer.scene_for(distinct, EDGE_PX * height / tile)
             bb = np.asarray(p.bbox, float)
             f = Framing(tuple(((bb[0] + bb[1]) / 2).tolist()), height, height)  # type: ignore[arg-type]
             arr = render_rgb(scene, [Item(p, colour, Pose.identity())], colours, ISOMETRIC, f, tile)
-            _TILES[key] = compose.labelled(Image.fromarray(arr), p.name)
-        tiles.append(_TILES[key])
+            renderer.tiles[key] = compose.labelled(Image.fromarray(arr), p.name)
+        tiles.append(renderer.tiles[key])
         r, c = divmod(i, cols)
         cells.append((r + 1, c + 1))
     return compose.grid(tiles, cols=cols), cells
@@ -359,8 +340,8 @@ def _muted(colours, code: int) -> tuple[float, float, float, float]:
     return (0.35 * r + 0.65 * grey, 0.35 * g + 0.65 * grey, 0.35 * b + 0.65 * grey, a)
 
 
-def render_feedback(before: Sequence[PlacedPart], predicted: Sequence[PlacedPart], size: int = 256, *,
-                    reader: Reader | None = None, bounds=None,
+def render_feedback(renderer: Renderer, before: Sequence[PlacedPart], predicted: Sequence[PlacedPart],
+                    size: int = 256, *, bounds=None,
                     scene_parts: Sequence[PlacedPart] | None = None) -> Image.Image:
     """The assembly with predicted (possibly wrong) placements drawn in red: 7 labelled views.
 
@@ -369,8 +350,7 @@ def render_feedback(before: Sequence[PlacedPart], predicted: Sequence[PlacedPart
     prediction stays in view. A predicted matrix that is not a rotation (scaled, mirrored, as models
     sometimes answer) is drawn with the nearest rotation.
     """
-    reader = _reader(reader)
-    colours = colour_table(reader)
+    reader, colours = renderer.reader, renderer.colours
     b_items = [Item(it.part, _muted(colours, it.colour), it.pose) for it in _items(before, reader)]
     predicted = [replace(p, pose=nearest_rotation(p.pose)) for p in predicted]
     p_items = [Item(load_part(reader, p), FEEDBACK_RGBA, p.pose, FEEDBACK_EDGE) for p in predicted]
@@ -379,7 +359,7 @@ def render_feedback(before: Sequence[PlacedPart], predicted: Sequence[PlacedPart
         b = np.asarray(bounds, float)
         bb = np.stack([np.minimum(bb[0], b[0]), np.maximum(bb[1], b[1])])
     framing = Framing.from_bounds(bb)
-    scene = _scene(b_items + p_items, framing.height, size, scene_parts, reader)
+    scene = _scene(renderer, b_items + p_items, framing.height, size, scene_parts)
     arrs = _views(scene, b_items + p_items, colours, framing, size, ALL_VIEWS)
     tiles = [compose.labelled(Image.fromarray(a), v) for a, v in zip(arrs, ALL_VIEWS)]
     fs = max(9, compose.font_size(size) - 3)

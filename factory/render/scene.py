@@ -7,21 +7,21 @@ geom is visual only (`contype=0 conaffinity=0`). Poses (`body_pos`, `body_quat`)
 time, so one compiled model and one pair of GL contexts serve every step of an assembly, the
 feedback render (the same part at a predicted pose, in red) and the "current assembly" renders.
 
-`scene_for(parts, edge_radius)` returns a cached scene whose slots cover the request.
+Scenes are built and kept by a `factory.render.renderer.Renderer` (`Renderer.scene_for`), whose GL
+context their render contexts live in.
 """
 
 from __future__ import annotations
 
 import math
 import os
-from collections import Counter, OrderedDict
-from collections.abc import Sequence
+from collections import Counter
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
-from factory.errors import LDrawLimitError
 from factory.ldraw import ColourTable, Reader
 from factory.ldraw.colours import EDGE, MAIN
 from factory.parts import Part
@@ -49,19 +49,12 @@ class Item:
     """Outline colour; default: `outline_rgba` of the colour (near black on all but dark faces)."""
 
 
-_TABLES: dict[int, tuple[Reader, ColourTable]] = {}
-
-
 def colour_table(reader: Reader) -> ColourTable:
-    """The library's LDConfig colours, parsed once per reader (codes it lacks render neutral grey)."""
-    hit = _TABLES.get(id(reader))
-    if hit is None or hit[0] is not reader:
-        cfg = reader.library.config()
-        table = ColourTable({}) if cfg is None else ColourTable.parse(
-            cfg.read().decode("utf-8", errors="replace"), cfg.display
-        )
-        hit = _TABLES[id(reader)] = (reader, table)
-    return hit[1]
+    """The library's LDConfig colours (codes it lacks render neutral grey); a `Renderer` keeps its
+    reader's table as `Renderer.colours`."""
+    cfg = reader.library.config()
+    return ColourTable({}) if cfg is None else ColourTable.parse(cfg.read().decode("utf-8", errors="replace"),
+                                                                 cfg.display)
 
 
 def luminance(rgb) -> float:
@@ -105,8 +98,12 @@ def quantize_radius(r: float) -> float:
 class Scene:
     """A compiled visual model with one slot per part of `parts` (see the module doc)."""
 
-    def __init__(self, parts: Sequence[Part], edge_radius: float):
+    def __init__(self, parts: Sequence[Part], edge_radius: float, gl_context: Callable[[], gl.Context]):
+        """`gl_context`: returns the GL context the render contexts live in, made current (the
+        owning renderer's `Renderer.gl_context`)."""
         self.parts = list(parts)
+        self._gl_context = gl_context
+        self._glc: gl.Context | None = None
         self.edge_radius = edge_radius
         spec = mujoco.MjSpec()
         spec.modelname = "brick_factory_render"
@@ -289,7 +286,7 @@ class Scene:
     # -- GL ----------------------------------------------------------------------------------
     def context(self, kind: str, size: int) -> mujoco.MjrContext:
         """The MuJoCo render context: 'rgb' (4x multisampling) or 'seg' (no multisampling)."""
-        glc = gl.context()
+        glc = self._glc = self._gl_context()
         if size > self._buffer:
             self.free()
             self._buffer = 1 << (int(size) - 1).bit_length()
@@ -319,7 +316,11 @@ class Scene:
         mujoco.mjr_uploadTexture(m, con, 0)
         self._background[id(con)] = rgb
 
+    def has_contexts(self) -> bool:
+        return bool(self._contexts)
+
     def free(self) -> None:
+        """Free the render contexts (the GL context they live in must be current)."""
         self._background.clear()
         for con in self._contexts.values():
             con.free()
@@ -327,78 +328,15 @@ class Scene:
 
     def __del__(self):
         try:
-            if self._contexts and gl._CONTEXT is not None and gl._CONTEXT._gl is not None:
-                gl._CONTEXT.make_current()
+            if self._contexts and self._glc is not None and self._glc.alive:
+                self._glc.make_current()
                 self.free()
         except Exception:  # noqa: BLE001, S110 - never raise from a destructor
             pass
 
 
-_SCENES: OrderedDict[int, Scene] = OrderedDict()
-"""Cached scenes of several slots (assemblies, catalogs), least recently used first."""
-_SINGLES: OrderedDict[int, Scene] = OrderedDict()
-"""Cached one-slot scenes (part renders): cheap, many, kept apart so they never evict assemblies."""
-MAX_SCENES = 8
-MAX_SINGLES = 64
 MAX_SCENE_PARTS = 10_000
 """Parts one render scene holds (one body per part, with outlines). Measured here (2 shared
 cores, EGL on the CPU, 2x4 bricks, `pipelines.render --step 0`): 2,000 parts 3.8 s and 0.5 GB,
 6,000 parts 8.7 s and 0.8 GB; 20,000 ran past 60 s at 2 GB. 10,000 holds the largest sets people
 build (a few thousand to about 7,500 pieces) and renders in well under a minute."""
-_serial = 0
-
-
-def scene_for(parts: Sequence[Part], edge_radius: float, universe: Sequence[Part] | None = None,
-              alone: bool = False) -> Scene:
-    """A scene with a slot for each of `parts` (cached; built for `universe` when one must be built).
-
-    `universe`, a superset of `parts` (e.g. every part of a model), lets one compiled scene serve
-    every step of an assembly. `alone`: a scene of exactly `parts`, never a larger cached one, so
-    what it renders does not depend on which scenes the process built before.
-    """
-    global _serial
-    r = quantize_radius(edge_radius)
-    need = Counter(id(p) for p in parts)
-    for cache in ((_SINGLES,) if alone else (_SCENES, _SINGLES)):
-        for key, scene in cache.items():
-            if scene.edge_radius == r:
-                have = scene.counts()
-                if have == need if alone else all(have[k] >= n for k, n in need.items()):
-                    cache.move_to_end(key)
-                    return scene
-    pool = list(universe) if universe is not None and not alone else []
-    if max(len(pool), len(parts)) > MAX_SCENE_PARTS:
-        raise LDrawLimitError(f"a render scene of {max(len(pool), len(parts)):,} parts; at most "
-                              f"{MAX_SCENE_PARTS:,} are rendered")
-    have = Counter(id(p) for p in pool)
-    for p in parts:  # whatever the universe lacks
-        if have[id(p)] < need[id(p)]:
-            pool.append(p)
-            have[id(p)] += 1
-    scene = Scene(pool, r)
-    _serial += 1
-    cache, limit = (_SINGLES, MAX_SINGLES) if len(pool) == 1 else (_SCENES, MAX_SCENES)
-    cache[_serial] = scene
-    while len(cache) > limit:
-        _, old = cache.popitem(last=False)
-        if old._contexts:
-            gl.context()
-            old.free()
-    return scene
-
-
-ON_CLEAR: list = []
-"""Callables `clear_cache` also runs: image caches built on these scenes (catalog tiles)."""
-
-
-def clear_cache() -> None:
-    """Drop every cached scene and free its GL resources (the next render rebuilds), and every
-    image cache registered in `ON_CLEAR`."""
-    for hook in ON_CLEAR:
-        hook()
-    for cache in (_SCENES, _SINGLES):
-        while cache:
-            _, old = cache.popitem()
-            if old._contexts:
-                gl.context()
-                old.free()

@@ -19,9 +19,9 @@ from pipelines.dataset.sources import _py
 _GEOMETRY: dict[tuple[int, str | None, str], str] = {}
 
 SINGLE_SCENES = 6
-"""One-part render scenes (the part images) kept while rendering an object. Each costs about 90 MB
+"""One-part render scenes (the part images) an object's renderer keeps. Each costs about 90 MB
 on llvmpipe (MuJoCo's default 4096x4096 shadow map per render context, unused by our renders), so
-the render package's default of 64 would reach gigabytes on objects with many distinct parts."""
+the renderer's default of 64 would reach gigabytes on objects with many distinct parts."""
 
 
 def geometry_key(reader, name: str, model: str | None = None) -> str:
@@ -80,30 +80,24 @@ def _placed_key(placed) -> tuple:
                   np.asarray(p.pose.t, np.float64).tobytes()) for p in placed)
 
 
-def object_rows(obj, config, split: str, timings: dict) -> list[dict]:
+def object_rows(obj, config, split: str, timings: dict, part_images=None) -> list[dict]:
     """Every step of `obj` (an `ObjectSpec`) as a row dict in `schema.FIELDS` order.
 
     `timings` gets seconds added under 'render' (views, part and catalog renders) and 'encode'
-    (PNG). Render caches are cleared first, so a row's pixels do not depend on which objects the
-    process rendered before (a resumed run writes the same bytes as an uninterrupted one).
+    (PNG). The object gets its own renderer, freed after it, so a row's pixels do not depend on
+    which objects the process rendered before (a resumed run writes the same bytes as an
+    uninterrupted one); `part_images` (a `factory.render.PartImages`) may be shared across objects.
     """
-    from factory.render import scene as render_scene
-    from factory.render.scene import clear_cache, colour_table
+    from factory.render import Renderer
 
-    reader = get_reader(config.ldraw)
-    colours = colour_table(reader)
-    clear_cache()
-    saved = render_scene.MAX_SINGLES
-    render_scene.MAX_SINGLES = min(saved, SINGLE_SCENES)
-    try:
-        return _rows(obj, config, split, timings, reader, colours)
-    finally:
-        render_scene.MAX_SINGLES = saved
-        clear_cache()  # free the object's scenes (GL buffers) before the next object
+    with Renderer(get_reader(config.ldraw), max_singles=SINGLE_SCENES, part_images=part_images) as renderer:
+        return _rows(obj, config, split, timings, renderer)
 
 
-def _rows(obj, config, split, timings, reader, colours) -> list[dict]:
+def _rows(obj, config, split, timings, renderer) -> list[dict]:
     from factory.render import bounds_of, render_catalog, render_step_full
+
+    reader, colours = renderer.reader, renderer.colours
 
     bounds: dict[str, np.ndarray] = {}
     last_after: tuple = (None, None)  # (what the previous step rendered after it, its StepRender)
@@ -115,14 +109,14 @@ def _rows(obj, config, split, timings, reader, colours) -> list[dict]:
             bounds[step.assembly] = bounds_of(list(step.scene), reader)
         before_key = (step.assembly, _placed_key(step.before))
         prev = last_after[1] if last_after[0] == before_key else None
-        res = render_step_full(list(step.before), list(step.new), config.size, reader=reader,
+        res = render_step_full(renderer, list(step.before), list(step.new), config.size,
                                bounds=bounds[step.assembly], scene_parts=list(step.scene),
                                before_views=prev and prev.after_views,
                                before_isometric=prev and prev.after_isometric,
                                before_segmentation=prev and prev.segmentation)
         last_after = ((step.assembly, before_key[1] + _placed_key(step.new)), res)
         entries = catalog_layout(reader, step.catalog)
-        catalog_img, cells = render_catalog(entries, tile=config.tile, reader=reader)
+        catalog_img, cells = render_catalog(renderer, entries, tile=config.tile)
         images = {
             "before": res.images["before"],
             "after": res.images["after"],

@@ -18,6 +18,7 @@ one byte for byte. Stage timings live only in the markers.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import sys
@@ -126,6 +127,17 @@ def _remove_stale(out: Path, names: list[str]) -> None:
                 pass
 
 
+@functools.cache
+def _part_images():
+    """The worker process's `factory.render.PartImages`, kept across its objects and shards (a pool
+    or Ray worker runs `build_shard` again and again): plain images, each drawn in a scene of that
+    part alone, so they do not depend on what the process rendered before; every GL resource
+    belongs to the per-object renderer (`rows.object_rows`)."""
+    from factory.render import PartImages  # importing factory.render starts the GL backend's setup
+
+    return PartImages()
+
+
 def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike, progress=None) -> Path:
     """Build shard `shard` of `config` into the folder `out`; returns its completion marker's path.
 
@@ -159,7 +171,7 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
             obj = source.object(index, oid, grown) if grown is not None else source.object(index, oid)
             for k, v in obj.timings.items():
                 timings[k] = timings.get(k, 0.0) + v
-            rows = object_rows(obj, config, split, timings)
+            rows = object_rows(obj, config, split, timings, _part_images())
             t = time.perf_counter()
             if rows:
                 writers[split].write_table(pa.Table.from_pylist(rows, schema=SCHEMA))
