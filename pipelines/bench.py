@@ -77,6 +77,10 @@ def machine() -> dict:
     }
 
 
+GPU_PROCS = 4
+"""Processes sharing the GPU in the second set of batched rows (`bench_physics --procs`)."""
+
+
 def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None) -> dict:
     from pipelines.bench_physics import measure
 
@@ -91,19 +95,28 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None) -
     # The two expensive checks alone at 30, 60 and 90 bricks: on a GPU the batched path (the CPU
     # reference's rates come from a machine without one: docs/physics.md compares them); without
     # one, the CPU reference in two processes.
-    from pipelines.bench_physics import measure_lp, measure_sweep
+    from pipelines.bench_physics import measure_lp, measure_sweep, measure_whole
 
     check_sizes = [30] if quick else [30, 60, 90]
     log = lambda kind: (lambda r: print(f"  {kind} {json.dumps(r)}", flush=True))
     if gpu:
-        loads = measure_lp(check_sizes, [1024, 4096, 16384], log=log("loads"), cpu_max=0)
-        sweeps = measure_sweep(check_sizes, [1024, 4096, 16384], cpu_max=0, log=log("sweep"))
+        # One process, and GPU_PROCS processes sharing the device (the host's cores select pairs
+        # and build programs while another process's launch runs), as the factory's workers do.
+        gpu_batches = [1024, 4096, 16384]
+        loads = (measure_lp(check_sizes, gpu_batches, log=log("loads"), cpu_max=0)
+                 + measure_lp(check_sizes, gpu_batches, log=log("loads"), cpu_max=0, procs=GPU_PROCS))
+        sweeps = (measure_sweep(check_sizes, gpu_batches, cpu_max=0, log=log("sweep"))
+                  + measure_sweep(check_sizes, gpu_batches, cpu_max=0, log=log("sweep"), procs=GPU_PROCS))
+        whole = (measure_whole(check_sizes, gpu_batches, log=log("whole"), cpu_max=0)
+                 + measure_whole(check_sizes, gpu_batches, log=log("whole"), cpu_max=0, procs=GPU_PROCS))
     else:
         workers = 1 if quick else 2
         loads = measure_lp(check_sizes, [1024], log=log("loads"), cpu_max=16 if quick else 128,
                            cpu_workers=workers, batched=False)
         sweeps = measure_sweep(check_sizes, [1024], cpu_max=32 if quick else 512, log=log("sweep"),
                                cpu_workers=workers, batched=False)
+        whole = measure_whole(check_sizes, [1024], log=log("whole"), cpu_max=32 if quick else 256,
+                              cpu_workers=workers, batched=False)
     # Lockstep growth of the same objects: on a GPU the batched path at one batch against the CPU
     # reference one object at a time; without one, the reference at two batches (the objects are
     # the same whatever the batch, only the cost moves).
@@ -116,7 +129,7 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None) -
     else:
         objects, steps = (2, 3) if quick else (8, 10)
         growth = measure_growth("mujoco", [1, objects], steps=steps, objects=objects, log=glog)
-    return {"backends": backends, "rows": rows, "loads": loads, "sweeps": sweeps, "growth": growth,
+    return {"backends": backends, "rows": rows, "loads": loads, "sweeps": sweeps, "whole": whole, "growth": growth,
             "note": "candidates of a 2x4 brick on grown 2x4-brick structures; loads/s is the "
                     "whole-structure load program alone (HiGHS for mujoco, the batched JAX solver for mjx), "
                     "checks/s the whole check (connection, contacts, clutch, loads)"}
@@ -285,13 +298,16 @@ def markdown(report: dict) -> str:
                           r.get("accepted", "-"), r["compile_s"]] for r in report["physics"]["rows"]])
         lines += ["", "![physics](physics.png)", ""]
         for key, title in (("loads", "Load checks (from the candidates' connections)"),
-                           ("sweeps", "Buildability sweeps (from the candidates' connections)")):
+                           ("sweeps", "Buildability sweeps (from the candidates' connections)"),
+                           ("whole", "Whole checks (every check a candidate goes through)")):
             rows = report["physics"].get(key) or []
             if rows:
-                lines += [f"### {title}", "", "GPU: the batched path on the default JAX device; CPU: the "
-                          f"reference (HiGHS / `sweep.sweep`) in {rows[0].get('cpu_workers', '-')} process(es).", ""]
-                lines += _table(["bricks", "batch", "GPU per s", "CPU reference per s"],
-                                [[r["bricks"], r["batch"], r.get("jax_per_s", "-"), r.get("cpu_per_s", "-")] for r in rows])
+                lines += [f"### {title}", "", "GPU: the batched path on the default JAX device, in one process "
+                          "or several sharing it; CPU: the reference (HiGHS / `sweep.sweep` / `check` with "
+                          f"MuJoCo C) in {rows[0].get('cpu_workers', '-')} process(es).", ""]
+                lines += _table(["bricks", "batch", "GPU processes", "GPU per s", "CPU reference per s"],
+                                [[r["bricks"], r["batch"], r.get("procs", 1) if "cpu_per_s" not in r else "-",
+                                  r.get("jax_per_s", r.get("gpu_per_s", "-")), r.get("cpu_per_s", "-")] for r in rows])
                 lines += [""]
     growth = report.get("physics", {}).get("growth") or []
     if growth:
