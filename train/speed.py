@@ -307,6 +307,7 @@ def measure(args, progress=print) -> dict:
             skipped = out["skipped"]
     except torch.OutOfMemoryError as exc:
         row.update(fits=False, oom_stage=stage, error=str(exc).splitlines()[0][:300], **_memory(device))
+        row.setdefault("params_total", count_parameters(cfg))  # out of memory before the model was whole
         return row
     finally:
         if batches is not None:
