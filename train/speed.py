@@ -26,7 +26,7 @@ token, image tokens included), answer tokens/s, peak GPU memory (allocated and r
 allocator), the attention implementation (`flash_attention_2` where flash-attn imports, else
 `sdpa`), and `epoch_hours_40k`: hours for 40,000 examples at the measured rate. One synthetic
 step gives one example per task, so 40,000 dataset steps trained on both tasks are 80,000
-examples: `hours_40k_steps` is that (examples per step = the number of `--tasks`). A run that
+examples: `hours_40k_steps` is that (both tasks, as `python -m train` trains by default). A run that
 runs out of GPU memory prints a row with `"fits": false`, the stage it failed in and the peak
 memory, and exits 0. `--out FILE` appends the row to FILE (the whole file rewritten atomically).
 """
@@ -288,7 +288,9 @@ def measure(args, progress=print) -> dict:
                                    config.max_length, workers=config.resolved_workers(), processor_path=tmp,
                                    max_pixels=args.max_pixels)
             pad_id = processor.tokenizer.pad_token_id
-            batches = Batches(stream, config.batch_size, pad_id if pad_id is not None else processor.tokenizer.eos_token_id)
+            if pad_id is None:
+                pad_id = processor.tokenizer.eos_token_id
+            batches = Batches(stream, config.batch_size, pad_id)
             totals = {"examples": 0, "tokens": 0, "label_tokens": 0, "data_wait": 0.0}
             times = []
             for i in range(config.steps):
@@ -352,7 +354,8 @@ def parser() -> argparse.ArgumentParser:
                          "limit, so images keep their stored size)")
     ap.add_argument("--max-length", type=int, default=16384,
                     help="longer examples are skipped and counted, as in python -m train (default: 16384)")
-    ap.add_argument("--weight-dtype", default="bf16", help="bf16 (default) or fp32 (python -m train's full fine-tuning)")
+    ap.add_argument("--weight-dtype", default="bf16",
+                    help="bf16 (default) or fp32 (what python -m train keeps for full fine-tuning)")
     ap.add_argument("--workers", type=int, default=None, help="data worker processes (default: as python -m train)")
     ap.add_argument("--device", default="auto", help=f"one of: {', '.join(DEVICES)}")
     ap.add_argument("--seed", type=int, default=0)
@@ -367,14 +370,16 @@ def check(args) -> None:
     for name, valid in (("family", CHOICES), ("mode", MODES), ("weight_dtype", WEIGHT_DTYPES), ("size", SIZES),
                         ("device", DEVICES)):
         if getattr(args, name) not in valid:
-            raise SpeedError(f"--{name.replace('_', '-')} {getattr(args, name)!r} is not valid; valid: {', '.join(valid)}")
+            flag = "--" + name.replace("_", "-")
+            raise SpeedError(f"{flag} {getattr(args, name)!r} is not valid; valid: {', '.join(valid)}")
     for name in ("batch_size", "steps", "max_length"):
         if getattr(args, name) < 1:
             raise SpeedError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     if args.warmup_steps < 0:
         raise SpeedError(f"--warmup-steps must be 0 or more, got {args.warmup_steps}")
     if args.mode == "lora" and importlib.util.find_spec("peft") is None:
-        raise SpeedError("--mode lora needs peft (pip install peft), which is not installed; --mode full runs without it")
+        raise SpeedError("--mode lora needs peft (pip install peft), which is not installed; "
+                         "--mode full runs without it")
 
 
 def main(argv: list[str] | None = None) -> int:
