@@ -108,8 +108,10 @@ REAL = {
     # google/gemma-3-12b-it config.json (transformers 4.50) names only what differs from
     # transformers' defaults; written out here with the defaults it relies on (vocab 262208, head_dim
     # 256, query_pre_attn_scalar 256, rope 1e6 global / 1e4 local, sliding window 1024 in 5 of 6
-    # layers), as ostris/ai-toolkit's LTX-2 text encoder (Gemma 3 12B) spells them out; the same
-    # text dimensions in mlx-video's and LTX-2-MLX's Gemma 3 12B configs.
+    # layers) as an LTX-2 trainer's Gemma 3 12B text encoder config spells them out in full; the
+    # same values in TensorStack/TextEncoder's Gemma-3-12B-IT/config.json (hub commit 5ae4186),
+    # cornball-ai/diffuseR's Gemma 3 text encoder (48 layers, 3840 wide, 16 / 8 heads) and an MLX
+    # Gemma 3 12B config (head_dim 256, MLP 15360, vocab 262208).
     "gemma3-12b": Real(
         family="gemma3",
         config={
