@@ -31,7 +31,7 @@ import torch
 
 from train import checkpoint as ckpt
 from train.config import CONFIG_FILE, ConfigError, TrainConfig, resume_conflicts
-from train.data import ExampleStream, collate
+from train.data import IGNORE, ExampleStream, collate
 
 LOG_FILE = "log.jsonl"
 FINAL = "final"
@@ -141,6 +141,55 @@ def forward_backward(model, batch: dict, device: torch.device, amp: torch.dtype 
     return float(loss.detach())
 
 
+def trainable_model(model, config: TrainConfig):
+    """`model` ready to train under `config`: LoRA adapters on its language model (`config.lora`,
+    initialised from the current torch RNG) or every weight trainable, and gradient checkpointing
+    when asked (with LoRA the inputs must require grad, or the checkpointed blocks get none)."""
+    from train.model import add_lora
+
+    if config.lora:
+        model = add_lora(model, config)
+    else:
+        model.requires_grad_(True)
+    if config.gradient_checkpointing:
+        model.gradient_checkpointing_enable(gradient_checkpointing_kwargs={"use_reentrant": False})
+        if config.lora and hasattr(model, "enable_input_require_grads"):
+            model.enable_input_require_grads()
+    return model
+
+
+def train_step(model, optimizer, scheduler, batches, config: TrainConfig, device: torch.device,
+               amp: torch.dtype | None, step: int | None = None) -> dict:
+    """One optimizer step (number `step`, named in the error a non-finite loss raises) over
+    `config.grad_accum` batches from `batches` (a `Batches`): forward and backward, gradient
+    clipping, AdamW and scheduler steps. Returns the mean loss, grad norm, the
+    learning rate used, examples, tokens (non-padding, image tokens included) and answer tokens
+    (labels) seen, the stream's position and skip count after the last batch, and the seconds spent
+    waiting for batches (data loading the model's step did not hide)."""
+    optimizer.zero_grad(set_to_none=True)
+    losses, n_ex, n_tok, n_label, wait = [], 0, 0, 0, 0.0
+    for _ in range(config.grad_accum):
+        t = time.perf_counter()
+        batch, position, skipped = next(batches)
+        wait += time.perf_counter() - t
+        n_ex += int(batch["input_ids"].shape[0])
+        mask = batch.get("attention_mask")
+        n_tok += int(mask.sum()) if mask is not None else batch["input_ids"].numel()
+        n_label += int((batch["labels"] != IGNORE).sum())
+        losses.append(forward_backward(model, batch, device, amp, 1.0 / config.grad_accum))
+    loss = sum(losses) / len(losses)
+    if not math.isfinite(loss):
+        at = f" at step {step}" if step is not None else ""
+        raise FloatingPointError(f"loss is {loss}{at}; lower --lr, or use --dtype fp32")
+    params = [p for p in model.parameters() if p.requires_grad]
+    norm = torch.nn.utils.clip_grad_norm_(params, config.max_grad_norm if config.max_grad_norm > 0 else float("inf"))
+    lr = scheduler.get_last_lr()[0]
+    optimizer.step()
+    scheduler.step()
+    return {"loss": loss, "grad_norm": float(norm), "lr": lr, "examples": n_ex, "tokens": n_tok,
+            "label_tokens": n_label, "position": position, "skipped": skipped, "data_wait": wait}
+
+
 # -- batches ---------------------------------------------------------------------------------------
 class Batches:
     """Collated batches from an `ExampleStream`, prepared one step ahead in a thread (decoding
@@ -202,7 +251,7 @@ def _gpu_mem_gb(device: torch.device) -> float | None:
 
 def build(config: TrainConfig, device: torch.device, resume_from: Path | None, progress: bool = False):
     """(model, processor, base path) for a fresh run or a checkpoint to resume."""
-    from train.model import add_lora, load_adapter_weights, load_base
+    from train.model import load_adapter_weights, load_base
     from eval.processor import load_processor
 
     base = base_model_path(config, progress)
@@ -210,16 +259,11 @@ def build(config: TrainConfig, device: torch.device, resume_from: Path | None, p
     torch.manual_seed(config.seed)
     wdtype = weight_dtype(config, device)
     if config.lora:
-        model = add_lora(load_base(base, wdtype), config)
+        model = trainable_model(load_base(base, wdtype), config)
         if resume_from is not None:
             load_adapter_weights(model, resume_from)
     else:
-        model = load_base(resume_from if resume_from is not None else base, wdtype)
-        model.requires_grad_(True)
-    if config.gradient_checkpointing:
-        model.gradient_checkpointing_enable(gradient_checkpointing_kwargs={"use_reentrant": False})
-        if config.lora and hasattr(model, "enable_input_require_grads"):
-            model.enable_input_require_grads()
+        model = trainable_model(load_base(resume_from if resume_from is not None else base, wdtype), config)
     model.to(device)
     model.train()
     return model, processor, base
@@ -274,24 +318,9 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
         with log_path.open("a", encoding="utf-8") as log:
             while state["step"] < config.steps:
                 t0 = time.perf_counter()
-                optimizer.zero_grad(set_to_none=True)
-                losses, n_ex, n_tok = [], 0, 0
-                for _ in range(config.grad_accum):
-                    batch, position, skipped = next(batches)
-                    n_ex += int(batch["input_ids"].shape[0])
-                    mask = batch.get("attention_mask")
-                    n_tok += int(mask.sum()) if mask is not None else batch["input_ids"].numel()
-                    losses.append(forward_backward(model, batch, device, amp, 1.0 / config.grad_accum))
-                last_loss = sum(losses) / len(losses)
-                if not math.isfinite(last_loss):
-                    raise FloatingPointError(f"loss is {last_loss} at step {state['step'] + 1}; "
-                                             "lower --lr, or use --dtype fp32")
-                params = [p for p in model.parameters() if p.requires_grad]
-                norm = torch.nn.utils.clip_grad_norm_(params, config.max_grad_norm if config.max_grad_norm > 0
-                                                      else float("inf"))
-                lr = scheduler.get_last_lr()[0]
-                optimizer.step()
-                scheduler.step()
+                out = train_step(model, optimizer, scheduler, batches, config, device, amp, state["step"] + 1)
+                last_loss, norm, lr = out["loss"], out["grad_norm"], out["lr"]
+                n_ex, n_tok, position, skipped = out["examples"], out["tokens"], out["position"], out["skipped"]
                 if device.type == "cuda":
                     torch.cuda.synchronize(device)
                 dt = time.perf_counter() - t0

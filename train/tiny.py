@@ -275,8 +275,11 @@ def train_tokenizer(texts: Iterable[str], vocab_size: int = 1024, fam: str | Fam
     return tok
 
 
-def make_processor(tokenizer, max_pixels: int = MAX_PIXELS, fam: str | Family = "qwen2-vl"):
-    """The family's processor around a `tokenizers.Tokenizer` trained by `train_tokenizer`."""
+def make_processor(tokenizer, max_pixels: int = MAX_PIXELS, fam: str | Family = "qwen2-vl", image_processor=None,
+                   processor_kwargs: dict | None = None):
+    """The family's processor around a `tokenizers.Tokenizer` trained by `train_tokenizer`; the
+    tiny image processor and processor settings unless given (`train.speed` gives a real
+    checkpoint's, so image token counts are the real model's)."""
     import transformers
     from transformers import PreTrainedTokenizerFast
 
@@ -290,8 +293,9 @@ def make_processor(tokenizer, max_pixels: int = MAX_PIXELS, fam: str | Family = 
         additional_special_tokens=[t for t in fam.special if t not in named], extra_special_tokens=dict(fam.named),
         model_max_length=32768, padding_side="right", clean_up_tokenization_spaces=False)
     fast.chat_template = fam.template
-    images = fam.image_processor(max_pixels)
-    return processor_of(getattr(transformers, fam.processor), images, fast, fam.template, **fam.processor_kwargs)
+    images = image_processor if image_processor is not None else fam.image_processor(max_pixels)
+    kwargs = {**fam.processor_kwargs, **(processor_kwargs or {})}
+    return processor_of(getattr(transformers, fam.processor), images, fast, fam.template, **kwargs)
 
 
 def tiny_config(tokenizer, vocab_size: int, fam: str | Family = "qwen2-vl", size: str = "tiny"):

@@ -1,0 +1,125 @@
+"""`python -m train.speed`: a real JSON row from timed training steps of a tiny family on the
+session's tiny dataset, the real-size configs' parameter counts against the published ones, and
+the real checkpoints' image token counts on the dataset's images."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("transformers")
+
+
+def _run(capsys, *argv):
+    from train.speed import main
+
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _row(capsys, *argv):
+    code, out, err = _run(capsys, *argv)
+    assert code == 0, err
+    lines = [line for line in out.splitlines() if line.strip()]
+    assert len(lines) == 1, out
+    return json.loads(lines[0])
+
+
+def _check_rates(row, steps=2, batch=2):
+    assert row["fits"] is True
+    assert row["steps"] == steps and row["batch_size"] == batch
+    assert row["examples"] == steps * batch
+    assert row["seconds"] > 0 and row["samples_per_s"] == pytest.approx(row["examples"] / row["seconds"], rel=1e-3)
+    assert row["tokens_per_s"] > row["label_tokens_per_s"] > 0
+    # image tokens are in the input: an example is far longer than its answer
+    assert row["tokens_per_example"] > 4 * row["label_tokens_per_s"] / row["samples_per_s"]
+    assert row["epoch_hours_40k"] == pytest.approx(40_000 / row["samples_per_s"] / 3600, rel=1e-2)
+    assert row["hours_40k_steps"] == pytest.approx(row["epoch_hours_40k"] * len(row["tasks"]), rel=1e-2)
+    assert row["attn_implementation"] == "sdpa" and row["gpu"] == "cpu"
+    assert row["peak_allocated_gib"] is None  # no GPU here
+
+
+@pytest.mark.parametrize("family", ["qwen3-vl", "gemma3"])
+def test_lora_run_writes_a_row(family, tiny_dataset, tmp_path, capsys):
+    pytest.importorskip("peft")
+    out = tmp_path / "rows.jsonl"
+    argv = ["--family", family, "--mode", "lora", "--data", str(tiny_dataset), "--batch-size", "2", "--steps", "2",
+            "--warmup-steps", "1", "--device", "cpu", "--workers", "0", "--out", str(out)]
+    row = _row(capsys, *argv)
+    _check_rates(row)
+    assert row["family"] == family and row["mode"] == "lora"
+    assert 0 < row["params_trainable"] < row["params_total"] / 2
+    assert json.loads(out.read_text()) == row
+    again = _row(capsys, *argv)  # appended, the first row kept
+    assert [json.loads(line) for line in out.read_text().splitlines()] == [row, again]
+
+
+def test_full_run_trains_every_weight(tiny_dataset, capsys):
+    row = _row(capsys, "--family", "qwen3-vl", "--mode", "full", "--data", str(tiny_dataset), "--batch-size", "2",
+               "--steps", "2", "--warmup-steps", "0", "--device", "cpu", "--workers", "0", "--weight-dtype", "fp32")
+    _check_rates(row)
+    assert row["params_trainable"] == row["params_total"] > 0
+    assert row["weight_dtype"] == "fp32"
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["--family", "qwen3-vl-9b"], "qwen3-vl-8b, gemma3-12b, qwen2-vl"),
+    (["--family", "qwen3-vl", "--mode", "half"], "lora, full"),
+    (["--family", "qwen3-vl", "--weight-dtype", "fp16"], "bf16, fp32"),
+    (["--family", "qwen3-vl", "--steps", "0"], "at least 1"),
+])
+def test_bad_choices_are_refused_with_the_valid_ones(argv, named, tiny_dataset, capsys):
+    code, out, err = _run(capsys, *argv, "--data", str(tiny_dataset), "--device", "cpu")
+    assert code == 2 and out == ""
+    assert named in err
+
+
+@pytest.mark.parametrize("name", ["qwen3-vl-8b", "gemma3-12b"])
+def test_real_configs_have_the_published_parameter_count(name):
+    from train.speed import REAL, count_parameters, real_config
+
+    n = count_parameters(real_config(name))
+    assert abs(n - REAL[name].params) / REAL[name].params < 0.02, (n, REAL[name].params)
+
+
+def test_real_processors_give_the_checkpoints_image_tokens(tiny_dataset):
+    """Gemma 3: 256 tokens per image whatever its size; Qwen3-VL-8B: one token per 32 x 32 pixels
+    of the image resized to multiples of 32 (at least 65,536 pixels); the config's token ids are
+    the local tokenizer's, the vocabulary the checkpoint's."""
+    from eval.chat import task_chat
+    from eval.data import iter_rows
+    from train.data import encode
+    from train.speed import REAL, build
+    from train.tiny import dataset_texts
+
+    texts = dataset_texts([tiny_dataset])
+    row = next(iter_rows(tiny_dataset, "train"))
+    messages, images, _ = task_chat(row, "pose", with_answer=True)
+    assert images
+    for name in REAL:
+        cfg, processor = build(name, texts, None)
+        tok = processor.tokenizer
+        assert cfg.text_config.vocab_size == REAL[name].config["text_config"]["vocab_size"] > len(tok)
+        ex = encode(processor, messages, images)
+        if name == "gemma3-12b":
+            image_id = cfg.image_token_index
+            assert image_id == tok.convert_tokens_to_ids("<image_soft_token>")
+            assert int((ex["input_ids"] == image_id).sum()) == 256 * len(images)
+            assert tuple(ex["pixel_values"].shape[-2:]) == (896, 896)
+        else:
+            image_id = cfg.image_token_id
+            assert image_id == tok.convert_tokens_to_ids("<|image_pad|>")
+            expected = 0
+            for im in images:
+                w, h = im.size
+                hh, ww = max(32, round(h / 32) * 32), max(32, round(w / 32) * 32)
+                if hh * ww < 65536:  # upscaled to the checkpoint's minimum
+                    scale = math.sqrt(65536 / (h * w))
+                    hh, ww = math.ceil(h * scale / 32) * 32, math.ceil(w * scale / 32) * 32
+                expected += hh * ww // (32 * 32)
+            assert int((ex["input_ids"] == image_id).sum()) == expected
+            assert int(ex["image_grid_thw"].prod(-1).sum()) == 4 * expected
