@@ -60,7 +60,7 @@ from eval.feedback import Feedback, assembly_rows, before_rows, feedback_columns
 from eval.hf import CheckpointError, HFPredictor
 from eval.metrics import StepTarget
 from factory.atomic import umask
-from factory.cli import run_guarded
+from factory.cli import add_progress_flag, run_guarded
 from factory.dataset.tasks import TASKS
 from factory.ldraw import get_reader
 
@@ -280,7 +280,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--feedback", action="store_true", help="revise failed pose answers with world feedback")
     ap.add_argument("--max-new-tokens", type=int, default=256, help="hf: longest answer in tokens (default 256)")
     ap.add_argument("--device", help="hf: torch device (default: cuda when available, else cpu)")
-    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_flag(ap)
     args = ap.parse_args(argv)
     return run_guarded(lambda: run(args), {DatasetError: 2, ModelSpecError: 2, CheckpointError: 2})
 

@@ -534,7 +534,7 @@ def test_training_runs_on_an_imported_release(release, tmp_path):
     run = tmp_path / "run"
     argv = ["--data", str(data), "--outdir", str(run), "--steps", "2", "--batch-size", "2", "--lora", "0",
             "--lr", "1e-3", "--save-every", "2", "--workers", "0", "--eval-limit", "1", "--max-new-tokens", "8",
-            "--quiet"]
+            "--no-progress"]
     assert main(argv) == 0
     summary = json.loads((run / "train_summary.json").read_text())
     assert summary["steps"] == 2 and summary["examples"] == 4

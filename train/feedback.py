@@ -33,7 +33,7 @@ from eval.data import DatasetError, info, iter_objects, iter_rows, load_targets
 from eval.feedback import assembly_rows, before_rows, feedback_example, revision_messages
 from eval.parse import parse_pose
 from eval.score import PredictionsError, read_predictions
-from factory.cli import run_guarded
+from factory.cli import add_progress_flag, run_guarded
 from factory.dataset.info import Counts, DatasetInfo, write_info
 from factory.dataset.prompts import text_part
 from factory.dataset.schema import arrow_schema
@@ -151,11 +151,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pred", required=True, help="predictions file (eval.predict output)")
     ap.add_argument("--out", required=True, help="folder for the correction dataset")
     ap.add_argument("--split", default="train", choices=("train", "test"), help="split of the predictions")
-    ap.add_argument("--quiet", action="store_true")
+    add_progress_flag(ap)
     args = ap.parse_args(argv)
 
     def run() -> int:
-        s = build_feedback(args.data, args.pred, args.out, args.split, progress=not args.quiet)
+        s = build_feedback(args.data, args.pred, args.out, args.split, progress=not args.no_progress)
         reasons = ", ".join(f"{k} {v}" for k, v in s["reasons"].items())
         print(f"{args.out}: {s['total']['steps']} correction rows from {s['total']['objects']} objects ({reasons})")
         return 0
