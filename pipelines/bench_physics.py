@@ -24,21 +24,25 @@ from __future__ import annotations
 import argparse
 import gc
 import json
+import multiprocessing
 import platform
 import time
 from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 from factory import Pose, get_reader, load_part
 from factory.atomic import write_atomic
+from factory.physics import check as check_mod
 from factory.physics.check import STAGE_SECONDS, CheckConfig, check
+from factory.physics.collide import CollisionScene
 from factory.physics.check import _unit_connections
-from factory.physics.statics import _ALONE, LoadBase, judge_many
+from factory.physics.statics import _ALONE, LoadBase, judge_many, judge_on_base
 from factory.physics.attach import feasible_poses, lowest_y
 from factory.physics.structure import Placed, Structure
-from factory.physics.sweep import _boxes
+from factory.physics.sweep import _boxes, seating_from_connections, sweep
 from factory.sampler import Sampler, SamplerConfig
 
 
@@ -135,7 +139,7 @@ def measure(backends, sizes, batches, log=None, full_max: int | None = None,
             for backend in backends:
                 compile_s, compiles = 0.0, 0
                 if backend == "mjx":
-                    from factory.physics.lp_jax import COMPILES, solve_loads
+                    from factory.physics.lp_jax import COMPILES, solve_loads  # JAX: the mjx extra
 
                     t = time.perf_counter()
                     judge_many(models, cfg.loads, solve_loads)  # compile (and warm) this batch's bucket
@@ -171,7 +175,6 @@ def sweep_pool(s: Structure, scene) -> list[tuple]:
     """The distinct feasible attachments of a 2x4 brick on `s` whose final pose the collision
     check accepts, each as (unit, parts it connects to, seating directions), as `check_units`
     hands them to the sweep."""
-    from factory.physics.sweep import seating_from_connections
 
     brick = load_part(get_reader(), "3001")
     pool = []
@@ -191,7 +194,6 @@ def load_stage(s: Structure, poses: list[Pose], batched: bool = False, config: C
     solves its program with HiGHS (`judge_many`); the batched path (`batched`) judges them all on
     the structure's shared columns (`judge_on_base` with `lp_jax.solve_on_base`). Failing
     connections are not sought (`explain=False`, as the sampler asks)."""
-    from factory.physics.statics import judge_on_base
 
     brick = load_part(get_reader(), "3001")
     if conns is None:
@@ -199,7 +201,7 @@ def load_stage(s: Structure, poses: list[Pose], batched: bool = False, config: C
     base = LoadBase(s.placed, s.connections, 24.0, s.links, config.loads)
     units = [[Placed(brick, 4, p)] for p in poses]
     if batched:
-        from factory.physics.lp_jax import solve_on_base
+        from factory.physics.lp_jax import solve_on_base  # JAX: the mjx extra
 
         return judge_on_base(base, units, conns, config.loads, solve_on_base, explain=False)
     return judge_many([base.model(u, c) for u, c in zip(units, conns)], config.loads, explain=False)
@@ -211,7 +213,6 @@ _CTX: dict = {}
 
 
 def _ctx_init(kind: str, n: int, batch: int) -> None:
-    from factory.physics.collide import CollisionScene
 
     s = grown(n)
     _CTX.update(kind=kind, s=s)
@@ -230,7 +231,6 @@ def _ctx_init(kind: str, n: int, batch: int) -> None:
 
 
 def _ctx_run(span: tuple[int, int]) -> list:
-    from factory.physics.sweep import sweep
 
     a, b = span
     if _CTX["kind"] == "whole":
@@ -244,7 +244,7 @@ def _ctx_run(span: tuple[int, int]) -> list:
 def _batched_answers(a: int, b: int) -> list:
     """The batched path's answers for candidates a..b-1 of this process's inputs (`_ctx_init`), as
     the reference's `_ctx_run` gives them."""
-    from factory.physics.sweep_jax import sweep_many
+    from factory.physics.sweep_jax import sweep_many  # JAX: the mjx extra
 
     kind, s = _CTX["kind"], _CTX["s"]
     if kind == "whole":
@@ -278,8 +278,6 @@ def batched_processes(kind: str, n: int, batch: int, procs: int) -> tuple[list, 
     process's host work overlaps another's device work, as the factory's workers do. Seconds from
     the first start to the last end, every process compiled and waiting at a barrier before the
     clock starts."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
 
     spawn = multiprocessing.get_context("spawn")  # not fork: JAX's threads may hold locks
     step = -(-batch // procs)
@@ -294,8 +292,6 @@ def batched_processes(kind: str, n: int, batch: int, procs: int) -> tuple[list, 
 def cpu_reference(kind: str, n: int, batch: int, count: int, workers: int) -> tuple[list, float]:
     """(answers, seconds): the CPU reference on the first `count` of the batch's candidates, split
     over `workers` processes (started and warmed before the clock starts)."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
 
     if workers <= 1:
         _ctx_init(kind, n, batch)
@@ -333,7 +329,7 @@ def measure_lp(sizes, batches, log=None, cpu_max: int = 128, cpu_workers: int = 
     on its first `cpu_max` candidates in `cpu_workers` processes; verdicts compared on those.
     `batched=False`: the reference alone. `procs` > 1: the batched path in that many processes
     sharing the device (`batched_processes`), with the default config."""
-    from factory.physics import lp_jax
+    from factory.physics import lp_jax  # JAX: the mjx extra
 
     rows = []
     for n in sizes:
@@ -384,7 +380,6 @@ def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int
     verdicts (accepted, reason) compared on those. `batched=False`: the reference alone.
     `procs` > 1: the batched path in that many processes sharing the device (`batched_processes`),
     with the default config."""
-    from factory.physics import check as check_mod
 
     brick = load_part(get_reader(), "3001")
     rows = []
@@ -435,8 +430,7 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
     connections found (as `check_units` has them), the reference from its own `approach`.
     `batched=False`: the reference alone. `procs` > 1: the batched path in that many processes
     sharing the device (`batched_processes`)."""
-    from factory.physics.collide import CollisionScene
-    from factory.physics.sweep_jax import COMPILES, COUNTS, sweep_many
+    from factory.physics.sweep_jax import COMPILES, COUNTS, sweep_many  # JAX: the mjx extra
 
     brick = load_part(get_reader(), "3001")
     rows = []
