@@ -32,7 +32,7 @@ def _row(capsys, *argv):
 def _check_rates(row, steps=2, batch=2):
     assert row["fits"] is True
     assert row["steps"] == steps and row["batch_size"] == batch
-    assert row["examples"] == steps * batch
+    assert row["examples"] == steps * batch * row.get("processes", 1)
     assert row["seconds"] > 0 and row["samples_per_s"] == pytest.approx(row["examples"] / row["seconds"], rel=1e-3)
     assert row["tokens_per_s"] > row["label_tokens_per_s"] > 0
     # image tokens are in the input: an example is far longer than its answer
@@ -123,3 +123,30 @@ def test_real_processors_give_the_checkpoints_image_tokens(tiny_dataset):
                 expected += hh * ww // (32 * 32)
             assert int((ex["input_ids"] == image_id).sum()) == expected
             assert int(ex["image_grid_thw"].prod(-1).sum()) == 4 * expected
+
+
+def test_two_processes_under_torchrun_write_one_row_for_both(tiny_dataset, tmp_path):
+    """torchrun with two CPU processes (gloo): one row, both processes' examples over the slowest's
+    seconds, and the processes trained different examples (their own seeds) on one model."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    pytest.importorskip("peft")
+    out = tmp_path / "rows.jsonl"
+    root = Path(__file__).resolve().parents[1]
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "-m", "train.speed",
+           "--family", "qwen3-vl", "--mode", "lora", "--data", str(tiny_dataset), "--batch-size", "2",
+           "--steps", "2", "--warmup-steps", "1", "--device", "cpu", "--workers", "0", "--out", str(out)]
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(root)}
+    done = subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    rows = [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
+    assert len(rows) == 1 and json.loads(out.read_text()) == rows[0]
+    row = rows[0]
+    assert row["processes"] == 2
+    _check_rates(row, steps=2, batch=2)  # per process
+    assert row["examples"] == 2 * 2 * 2
+    losses = [line for line in done.stderr.splitlines() if line.startswith("timed step 3/3")]
+    assert len(losses) == 2 and losses[0] != losses[1]  # each process its own examples

@@ -29,6 +29,12 @@ step gives one example per task, so 40,000 dataset steps trained on both tasks a
 examples: `hours_40k_steps` is that (both tasks, as `python -m train` trains by default). A run that
 runs out of GPU memory prints a row with `"fits": false`, the stage it failed in and the peak
 memory, and exits 0. `--out FILE` appends the row to FILE (the whole file rewritten atomically).
+
+Several GPUs: `torchrun --nproc_per_node N -m train.speed ...` runs one process per GPU, each on
+its own examples (the stream's seed plus its rank), the model in DistributedDataParallel; the one
+row (printed by rank 0) has `processes`, every process's examples and tokens over the slowest
+process's timed seconds, and the largest peak memory (`--batch-size` is per process). `step_seconds_median`
+is rank 0's.
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ from __future__ import annotations
 import argparse
 import copy
 import json
+import os
 import statistics
 import sys
 import tempfile
@@ -260,6 +267,13 @@ def measure(args, progress=print) -> dict:
                          dtype="bf16", device=args.device, eval=False)
     check_data(config)
     device = resolve_device(config)
+    rank, world = _distributed(device)
+    if world > 1:
+        # One process per GPU (torchrun): each its own device, its own examples (the stream's
+        # seed plus the rank), gradients averaged by DistributedDataParallel.
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", rank))) if device.type == "cuda" else device
+        if device.type == "cuda":
+            torch.cuda.set_device(device)
     amp = autocast_dtype(config, device)
     wdtype = torch.bfloat16 if args.weight_dtype == "bf16" else torch.float32
     attn = attention_implementation(device)
@@ -267,7 +281,7 @@ def measure(args, progress=print) -> dict:
     row = {"family": args.family, "mode": args.mode, "batch_size": args.batch_size, "gpu": gpu,
            "attn_implementation": attn, "weight_dtype": args.weight_dtype, "autocast": str(amp).replace("torch.", ""),
            "gradient_checkpointing": args.gradient_checkpointing, "max_pixels": args.max_pixels,
-           "torch": torch.__version__, "transformers": transformers.__version__}
+           "torch": torch.__version__, "transformers": transformers.__version__, "processes": world}
     progress(f"{args.family}: {args.mode}, batch {args.batch_size}, {args.weight_dtype} weights, attention {attn}, "
              f"on {gpu}")
     cfg, processor = build(args.family, dataset_texts(config.data), args.max_pixels, args.size)
@@ -280,6 +294,11 @@ def measure(args, progress=print) -> dict:
         model = trainable_model(instantiate(cfg, device, wdtype, attn), config)
         model.train()
         n_train, n_all = trainable(model)
+        if world > 1:
+            from torch.nn.parallel import DistributedDataParallel
+
+            model = DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None,
+                                            find_unused_parameters=args.mode == "full")
         row.update(params_total=n_all, params_trainable=n_train)
         progress(f"built {n_all:,} parameters ({n_train:,} trainable) in {time.perf_counter() - t:.1f} s")
         stage = "optimizer"
@@ -287,7 +306,7 @@ def measure(args, progress=print) -> dict:
         scheduler = make_scheduler(optimizer, config)
         with tempfile.TemporaryDirectory() as tmp:
             save_processor(processor, tmp)  # the data workers load it from here
-            stream = ExampleStream(config.data, processor, config.tasks, config.seed, config.shuffle_window,
+            stream = ExampleStream(config.data, processor, config.tasks, config.seed + rank, config.shuffle_window,
                                    config.max_length, workers=config.resolved_workers(), processor_path=tmp,
                                    max_pixels=args.max_pixels)
             pad_id = processor.tokenizer.pad_token_id
@@ -298,6 +317,8 @@ def measure(args, progress=print) -> dict:
             times = []
             for i in range(config.steps):
                 stage = "warmup step" if i < args.warmup_steps else "timed step"
+                if world > 1 and i == args.warmup_steps:
+                    torch.distributed.barrier()  # every process starts its timed steps together
                 t = time.perf_counter()
                 out = train_step(model, optimizer, scheduler, batches, config, device, amp, i + 1)
                 if device.type == "cuda":
@@ -318,6 +339,10 @@ def measure(args, progress=print) -> dict:
         if batches is not None:
             batches.close()
     seconds = sum(times)
+    memory = _memory(device)
+    if world > 1:
+        # All processes' examples and tokens over the slowest process's seconds; the largest peak.
+        totals, seconds, memory = _gather(totals, seconds, memory, device)
     sps = totals["examples"] / seconds
     n_tasks = len(config.tasks)
     row.update(fits=True, steps=args.steps, warmup_steps=args.warmup_steps, seconds=round(seconds, 3),
@@ -327,8 +352,38 @@ def measure(args, progress=print) -> dict:
                tokens_per_example=round(totals["tokens"] / totals["examples"], 1),
                data_wait_s=round(totals["data_wait"], 3), skipped_over_max_length=skipped, tasks=list(config.tasks),
                epoch_hours_40k=round(EXAMPLES_PROJECTED / sps / 3600, 3),
-               hours_40k_steps=round(EXAMPLES_PROJECTED * n_tasks / sps / 3600, 3), **_memory(device))
+               hours_40k_steps=round(EXAMPLES_PROJECTED * n_tasks / sps / 3600, 3), **memory)
     return row
+
+
+def _distributed(device) -> tuple[int, int]:
+    """(rank, processes): under torchrun (WORLD_SIZE > 1) the process group is started here
+    (NCCL on GPUs, gloo on the CPU); else (0, 1)."""
+    import torch.distributed as dist
+
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return 0, 1
+    if not dist.is_initialized():
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    return dist.get_rank(), dist.get_world_size()
+
+
+def _gather(totals: dict, seconds: float, memory: dict, device) -> tuple[dict, float, dict]:
+    """Totals summed over the processes, seconds and memory peaks their largest."""
+    import torch
+    import torch.distributed as dist
+
+    on = device if device.type == "cuda" else torch.device("cpu")
+    keys = sorted(totals)
+    summed = torch.tensor([float(totals[k]) for k in keys], dtype=torch.float64, device=on)
+    dist.all_reduce(summed)
+    mem_keys = sorted(k for k, v in memory.items() if v is not None)
+    top = torch.tensor([seconds] + [memory[k] for k in mem_keys], dtype=torch.float64, device=on)
+    dist.all_reduce(top, op=dist.ReduceOp.MAX)
+    out = {k: (int(v) if isinstance(totals[k], int) else float(v)) for k, v in zip(keys, summed.tolist())}
+    top = top.tolist()
+    return out, top[0], {**memory, **dict(zip(mem_keys, top[1:]))}
 
 
 def append_row(path, row: dict) -> None:
@@ -393,10 +448,20 @@ def main(argv: list[str] | None = None) -> int:
     except (SpeedError, ConfigError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(json.dumps(row), flush=True)
-    if args.out:
-        append_row(args.out, row)
+    finally:
+        _end_distributed()
+    if int(os.environ.get("RANK", "0")) == 0:  # under torchrun, one row for all processes
+        print(json.dumps(row), flush=True)
+        if args.out:
+            append_row(args.out, row)
     return 0
+
+
+def _end_distributed() -> None:
+    import torch.distributed as dist
+
+    if dist.is_available() and dist.is_initialized():
+        dist.destroy_process_group()
 
 
 if __name__ == "__main__":
