@@ -461,6 +461,10 @@ def _end_distributed() -> None:
     import torch.distributed as dist
 
     if dist.is_available() and dist.is_initialized():
+        # Every process reaches this point before any tears its group down: a process that left
+        # while another was still inside a collective aborted it (gloo: "terminate called without
+        # an active exception", seen once in a CPU test run without this barrier).
+        dist.barrier()
         dist.destroy_process_group()
 
 
