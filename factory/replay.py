@@ -23,7 +23,7 @@ from factory.ldraw import NO_PARTS, build_steps, get_reader
 from factory.ldraw.model import count_parts
 from factory.ldraw.subassembly import UnitDone, parent_of, relative_frame, to_local, walk
 from factory.parts import box_corners, load_part
-from factory.physics.geometry import require_solid
+from factory.physics.geometry import collision_shape
 from factory.physics.check import CheckConfig, Verdict, check_units
 from factory.physics.statics import Link
 from factory.physics.structure import Placed, Structure, canonical_key, connectors, match
@@ -48,6 +48,23 @@ def _record(verdict: Verdict, **extra) -> dict:
         "blocked_by": list(verdict.blocked_by),
         "reason": verdict.reason,
     }
+
+
+NO_VOLUME = "no-volume"
+"""The reason of a part with no volume (faces in one plane, e.g. a sticker): not checked."""
+
+
+def _solid(part) -> bool:
+    """Whether the part has a collision piece (`geometry.collision_shape`): a body or a stud."""
+    shape = collision_shape(part)
+    return bool(shape.body or shape.studs)
+
+
+def _flat_record(**extra) -> dict:
+    """The record of a part with no volume, in `_record`'s fields: not checked."""
+    return {**extra, "collision": False, "max_penetration_ldu": 0.0, "connected": False, "connections": 0,
+            "stable": None, "load": None, "failing": [], "buildable": None, "approach": None, "blocked_by": [],
+            "reason": NO_VOLUME}
 
 
 def _faults(structure, local: Placed, backend, config, standing, step, index, finished=None):
@@ -164,9 +181,7 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
     for step in steps:
         move = to_local(frames, step.assembly)
         locals_of[id(step)] = [Placed(load_part(reader, p), p.colour, move @ p.pose) for p in step.parts]
-        for q in locals_of[id(step)]:
-            require_solid(q.part)  # a flat part: one line naming it, not a traceback from the checks
-        finished.setdefault(step.assembly, []).extend(locals_of[id(step)])
+        finished.setdefault(step.assembly, []).extend(q for q in locals_of[id(step)] if _solid(q.part))
     for depth in range(max((t.count("/") for t in finished), default=0), 0, -1):
         for tag in [t for t in finished if t.count("/") == depth]:
             parent = parent_of(tag)
@@ -185,7 +200,7 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
             out += [Placed(q.part, q.colour, move @ q.pose) for q in finished[t]]
         for step in steps:
             if step.assembly == parent and step.block == blocks[tag]:
-                out += locals_of[id(step)]
+                out += [q for q in locals_of[id(step)] if _solid(q.part)]
         return out
 
     structures: dict[str, Structure] = {}
@@ -196,6 +211,8 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
             parent = structures.setdefault(event.parent, Structure())
             standing = event.parent == "main"
             unit = [Placed(p.part, p.colour, event.to_parent @ p.pose) for p in done.placed]
+            if not unit:  # a sub-assembly of parts with no volume only: each was reported
+                continue
             (v,) = check_units(parent, [unit], backend, config, require_connection=not _on_table(parent, unit),
                                standing=standing, unit_links=done.links)
             along = going_in_with(event.tag) if v.reason in ("no-connection", "unstable") else []
@@ -213,13 +230,18 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
         standing = step.assembly == "main"
         locals_ = locals_of[id(step)]
         for index, (placed, local) in enumerate(zip(step.parts, locals_)):
+            if not _solid(local.part):
+                # A sticker or another part with no volume: nothing to collide, weigh or hold; it is
+                # reported and left out of the structure (nothing rests on it).
+                yield _flat_record(step=step.index, index=index, part=placed.part, color=placed.colour)
+                continue
             judged_on = structure
             (v,) = check_units(judged_on, [[local]], backend, config,
                                require_connection=not _on_table(judged_on, [local]), standing=standing)
             if v.reason in ("no-connection", "unstable") and index + 1 < len(locals_):
                 # Parts of one step go in together: a part may hang from one listed after it, and
                 # the step is judged standing once all its parts are in.
-                judged_on = Structure(structure.placed + locals_[index + 1 :])
+                judged_on = Structure(structure.placed + [q for q in locals_[index + 1 :] if _solid(q.part)])
                 judged_on.links.extend(structure.links)
                 (v,) = check_units(judged_on, [[local]], backend, config, standing=standing)
             yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour)
@@ -238,10 +260,11 @@ RIGHT_REASONS = {"shift": {"collision", "no-connection"}, "lift": {"no-connectio
 def summarize(records: list[dict]) -> dict:
     """Fidelity (share of stud-connected placements accepted) and fault rejection rates."""
     plain = [r for r in records if "fault" not in r]
-    judged = [r for r in plain if r["reason"] != "unsupported-connection"]
+    judged = [r for r in plain if r["reason"] not in ("unsupported-connection", NO_VOLUME)]
     out = {
         "placements": len(plain),
-        "unsupported_connection": len(plain) - len(judged),
+        "unsupported_connection": sum(r["reason"] == "unsupported-connection" for r in plain),
+        "no_volume": sum(r["reason"] == NO_VOLUME for r in plain),
         "accepted": sum(r["reason"] is None for r in judged),
         "fidelity": (sum(r["reason"] is None for r in judged) / len(judged)) if judged else None,
         "rejections": dict(Counter(r["reason"] for r in judged if r["reason"])),

@@ -4,6 +4,8 @@ down inputs with the constant lowered, never on a real bomb."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -76,16 +78,28 @@ FLAT = ("0 Flat thing\n0 Name: flat.dat\n0 !LDRAW_ORG Unofficial_Part\n"
         "3 16 -40 0 -20 40 0 -20 40 0 20\n3 16 -40 0 -20 40 0 20 -40 0 20\n")
 
 
-def test_verify_refuses_a_flat_part_in_one_line(write, capsys, isolated_cache):
+def test_verify_reports_a_part_with_no_volume_and_goes_on(write, capsys, isolated_cache):
+    """A flat part (a sticker in a real design) is reported as not checked and left out of the
+    structure; the model's other parts are judged as without it, and verify ends normally."""
     from pipelines.verify import main
 
     path = write("flat.mpd", "0 FILE main.ldr\n0 Main\n1 1 0 0 0 1 0 0 0 1 0 0 0 1 flat.dat\n0 STEP\n"
                  "1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat\n0 STEP\n"
                  "1 4 100 0 0 1 0 0 0 1 0 0 0 1 flat.dat\n1 4 100 -5 0 1 0 0 0 1 0 0 0 1 flat.dat\n0 STEP\n"
+                 "1 4 0 -48 0 1 0 0 0 1 0 0 0 1 3001.dat\n0 STEP\n"
                  f"0 NOFILE\n0 FILE flat.dat\n{FLAT}0 NOFILE\n")
-    assert main([str(path)]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "flat.dat" in err[0] and str(path) in err[0] and "no volume" in err[0], err
+    assert main([str(path), "--json", "--faults"]) == 0
+    out, err = capsys.readouterr()
+    assert err == ""
+    lines = [json.loads(line) for line in out.splitlines()]
+    plain = [r for r in lines if "fault" not in r and "summary" not in r]
+    assert [(r["part"], r["reason"]) for r in plain] == [
+        ("flat.dat", "no-volume"), ("3001.dat", None), ("flat.dat", "no-volume"), ("flat.dat", "no-volume"),
+        ("3001.dat", None)]
+    # The second brick is judged on the first: connected, as if the stickers were not there.
+    assert plain[-1]["connected"] and plain[-1]["connections"] > 0
+    summary = lines[-1]["summary"]
+    assert summary["no_volume"] == 3 and summary["accepted"] == 2 and summary["fidelity"] == 1.0
 
 
 def _nested(levels: int, fan: int) -> str:

@@ -37,7 +37,7 @@ from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
 from factory.connections import STUD_HEIGHT, STUD_RADIUS
 from factory.cache import cache_root
-from factory.errors import LDrawError, LDrawLimitError
+from factory.errors import LDrawLimitError
 from factory.parts import Part
 
 INSET_LDU = 0.25
@@ -549,17 +549,6 @@ def _decomposed(part: Part, verts: np.ndarray, faces: np.ndarray, cfg: Decomposi
     # distance): pieces then follow the real surface.
     pieces = (_snap(r, verts, cfg.snap_ldu) for r in _decompose(verts, faces, cfg, getattr(part, "file", None) or part.name))
     return [p for p in (inset_hull(r, cfg.inset_ldu) for r in pieces if r is not None) if p is not None]
-
-
-def require_solid(part: Part) -> CollisionShape:
-    """The part's collision shape, refused (an `LDrawError` naming the part's file) when it has no
-    piece at all: faces in one plane, or none, enclose no volume for the checks to collide, weigh
-    or stand on."""
-    shape = collision_shape(part)
-    if not shape.body and not shape.studs:
-        raise LDrawError(f"part {part.name} has no volume to check (its faces lie in one plane or "
-                         "enclose nothing); the physics checks need a solid part", part.file or part.name)
-    return shape
 
 
 def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()) -> CollisionShape:
