@@ -165,9 +165,7 @@ def measure(backends, sizes, batches, log=None, full_max: int | None = None,
                     check_s = time.perf_counter() - t
                     row.update(checks_per_s=round(batch / check_s, 1), accepted=sum(v.ok for v in verdicts),
                                judged_loads=sum(v.stable is not None for v in verdicts))
-                rows.append(row)
-                if log is not None:
-                    log(row)
+                _emit(rows, log, row)
     return rows
 
 
@@ -289,6 +287,25 @@ def batched_processes(kind: str, n: int, batch: int, procs: int) -> tuple[list, 
     return [x for *_, got in done for x in got], max(d[1] for d in done) - min(d[0] for d in done)
 
 
+def _shared_row(kind: str, row: dict, procs: int, cpu_max: int, cpu_workers: int, counts) -> dict:
+    """`row` ({"bricks", "batch", ...}) with its batch judged on the batched path by `procs`
+    processes sharing the device (`batched_processes`): `procs`, `jax_per_s`, `counts(answers)`,
+    and with `cpu_max` the reference's rate and how many answers agree."""
+    n, batch = row["bricks"], row["batch"]
+    answers, seconds = batched_processes(kind, n, batch, procs)
+    row.update(procs=procs, jax_per_s=round(batch / seconds, 1), **counts(answers))
+    if cpu_max:
+        _with_reference(row, kind, n, batch, cpu_max, cpu_workers, (seconds, answers))
+    return row
+
+
+def _emit(rows: list, log, row: dict) -> None:
+    """Keep `row`, and log it as it comes."""
+    rows.append(row)
+    if log is not None:
+        log(row)
+
+
 def cpu_reference(kind: str, n: int, batch: int, count: int, workers: int) -> tuple[list, float]:
     """(answers, seconds): the CPU reference on the first `count` of the batch's candidates, split
     over `workers` processes (started and warmed before the clock starts)."""
@@ -339,14 +356,8 @@ def measure_lp(sizes, batches, log=None, cpu_max: int = 128, cpu_workers: int = 
             poses = candidates(s, batch)
             row = {"bricks": n, "batch": batch}
             if batched and procs > 1:
-                answers, jax_s = batched_processes("loads", n, batch, procs)
-                row.update(procs=procs, jax_per_s=round(batch / jax_s, 1),
-                           overloaded=sum(r == "overload" for _, r in answers))
-                if cpu_max:
-                    _with_reference(row, "loads", n, batch, cpu_max, cpu_workers, (jax_s, answers))
-                rows.append(row)
-                if log is not None:
-                    log(row)
+                _emit(rows, log, _shared_row("loads", row, procs, cpu_max, cpu_workers,
+                                             lambda got: {"overloaded": sum(r == "overload" for _, r in got)}))
                 continue
             if batched:
                 conns = [_unit_connections(s, [(brick, p)]) for p in poses]
@@ -365,9 +376,7 @@ def measure_lp(sizes, batches, log=None, cpu_max: int = 128, cpu_workers: int = 
             if cpu_max:
                 _with_reference(row, "loads", n, batch, cpu_max, cpu_workers,
                                 (jax_s, [(v.stands, v.reason) for v in got]) if batched else None)
-            rows.append(row)
-            if log is not None:
-                log(row)
+            _emit(rows, log, row)
     return rows
 
 
@@ -415,9 +424,7 @@ def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int
                 if got is not None:
                     answers = [(v.ok, v.reason) for v in got]
                 _with_reference(row, "whole", n, batch, cpu_max, cpu_workers, (gpu_s, answers) if batched else None)
-            rows.append(row)
-            if log is not None:
-                log(row)
+            _emit(rows, log, row)
     return rows
 
 
@@ -445,19 +452,12 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
                 ref, cpu_s = cpu_reference("sweep", n, batch, min(cpu_max, batch), cpu_workers)
                 row = {"bricks": n, "batch": batch, "distinct_candidates": len(pool), "cpu_workers": cpu_workers,
                        "cpu_per_s": round(len(ref) / cpu_s, 1), "cpu_compared": len(ref)}
-                rows.append(row)
-                if log is not None:
-                    log(row)
+                _emit(rows, log, row)
                 continue
             if procs > 1:
-                answers, jax_s = batched_processes("sweep", n, batch, procs)
-                row = {"bricks": n, "batch": batch, "distinct_candidates": len(pool), "procs": procs,
-                       "jax_per_s": round(batch / jax_s, 1), "blocked": sum(a is False for a in answers)}
-                if cpu_max:
-                    _with_reference(row, "sweep", n, batch, cpu_max, cpu_workers, (jax_s, answers))
-                rows.append(row)
-                if log is not None:
-                    log(row)
+                row = {"bricks": n, "batch": batch, "distinct_candidates": len(pool)}
+                _emit(rows, log, _shared_row("sweep", row, procs, cpu_max, cpu_workers,
+                                             lambda got: {"blocked": sum(a is False for a in got)}))
                 continue
             args = ([c[0] for c in cases], [c[1] for c in cases])
             compiles = len(COMPILES)
@@ -478,9 +478,7 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
                 row.update(cpu_workers=cpu_workers, cpu_per_s=round(len(ref) / cpu_s, 1),
                            speedup=round(batch / jax_s / (len(ref) / cpu_s), 2), cpu_compared=len(ref),
                            agree=sum(a == b.buildable for a, b in zip(ref, got)))
-            rows.append(row)
-            if log is not None:
-                log(row)
+            _emit(rows, log, row)
     return rows
 
 
@@ -501,9 +499,7 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None) ->
         row = {"kind": "growth", "backend": backend, "batch": batch, "objects": objects, "steps": placed,
                "target_steps": steps, "seconds": round(wall, 2), "steps_per_s": round(placed / wall, 2),
                "stage_seconds": {k: round(v, 2) for k, v in sorted(STAGE_SECONDS.items())}}
-        rows.append(row)
-        if log:
-            log(row)
+        _emit(rows, log, row)
     return rows
 
 
