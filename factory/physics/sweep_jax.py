@@ -715,7 +715,6 @@ class _SweepJob:
         """Pending units' verdicts from their side sweeps: buildable when one side is clear; the
         straight verdict (kept in `results`) when every side is blocked; else swept on the CPU."""
         states = side.states.reshape(len(self.pending), 4)
-        self.scene = side.scene  # built there if it was needed
         for row, st in zip(self.pending, states):
             i = self.idx[row]
             if (st == _CLEAR).any():
