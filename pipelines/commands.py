@@ -2,14 +2,16 @@
 
 Each command is the module's own command line (`brick-factory synth ...` is `python -m
 pipelines.synth ...`, arguments and exit status alike). Modules are named here as strings and run
-by name, so this dispatcher imports none of them: `eval` and `train` stay out of `pipelines`'
-imports.
+by name, so this dispatcher imports none of them (`eval` and `train` stay out of `pipelines`'
+imports); it first checks that the installed packages are ours (`install_check`).
 """
 
 from __future__ import annotations
 
 import runpy
 import sys
+
+from pipelines import install_check
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "ldraw": ("factory.ldraw", "read LDraw models and parts: steps, part"),
@@ -45,6 +47,10 @@ def main(argv: list[str] | None = None) -> int:
         print(usage())
         return 0 if args else 2
     name, rest = args[0], args[1:]
+    # Once per command, before its module (and `factory`) is imported: the installed `factory` is
+    # ours (the name is also factory_boy's). Not at import time, where every worker process and
+    # library import would hash the installed files again.
+    install_check.check()
     if name not in COMMANDS:
         print(f"{PROG}: unknown command {name!r}; valid: {', '.join(COMMANDS)}", file=sys.stderr)
         return 2

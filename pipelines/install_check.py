@@ -4,9 +4,9 @@ The top-level package `factory` is also factory_boy's (its `factory/__init__.py`
 `factory/errors.py` have the same paths as ours). pip installs both into one `site-packages/factory`
 folder: whichever is installed last overwrites the other's shared files, and uninstalling either
 removes them from both. Our own `factory/__init__.py` cannot report that, since it is one of the
-files overwritten; this check lives in `pipelines`, which no other distribution ships, and runs when
-`pipelines` is imported: by the `brick-factory` console script (it imports `pipelines.commands`
-before running any command, `eval`'s and `train`'s included) and by every `python -m pipelines...`.
+files overwritten; this check lives in `pipelines`, which no other distribution ships, and the
+`brick-factory` console script (`pipelines.commands`) runs it before any command, `eval`'s and
+`train`'s included. `python -m ...` runs are not checked.
 
 It compares the installed files of our top-level packages with the hashes pip recorded in the
 distribution's RECORD, and names any other installed distribution that claims the same top-level
