@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from factory.atomic import write_atomic
+from factory.config import config_from_dict
 from factory.dataset.schema import SCHEMA_VERSION
 from factory.dataset.tasks import SPLITS, TASKS
 
@@ -61,23 +62,16 @@ class Counts:
 
     @classmethod
     def from_dict(cls, data, where: str) -> Counts:
-        if not isinstance(data, Mapping):
-            raise InfoError(f"{where} must be an object {{objects, steps[, bytes]}}, got {data!r}")
-        unknown = sorted(set(data) - {"objects", "steps", "bytes"})
-        if unknown:
-            raise InfoError(f"{where}: unknown key {unknown[0]!r}; valid: objects, steps, bytes")
-        for key in ("objects", "steps"):
-            if key not in data:
-                raise InfoError(f"{where}: missing {key!r}")
-        values = {}
+        """The configs' key policy (`factory.config.config_from_dict`), then counts that are
+        integers >= 0."""
+        counts = config_from_dict(cls, data, InfoError, where)
         for key in ("objects", "steps", "bytes"):
-            v = data.get(key)
+            v = getattr(counts, key)
             if key == "bytes" and v is None:
                 continue
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise InfoError(f"{where}.{key} must be an integer >= 0, got {v!r}")
-            values[key] = v
-        return cls(**values)
+        return counts
 
     def to_dict(self) -> dict:
         out = {"objects": self.objects, "steps": self.steps}
