@@ -146,9 +146,9 @@ REAL = {
         image_processor={"size": {"height": 896, "width": 896}, "do_pan_and_scan": False,
                          "image_mean": [0.5] * 3, "image_std": [0.5] * 3},
         processor_kwargs={"image_seq_length": 256},
-        # 12.2B: the size google/gemma-3-12b-it's hub page gives (the model cards say 12B; no page
-        # with the exact count was found); the config above counts 12,187,325,040
-        params=12_200_000_000,
+        # 12B: the size the model cards give (no page with an exact count was found); the config
+        # above counts 12,187,325,040, 1.6% above it
+        params=12_000_000_000,
         token_ids={"boi_token_index": "<start_of_image>", "eoi_token_index": "<end_of_image>",
                    "image_token_index": "<image_soft_token>", "bos_token_id": "<bos>", "eos_token_id": "<eos>",
                    "pad_token_id": "<pad>", "text.bos_token_id": "<bos>", "text.eos_token_id": "<eos>",
