@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -192,3 +193,24 @@ def assert_workers_end_with_killed_parent(proc, marker: bytes, workers: int = 2,
     for p in left:
         os.kill(p, signal.SIGKILL)
     assert not left, f"workers {left} outlived their killed parent"
+
+
+def train_log(run: Path) -> list[dict]:
+    """The trainer's per-step log of run folder `run`."""
+    return [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+
+
+def assert_resumed_run_is_the_same(run: Path, log_before: list[dict], weights_before: dict) -> None:
+    """A run resumed from a checkpoint logged the same losses step for step and ended with the
+    same final weights as the uninterrupted run (`log_before`, `weights_before`)."""
+    import torch
+    from safetensors.torch import load_file
+
+    log_after = train_log(run)
+    assert [r["step"] for r in log_after] == [r["step"] for r in log_before]
+    for a, b in zip(log_before, log_after):
+        assert a["loss"] == pytest.approx(b["loss"], abs=1e-5)
+    resumed = load_file(str(run / "final" / "model.safetensors"))
+    assert resumed.keys() == weights_before.keys()
+    for k in resumed:
+        torch.testing.assert_close(resumed[k], weights_before[k], atol=1e-6, rtol=1e-5)

@@ -7,6 +7,7 @@ import json
 import shutil
 
 import pytest
+from conftest import assert_resumed_run_is_the_same, train_log
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")
@@ -161,10 +162,6 @@ def test_overfits_a_fixed_batch(tiny_dataset, tiny_model, processor):
     assert losses[-1] < 0.5 * losses[0], losses
 
 
-def _log(run):
-    return [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
-
-
 def test_resume_continues_the_same_run_and_refuses_other_settings(tiny_dataset, tmp_path):
     from safetensors.torch import load_file
 
@@ -178,7 +175,7 @@ def test_resume_continues_the_same_run_and_refuses_other_settings(tiny_dataset, 
     assert summary["steps"] == 4 and (run / "final" / "model.safetensors").is_file()
     assert [s for s, _ in ckpt.checkpoints(run)] == [2, 4]
     uninterrupted = load_file(str(run / "final" / "model.safetensors"))
-    log_before = _log(run)
+    log_before = train_log(run)
     assert [r["step"] for r in log_before] == [1, 2, 3, 4]
 
     # killed after step 4 was logged but before its checkpoint: only checkpoint 2 is complete
@@ -188,14 +185,7 @@ def test_resume_continues_the_same_run_and_refuses_other_settings(tiny_dataset, 
     (run / ".tmp-checkpoint-000004-1").mkdir()
     assert ckpt.latest(run).name == "checkpoint-000002"
     train(cfg, progress=False)
-    log_after = _log(run)
-    assert [r["step"] for r in log_after] == [1, 2, 3, 4]
-    for a, b in zip(log_before, log_after):
-        assert a["loss"] == pytest.approx(b["loss"], abs=1e-5)
-    resumed = load_file(str(run / "final" / "model.safetensors"))
-    assert resumed.keys() == uninterrupted.keys()
-    for k in resumed:
-        torch.testing.assert_close(resumed[k], uninterrupted[k], atol=1e-6, rtol=1e-5)
+    assert_resumed_run_is_the_same(run, log_before, uninterrupted)
     assert not (run / ".tmp-checkpoint-000004-1").exists()
 
     with pytest.raises(ConfigError, match=r"lr: 0.001 -> 0.0005"):

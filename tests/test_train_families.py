@@ -9,6 +9,7 @@ import json
 import shutil
 
 import pytest
+from conftest import assert_resumed_run_is_the_same, train_log
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")
@@ -160,10 +161,6 @@ def test_only_the_final_answer_of_a_feedback_chat_is_trained(name, folders, tiny
     assert processor.tokenizer.decode(ex["input_ids"][ex["labels"] != -100]) == answer + end
 
 
-def _log(run):
-    return [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
-
-
 @pytest.mark.parametrize("name", FAMILIES)
 def test_trains_resumes_and_evaluates_from_a_local_folder(name, folders, tiny_dataset, tmp_path):
     from safetensors.torch import load_file
@@ -180,7 +177,7 @@ def test_trains_resumes_and_evaluates_from_a_local_folder(name, folders, tiny_da
             "--workers", "0", "--no-progress"]
     assert main([*argv, "--no-eval"]) == 0  # LoRA (the default for a --model checkpoint)
     assert [s for s, _ in ckpt.checkpoints(run)] == [2, 4]
-    first = _log(run)
+    first = train_log(run)
     assert [r["step"] for r in first] == [1, 2, 3, 4] and all(r["loss"] > 0 for r in first)
     uninterrupted = load_file(str(run / "final" / "model.safetensors"))
 
@@ -189,14 +186,7 @@ def test_trains_resumes_and_evaluates_from_a_local_folder(name, folders, tiny_da
     shutil.rmtree(run / "final")
     (run / "last").write_text("checkpoint-000002\n")
     assert main([*argv, "--eval-limit", "1", "--max-new-tokens", "8"]) == 0
-    again = _log(run)
-    assert [r["step"] for r in again] == [1, 2, 3, 4]
-    for a, b in zip(first, again):
-        assert a["loss"] == pytest.approx(b["loss"], abs=1e-5)
-    resumed = load_file(str(run / "final" / "model.safetensors"))
-    assert resumed.keys() == uninterrupted.keys()
-    for k in resumed:
-        torch.testing.assert_close(resumed[k], uninterrupted[k], atol=1e-6, rtol=1e-5)
+    assert_resumed_run_is_the_same(run, first, uninterrupted)
 
     # the before/after evaluation: the local folder, then the trained model
     metrics = json.loads((run / "metrics.json").read_text())
