@@ -290,7 +290,9 @@ def markdown(report: dict) -> str:
     m = report["machine"]
     lines = ["# Brick Factory benchmark", "",
              f"Machine: {m['cpus']} CPUs ({m['processor']}), GPU: {m['gpu'] or 'none'}, "
-             f"Python {m['python']}, MUJOCO_GL={m['mujoco_gl']}. Total {report['wall_s']:.0f} s.", ""]
+             f"Python {m['python']}, MUJOCO_GL={m['mujoco_gl']}. Total {report['wall_s']:.0f} s"
+             + (f" in this run; kept from an earlier run on this machine: {', '.join(report['kept'])}."
+                if report.get("kept") else "."), ""]
     if "physics" in report:
         lines += ["## Physics checker", "", report["physics"]["note"] + ".", ""]
         lines += _table(["backend", "bricks", "batch", "checks/s", "loads/s", "accepted", "compile s"],
@@ -369,12 +371,35 @@ def markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
+SECTIONS = ("physics", "render", "synth", "designs", "evaluation")
+
+
+def _earlier_report(out: Path, report: dict, quick: bool) -> dict:
+    """The sections of OUT/report.json that a resumed run keeps: those of a run on this machine
+    (CPUs, GPU, Python) with the same `--quick`; {} when there is none or it was made elsewhere."""
+    path = out / "report.json"
+    if not path.exists():
+        return {}
+    try:
+        earlier = json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: not JSON ({e}); remove it or run without --resume") from None
+    same = earlier.get("schema_version") == report["schema_version"] and earlier.get("quick", False) == quick and all(
+        earlier.get("machine", {}).get(k) == report["machine"][k] for k in ("cpus", "gpu", "python"))
+    if not same:
+        print(f"bench: {path} was made on another machine or with other options; starting again", file=sys.stderr)
+        return {}
+    kept = {k: earlier[k] for k in SECTIONS if k in earlier}
+    kept["section_s"] = earlier.get("section_s", {})
+    return kept
+
+
 def run(args) -> int:
     out = Path(args.out)
     work = out / "work"
     work.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    report: dict = {"schema_version": 1, "machine": machine(), "section_s": {}}
+    report: dict = {"schema_version": 1, "quick": bool(args.quick), "machine": machine(), "section_s": {}}
     gpu = report["machine"]["gpu"] is not None
     ldraw = args.ldraw or (str(SHARED / "ldraw") if (SHARED / "ldraw" / "parts").is_dir() else None)
     models = [Path(m) for m in args.models] if args.models is not None else sorted(
@@ -385,7 +410,15 @@ def run(args) -> int:
         models = []
     report["designs_models"] = [str(m) for m in models]
 
+    earlier = _earlier_report(out, report, args.quick) if args.resume else {}
+    report["kept"] = [k for k in SECTIONS if k in earlier]
+
     def section(name, fn):
+        if name in earlier:
+            print(f"bench: {name}: kept from the earlier run in {out / 'report.json'}", flush=True)
+            report[name] = earlier[name]
+            report["section_s"][name] = earlier["section_s"].get(name)
+            return
         print(f"bench: {name} ...", flush=True)
         t = time.perf_counter()
         report[name] = fn()
@@ -423,6 +456,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--models", nargs="*", help="human-designed models to render and evaluate "
                     "(default: ../shared/ldraw_models/*.ldr|*.mpd when present)")
     ap.add_argument("--quick", action="store_true", help="smaller sections (a smoke run, for tests)")
+    ap.add_argument("--resume", action="store_true",
+                    help="keep the sections that OUT/report.json already holds from a run on this machine with the "
+                         "same --quick, and run the rest (a bench cut short goes on where it stopped)")
     ap.add_argument("--backends", default="auto",
                     help="physics backends to time: comma-separated mujoco,mjx, or auto (default: every one installed)")
     args = ap.parse_args(argv)

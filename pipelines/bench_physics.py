@@ -37,6 +37,7 @@ from factory import Pose, get_reader, load_part
 from factory.atomic import write_atomic
 from factory.physics import check as check_mod
 from factory.physics.check import STAGE_SECONDS, CheckConfig, check
+from factory.physics import collide as collide_mod
 from factory.physics.collide import CollisionScene
 from factory.physics.check import _unit_connections
 from factory.physics.statics import _ALONE, LoadBase, judge_many, judge_on_base
@@ -482,25 +483,90 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
     return rows
 
 
-def measure_growth(backend: str, batches, steps: int, objects: int, log=None) -> list[dict]:
-    """Lockstep growth in this process: objects 0..objects-1 of the default sampler config with
-    exactly `steps` parts each, grown `batch` at a time, for each batch: steps per second over the
-    whole growth (the same objects whatever the batch, so rows compare on the same inputs). One
-    other object is grown first, untimed (parts loaded, first kernels compiled); the compiles of
-    shapes it did not meet fall in the rows. Seconds per check stage from `check.STAGE_SECONDS`."""
-    sampler = Sampler(SamplerConfig(seed=0, min_steps=steps, max_steps=steps, backend=backend), None)
-    list(sampler.grow([objects], batch=1))
+def measure_growth(backend: str, batches, steps: int, objects: int, log=None, procs: int = 1) -> list[dict]:
+    """Lockstep growth: objects 0..objects-1 of the default sampler config with exactly `steps`
+    parts each, grown `batch` at a time, for each batch: steps per second over the whole growth
+    (the same objects whatever the batch, so rows compare on the same inputs). `WARM_OBJECTS` other
+    objects are grown first, untimed (parts loaded, first kernels compiled); the compiles of
+    shapes they did not meet fall in the rows, and each row starts without the answers cached by
+    geometry (`_forget_answers`). Seconds per check stage from `check.STAGE_SECONDS`.
+
+    With `procs` > 1 the objects are split into `procs` contiguous slices, each grown in its own
+    process at `batch // procs` objects a round (so `batch` objects grow at once in all), the
+    processes sharing the default device as the factory's grower workers do; every process is
+    warmed and waits at a barrier before the clock starts, and the rate is all steps over the time
+    from the first start to the last end. Stage seconds are summed over the processes."""
     rows = []
+    if procs > 1:
+        spawn = multiprocessing.get_context("spawn")  # not fork: JAX's threads may hold locks
+        step = -(-objects // procs)
+        spans = [(a, min(a + step, objects)) for a in range(0, objects, step)]
+        for batch in batches:
+            per = max(1, batch // len(spans))
+            # New processes for every row, so that no row finds the answers an earlier one cached.
+            with spawn.Manager() as manager, ProcessPoolExecutor(
+                    len(spans), mp_context=spawn, initializer=_growth_init, initargs=(backend, steps, objects)) as pool:
+                barrier = manager.Barrier(len(spans))
+                done = list(pool.map(_growth_run, spans, [per] * len(spans), [barrier] * len(spans)))
+            wall = max(d[1] for d in done) - min(d[0] for d in done)
+            stages = Counter()
+            for d in done:
+                stages.update(d[3])
+            _emit(rows, log, _growth_row(backend, per * len(spans), objects, sum(d[2] for d in done), steps, wall,
+                                         stages, procs=len(spans)))
+        return rows
+    sampler = _warm_sampler(backend, steps, objects)
     for batch in batches:
+        _forget_answers()
         STAGE_SECONDS.clear()
         t0 = time.perf_counter()
         placed = sum(len(a.steps) for a in sampler.grow(range(objects), batch=batch))
         wall = time.perf_counter() - t0
-        row = {"kind": "growth", "backend": backend, "batch": batch, "objects": objects, "steps": placed,
-               "target_steps": steps, "seconds": round(wall, 2), "steps_per_s": round(placed / wall, 2),
-               "stage_seconds": {k: round(v, 2) for k, v in sorted(STAGE_SECONDS.items())}}
-        _emit(rows, log, row)
+        _emit(rows, log, _growth_row(backend, batch, objects, placed, steps, wall, STAGE_SECONDS))
     return rows
+
+
+def _forget_answers() -> None:
+    """Drop the checker's answers cached by geometry (stud probes, clutch cases), so that a row
+    growing the same objects as an earlier row finds only what the warm-up object left."""
+    collide_mod._CROSSED.clear()
+    _ALONE.clear()
+
+
+def _growth_row(backend, batch, objects, placed, steps, wall, stages, procs=1) -> dict:
+    return {"kind": "growth", "backend": backend, "batch": batch, "procs": procs, "objects": objects,
+            "steps": placed, "target_steps": steps, "seconds": round(wall, 2), "steps_per_s": round(placed / wall, 2),
+            "stage_seconds": {k: round(v, 2) for k, v in sorted(stages.items())}}
+
+
+def _growth_init(backend: str, steps: int, objects: int) -> None:
+    """A grower process of `measure_growth`: its sampler, warmed (`_warm_sampler`)."""
+    _CTX["sampler"] = _warm_sampler(backend, steps, objects)
+
+
+WARM_OBJECTS = 4
+"""Objects grown untimed before `measure_growth`'s rows (indices after the timed ones): collision
+scenes' meshes made, the first kernels compiled."""
+
+
+def _warm_sampler(backend: str, steps: int, objects: int) -> Sampler:
+    sampler = Sampler(SamplerConfig(seed=0, min_steps=steps, max_steps=steps, backend=backend), None)
+    for part in sampler.parts:  # found on a part's first use otherwise (0.1 s each), inside a row
+        part.sockets
+    list(sampler.grow(range(objects, objects + WARM_OBJECTS), batch=WARM_OBJECTS))
+    _forget_answers()
+    return sampler
+
+
+def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, float, int, dict]:
+    """Objects span[0]..span[1]-1 grown `batch` at a time once every process is ready: (start,
+    end, steps placed, stage seconds)."""
+    gc.collect()
+    STAGE_SECONDS.clear()
+    barrier.wait()
+    t = time.time()
+    placed = sum(len(a.steps) for a in _CTX["sampler"].grow(range(*span), batch=batch))
+    return t, time.time(), placed, dict(STAGE_SECONDS)
 
 
 def main(argv=None) -> int:
@@ -525,14 +591,16 @@ def main(argv=None) -> int:
                          "with the first of --backends, steps per second per batch (same objects in every row)")
     ap.add_argument("--procs", type=int, default=1,
                     help="with --sweep, --lp or --whole: processes that share the device on the batched path, each "
-                         "judging a contiguous slice of the batch (default 1)")
+                         "judging a contiguous slice of the batch; with --growth: grower processes, each "
+                         "growing a contiguous slice of the objects, BATCH/PROCS at a time (default 1)")
     ap.add_argument("--steps", type=int, default=30, help="with --growth: parts per object (default 30)")
     ap.add_argument("--objects", type=int, default=64, help="with --growth: objects grown (default 64)")
     args = ap.parse_args(argv)
     sizes, batches = [int(x) for x in args.sizes.split(",")], [int(x) for x in args.batches.split(",")]
     log = lambda r: print(json.dumps(r), flush=True)
     if args.growth:
-        rows = measure_growth(args.backends.split(",")[0], batches, args.steps, args.objects, log=log)
+        rows = measure_growth(args.backends.split(",")[0], batches, args.steps, args.objects, log=log,
+                              procs=args.procs)
     elif args.sweep:
         rows = measure_sweep(sizes, batches, 512 if args.cpu_max is None else args.cpu_max, log=log,
                              cpu_workers=args.cpu_workers, batched=not args.reference_only, procs=args.procs)

@@ -37,7 +37,24 @@ def test_quick_bench_writes_report_and_plots(tmp_path):
     assert "random + feedback" in md
     # a re-run reuses the finished dataset (the builder resumes) and rewrites the report
     assert bench.main(["--out", str(out), "--quick", "--backends", "mujoco", "--models"]) == 0
-    assert json.loads((out / "report.json").read_text())["synth"]["resumed"] is True
+    again = json.loads((out / "report.json").read_text())
+    assert again["synth"]["resumed"] is True and again["kept"] == []
+
+    # --resume keeps the sections a run cut short had finished, and runs the rest
+    cut = {k: v for k, v in again.items() if k not in ("synth", "evaluation")}
+    (out / "report.json").write_text(json.dumps(cut))
+    assert bench.main(["--out", str(out), "--quick", "--backends", "mujoco", "--models", "--resume"]) == 0
+    resumed = json.loads((out / "report.json").read_text())
+    assert resumed["kept"] == ["physics", "render"]
+    assert resumed["physics"] == again["physics"] and resumed["render"] == again["render"]
+    assert resumed["evaluation"]["synthetic"]["baselines"]["oracle"]["scores"]["strict"]["overall"]["step_success"] == 1.0
+    assert "kept from an earlier run on this machine: physics, render" in (out / "report.md").read_text()
+
+    # ... but not those of a report made on another machine
+    cut["machine"]["cpus"] = (cut["machine"]["cpus"] or 0) + 1
+    (out / "report.json").write_text(json.dumps(cut))
+    assert bench.main(["--out", str(out), "--quick", "--backends", "mujoco", "--models", "--resume"]) == 0
+    assert json.loads((out / "report.json").read_text())["kept"] == []
 
 
 def test_unknown_backend_is_a_clear_error(tmp_path, capsys):
@@ -54,3 +71,14 @@ def test_growth_rows_grow_the_same_objects_at_every_batch():
     assert [r["batch"] for r in rows] == [1, 3]
     assert rows[0]["steps"] == rows[1]["steps"] > 0
     assert all(r["steps_per_s"] > 0 and r["stage_seconds"]["rules"] > 0 for r in rows)
+
+
+def test_growth_in_several_processes_grows_the_same_objects():
+    """`bench_physics --growth --procs 2`: the objects split over two grower processes, each
+    growing its half, all of them to their length, with each process's stage seconds summed."""
+    from pipelines.bench_physics import measure_growth
+
+    (one,) = measure_growth("mujoco", [2], steps=3, objects=4)
+    (two,) = measure_growth("mujoco", [2], steps=3, objects=4, procs=2)
+    assert two["procs"] == 2 and two["batch"] == 2 and one["procs"] == 1
+    assert two["steps"] == one["steps"] == 12 and two["steps_per_s"] > 0 and two["stage_seconds"]["rules"] > 0
