@@ -81,58 +81,69 @@ GPU_PROCS = 4
 """Processes sharing the GPU in the second set of batched rows (`bench_physics --procs`)."""
 
 
-def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None) -> dict:
-    from pipelines.bench_physics import measure
+PHYSICS_PARTS = ("rows", "loads", "sweeps", "whole", "growth")
+"""The physics section's parts, each kept in report.json as soon as it is measured (`--resume`)."""
+
+
+def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None, done: dict | None = None,
+                    save=None) -> dict:
+    """The physics section; parts already in `done` (a resumed run's) are kept, and `save(part)`
+    is called with the section so far after each part."""
+    from pipelines.bench_physics import measure, measure_growth, measure_lp, measure_sweep, measure_whole
 
     if backends is None:
         backends = ["mujoco"] + (["mjx"] if _version("jax") else [])
+    section = {"backends": backends, **{k: v for k, v in (done or {}).items() if k in PHYSICS_PARTS}}
+    log = lambda kind: (lambda r: print(f"  {kind} {json.dumps(r)}", flush=True))
+
+    def part(name, fn):
+        if name not in section:
+            section[name] = fn()
+            if save is not None:
+                save(section)
+
     sizes = [10] if quick else [10, 30]
-    # On a GPU the load stage is also timed at a batch large enough to fill it; whole checks
-    # stop at 4,096 (their contact stage runs on one CPU core).
-    batches = [256, 4096, 16384] if gpu else [256]
-    rows = measure(backends, sizes, batches, log=lambda r: print(f"  physics {json.dumps(r)}", flush=True),
-                   full_max=4096)
-    # The two expensive checks alone at 30, 60 and 90 bricks: on a GPU the batched path (the CPU
+    # On a GPU the batched load stage is timed up to a batch that fills it; the CPU reference's rate
+    # does not depend on the batch, so it is timed at the smallest (16,384 of its load programs
+    # take minutes). Whole checks stop at 4,096 here; the whole-check rows below go further.
+    part("rows", lambda: measure(backends, sizes, [256, 4096] if gpu else [256], log=log("physics"), full_max=4096,
+                                 reference_max=256))
+    # The two expensive checks alone at 30, 60 and 90 bricks: on a GPU the batched path in one
+    # process and in GPU_PROCS processes sharing the device (the host's cores select pairs and
+    # build programs while another process's launch runs, as the factory's workers do; the CPU
     # reference's rates come from a machine without one: docs/physics.md compares them); without
     # one, the CPU reference in two processes.
-    from pipelines.bench_physics import measure_lp, measure_sweep, measure_whole
-
     check_sizes = [30] if quick else [30, 60, 90]
-    log = lambda kind: (lambda r: print(f"  {kind} {json.dumps(r)}", flush=True))
     if gpu:
-        # One process, and GPU_PROCS processes sharing the device (the host's cores select pairs
-        # and build programs while another process's launch runs), as the factory's workers do.
-        gpu_batches = [1024, 4096, 16384]
-        loads = (measure_lp(check_sizes, gpu_batches, log=log("loads"), cpu_max=0)
-                 + measure_lp(check_sizes, gpu_batches, log=log("loads"), cpu_max=0, procs=GPU_PROCS))
-        sweeps = (measure_sweep(check_sizes, gpu_batches, cpu_max=0, log=log("sweep"))
-                  + measure_sweep(check_sizes, gpu_batches, cpu_max=0, log=log("sweep"), procs=GPU_PROCS))
-        whole = (measure_whole(check_sizes, gpu_batches, log=log("whole"), cpu_max=0)
-                 + measure_whole(check_sizes, gpu_batches, log=log("whole"), cpu_max=0, procs=GPU_PROCS))
+        one, shared = [1024, 16384], [16384]
+        part("loads", lambda: measure_lp(check_sizes, one, log=log("loads"), cpu_max=0)
+             + measure_lp(check_sizes, shared, log=log("loads"), cpu_max=0, procs=GPU_PROCS))
+        part("sweeps", lambda: measure_sweep(check_sizes, one, cpu_max=0, log=log("sweep"))
+             + measure_sweep(check_sizes, shared, cpu_max=0, log=log("sweep"), procs=GPU_PROCS))
+        part("whole", lambda: measure_whole(check_sizes, one, log=log("whole"), cpu_max=0)
+             + measure_whole(check_sizes, [4096, 16384], log=log("whole"), cpu_max=0, procs=GPU_PROCS))
     else:
         workers = 1 if quick else 2
-        loads = measure_lp(check_sizes, [1024], log=log("loads"), cpu_max=16 if quick else 128,
-                           cpu_workers=workers, batched=False)
-        sweeps = measure_sweep(check_sizes, [1024], cpu_max=32 if quick else 512, log=log("sweep"),
-                               cpu_workers=workers, batched=False)
-        whole = measure_whole(check_sizes, [1024], log=log("whole"), cpu_max=32 if quick else 256,
-                              cpu_workers=workers, batched=False)
+        part("loads", lambda: measure_lp(check_sizes, [1024], log=log("loads"), cpu_max=16 if quick else 128,
+                                         cpu_workers=workers, batched=False))
+        part("sweeps", lambda: measure_sweep(check_sizes, [1024], cpu_max=32 if quick else 512, log=log("sweep"),
+                                             cpu_workers=workers, batched=False))
+        part("whole", lambda: measure_whole(check_sizes, [1024], log=log("whole"), cpu_max=32 if quick else 256,
+                                            cpu_workers=workers, batched=False))
     # Lockstep growth of the same objects: on a GPU the batched path at one batch against the CPU
     # reference one object at a time; without one, the reference at two batches (the objects are
     # the same whatever the batch, only the cost moves).
-    from pipelines.bench_physics import measure_growth
-
-    glog = log("growth")
     if gpu and "mjx" in backends:
-        growth = (measure_growth("mjx", [16], steps=20, objects=16, log=glog)
-                  + measure_growth("mujoco", [1], steps=20, objects=16, log=glog))
+        part("growth", lambda: measure_growth("mjx", [16], steps=20, objects=16, log=log("growth"))
+             + measure_growth("mujoco", [1], steps=20, objects=16, log=log("growth")))
     else:
         objects, steps = (2, 3) if quick else (8, 10)
-        growth = measure_growth("mujoco", [1, objects], steps=steps, objects=objects, log=glog)
-    return {"backends": backends, "rows": rows, "loads": loads, "sweeps": sweeps, "whole": whole, "growth": growth,
-            "note": "candidates of a 2x4 brick on grown 2x4-brick structures; loads/s is the "
-                    "whole-structure load program alone (HiGHS for mujoco, the batched JAX solver for mjx), "
-                    "checks/s the whole check (connection, contacts, clutch, loads)"}
+        part("growth", lambda: measure_growth("mujoco", [1, objects], steps=steps, objects=objects,
+                                              log=log("growth")))
+    section["note"] = ("candidates of a 2x4 brick on grown 2x4-brick structures; loads/s is the "
+                       "whole-structure load program alone (HiGHS for mujoco, the batched JAX solver for mjx), "
+                       "checks/s the whole check (connection, contacts, clutch, loads)")
+    return section
 
 
 def render_section(models: list[tuple[Path, str | None]]) -> dict:
@@ -411,7 +422,10 @@ def run(args) -> int:
     report["designs_models"] = [str(m) for m in models]
 
     earlier = _earlier_report(out, report, args.quick) if args.resume else {}
-    report["kept"] = [k for k in SECTIONS if k in earlier]
+    # A physics section cut short keeps the parts it finished (each saved as it ends).
+    partial = earlier.pop("physics") if "growth" not in earlier.get("physics", {"growth": 0}) else None
+    report["kept"] = [k for k in SECTIONS if k in earlier] + (
+        [f"physics ({', '.join(k for k in PHYSICS_PARTS if k in partial)})"] if partial else [])
 
     def section(name, fn):
         if name in earlier:
@@ -430,7 +444,12 @@ def run(args) -> int:
     for b in backends or []:
         if b not in ("mujoco", "mjx"):
             raise ValueError(f"unknown backend {b!r}; valid: mujoco, mjx, auto")
-    section("physics", lambda: physics_section(gpu, args.quick, backends))
+
+    def save_physics(part: dict) -> None:
+        report["physics"] = part
+        write_atomic(out / "report.json", json.dumps(report, indent=1).encode())
+
+    section("physics", lambda: physics_section(gpu, args.quick, backends, done=partial, save=save_physics))
     render_models = [(EXAMPLE, None)] + ([(m, ldraw) for m in models] if not args.quick else [])
     section("render", lambda: render_section(render_models))
     report["machine"]["mujoco_gl"] = os.environ.get("MUJOCO_GL", report["machine"]["mujoco_gl"])

@@ -124,9 +124,10 @@ def load_models(s: Structure, poses: list[Pose], config: CheckConfig = CheckConf
 
 
 def measure(backends, sizes, batches, log=None, full_max: int | None = None,
-            config: CheckConfig = CheckConfig()) -> list[dict]:
+            config: CheckConfig = CheckConfig(), reference_max: int | None = None) -> list[dict]:
     """One row per (size, batch, backend): load-stage and full-check candidates per second (full
-    checks only up to `full_max` candidates: their contact stage runs on the CPU for every backend)."""
+    checks only up to `full_max` candidates: their contact stage runs on the CPU for every backend;
+    the `mujoco` reference only up to `reference_max`)."""
     brick = load_part(get_reader(), "3001")
     cfg = config
     rows = []
@@ -138,6 +139,8 @@ def measure(backends, sizes, batches, log=None, full_max: int | None = None,
             poses = candidates(s, batch)
             models = load_models(s, poses, cfg)
             for backend in backends:
+                if backend == "mujoco" and reference_max is not None and batch > reference_max:
+                    continue
                 compile_s, compiles = 0.0, 0
                 if backend == "mjx":
                     from factory.physics.lp_jax import COMPILES, solve_loads  # JAX: the mjx extra

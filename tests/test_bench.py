@@ -41,14 +41,21 @@ def test_quick_bench_writes_report_and_plots(tmp_path):
     assert again["synth"]["resumed"] is True and again["kept"] == []
 
     # --resume keeps the sections a run cut short had finished, and runs the rest
+    # (the physics section keeps the parts it had finished)
     cut = {k: v for k, v in again.items() if k not in ("synth", "evaluation")}
+    cut["physics"] = {k: v for k, v in again["physics"].items() if k != "growth"}
     (out / "report.json").write_text(json.dumps(cut))
     assert bench.main(["--out", str(out), "--quick", "--backends", "mujoco", "--models", "--resume"]) == 0
     resumed = json.loads((out / "report.json").read_text())
-    assert resumed["kept"] == ["physics", "render"]
-    assert resumed["physics"] == again["physics"] and resumed["render"] == again["render"]
+    assert resumed["kept"] == ["render", "physics (rows, loads, sweeps, whole)"]
+    for key in ("rows", "loads", "sweeps", "whole"):
+        assert resumed["physics"][key] == again["physics"][key]
+    assert resumed["render"] == again["render"]
+    assert [g["batch"] for g in resumed["physics"]["growth"]] == [1, 2]
+    assert resumed["physics"]["growth"] != again["physics"]["growth"]  # measured again: other seconds
     assert resumed["evaluation"]["synthetic"]["baselines"]["oracle"]["scores"]["strict"]["overall"]["step_success"] == 1.0
-    assert "kept from an earlier run on this machine: physics, render" in (out / "report.md").read_text()
+    assert "kept from an earlier run on this machine: render, physics (rows, loads, sweeps, whole)" in (
+        out / "report.md").read_text()
 
     # ... but not those of a report made on another machine
     cut["machine"]["cpus"] = (cut["machine"]["cpus"] or 0) + 1
