@@ -77,10 +77,11 @@ class RecipeConfig:
     """The recipe's folder: stage1/, stage2/, stage3/ (training runs), feedback/ (stage 1's answers
     and the correction rows), eval/ (predictions and scores), report.json, report.md."""
     train: TrainConfig
-    """The training settings of every stage (`python -m train`'s flags), as stage 1 runs them:
-    data = the designs, outdir = RUN/stage1, steps = the first of `stage_steps`, no evaluation of
-    its own. Stages 2 and 3 run the same settings with their own data, weights, steps, starting
-    model and folder. `eval_limit` and `max_new_tokens` apply to the recipe's evaluations."""
+    """The training settings of every stage (`python -m train`'s flags), as stage 1 runs them (its
+    data, weights, folder and steps are set from the fields here: the designs, none, RUN/stage1,
+    the first of `stage_steps`; no evaluation of its own). Stages 2 and 3 run the same settings with
+    their own data, weights, steps, starting model and folder. `eval_limit` and `max_new_tokens`
+    apply to the recipe's evaluations and to stage 1's answers for the feedback rows."""
     stage_steps: tuple[int, ...] = (200, 100, 200)
     """Optimizer steps of stages 1, 2 and 3."""
     feedback_weights: tuple[float, ...] = (1.0, 1.0)
@@ -96,6 +97,11 @@ class RecipeConfig:
         object.__setattr__(self, "stage_steps", tuple(int(s) for s in self.stage_steps))
         if len(self.stage_steps) != 3 or min(self.stage_steps) < 1:
             raise ConfigError(f"stage_steps: three step counts >= 1 (stages 1, 2, 3), got {self.stage_steps!r}")
+        if "pose" not in self.train.tasks:
+            raise ConfigError("tasks: the recipe needs the pose task (world feedback corrects pose answers)")
+        # `train` is stage 1's run, whatever data, folder and steps it was given
+        object.__setattr__(self, "train", replace(self.train, data=(self.designs,), weights=(), eval=False,
+                                                  outdir=str(Path(self.outdir) / "stage1"), steps=self.stage_steps[0]))
         for name, n in (("feedback_weights", 2), ("synthetic_weights", 3)):
             w = getattr(self, name)
             if len(w) != n or not all(0 < float(x) < float("inf") for x in w):
@@ -134,19 +140,17 @@ class RecipeConfig:
                        model=start if k > 1 else self.train.model, outdir=str(self.run / f"stage{k}"), eval=False)
 
 
-def recipe_config(designs, synthetic, outdir, *, stage_steps=(200, 100, 200), feedback_weights=(1.0, 1.0),
-                  synthetic_weights=(1.0, 1.0, 1.0), feedback_limit=None, **settings) -> RecipeConfig:
-    """A `RecipeConfig` of plain values: folders made absolute, `settings` further `TrainConfig`
-    fields (`lora` defaults as the command line's auto: LoRA for a given model, else full
-    fine-tuning)."""
+def recipe_config(designs, synthetic, outdir, settings: dict | None = None, **fields) -> RecipeConfig:
+    """A `RecipeConfig` of plain values: folders made absolute, `settings` the `TrainConfig` fields
+    the stages share (`lora` defaults as the command line's auto: LoRA for a given model, else full
+    fine-tuning), `fields` further `RecipeConfig` fields."""
     designs, synthetic, outdir = (str(Path(p).resolve()) for p in (designs, synthetic, outdir))
+    settings = dict(settings or {})
     if settings.get("model"):
         settings["model"] = str(Path(settings["model"]).resolve())
     settings.setdefault("lora", bool(settings.get("model")))
-    first = TrainConfig(data=(designs,), outdir=str(Path(outdir) / "stage1"), steps=int(stage_steps[0]), eval=False,
-                        **settings)
-    return RecipeConfig(designs, synthetic, outdir, first, tuple(stage_steps), tuple(feedback_weights),
-                        tuple(synthetic_weights), feedback_limit)
+    first = TrainConfig(data=(designs,), outdir=str(Path(outdir) / "stage1"), **settings)
+    return RecipeConfig(designs, synthetic, outdir, first, **fields)
 
 
 def recipe_conflicts(saved: RecipeConfig, new: RecipeConfig) -> list[str]:
@@ -282,7 +286,8 @@ def run_recipe(recipe: RecipeConfig, progress: bool = True, log=None) -> dict:
     device = resolve_device(recipe.train)
     start = base_model_path(recipe.train, progress)  # stage 1's starting model (a tiny one is built first)
     report = {"recipe": recipe.to_dict(), "test_splits": tests, "stages": [], "feedback": None}
-    evals = {"base": evaluation(recipe, "base", start, tests, device, progress, log)}
+    current = "base"  # the name of the evaluation of `start`
+    evals = {current: evaluation(recipe, current, start, tests, device, progress, log)}
     has_feedback = True
     for k in (1, 2, 3):
         name = f"stage{k}"
@@ -299,14 +304,12 @@ def run_recipe(recipe: RecipeConfig, progress: bool = True, log=None) -> dict:
                 log(f"stage 2/3 ({STAGES[1]}) skipped: {why}; stage 3 starts from stage 1's model, without "
                     "feedback rows")
                 report["stages"].append({**entry, "status": "skipped", "reason": why, "model_after": str(start),
-                                         "metrics": {t: {"before": evals[_eval_name(start, evals)][t],
-                                                         "after": evals[_eval_name(start, evals)][t]}
+                                         "metrics": {t: {"before": evals[current][t], "after": evals[current][t]}
                                                      for t in tests}})
                 continue
         config = recipe.stage(k, str(start), has_feedback)
         entry.update(data=list(config.data), weights=list(config.weights), steps=config.steps,
                      outdir=config.outdir)
-        before = _eval_name(start, evals)
         if stage_done(config):
             log(f"stage {k}/3 ({STAGES[k - 1]}): done ({Path(config.outdir) / FINAL})")
             entry["status"] = "done"
@@ -319,19 +322,14 @@ def run_recipe(recipe: RecipeConfig, progress: bool = True, log=None) -> dict:
         start = Path(config.outdir) / FINAL
         evals[name] = evaluation(recipe, name, start, tests, device, progress, log)
         entry.update(model_after=str(start), train=_train_summary(Path(config.outdir)),
-                     metrics={t: {"before": evals[before][t], "after": evals[name][t]} for t in tests})
+                     metrics={t: {"before": evals[current][t], "after": evals[name][t]} for t in tests})
+        current = name
         report["stages"].append(entry)
         log(f"stage {k}/3 after: " + "; ".join(f"{t} {_headline(evals[name][t])}" for t in tests))
     _write_json(recipe.run / REPORT_JSON, report)
     write_atomic(recipe.run / REPORT_MD, markdown(report).encode())
     log(f"report: {recipe.run / REPORT_MD}")
     return report
-
-
-def _eval_name(model: Path, evals: dict) -> str:
-    """The evaluation's name of `model`: the base model, or the stage whose final model it is."""
-    name = Path(model).parent.name
-    return name if name in evals and Path(model).name == FINAL else "base"
 
 
 METRICS = (("selection", "selection_accuracy", "selection", ".3f"), (None, "step_success", "step success", ".3f"),
@@ -400,12 +398,12 @@ def parser() -> argparse.ArgumentParser:
 
 def config_from_args(args) -> RecipeConfig:
     """The `RecipeConfig` of parsed arguments (folders made absolute)."""
-    train_kw = {f: v for f, v in vars(args).items() if f.startswith("train.")}
-    fields = {k[len("train."):]: v for k, v in train_kw.items()}
-    return recipe_config(args.designs, args.synthetic, args.outdir, stage_steps=args.stage_steps,
+    settings = {k[len("train."):]: v for k, v in vars(args).items() if k.startswith("train.")}
+    if settings["lora"] == "auto":
+        del settings["lora"]
+    return recipe_config(args.designs, args.synthetic, args.outdir, settings, stage_steps=args.stage_steps,
                          feedback_weights=args.feedback_weights, synthetic_weights=args.synthetic_weights,
-                         feedback_limit=args.feedback_limit,
-                         **{k: v for k, v in fields.items() if not (k == "lora" and v == "auto")})
+                         feedback_limit=args.feedback_limit)
 
 
 def main(argv: list[str] | None = None) -> int:
