@@ -15,6 +15,10 @@ TASKS ?= selection,pose
 STEPS ?= 200
 LORA ?= auto
 MODEL ?=
+WEIGHTS ?=
+RECIPE ?=
+DESIGNS ?= out/designs
+STAGE_STEPS ?= 200,100,200
 
 .PHONY: setup synth designs train bench test clean
 
@@ -37,10 +41,19 @@ synth: setup
 designs: setup
 	$(PY) -m pipelines.designs ../shared/ldraw_models/*.ldr ../shared/ldraw_models/*.mpd --out out/designs --ldraw ../shared/ldraw
 
-# Fine-tune a vision-language model on DATA (default: the synth output); with no MODEL, a small
-# Qwen2-VL-architecture model built from a config. Re-running resumes from the last checkpoint.
+# Fine-tune a vision-language model on DATA (default: the synth output; several folders: DATA=a,b
+# with WEIGHTS=2,1 to sample them by weight); with no MODEL, a small Qwen2-VL-architecture model
+# built from a config. RECIPE=staged runs the paper's staged recipe instead (python -m train.recipe):
+# DESIGNS, then + world feedback from the stage-1 model's wrong answers, then + DATA as synthetic
+# data, STAGE_STEPS steps each. Re-running resumes (finished stages are skipped).
 train: setup
-	$(PY) -m train --data $(DATA) --outdir $(OUTDIR) --tasks $(TASKS) --steps $(STEPS) --lora $(LORA) $(if $(MODEL),--model $(MODEL))
+ifeq ($(RECIPE),staged)
+	$(PY) -m train.recipe --designs $(DESIGNS) --synthetic $(DATA) --outdir $(OUTDIR) --tasks $(TASKS) --stage-steps $(STAGE_STEPS) --lora $(LORA) $(if $(MODEL),--model $(MODEL))
+else ifeq ($(RECIPE),)
+	$(PY) -m train --data $(DATA) --outdir $(OUTDIR) --tasks $(TASKS) --steps $(STEPS) --lora $(LORA) $(if $(WEIGHTS),--weights $(WEIGHTS)) $(if $(MODEL),--model $(MODEL))
+else
+	$(error RECIPE=$(RECIPE) is not a recipe; valid: staged (or leave it out for one training run))
+endif
 
 # Throughput of the factory and the baselines' scores: bench/report.md, report.json, PNG plots.
 bench: setup

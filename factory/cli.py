@@ -45,15 +45,16 @@ def add_config_args(ap, cls: type, *, skip=(), prefix: str = "") -> None:
     help. `skip` names fields (dests) the command sets otherwise.
 
     Field types map to flags as: bool -> `--x/--no-x`; int, float, str (or `X | None`) -> one
-    value; tuples -> comma-separated values (the flag may repeat); tuples of (name, weight) pairs
-    -> `name[:weight],...`. A field's metadata may say more: `choices` (its valid values), `flag`
-    (another name, e.g. `check-backend` where `--backend` would be ambiguous) and `aliases` (more
-    spellings, e.g. `("--candidates",)`).
+    value; tuples -> comma-separated values (the flag may repeat; names listed twice count once,
+    numbers are kept as given); tuples of (name, weight) pairs -> `name[:weight],...`. A field's
+    metadata may say more: `choices` (its valid values), `flag` (another name, e.g. `check-backend`
+    where `--backend` would be ambiguous; False: no flag, the command sets the field itself) and
+    `aliases` (more spellings, e.g. `("--candidates",)`).
     """
     docs, types = field_docs(cls), field_types(cls)
     for f in dataclasses.fields(cls):
         key = prefix + f.name
-        if key in skip or not f.init:
+        if key in skip or not f.init or f.metadata.get("flag") is False:
             continue
         sub = nested_config(types[f.name])
         if sub is not None:
@@ -106,7 +107,8 @@ def _flag(tp, choices) -> dict:
         if typing.get_origin(item) is tuple:  # (name, weight) pairs
             key = typing.get_args(item)[0]
             return {"action": _ListAction, "item": lambda s: _pair(s, key), "metavar": "NAME[:WEIGHT],..."}
-        return {"action": _ListAction, "item": item, "valid": choices, "metavar": "A,B,..."}
+        return {"action": _ListAction, "item": item, "valid": choices, "metavar": "A,B,...",
+                "unique": item not in (int, float)}
     kw: dict = {"type": tp}
     if choices:
         kw["choices"] = tuple(choices)
@@ -122,10 +124,11 @@ def _pair(text: str, key) -> tuple:
 
 
 class _ListAction(argparse.Action):
-    """Comma-separated values; a repeated flag adds to the list (the default is replaced, not extended)."""
+    """Comma-separated values; a repeated flag adds to the list (the default is replaced, not
+    extended). `unique`: a value given twice is kept once (names, paths; not numbers)."""
 
-    def __init__(self, option_strings, dest, item=str, valid=None, **kw):
-        self.item, self.valid = item, valid
+    def __init__(self, option_strings, dest, item=str, valid=None, unique=True, **kw):
+        self.item, self.valid, self.unique = item, valid, unique
         super().__init__(option_strings, dest, **kw)
 
     def __call__(self, parser, namespace, values, option_string=None):
@@ -142,7 +145,8 @@ class _ListAction(argparse.Action):
             items.append(value)
         before = getattr(namespace, self.dest, None)
         start = list(before) if before is not self.default and before is not None else []
-        setattr(namespace, self.dest, tuple(dict.fromkeys(start + items)))
+        values = start + items
+        setattr(namespace, self.dest, tuple(dict.fromkeys(values) if self.unique else values))
 
 
 def _show(value: tuple) -> str:

@@ -24,7 +24,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bcbench": ("pipelines.bcbench", "BC-Bench's released layout into our dataset format"),
     "predict": ("eval.predict", "answer a dataset split with a model or a baseline"),
     "score": ("eval.score", "BC-Bench metrics of a predictions file"),
+    "feedback": ("pipelines.feedback", "world-feedback correction rows from a model's wrong pose answers"),
     "train": ("train", "fine-tune a vision-language model"),
+    "recipe": ("train.recipe", "the staged recipe: designs, + world feedback, + synthetic data"),
     "bench": ("pipelines.bench", "the benchmark report (make bench)"),
     "bench-physics": ("pipelines.bench_physics", "physics checks per second, CPU and GPU"),
 }

@@ -172,7 +172,8 @@ def test_the_command_line_has_a_flag_per_field_with_its_default_and_help(cls, pr
     actions = _flag_actions(ap)
     docs = field_docs(cls)
     for f in dataclasses.fields(cls):
-        if prefix + f.name in skip or f.name in skip or dataclasses.is_dataclass(f.type) or f.name == "sampler":
+        if (prefix + f.name in skip or f.name in skip or dataclasses.is_dataclass(f.type) or f.name == "sampler"
+                or f.metadata.get("flag") is False):  # (set by the command itself)
             continue
         action = actions[prefix + f.name]
         assert docs[f.name].replace("%", "%%") in action.help

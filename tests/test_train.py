@@ -124,6 +124,43 @@ def test_data_order_is_a_function_of_seed_and_position(tiny_dataset, processor):
     assert ids((0, 0), 12, seed=1)[0] != full[:12]
 
 
+def test_weighted_folders_mix_by_weight_and_resume(tiny_dataset, tmp_path):
+    """Each example's folder is drawn by weight (measured over the stream), each folder gives its
+    own examples once per pass in its own order, and a stream started at a saved position continues
+    the uninterrupted one."""
+    from train.config import ConfigError, TrainConfig
+    from train.data import MIX_BLOCK, ExampleStream
+
+    other = tmp_path / "copy"
+    shutil.copytree(tiny_dataset, other)
+
+    def take(weights, n, position=(0, 0)):
+        s = ExampleStream([tiny_dataset, other], None, weights=weights, position=position)
+        out = []
+        for row, task, after, where in s.rows(position):
+            out.append((s.groups[where[0]].folder, row["step_id"], task, after))
+            if len(out) == n:
+                return s, out
+
+    s, first = take((3, 1), 800)
+    share = sum(f == 0 for f, *_ in first) / len(first)
+    assert 0.70 < share < 0.80, share  # expected 0.75
+    assert 0.20 < sum(f == 0 for f, *_ in take((1, 3), 800)[1]) / 800 < 0.30
+    per_folder = s.examples_per_epoch // 2  # 12 examples each (6 train steps, 2 tasks)
+    mine = [(sid, t) for f, sid, t, _ in first if f == 1][:per_folder]
+    assert len(set(mine)) == per_folder  # the lighter folder's first 12 are each of its examples once
+    assert first[-1][3] == divmod(800, s.examples_per_epoch)  # position: examples / one pass of both folders
+    _, later = take((3, 1), 300, position=first[499][3])
+    assert later == first[500:800]
+    # a resume past a block of draws
+    _, far = take((3, 1), MIX_BLOCK + 10)
+    assert take((3, 1), 5, position=far[MIX_BLOCK + 2][3])[1] == far[MIX_BLOCK + 3:MIX_BLOCK + 8]
+    with pytest.raises(ConfigError, match="one per data folder"):
+        TrainConfig(data=(str(tiny_dataset),), outdir="x", weights=(1.0, 2.0))
+    with pytest.raises(ConfigError, match="must be > 0"):
+        TrainConfig(data=(str(tiny_dataset), str(other)), outdir="x", weights=(1.0, 0.0))
+
+
 def test_worker_processes_give_the_same_examples(tiny_dataset, tiny_model, processor):
     from train.data import ExampleStream
 

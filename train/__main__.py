@@ -20,17 +20,7 @@ from pathlib import Path
 
 from factory.cli import add_config_args, add_progress_flag, config_from_args as config_of
 from factory.config import field_docs
-from train.config import ConfigError, TrainConfig
-
-
-def _lora(v: str):
-    if v.lower() == "auto":
-        return "auto"
-    if v.lower() in ("1", "true", "yes", "on"):
-        return True
-    if v.lower() in ("0", "false", "no", "off"):
-        return False
-    raise argparse.ArgumentTypeError(f"expected 1, 0 or auto, got {v!r}")
+from train.config import ConfigError, TrainConfig, lora_value
 
 
 def parser() -> argparse.ArgumentParser:
@@ -38,7 +28,7 @@ def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m train", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     add_config_args(ap, TrainConfig, skip=("lora",))
-    ap.add_argument("--lora", type=_lora, default="auto", metavar="1|0|auto",
+    ap.add_argument("--lora", type=lora_value, default="auto", metavar="1|0|auto",
                     help=field_docs(TrainConfig)["lora"] + " (default: auto)")
     add_progress_flag(ap)
     return ap

@@ -8,6 +8,7 @@ what to evaluate afterwards) may change between runs; the rest may not.
 
 from __future__ import annotations
 
+import argparse
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,15 +37,33 @@ class ConfigError(_ConfigError):
     """A setting out of range, or a config that cannot resume a checkpoint."""
 
 
+def lora_value(text: str):
+    """The command lines' `--lora`: 1 (True), 0 (False) or auto (LoRA for a given checkpoint, full
+    fine-tuning for a model built from a config; resolved where the model is known)."""
+    v = text.lower()
+    if v == "auto":
+        return "auto"
+    if v in ("1", "true", "yes", "on"):
+        return True
+    if v in ("0", "false", "no", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"expected 1, 0 or auto, got {text!r}")
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """Everything that decides a training run (see the module docstring)."""
 
     data: tuple[str, ...]
-    """Dataset folders (`make synth` output, `python -m train.feedback` output) whose train splits
-    are mixed into one stream."""
+    """Dataset folders (`make synth` output, `python -m pipelines.designs` output, `python -m
+    train.feedback` output) whose train splits are mixed into one stream."""
     outdir: str
     """The run folder: base model, checkpoints, logs, final model, metrics."""
+    weights: tuple[float, ...] = ()
+    """Sampling weight of each `data` folder, in order (`--weights 2,1,1`): each example's folder
+    is drawn with probability weight / sum of weights, whatever the folders' sizes (each folder's
+    own examples in its own shuffled order, epoch after epoch). Empty: every example of every
+    folder once per epoch, folders in proportion to their sizes."""
     model: str | None = None
     """A local model folder to fine-tune (any supported family, see docs/training.md); None builds a
     tiny model of `base_family` into OUTDIR/base first."""
@@ -127,6 +146,12 @@ class TrainConfig:
 
         if not self.data:
             raise ConfigError("data: give at least one dataset folder (--data OUT)")
+        if self.weights:
+            if len(self.weights) != len(self.data):
+                raise ConfigError(f"weights: give one per data folder ({len(self.data)}), got {len(self.weights)}")
+            bad = [w for w in self.weights if not (isinstance(w, (int, float)) and 0 < w < float("inf"))]
+            if bad:
+                raise ConfigError(f"weights must be > 0 (leave a folder out instead of weighting it 0), got {bad[0]!r}")
         if not self.tasks:
             raise ConfigError(f"tasks: give at least one; valid: {', '.join(TASKS)}")
         for t in self.tasks:

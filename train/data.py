@@ -8,6 +8,13 @@ the current window's rows are in memory. The order is a function of (seed, epoch
 so a position (epoch, index) names an example, a resumed run continues at the saved position
 without reading what it skips, and its data order is the uninterrupted run's.
 
+Weighted folders (`TrainConfig.weights`): each folder has its own order as above (its own row
+groups, seeded by (seed, epoch, folder)), and example k of the stream comes from the folder drawn
+k-th from the weights (`folder_picks`: blocks of `MIX_BLOCK` draws, each seeded by (seed, block)).
+The n-th example taken from a folder is its n-th in its own order, so example k is a function of
+(seed, weights, k) and the files; the position is then (k // E, k % E), E being the examples of
+one pass over every folder, and a resume at k counts the draws before it without reading rows.
+
 Labels: -100 everywhere but the final assistant turn's answer and its end-of-turn token
 (`<|im_end|>` for Qwen and InternVL, `<end_of_turn>` for Gemma 3), for every family's chat
 template. The prompt is rendered with `add_generation_prompt=True` and must be a prefix of the
@@ -124,6 +131,8 @@ class Group:
     rows: int
     tasks: tuple[str, ...]
     columns: tuple[str, ...]
+    folder: int = 0
+    """Position of its dataset folder in the stream's folders."""
 
 
 def folder_tasks(folder) -> tuple[str, ...]:
@@ -134,7 +143,7 @@ def folder_tasks(folder) -> tuple[str, ...]:
 def list_groups(folders, tasks, split: str = "train") -> list[Group]:
     """The non-empty row groups of `split` of every folder, in folder and file order (metadata only)."""
     groups = []
-    for folder in folders:
+    for i, folder in enumerate(folders):
         use = tuple(t for t in tasks if t in folder_tasks(folder))
         if not use:
             continue
@@ -145,13 +154,15 @@ def list_groups(folders, tasks, split: str = "train") -> list[Group]:
             for g in range(pf.num_row_groups):
                 n = pf.metadata.row_group(g).num_rows
                 if n:
-                    groups.append(Group(str(f), g, n, use, tuple(dict.fromkeys(cols))))
+                    groups.append(Group(str(f), g, n, use, tuple(dict.fromkeys(cols)), i))
     return groups
 
 
-def epoch_order(groups: list[Group], seed: int, epoch: int, window: int) -> list[tuple[int, int, str, int]]:
-    """The epoch's examples as (group, row, task, window), in training order (see the module docstring)."""
-    rng = np.random.default_rng([int(seed), int(epoch)])
+def epoch_order(groups: list[Group], seed: int, epoch: int, window: int,
+                folder: int | None = None) -> list[tuple[int, int, str, int]]:
+    """The epoch's examples as (group, row, task, window), in training order (see the module
+    docstring); `folder`: the order of that folder's own `groups` in a weighted stream."""
+    rng = np.random.default_rng([int(seed), int(epoch)] if folder is None else [int(seed), int(epoch), int(folder)])
     order = rng.permutation(len(groups)).tolist()
     out: list[tuple[int, int, str, int]] = []
     for w, start in enumerate(range(0, len(order), window)):
@@ -159,6 +170,20 @@ def epoch_order(groups: list[Group], seed: int, epoch: int, window: int) -> list
                  for t in groups[g].tasks]
         out += [items[i] for i in rng.permutation(len(items))]
     return out
+
+
+MIX_BLOCK = 4096
+"""Folder draws of a weighted stream made at once (one generator per block)."""
+_MIX_KEY = 0x6D6978
+"""Keeps the draws' generator apart from the epoch orders' ((seed, epoch) keys)."""
+
+
+def folder_picks(weights, seed: int, block: int) -> np.ndarray:
+    """The folder of each of the examples block * MIX_BLOCK ... (block + 1) * MIX_BLOCK - 1 of a
+    weighted stream, drawn with probabilities weight / sum of weights."""
+    p = np.asarray(weights, dtype=np.float64)
+    rng = np.random.default_rng([int(seed), _MIX_KEY, int(block)])
+    return rng.choice(len(p), size=MIX_BLOCK, p=p / p.sum())
 
 
 _WORKER: dict = {}
@@ -190,11 +215,14 @@ class ExampleStream(IterableDataset):
     `workers` > 0 encodes (PNG decoding, image resizing, tokenizing) in that many spawned
     processes, each loading the processor from `processor_path`, in order and at most a few
     examples ahead: the same examples in the same order as `workers=0`, faster on many cores.
+
+    `weights` (one per folder): a weighted stream (see the module docstring); None or empty:
+    every example of every folder once per epoch.
     """
 
     def __init__(self, folders, processor, tasks=TASKS, seed: int = 0, window: int = 16,
                  max_length: int | None = None, position: tuple[int, int] = (0, 0), split: str = "train",
-                 workers: int = 0, processor_path=None, max_pixels: int | None = None):
+                 workers: int = 0, processor_path=None, max_pixels: int | None = None, weights=None):
         self.folders = [str(Path(f)) for f in folders]
         self.processor, self.tasks, self.seed, self.window = processor, tuple(tasks), int(seed), int(window)
         self.max_length = max_length
@@ -205,19 +233,35 @@ class ExampleStream(IterableDataset):
         self.examples_per_epoch = sum(g.rows * len(g.tasks) for g in self.groups)
         if not self.examples_per_epoch:
             raise ConfigError(f"no {split} examples for tasks {', '.join(self.tasks)} in {', '.join(self.folders)}")
+        self.weights = tuple(float(w) for w in weights) if weights else None
+        if self.weights is not None:
+            if len(self.weights) != len(self.folders):
+                raise ConfigError(f"weights: one per folder ({len(self.folders)}), got {len(self.weights)}")
+            self._members = [[g for g, grp in enumerate(self.groups) if grp.folder == i] for i in range(len(self.folders))]
+            self._sizes = [sum(self.groups[g].rows * len(self.groups[g].tasks) for g in m) for m in self._members]
+            empty = [f for f, n in zip(self.folders, self._sizes) if not n]
+            if empty:
+                raise ConfigError(f"{empty[0]}: no {split} examples for tasks {', '.join(self.tasks)}; a weighted "
+                                  "folder must have some (leave it out of --data and --weights)")
         self.position = (int(position[0]), int(position[1]))
         self.skipped = 0
         self._cache: dict[int, list[dict]] = {}
-        self._window: tuple[int, int] | None = None
+        self._window: tuple | None = None
+        self._block: tuple[int, np.ndarray] | None = None
 
-    def _rows(self, g: int) -> list[dict]:
-        if g not in self._cache:
+    def _rows(self, g: int, cache: dict | None = None) -> list[dict]:
+        """The rows of group `g`, read once into `cache` (default: the current window's)."""
+        cache = self._cache if cache is None else cache
+        if g not in cache:
             grp = self.groups[g]
-            self._cache[g] = pq.ParquetFile(grp.file).read_row_group(grp.index, columns=list(grp.columns)).to_pylist()
-        return self._cache[g]
+            cache[g] = pq.ParquetFile(grp.file).read_row_group(grp.index, columns=list(grp.columns)).to_pylist()
+        return cache[g]
 
     def rows(self, position: tuple[int, int]):
         """(row, task, (epoch, index after it), (group, row index, task)) from `position` on."""
+        if self.weights is not None:
+            yield from self._weighted_rows(position)
+            return
         epoch, index = position
         while True:
             order = epoch_order(self.groups, self.seed, epoch, self.window)
@@ -228,6 +272,37 @@ class ExampleStream(IterableDataset):
                 after = (epoch, i + 1) if i + 1 < len(order) else (epoch + 1, 0)
                 yield self._rows(g)[r], task, after, (g, r, task)
             epoch, index = epoch + 1, 0
+
+    def _picks(self, block: int) -> np.ndarray:
+        if self._block is None or self._block[0] != block:
+            self._block = (block, folder_picks(self.weights, self.seed, block))
+        return self._block[1]
+
+    def _weighted_rows(self, position: tuple[int, int]):
+        """`rows` of a weighted stream (see the module docstring)."""
+        total = self.examples_per_epoch
+        k = int(position[0]) * total + int(position[1])
+        self._block = None
+        taken = np.zeros(len(self.folders), dtype=np.int64)  # examples each folder gave before k
+        for block in range(k // MIX_BLOCK):
+            taken += np.bincount(self._picks(block), minlength=len(self.folders))
+        taken += np.bincount(self._picks(k // MIX_BLOCK)[:k % MIX_BLOCK], minlength=len(self.folders))
+        orders: dict[int, tuple[int, list]] = {}
+        caches: dict[int, tuple[tuple[int, int], dict[int, list[dict]]]] = {}
+        while True:
+            f = int(self._picks(k // MIX_BLOCK)[k % MIX_BLOCK])
+            epoch, i = divmod(int(taken[f]), self._sizes[f])
+            if orders.get(f, (None,))[0] != epoch:
+                members = self._members[f]
+                orders[f] = (epoch, epoch_order([self.groups[g] for g in members], self.seed, epoch, self.window, f))
+            local, r, task, w = orders[f][1][i]
+            g = self._members[f][local]
+            if caches.get(f, ((None,),))[0] != (epoch, w):  # a new window of this folder: drop the last one's rows
+                caches[f] = ((epoch, w), {})
+            row = self._rows(g, caches[f][1])[r]
+            taken[f] += 1
+            k += 1
+            yield row, task, divmod(k, total), (g, r, task)
 
     def raw(self):
         """(messages, images, answer, (group, row, task)) from `position` on, advancing it."""

@@ -306,7 +306,7 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
     n_train, n_all = trainable(model)
     stream = ExampleStream(config.data, processor, config.tasks, config.seed, config.shuffle_window,
                            config.max_length, state["position"], workers=config.resolved_workers(),
-                           processor_path=base, max_pixels=config.max_pixels)
+                           processor_path=base, max_pixels=config.max_pixels, weights=config.weights)
     pad_id = processor.tokenizer.pad_token_id
     if pad_id is None:
         pad_id = processor.tokenizer.eos_token_id

@@ -4,6 +4,10 @@ gallery from the completion markers and the data files.
 
     from pipelines.dataset import DatasetConfig, build
     summary = build(config, "out/synth", backend="local", workers=2)
+
+Every source is built this way: sampled objects and human designs (the builder makes their
+source from the config), and world feedback (`pipelines.feedback` gives its source: it reads a
+model's answers through `eval`, which the builder does not import).
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ from tqdm import tqdm
 
 from factory.atomic import write_atomic
 from factory.dataset.info import Counts, DatasetInfo, json_bytes, write_info
-from factory.dataset.tasks import SPLITS
+from factory.dataset.tasks import FEEDBACK_IMAGES, SPLITS
 from factory.errors import LDrawError
 from factory.sampler.sampler import target_steps
 from pipelines.dataset.config import ConfigMismatchError, DatasetConfig, diff_configs
@@ -131,19 +135,19 @@ def _worker_env() -> dict[str, str]:
     return {k: os.environ[k] for k in (*ENV_FOR_WORKERS, *ONE_THREAD) if k in os.environ}
 
 
-def _run_local(config, todo, out, workers, bar):
+def _run_local(config, todo, out, workers, bar, source=None):
     errors = []
     if workers <= 1:
         for k in todo:
             try:
-                build_shard(config, k, out, progress=bar.update)
+                build_shard(config, k, out, progress=bar.update, source=source)
             except KeyboardInterrupt:
                 raise
             except Exception as exc:  # noqa: BLE001 - reported with the shard number
                 errors.append((k, exc))
         return errors
     with workers_pool(workers) as pool:
-        futures = {pool.submit(build_shard, config.to_json(), k, str(out)): k for k in todo}
+        futures = {pool.submit(build_shard, config.to_json(), k, str(out), None, source): k for k in todo}
         for fut in as_completed(futures):
             k = futures[fut]
             try:
@@ -176,12 +180,12 @@ def _ray_tasks(workers: int):
             ray.shutdown()
 
 
-def _run_ray(config, todo, out, workers, bar):
+def _run_ray(config, todo, out, workers, bar, source=None):
     """The same shard function as Ray tasks (`_ray_tasks`)."""
     import ray
 
     with _ray_tasks(workers) as task:
-        refs = {task.remote(config.to_json(), k, str(out)): k for k in todo}
+        refs = {task.remote(config.to_json(), k, str(out), None, source): k for k in todo}
         errors = []
         pending = list(refs)
         while pending:
@@ -302,21 +306,23 @@ def largest_first(config: DatasetConfig, shards: list[int]) -> list[int]:
     return sorted(shards, key=lambda k: (-work[k], k))
 
 
-def _check_source(config: DatasetConfig) -> None:
+def _check_source(config: DatasetConfig, source=None) -> None:
     """Raise what the shards would (an unknown part or colour, a missing library: the sampler's
-    own checks) before anything is written. The source is this process's (`object_source`), so
-    shards built here reuse it."""
-    if config.source == "synthetic":
+    own checks; a source the builder cannot make) before anything is written. The source is this
+    process's (`object_source`), so shards built here reuse it."""
+    if config.source == "synthetic" or (config.source == "feedback" and source is None):
         object_source(config)
 
 
 def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, progress: bool = True,
-          desc: str = "objects", batch: int = 1, growers: int | None = None) -> dict:
+          desc: str = "objects", batch: int = 1, growers: int | None = None, source=None) -> dict:
     """Build every missing shard of `config` into `out`, then the metadata; returns the summary.
 
     `batch` > 1 (synthetic data): objects grown `batch` at a time by `growers` of the workers
     (default two thirds) while the others render (`_run_grown`); the data files are the same
-    whatever `batch` and `growers`. The folder is held for the build (`holding`)."""
+    whatever `batch` and `growers`. `source`: the object source, for a source the builder does not
+    make from the config (world feedback, `pipelines.feedback.FeedbackSource`; sent to the worker
+    processes or Ray tasks with each shard). The folder is held for the build (`holding`)."""
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
@@ -326,13 +332,13 @@ def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, 
     t0 = time.perf_counter()
     # A run refused for its config, its parts or its library leaves the folder untouched (so the
     # corrected command is not refused as another config).
-    _check_source(config)
+    _check_source(config, source)
     _started_with(config, Path(out))
     with holding(out):
-        return _build(config, out, backend, workers, progress, desc, batch, growers, t0)
+        return _build(config, out, backend, workers, progress, desc, batch, growers, t0, source)
 
 
-def _build(config, out, backend, workers, progress, desc, batch, growers, t0) -> dict:
+def _build(config, out, backend, workers, progress, desc, batch, growers, t0, source=None) -> dict:
     out = prepare(config, out)
     remove_stranded(out)
     done = finished_shards(config, out)
@@ -344,7 +350,7 @@ def _build(config, out, backend, workers, progress, desc, batch, growers, t0) ->
             errors = _run_grown(config, todo, out, workers, bar, batch, backend, growers) if todo else []
         else:
             runner = _run_local if backend == "local" else _run_ray
-            errors = runner(config, todo, out, workers, bar) if todo else []
+            errors = runner(config, todo, out, workers, bar, source) if todo else []
     if errors:
         k, exc = errors[0]
         if all(isinstance(e, LDrawError) for _, e in errors):
@@ -410,6 +416,7 @@ def finalize(config: DatasetConfig, out) -> dict:
             stages[k] = stages.get(k, 0.0) + v
         objects += m["objects"]
     total = {k: sum(counts[s][k] for s in SPLITS) for k in ("objects", "steps", "bytes")}
+    statistics = {g: dict(sorted(c.items())) for g, c in sorted(stats.items())}
     typed = DatasetInfo(
         dataset_id=config.dataset_id,
         source=config.source,
@@ -420,8 +427,9 @@ def finalize(config: DatasetConfig, out) -> dict:
         seed=config.seed,
         config_hash=config.hash,
         num_shards=config.num_shards,
-        statistics={g: dict(sorted(c.items())) for g, c in sorted(stats.items())},
+        statistics=statistics,
         package_versions=_versions(),
+        **(_feedback_info(config, statistics) if config.source == "feedback" else {}),
     )
     write_info(out, typed)
     info = typed.to_dict()
@@ -441,12 +449,33 @@ def finalize(config: DatasetConfig, out) -> dict:
     }
 
 
+def _feedback_info(config: DatasetConfig, statistics: dict) -> dict:
+    """A feedback dataset's `DatasetInfo` fields beyond the builder's: pose only, the `feedback`
+    image column, and where the rows came from (the keys feedback folders have always had)."""
+    spec = config.feedback
+    return {
+        "tasks": ("pose",),
+        "extra_images": FEEDBACK_IMAGES,
+        "details": {
+            "source_dataset": spec.dataset,
+            "source_dataset_id": spec.dataset_id,
+            "source_config_hash": spec.config_hash,
+            "source_split": spec.split,
+            "predictions": spec.predictions,
+            "predictions_sha256": spec.predictions_sha256,
+            "reasons": statistics.get("feedback", {}),
+        },
+    }
+
+
 def summary_line(summary: dict) -> str:
     """The one-line report of a build."""
     c, t = summary["counts"], summary["total"]
     stats = summary["statistics"]
     if "rejections" in stats:
         label, reasons = "rejected candidates", stats["rejections"]
+    elif "feedback" in stats:
+        label, reasons = "pose answers", stats["feedback"]
     else:
         label, reasons = "physics flags", stats.get("physics_flags", {})
     why = ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0]))) or "none"

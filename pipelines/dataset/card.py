@@ -15,6 +15,19 @@ def _size_category(n: int) -> str:
     return "1M<n<10M"
 
 
+TAGS = {"synthetic": "synthetic", "design": "human-designs", "feedback": "world-feedback"}
+
+SOURCE_TEXT = {
+    "synthetic": "objects grown by the Brick Factory sampler (`factory.sampler`), every placement checked for "
+                 "connection, collision, clutch and stability",
+    "design": "human-designed LDraw models, sub-assemblies shown as a manual shows them (their own steps, "
+              "then one multi-brick step attaching them)",
+    "feedback": "world-feedback correction rows: a model's wrong pose answers on another dataset's steps, each "
+                "drawn in red (`feedback` image column) with the revision prompt, then the right answer "
+                "(pose task only; `meta/info.json` names the dataset and the predictions)",
+}
+
+
 def dataset_card(config, info: dict) -> str:
     splits = info["splits_present"]
     # The config's name carries the dataset's config hash: `datasets` caches a local folder under
@@ -27,7 +40,7 @@ def dataset_card(config, info: dict) -> str:
                      "data_files": [{"split": s, "path": f"data/{s}-*"} for s in splits]}],
         "pretty_name": config.dataset_id,
         "task_categories": ["image-text-to-text"],
-        "tags": ["lego", "ldraw", "assembly", "synthetic" if config.source == "synthetic" else "human-designs"],
+        "tags": ["lego", "ldraw", "assembly", TAGS[config.source]],
         "size_categories": [_size_category(info["total"]["steps"])],
     }
     header = "---\n" + yaml.safe_dump(front, sort_keys=False, default_flow_style=False, allow_unicode=True) + "---"
@@ -40,10 +53,7 @@ def dataset_card(config, info: dict) -> str:
     missing = [s for s in ("train", "test") if s not in splits]
     note = (f"\nThe {' and '.join(missing)} split has no objects in this build (too few objects); it is not "
             "listed above.\n" if missing else "")
-    src = ("objects grown by the Brick Factory sampler (`factory.sampler`), every placement checked for "
-           "connection, collision, clutch and stability" if config.source == "synthetic"
-           else "human-designed LDraw models, sub-assemblies shown as a manual shows them (their own steps, "
-           "then one multi-brick step attaching them)")
+    src = SOURCE_TEXT[config.source]
     return header + f"""
 
 # {config.dataset_id}

@@ -14,11 +14,11 @@ import re
 from dataclasses import dataclass, field, replace
 
 from factory.config import ConfigError, config_from_dict, config_to_dict
+from factory.dataset.schema import SCHEMA_VERSION
+from factory.dataset.tasks import FEEDBACK_IMAGES, SPLITS
 from factory.sampler import SamplerConfig
 
-from factory.dataset.schema import SCHEMA_VERSION
-
-SOURCES = ("synthetic", "design")
+SOURCES = ("synthetic", "design", "feedback")
 
 
 class ConfigMismatchError(RuntimeError):
@@ -30,13 +30,44 @@ def _canonical(obj) -> str:
 
 
 @dataclass(frozen=True)
+class FeedbackSpec:
+    """Where the rows of a world-feedback dataset come from: a dataset split and a model's answers
+    to it (`pipelines.feedback`). Object i of the feedback dataset is object `objects[i]` of the
+    split; its rows are that object's wrong pose answers turned into correction conversations."""
+
+    dataset: str
+    """The dataset folder the predictions answer (absolute)."""
+    dataset_id: str
+    """That dataset's id (`meta/info.json`)."""
+    config_hash: str | None
+    """That dataset's config hash (None for folders not made by the builder, e.g. a BC-Bench import)."""
+    split: str
+    """The split of `dataset` the predictions answer (the recipe uses train)."""
+    predictions: str
+    """The predictions file (`eval.predict` output; absolute)."""
+    predictions_sha256: str
+    """sha256 of the predictions file: other answers make another dataset."""
+    objects: tuple[str, ...]
+    """The object ids of the split, in the dataset's order (its files, then its row groups)."""
+
+    def __post_init__(self):
+        if self.split not in SPLITS:
+            raise ConfigError(f"feedback.split must be one of {', '.join(SPLITS)}, got {self.split!r}")
+        object.__setattr__(self, "objects", tuple(self.objects))
+        if len(set(self.objects)) != len(self.objects):
+            raise ConfigError("feedback.objects: an object id is listed twice")
+
+
+@dataclass(frozen=True)
 class DatasetConfig:
     """What a build produces. Object `i` (0-based) belongs to shard `i // objects_per_shard`."""
 
     source: str
-    """'synthetic' (objects from `factory.sampler`) or 'design' (human LDraw models)."""
+    """'synthetic' (objects from `factory.sampler`), 'design' (human LDraw models) or 'feedback'
+    (a model's wrong pose answers as correction rows, `pipelines.feedback`)."""
     n_objects: int = field(metadata={"flag": "n"})
-    """Objects in the dataset (synthetic: objects 0..n-1 of the sampler; design: one per model)."""
+    """Objects in the dataset (synthetic: objects 0..n-1 of the sampler; design: one per model;
+    feedback: one per object of the answered split)."""
     seed: int = 0
     """Seed of the sampler (object i draws from `default_rng([seed, i])`) and of the split."""
     dataset_id: str = ""
@@ -62,6 +93,10 @@ class DatasetConfig:
     physics: bool = True
     """Design only: replay each model through the physics checks (`pipelines.verify`) and store
     the verdicts in the rows; without it the rows' physics record says it was not run."""
+    feedback: FeedbackSpec | None = field(default=None, metadata={"flag": False})
+    """Feedback only: the dataset split and predictions the rows come from (set by
+    `pipelines.feedback`, not a flag). None for the other sources, and then left out of the
+    config's JSON and hash."""
 
     def __post_init__(self):
         if self.source not in SOURCES:
@@ -82,7 +117,8 @@ class DatasetConfig:
         if not 0 <= self.png_compress_level <= 9:
             raise ConfigError(f"png_compress_level must be in 0..9, got {self.png_compress_level}")
         if not self.dataset_id:
-            default = "brick-factory-synth" if self.source == "synthetic" else "brick-factory-designs"
+            default = {"synthetic": "brick-factory-synth", "design": "brick-factory-designs",
+                       "feedback": "brick-factory-feedback"}[self.source]
             object.__setattr__(self, "dataset_id", default)
         check_name(self.dataset_id, "dataset_id")
         object.__setattr__(self, "models", tuple(dict(m) for m in self.models))
@@ -95,8 +131,13 @@ class DatasetConfig:
         if self.source == "synthetic" and self.sampler.seed != self.seed:
             raise ConfigError(f"sampler.seed ({self.sampler.seed}) must equal seed ({self.seed}): object i of the "
                               "dataset is object i of the sampler (DatasetConfig.synthetic sets it)")
-        if self.source == "design" and self.sampler is not None:
-            raise ConfigError("a design dataset has no sampler (give sampler=None)")
+        if self.source != "synthetic" and self.sampler is not None:
+            raise ConfigError(f"a {self.source} dataset has no sampler (give sampler=None)")
+        if (self.source == "feedback") != (self.feedback is not None):
+            raise ConfigError("a feedback dataset needs its FeedbackSpec, and only a feedback dataset has one")
+        if self.feedback is not None and len(self.feedback.objects) != self.n_objects:
+            raise ConfigError(f"a feedback config needs one object per object of its split: n_objects is "
+                              f"{self.n_objects}, feedback.objects has {len(self.feedback.objects)}")
 
     @classmethod
     def synthetic(cls, n_objects: int, seed: int = 0, sampler: SamplerConfig | None = None,
@@ -118,10 +159,13 @@ class DatasetConfig:
 
     def to_json(self) -> dict:
         """`to_dict()` plus `schema_version`: the record hashed and written to `meta/`. A design's
-        sampler is `{}` there, as in folders written before the field was typed, so their hashes
-        (and resumes) are unchanged."""
+        sampler is `{}` there, as in folders written before the field was typed, and `feedback` is
+        there only for a feedback dataset, so the hashes (and resumes) of earlier folders are
+        unchanged."""
         out = self.to_dict()
         out["sampler"] = out["sampler"] or {}
+        if out["feedback"] is None:
+            del out["feedback"]
         out["schema_version"] = SCHEMA_VERSION
         return json.loads(_canonical(out))
 
@@ -152,8 +196,16 @@ class DatasetConfig:
         lo = shard * self.objects_per_shard
         return range(lo, min(self.n_objects, lo + self.objects_per_shard))
 
+    @property
+    def extra_images(self) -> tuple[str, ...]:
+        """Image columns beyond the row schema's (`factory.dataset.schema.arrow_schema`): a feedback
+        dataset's `feedback` render."""
+        return FEEDBACK_IMAGES if self.source == "feedback" else ()
+
     def split(self, index: int) -> str:
-        """The split of object `index` (see `split_of`)."""
+        """The split of object `index` (see `split_of`); a feedback dataset's rows are all train."""
+        if self.source == "feedback":
+            return "train"
         oid = self.object_id(index)
         if self.source == "design":
             return split_of(self.seed, oid, self.train_fraction)
@@ -162,6 +214,8 @@ class DatasetConfig:
     def object_id(self, index: int) -> str:
         if self.source == "design":
             return str(self.models[index]["object_id"])
+        if self.source == "feedback":
+            return self.feedback.objects[index]
         return f"synth-s{self.seed}-{index:06d}"
 
     def shard_file(self, split: str, shard: int) -> str:

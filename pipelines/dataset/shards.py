@@ -30,7 +30,7 @@ import pyarrow.parquet as pq
 
 from factory.atomic import write_atomic
 from factory.dataset.info import json_bytes
-from factory.dataset.schema import SCHEMA
+from factory.dataset.schema import arrow_schema
 from factory.dataset.tasks import SPLITS
 from pipelines.dataset import spool
 from pipelines.dataset.config import DatasetConfig
@@ -138,11 +138,13 @@ def _part_images():
     return PartImages()
 
 
-def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike, progress=None) -> Path:
+def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike, progress=None,
+                source=None) -> Path:
     """Build shard `shard` of `config` into the folder `out`; returns its completion marker's path.
 
     `progress`, if given, is called with 1 after each object (in-process runs use it for a
-    per-object progress bar).
+    per-object progress bar). `source`: the object source (default `object_source(config)`); an
+    object it gives with finished `rows` is written as it is (world feedback), else rendered.
     """
     from pipelines.dataset.rows import object_rows
 
@@ -157,13 +159,14 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
     _remove_stale(out, [p.name for p in finals.values()])
     finals["train"].parent.mkdir(parents=True, exist_ok=True)
     tmps = {s: p.with_name(f".{p.name}.{os.getpid()}.tmp") for s, p in finals.items()}
-    writers = {s: pq.ParquetWriter(str(tmps[s]), SCHEMA, **WRITER_OPTIONS) for s in SPLITS}
+    schema = arrow_schema(config.extra_images)
+    writers = {s: pq.ParquetWriter(str(tmps[s]), schema, **WRITER_OPTIONS) for s in SPLITS}
     timings = {"sample": 0.0, "check": 0.0, "render": 0.0, "encode": 0.0, "write": 0.0}
     counts = {s: {"objects": 0, "steps": 0} for s in SPLITS}
     stats: dict[str, dict[str, int]] = {}
     objects = []
     try:
-        source = object_source(config)
+        source = source if source is not None else object_source(config)
         for index in config.shard_objects(shard):
             oid = config.object_id(index)
             split = config.split(index)
@@ -171,10 +174,10 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
             obj = source.object(index, oid, grown) if grown is not None else source.object(index, oid)
             for k, v in obj.timings.items():
                 timings[k] = timings.get(k, 0.0) + v
-            rows = object_rows(obj, config, split, timings, _part_images())
+            rows = obj.rows if obj.rows is not None else object_rows(obj, config, split, timings, _part_images())
             t = time.perf_counter()
             if rows:
-                writers[split].write_table(pa.Table.from_pylist(rows, schema=SCHEMA))
+                writers[split].write_table(pa.Table.from_pylist(rows, schema=schema))
             timings["write"] += time.perf_counter() - t
             counts[split]["objects"] += 1
             counts[split]["steps"] += len(rows)

@@ -1,4 +1,6 @@
-"""Where objects come from: the sampler (synthetic) and human LDraw designs, as `ObjectSpec`s.
+"""Where objects come from: the sampler (synthetic) and human LDraw designs, as `ObjectSpec`s;
+world feedback (a model's wrong pose answers on another dataset) is a third source, given to the
+builder by `pipelines.feedback` (it reads answers through `eval`, which the builder does not import).
 
 An `ObjectSpec` is what the row builder needs: per step the parts already placed (`before`), the
 parts the step places (`new`), the bricks the catalog offers, every part of the assembly the step
@@ -57,7 +59,10 @@ class ObjectSpec:
     stats: dict = field(default_factory=dict)
     """Counters summed into `info.json`: 'rejections' (synthetic), 'physics_flags' (design)."""
     timings: dict = field(default_factory=dict)
-    """Seconds per stage spent making the object ('sample', 'check')."""
+    """Seconds per stage spent making the object ('sample', 'check'; feedback: 'render', 'encode')."""
+    rows: list | None = None
+    """Finished rows, written as they are instead of rendered from `steps` (world feedback: rows
+    derived from another dataset's rows, with the `feedback` image column)."""
 
 
 def _py(v):
@@ -214,8 +219,16 @@ class DesignSource:
                           {"sample": total - check, "check": check})
 
 
+class SourceError(ValueError):
+    """A config whose object source the builder cannot make by itself."""
+
+
 def make_source(config):
-    """The object source of a `DatasetConfig`."""
+    """The object source of a `DatasetConfig` (a feedback dataset's is given to `build` by
+    `pipelines.feedback`)."""
     if config.source == "synthetic":
         return SyntheticSource(config.sampler, config.ldraw)
-    return DesignSource(config.models, config.ldraw, config.physics)
+    if config.source == "design":
+        return DesignSource(config.models, config.ldraw, config.physics)
+    raise SourceError(f"a {config.source} dataset's object source is given to the builder by its command "
+                      "(world feedback: pipelines.feedback.build_feedback, `python -m train.feedback`)")

@@ -1,0 +1,110 @@
+"""World-feedback rows as a source of the dataset builder (`pipelines.feedback`): one row per wrong
+pose answer, shards, resume to the same bytes, a changed source refused, the command line, and
+feedback folders written before the builder wrote them still read."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+from factory.dataset.info import INFO_SOURCES
+
+
+@pytest.fixture(scope="module")
+def random_preds(tiny_dataset, tmp_path_factory):
+    """Random pose answers on the tiny dataset's train split (they parse and are mostly wrong)."""
+    from eval.predict import RandomPredictor, write_predictions
+
+    path = tmp_path_factory.mktemp("fbpred") / "preds.jsonl"
+    write_predictions(tiny_dataset, RandomPredictor(0), path, split="train", tasks=("pose",))
+    return path
+
+
+def _wrong_answers(dataset, preds) -> set[str]:
+    """Step ids whose pose answer parses and fails in paper mode (what gets feedback), found here
+    from the predictions and the rows alone."""
+    from eval.data import iter_rows
+    from eval.feedback import pose_errors
+
+    answers = {r["id"]: r["text"] for r in map(json.loads, preds.read_text().splitlines()) if r["task"] == "pose"}
+    return {row["step_id"] for row in iter_rows(dataset, "train", ["step_id", "object_id", "bricks"])
+            if pose_errors(row, answers.get(row["step_id"])) is not None}
+
+
+def _data_bytes(out) -> dict:
+    return {p.name: p.read_bytes() for p in sorted((out / "data").iterdir())}
+
+
+def test_feedback_rows_are_built_by_the_builder_and_resume(tiny_dataset, random_preds, tmp_path):
+    from eval.data import info, iter_rows
+    from pipelines.dataset.build import ConfigMismatchError
+    from pipelines.feedback import build_feedback
+
+    out = tmp_path / "fb"
+    meta = build_feedback(tiny_dataset, random_preds, out, objects_per_shard=1)
+    wrong = _wrong_answers(tiny_dataset, random_preds)
+    rows = list(iter_rows(out, "train"))
+    assert wrong and sorted(r["step_id"] for r in rows) == sorted(wrong)
+    assert all(r["split"] == "train" and r["pose_images"][-1] == "feedback" for r in rows)
+    typed = info(out)
+    assert typed.source == "feedback" and typed.tasks == ("pose",) and typed.extra_images == ("feedback",)
+    assert typed.config["source"] == "feedback" and typed.config_hash and typed.num_shards == 2
+    assert meta["reasons"]["built"] == len(rows) == meta["total"]["steps"]
+    assert sum(meta["reasons"].get(k, 0) for k in ("built", "right", "unparseable", "missing", "failed")) == 6
+    assert meta["source_dataset"] == str(tiny_dataset.resolve()) and meta["source_split"] == "train"
+    assert (out / "README.md").is_file() and (out / "meta" / "shards" / "00001.json").is_file()
+    before = _data_bytes(out)
+
+    # a killed build: one shard's marker and file gone, a temporary file left; the re-run builds that shard again
+    (out / "meta" / "shards" / "00000.json").unlink()
+    next((out / "data").glob("train-00000-*")).unlink()
+    (out / "data" / ".train-00000-of-00002.parquet.1.tmp").write_bytes(b"partial")
+    assert build_feedback(tiny_dataset, random_preds, out, objects_per_shard=1) == meta
+    assert _data_bytes(out) == before
+
+    other = tmp_path / "other.jsonl"
+    other.write_text(random_preds.read_text().replace('"text": "Brick 1', '"text": "Brick  1', 1))
+    with pytest.raises(ConfigMismatchError, match="feedback.predictions_sha256"):
+        build_feedback(tiny_dataset, other, out, objects_per_shard=1)
+
+
+def test_the_command_and_its_errors(tiny_dataset, random_preds, tmp_path, capsys):
+    from train.feedback import main
+
+    out = tmp_path / "fb"
+    assert main(["--data", str(tiny_dataset), "--pred", str(random_preds), "--out", str(out), "--no-progress"]) == 0
+    line = capsys.readouterr().out
+    assert f"{out}: " in line and "correction rows (built " in line
+    assert main(["--data", str(tiny_dataset), "--pred", str(tmp_path / "none.jsonl"), "--out", str(tmp_path / "x"),
+                 "--no-progress"]) == 2
+    assert "no such predictions file" in capsys.readouterr().err
+    assert main(["--data", str(tmp_path), "--pred", str(random_preds), "--out", str(tmp_path / "y"),
+                 "--no-progress"]) == 2
+    assert "not a dataset folder" in capsys.readouterr().err
+
+
+def test_a_feedback_folder_written_before_the_builder_is_read(tiny_dataset, random_preds, tmp_path):
+    """train.feedback used to write one file and an info.json of its own shape (no config hash, the
+    source dataset's config, `kind`): such folders are still read as feedback datasets."""
+    from eval.data import info, iter_rows
+    from pipelines.feedback import build_feedback
+
+    out = tmp_path / "fb"
+    meta = build_feedback(tiny_dataset, random_preds, out, objects_per_shard=8)
+    old = {k: meta[k] for k in ("dataset_id", "schema_extra_columns", "tasks", "source_dataset", "source_dataset_id",
+                                "source_config_hash", "source_split", "predictions", "predictions_sha256", "reasons")}
+    old.update(kind="feedback", config=info(tiny_dataset).config, splits_present=["train"],
+               counts={"train": {k: meta["total"][k] for k in ("objects", "steps")}},
+               total={k: meta["total"][k] for k in ("objects", "steps")})
+    for name in ("meta", "README.md", "gallery"):
+        shutil.rmtree(out / name) if (out / name).is_dir() else (out / name).unlink()
+    (out / "meta").mkdir()
+    (out / "meta" / "info.json").write_text(json.dumps(old))
+    next((out / "data").glob("test-*")).unlink()
+    (next((out / "data").glob("train-*"))).rename(out / "data" / "train-00000-of-00001.parquet")
+    typed = info(out)
+    assert "feedback" in INFO_SOURCES and typed.source == "feedback" and typed.schema_version == 1
+    assert typed.available_tasks == ("pose",) and typed.extra_images == ("feedback",)
+    assert len(list(iter_rows(out, "train"))) == meta["total"]["steps"]
