@@ -23,11 +23,14 @@ dataset builder resumes). The defaults take about 10 minutes on a 2-core CPU.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
+import multiprocessing
 import os
 import platform
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from importlib import metadata
 from pathlib import Path
 
@@ -85,6 +88,25 @@ PHYSICS_PARTS = ("rows", "loads", "sweeps", "whole", "growth")
 """The physics section's parts, each kept in report.json as soon as it is measured (`--resume`)."""
 
 
+def _log_row(kind: str, row: dict) -> None:
+    print(f"  {kind} {json.dumps(row)}", flush=True)
+
+
+def _call(fn):
+    return fn()
+
+
+def _joined(calls) -> list:
+    """The rows of each call, in order."""
+    return [row for call in calls for row in call()]
+
+
+def _isolated(fn):
+    """fn() in a new process (spawned: JAX's threads may hold locks across a fork)."""
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return pool.submit(_call, fn).result()
+
+
 def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None, done: dict | None = None,
                     save=None) -> dict:
     """The physics section; parts already in `done` (a resumed run's) are kept, and `save(part)`
@@ -94,20 +116,24 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None, d
     if backends is None:
         backends = ["mujoco"] + (["mjx"] if _version("jax") else [])
     section = {"backends": backends, **{k: v for k, v in (done or {}).items() if k in PHYSICS_PARTS}}
-    log = lambda kind: (lambda r: print(f"  {kind} {json.dumps(r)}", flush=True))
+    log = lambda kind: functools.partial(_log_row, kind)
 
     def part(name, fn):
         if name not in section:
-            section[name] = fn()
+            # On a GPU each part runs in a process of its own: JAX keeps the device memory it has
+            # grown until its process ends, and the next part's processes need it (the shared
+            # load rows ran out of the H200's memory behind the one-process rows).
+            section[name] = _isolated(fn) if gpu else fn()
             if save is not None:
                 save(section)
 
+    P = functools.partial  # parts are picklable calls: on a GPU they run in a process of their own
     sizes = [10] if quick else [10, 30]
     # On a GPU the batched load stage is timed up to a batch that fills it; the CPU reference's rate
     # does not depend on the batch, so it is timed at the smallest (16,384 of its load programs
     # take minutes). Whole checks stop at 4,096 here; the whole-check rows below go further.
-    part("rows", lambda: measure(backends, sizes, [256, 4096] if gpu else [256], log=log("physics"), full_max=4096,
-                                 reference_max=256))
+    part("rows", P(measure, backends, sizes, [256, 4096] if gpu else [256], log=log("physics"), full_max=4096,
+                   reference_max=256))
     # The two expensive checks alone at 30, 60 and 90 bricks: on a GPU the batched path in one
     # process and in GPU_PROCS processes sharing the device (the host's cores select pairs and
     # build programs while another process's launch runs, as the factory's workers do; the CPU
@@ -116,30 +142,31 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None, d
     check_sizes = [30] if quick else [30, 60, 90]
     if gpu:
         one, shared = [1024, 16384], [16384]
-        part("loads", lambda: measure_lp(check_sizes, one, log=log("loads"), cpu_max=0)
-             + measure_lp(check_sizes, shared, log=log("loads"), cpu_max=0, procs=GPU_PROCS))
-        part("sweeps", lambda: measure_sweep(check_sizes, one, cpu_max=0, log=log("sweep"))
-             + measure_sweep(check_sizes, shared, cpu_max=0, log=log("sweep"), procs=GPU_PROCS))
-        part("whole", lambda: measure_whole(check_sizes, one, log=log("whole"), cpu_max=0)
-             + measure_whole(check_sizes, [4096, 16384], log=log("whole"), cpu_max=0, procs=GPU_PROCS))
+        part("loads", P(_joined, [P(measure_lp, check_sizes, one, log=log("loads"), cpu_max=0),
+                                  P(measure_lp, check_sizes, shared, log=log("loads"), cpu_max=0, procs=GPU_PROCS)]))
+        part("sweeps", P(_joined, [P(measure_sweep, check_sizes, one, cpu_max=0, log=log("sweep")),
+                                   P(measure_sweep, check_sizes, shared, cpu_max=0, log=log("sweep"),
+                                     procs=GPU_PROCS)]))
+        part("whole", P(_joined, [P(measure_whole, check_sizes, one, log=log("whole"), cpu_max=0),
+                                  P(measure_whole, check_sizes, [4096, 16384], log=log("whole"), cpu_max=0,
+                                    procs=GPU_PROCS)]))
     else:
         workers = 1 if quick else 2
-        part("loads", lambda: measure_lp(check_sizes, [1024], log=log("loads"), cpu_max=16 if quick else 128,
-                                         cpu_workers=workers, batched=False))
-        part("sweeps", lambda: measure_sweep(check_sizes, [1024], cpu_max=32 if quick else 512, log=log("sweep"),
-                                             cpu_workers=workers, batched=False))
-        part("whole", lambda: measure_whole(check_sizes, [1024], log=log("whole"), cpu_max=32 if quick else 256,
-                                            cpu_workers=workers, batched=False))
+        part("loads", P(measure_lp, check_sizes, [1024], log=log("loads"), cpu_max=16 if quick else 128,
+                        cpu_workers=workers, batched=False))
+        part("sweeps", P(measure_sweep, check_sizes, [1024], cpu_max=32 if quick else 512, log=log("sweep"),
+                         cpu_workers=workers, batched=False))
+        part("whole", P(measure_whole, check_sizes, [1024], log=log("whole"), cpu_max=32 if quick else 256,
+                        cpu_workers=workers, batched=False))
     # Lockstep growth of the same objects: on a GPU the batched path at one batch against the CPU
     # reference one object at a time; without one, the reference at two batches (the objects are
     # the same whatever the batch, only the cost moves).
     if gpu and "mjx" in backends:
-        part("growth", lambda: measure_growth("mjx", [16], steps=20, objects=16, log=log("growth"))
-             + measure_growth("mujoco", [1], steps=20, objects=16, log=log("growth")))
+        part("growth", P(_joined, [P(measure_growth, "mjx", [16], steps=20, objects=16, log=log("growth")),
+                                   P(measure_growth, "mujoco", [1], steps=20, objects=16, log=log("growth"))]))
     else:
         objects, steps = (2, 3) if quick else (8, 10)
-        part("growth", lambda: measure_growth("mujoco", [1, objects], steps=steps, objects=objects,
-                                              log=log("growth")))
+        part("growth", P(measure_growth, "mujoco", [1, objects], steps=steps, objects=objects, log=log("growth")))
     section["note"] = ("candidates of a 2x4 brick on grown 2x4-brick structures; loads/s is the "
                        "whole-structure load program alone (HiGHS for mujoco, the batched JAX solver for mjx), "
                        "checks/s the whole check (connection, contacts, clutch, loads)")
