@@ -31,8 +31,16 @@ import time
 from importlib import metadata
 from pathlib import Path
 
-from factory.cli import run_guarded
+from eval.data import DatasetError
+from eval.predict import predict_file
+from eval.score import score_file
 from factory.atomic import write_atomic, write_figure
+from factory.cli import run_guarded
+from factory.sampler import SamplerConfig, SamplerConfigError
+from pipelines.bench_physics import measure, measure_growth, measure_lp, measure_sweep, measure_whole
+from pipelines.dataset import ConfigMismatchError, DatasetConfig, build
+from pipelines.designs import design_config
+from pipelines.render import view_rates
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "factory" / "data" / "examples" / "tower.mpd"
@@ -51,7 +59,7 @@ def _version(name: str) -> str | None:
 def gpu_name() -> str | None:
     """The first GPU JAX or torch can see, else None (never initialises CUDA when neither is installed)."""
     try:
-        import jax
+        import jax  # optional: the [mjx] extra
 
         gpus = [d for d in jax.devices() if d.platform == "gpu"]
         if gpus:
@@ -59,7 +67,7 @@ def gpu_name() -> str | None:
     except Exception:  # no JAX, or JAX without a GPU backend
         pass
     try:
-        import torch
+        import torch  # optional: the [train] extra
 
         if torch.cuda.is_available():
             return torch.cuda.get_device_name(0)
@@ -82,8 +90,6 @@ GPU_PROCS = 4
 
 
 def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None) -> dict:
-    from pipelines.bench_physics import measure
-
     if backends is None:
         backends = ["mujoco"] + (["mjx"] if _version("jax") else [])
     sizes = [10] if quick else [10, 30]
@@ -95,8 +101,6 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None) -
     # The two expensive checks alone at 30, 60 and 90 bricks: on a GPU the batched path (the CPU
     # reference's rates come from a machine without one: docs/physics.md compares them); without
     # one, the CPU reference in two processes.
-    from pipelines.bench_physics import measure_lp, measure_sweep, measure_whole
-
     check_sizes = [30] if quick else [30, 60, 90]
     log = lambda kind: (lambda r: print(f"  {kind} {json.dumps(r)}", flush=True))
     if gpu:
@@ -120,8 +124,6 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None) -
     # Lockstep growth of the same objects: on a GPU the batched path at one batch against the CPU
     # reference one object at a time; without one, the reference at two batches (the objects are
     # the same whatever the batch, only the cost moves).
-    from pipelines.bench_physics import measure_growth
-
     glog = log("growth")
     if gpu and "mjx" in backends:
         growth = (measure_growth("mjx", [16], steps=20, objects=16, log=glog)
@@ -136,8 +138,6 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None) -
 
 
 def render_section(models: list[tuple[Path, str | None]]) -> dict:
-    from pipelines.render import view_rates
-
     rows = []
     for model, ldraw in models:
         for r in view_rates(model, ldraw, [256]):
@@ -148,9 +148,6 @@ def render_section(models: list[tuple[Path, str | None]]) -> dict:
 
 def synth_section(work: Path, quick: bool) -> dict:
     """A small synthetic build: objects of 6-10 bricks so that it runs in about a minute here."""
-    from factory.sampler import SamplerConfig
-    from pipelines.dataset import DatasetConfig, build
-
     n = 5 if quick else 20
     config = DatasetConfig.synthetic(n, seed=0, sampler=SamplerConfig(min_steps=6, max_steps=10), objects_per_shard=1,
                                      dataset_id="bench-synth")
@@ -169,9 +166,6 @@ def synth_section(work: Path, quick: bool) -> dict:
 
 
 def designs_section(work: Path, models: list[Path], ldraw: str) -> dict:
-    from pipelines.dataset import build
-    from pipelines.designs import design_config
-
     # No physics replay: the baselines need the targets and images only, and the replay would first
     # decompose every real part with coacd (minutes on a new machine; physics.md, pipelines.verify).
     config = design_config(models, ldraw, seed=0, physics=False, objects_per_shard=1, dataset_id="bench-designs")
@@ -183,9 +177,6 @@ def designs_section(work: Path, models: list[Path], ldraw: str) -> dict:
 
 def evaluation_section(datasets: dict[str, tuple[str, str | None]], work: Path) -> dict:
     """Baselines on each dataset (name -> (folder, split)), in every mode, plus random under feedback."""
-    from eval.predict import predict_file
-    from eval.score import score_file
-
     out = {}
     for name, (folder, split) in datasets.items():
         res = {}
@@ -223,7 +214,7 @@ def _table(header: list[str], rows: list[list]) -> list[str]:
 
 
 def plots(report: dict, out: Path) -> list[str]:
-    import matplotlib
+    import matplotlib  # optional: the [bench] extra
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -426,10 +417,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--backends", default="auto",
                     help="physics backends to time: comma-separated mujoco,mjx, or auto (default: every one installed)")
     args = ap.parse_args(argv)
-    from eval.data import DatasetError
-    from factory.sampler import SamplerConfigError
-    from pipelines.dataset import ConfigMismatchError
-
     return run_guarded(lambda: run(args), {DatasetError: 2, ConfigMismatchError: 2, SamplerConfigError: 2,
                                            OSError: 2, ValueError: 2})
 
