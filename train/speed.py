@@ -35,6 +35,9 @@ its own examples (the stream's seed plus its rank), the model in DistributedData
 row (printed by rank 0) has `processes`, every process's examples and tokens over the slowest
 process's timed seconds, and the largest peak memory (`--batch-size` is per process). `step_seconds_median`
 is rank 0's.
+
+torch and transformers (the `train` extra, seconds to import) are imported inside the functions that
+build and run, so `--help` and the checks of the arguments need neither.
 """
 
 from __future__ import annotations

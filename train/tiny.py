@@ -14,7 +14,9 @@ are the tokenizer's, so the model finds its image tokens.
 
 The result is a plain `save_pretrained` folder: `AutoModelForImageTextToText.from_pretrained(dir)`
 and `AutoProcessor.from_pretrained(dir)` (or `eval.processor.load_processor` without torchvision)
-load it. Built twice with the same texts, family and seed, the files are identical.
+load it. Built twice with the same texts, family and seed, the files are identical. transformers,
+tokenizers and torch (the `train` extra) are imported inside the functions that build, so the
+families, sizes and settings here read without them.
 
     python -m train.tiny --family gemma3 --data OUT --out MODEL_DIR   # then: make train MODEL=MODEL_DIR
 """
