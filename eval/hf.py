@@ -26,7 +26,7 @@ class CheckpointError(ValueError):
 
 
 def _torch_dtype(dtype, device: str):
-    import torch
+    import torch  # optional: the [train] extra (module docstring)
 
     if dtype is None:
         return torch.bfloat16 if device.startswith("cuda") else torch.float32
@@ -57,7 +57,7 @@ class HFPredictor:
         `device`: default cuda when available, else cpu. `dtype`: a torch dtype or its name;
         default bfloat16 on cuda, float32 on cpu.
         """
-        import torch
+        import torch  # optional: the [train] extra (module docstring)
         from transformers import AutoModelForImageTextToText
 
         path = Path(path)
@@ -67,7 +67,7 @@ class HFPredictor:
         dtype = _torch_dtype(dtype, device)
         adapter = path / "adapter_config.json"
         if adapter.is_file():
-            from peft import PeftModel
+            from peft import PeftModel  # optional: the [train] extra
 
             base = json.loads(adapter.read_text()).get("base_model_name_or_path")
             if not base:
@@ -89,7 +89,7 @@ class HFPredictor:
         return getattr(self.processor, "tokenizer", self.processor)
 
     def _generate(self, texts: list[str], images: list, max_new_tokens: int) -> list[str]:
-        import torch
+        import torch  # optional: the [train] extra (module docstring)
 
         tok = self._tokenizer
         side = getattr(tok, "padding_side", "right")

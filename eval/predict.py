@@ -176,7 +176,7 @@ def iter_predictions(data, predictor: Predictor, split: str | None = "test", tas
     reader = size = None
     if feedback and "pose" in tasks:
         columns += feedback_columns()
-        from factory.render import Renderer  # GL only when feedback images are rendered
+        from factory.render import Renderer  # lazy: GL at import; only feedback images need it
 
         config = info(data).config
         reader, size = get_reader(config.get("ldraw")), int(config["size"])

@@ -20,14 +20,14 @@ of machine.
 
 from __future__ import annotations
 
+import dataclasses
+import inspect
 import json
 from pathlib import Path
 
 
 def image_only_class(base):
     """A subclass of the processor class `base` without the video processor (see the module docstring)."""
-    import inspect
-
     full = inspect.signature(base.__init__)
     sig = full.replace(parameters=[p for n, p in full.parameters.items() if n != "video_processor"])
 
@@ -49,8 +49,6 @@ def image_only_class(base):
 
 
 def has_video_processor(cls) -> bool:
-    import inspect
-
     return "video_processor" in inspect.signature(cls.__init__).parameters
 
 
@@ -59,7 +57,7 @@ def make_processor(cls, image_processor, tokenizer, chat_template: str, **kwargs
     image-only `cls` (for a class without a video processor: `cls(image_processor, tokenizer)`)."""
     if has_video_processor(cls):
         try:
-            import torchvision  # noqa: F401  (the video processor needs it)
+            import torchvision  # noqa: F401  (optional: the video processor needs it)
         except ImportError:
             cls = image_only_class(cls)
         else:
@@ -71,7 +69,7 @@ def make_processor(cls, image_processor, tokenizer, chat_template: str, **kwargs
 
 def _video_processor_for(cls):
     """The default video processor of the processor class `cls` (only where torchvision imports)."""
-    import transformers
+    import transformers  # optional: the [train] extra
 
     name = {"Qwen2VLProcessor": "Qwen2VLVideoProcessor", "Qwen2_5_VLProcessor": "Qwen2VLVideoProcessor",
             "Qwen3VLProcessor": "Qwen3VLVideoProcessor", "InternVLProcessor": "InternVLVideoProcessor"}[cls.__name__]
@@ -92,7 +90,7 @@ def declared_class(path: Path) -> str | None:
 def load_processor(path, max_pixels: int | None = None):
     """The processor of a checkpoint folder (see the module docstring); `max_pixels` caps each
     image's pixels (and so its image tokens) where the image processor resizes by pixel count."""
-    import transformers
+    import transformers  # optional: the [train] extra
     from transformers import AutoProcessor
 
     path = Path(path)
@@ -119,8 +117,6 @@ def set_max_pixels(processor, max_pixels: int) -> None:
     """Cap the pixels of each image (Qwen-VL image processors: `size["longest_edge"]`, a dict or
     a `SizeDict` dataclass depending on the transformers version). Image processors that resize
     to a fixed size (Gemma 3, InternVL) have no such cap and are left as they are."""
-    import dataclasses
-
     ip = processor.image_processor
     size = getattr(ip, "size", None)
     if size is not None and size.get("longest_edge") is not None:

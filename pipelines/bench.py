@@ -34,8 +34,16 @@ from concurrent.futures import ProcessPoolExecutor
 from importlib import metadata
 from pathlib import Path
 
-from factory.cli import run_guarded
+from eval.data import DatasetError
+from eval.predict import predict_file
+from eval.score import score_file
 from factory.atomic import write_atomic, write_figure
+from factory.cli import run_guarded
+from factory.sampler import SamplerConfig, SamplerConfigError
+from pipelines.bench_physics import measure, measure_growth, measure_lp, measure_sweep, measure_whole
+from pipelines.dataset import ConfigMismatchError, DatasetConfig, build
+from pipelines.designs import design_config
+from pipelines.render import view_rates
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "factory" / "data" / "examples" / "tower.mpd"
@@ -54,7 +62,7 @@ def _version(name: str) -> str | None:
 def gpu_name() -> str | None:
     """The first GPU JAX or torch can see, else None (never initialises CUDA when neither is installed)."""
     try:
-        import jax
+        import jax  # optional: the [mjx] extra
 
         gpus = [d for d in jax.devices() if d.platform == "gpu"]
         if gpus:
@@ -62,7 +70,7 @@ def gpu_name() -> str | None:
     except Exception:  # no JAX, or JAX without a GPU backend
         pass
     try:
-        import torch
+        import torch  # optional: the [train] extra
 
         if torch.cuda.is_available():
             return torch.cuda.get_device_name(0)
@@ -111,8 +119,6 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None, d
                     save=None) -> dict:
     """The physics section; parts already in `done` (a resumed run's) are kept, and `save(part)`
     is called with the section so far after each part."""
-    from pipelines.bench_physics import measure, measure_growth, measure_lp, measure_sweep, measure_whole
-
     if backends is None:
         backends = ["mujoco"] + (["mjx"] if _version("jax") else [])
     section = {"backends": backends, **{k: v for k, v in (done or {}).items() if k in PHYSICS_PARTS}}
@@ -174,8 +180,6 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None, d
 
 
 def render_section(models: list[tuple[Path, str | None]]) -> dict:
-    from pipelines.render import view_rates
-
     rows = []
     for model, ldraw in models:
         for r in view_rates(model, ldraw, [256]):
@@ -186,9 +190,6 @@ def render_section(models: list[tuple[Path, str | None]]) -> dict:
 
 def synth_section(work: Path, quick: bool) -> dict:
     """A small synthetic build: objects of 6-10 bricks so that it runs in about a minute here."""
-    from factory.sampler import SamplerConfig
-    from pipelines.dataset import DatasetConfig, build
-
     n = 5 if quick else 20
     config = DatasetConfig.synthetic(n, seed=0, sampler=SamplerConfig(min_steps=6, max_steps=10), objects_per_shard=1,
                                      dataset_id="bench-synth")
@@ -207,9 +208,6 @@ def synth_section(work: Path, quick: bool) -> dict:
 
 
 def designs_section(work: Path, models: list[Path], ldraw: str) -> dict:
-    from pipelines.dataset import build
-    from pipelines.designs import design_config
-
     # No physics replay: the baselines need the targets and images only, and the replay would first
     # decompose every real part with coacd (minutes on a new machine; physics.md, pipelines.verify).
     config = design_config(models, ldraw, seed=0, physics=False, objects_per_shard=1, dataset_id="bench-designs")
@@ -221,9 +219,6 @@ def designs_section(work: Path, models: list[Path], ldraw: str) -> dict:
 
 def evaluation_section(datasets: dict[str, tuple[str, str | None]], work: Path) -> dict:
     """Baselines on each dataset (name -> (folder, split)), in every mode, plus random under feedback."""
-    from eval.predict import predict_file
-    from eval.score import score_file
-
     out = {}
     for name, (folder, split) in datasets.items():
         res = {}
@@ -261,7 +256,7 @@ def _table(header: list[str], rows: list[list]) -> list[str]:
 
 
 def plots(report: dict, out: Path) -> list[str]:
-    import matplotlib
+    import matplotlib  # optional: the [bench] extra
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -508,10 +503,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--backends", default="auto",
                     help="physics backends to time: comma-separated mujoco,mjx, or auto (default: every one installed)")
     args = ap.parse_args(argv)
-    from eval.data import DatasetError
-    from factory.sampler import SamplerConfigError
-    from pipelines.dataset import ConfigMismatchError
-
     return run_guarded(lambda: run(args), {DatasetError: 2, ConfigMismatchError: 2, SamplerConfigError: 2,
                                            OSError: 2, ValueError: 2})
 

@@ -36,6 +36,7 @@ import numpy as np
 from factory import Pose, get_reader, load_part
 from factory.atomic import write_atomic
 from factory.physics import check as check_mod
+from factory.physics import sweep_jax
 from factory.physics.check import STAGE_SECONDS, CheckConfig, check
 from factory.physics import collide as collide_mod
 from factory.physics.collide import CollisionScene
@@ -143,7 +144,7 @@ def measure(backends, sizes, batches, log=None, full_max: int | None = None,
                     continue
                 compile_s, compiles = 0.0, 0
                 if backend == "mjx":
-                    from factory.physics.lp_jax import COMPILES, solve_loads  # JAX: the mjx extra
+                    from factory.physics.lp_jax import COMPILES, solve_loads  # optional: JAX (the [mjx] extra)
 
                     t = time.perf_counter()
                     judge_many(models, cfg.loads, solve_loads)  # compile (and warm) this batch's bucket
@@ -203,7 +204,7 @@ def load_stage(s: Structure, poses: list[Pose], batched: bool = False, config: C
     base = LoadBase(s.placed, s.connections, 24.0, s.links, config.loads)
     units = [[Placed(brick, 4, p)] for p in poses]
     if batched:
-        from factory.physics.lp_jax import solve_on_base  # JAX: the mjx extra
+        from factory.physics.lp_jax import solve_on_base  # optional: JAX (the [mjx] extra)
 
         return judge_on_base(base, units, conns, config.loads, solve_on_base, explain=False)
     return judge_many([base.model(u, c) for u, c in zip(units, conns)], config.loads, explain=False)
@@ -246,8 +247,6 @@ def _ctx_run(span: tuple[int, int]) -> list:
 def _batched_answers(a: int, b: int) -> list:
     """The batched path's answers for candidates a..b-1 of this process's inputs (`_ctx_init`), as
     the reference's `_ctx_run` gives them."""
-    from factory.physics.sweep_jax import sweep_many  # JAX: the mjx extra
-
     kind, s = _CTX["kind"], _CTX["s"]
     if kind == "whole":
         got = check(s, load_part(get_reader(), "3001"), _CTX["poses"][a:b], backend="mjx", floor_y=24.0, explain=False)
@@ -255,7 +254,8 @@ def _batched_answers(a: int, b: int) -> list:
     if kind == "loads":
         return [(v.stands, v.reason) for v in load_stage(s, _CTX["poses"][a:b], True, conns=_CTX["conns"][a:b])]
     cases = _CTX["cases"][a:b]
-    got = sweep_many(_CTX["scene"], s, [c[0] for c in cases], [c[1] for c in cases], directions=[c[2] for c in cases])
+    got = sweep_jax.sweep_many(_CTX["scene"], s, [c[0] for c in cases], [c[1] for c in cases],
+                               directions=[c[2] for c in cases])
     return [r.buildable for r in got]
 
 
@@ -350,7 +350,7 @@ def measure_lp(sizes, batches, log=None, cpu_max: int = 128, cpu_workers: int = 
     on its first `cpu_max` candidates in `cpu_workers` processes; verdicts compared on those.
     `batched=False`: the reference alone. `procs` > 1: the batched path in that many processes
     sharing the device (`batched_processes`), with the default config."""
-    from factory.physics import lp_jax  # JAX: the mjx extra
+    from factory.physics import lp_jax  # optional: JAX (the [mjx] extra)
 
     rows = []
     for n in sizes:
@@ -441,8 +441,6 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
     connections found (as `check_units` has them), the reference from its own `approach`.
     `batched=False`: the reference alone. `procs` > 1: the batched path in that many processes
     sharing the device (`batched_processes`)."""
-    from factory.physics.sweep_jax import COMPILES, COUNTS, sweep_many  # JAX: the mjx extra
-
     brick = load_part(get_reader(), "3001")
     rows = []
     for n in sizes:
@@ -464,18 +462,18 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
                                              lambda got: {"blocked": sum(a is False for a in got)}))
                 continue
             args = ([c[0] for c in cases], [c[1] for c in cases])
-            compiles = len(COMPILES)
+            compiles = len(sweep_jax.COMPILES)
             t = time.perf_counter()
-            sweep_many(scene, s, *args, directions=[c[2] for c in cases])  # compiles this batch's shapes
+            sweep_jax.sweep_many(scene, s, *args, directions=[c[2] for c in cases])  # compiles this batch's shapes
             first_s = time.perf_counter() - t
-            before = COUNTS.copy()
+            before = sweep_jax.COUNTS.copy()
             t = time.perf_counter()
-            got = sweep_many(scene, s, *args, directions=[c[2] for c in cases])
+            got = sweep_jax.sweep_many(scene, s, *args, directions=[c[2] for c in cases])
             jax_s = time.perf_counter() - t
-            counts = COUNTS - before
+            counts = sweep_jax.COUNTS - before
             row = {"bricks": n, "batch": batch, "distinct_candidates": len(pool),
                    "jax_per_s": round(batch / jax_s, 1),
-                   "first_call_s": round(first_s, 2), "new_compiles": len(COMPILES) - compiles,
+                   "first_call_s": round(first_s, 2), "new_compiles": len(sweep_jax.COMPILES) - compiles,
                    "referred": counts["referred"], "blocked": sum(r.buildable is False for r in got)}
             if cpu_max:
                 ref, cpu_s = cpu_reference("sweep", n, batch, min(cpu_max, batch), cpu_workers)

@@ -15,8 +15,10 @@ import os
 import re
 import sys
 
+from factory import read_steps
 from factory.cli import config_from_args as config_of
 from pipelines.dataset.config import DatasetConfig
+from pipelines.dataset.sources import file_sha256
 from pipelines.synth import _ldraw, add_config_flags, add_run_args, guarded, run
 
 
@@ -36,9 +38,6 @@ def design_config(paths, ldraw: str | None = None, **fields) -> DatasetConfig:
     """The `DatasetConfig` of the LDraw model files `paths`, one object each (a missing file, a
     model that places no parts or a part missing from the library raise here); `ldraw` is a
     library folder or None (the embedded library); `fields` are further `DatasetConfig` fields."""
-    from factory import read_steps
-    from pipelines.dataset.sources import file_sha256
-
     ldraw = os.path.realpath(os.path.expanduser(ldraw)) if ldraw else None
     paths = [os.path.realpath(p) for p in paths]
     for p in paths:

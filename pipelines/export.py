@@ -29,6 +29,7 @@ from factory.atomic import write_atomic
 from factory.cli import run_guarded
 from factory.dataset.info import read_info
 from factory.dataset.tasks import TASKS
+from pipelines.bcbench import write_bcbench
 from pipelines.dataset.config import check_name
 
 FORMATS = ("llamafactory", "bcbench")
@@ -147,8 +148,6 @@ def main(argv: list[str] | None = None) -> int:
             if args.tasks is not None:
                 print("error: --tasks applies to --format llamafactory; bcbench writes both tasks", file=sys.stderr)
                 return 2
-            from pipelines.bcbench import write_bcbench
-
             summary = write_bcbench(args.data, args.dest, splits)
             print(", ".join(f"{s}: {v['steps']} steps of {v['objects']} objects" for s, v in summary["splits"].items())
                   + f" -> {args.dest}")

@@ -25,12 +25,12 @@ import numpy as np
 from factory.atomic import write_atomic
 from factory.cli import run_guarded
 from factory.errors import LDrawError
+from factory.ldraw import PlacedPart, get_reader, read_steps
+from factory.parts import load_part
+from factory.pose import Pose
 
 
 def _predicted(args, part):
-    from factory.ldraw import PlacedPart
-    from factory.pose import Pose
-
     if args.predict:
         try:
             values = [float(v) for v in args.predict.replace(",", " ").split()]
@@ -63,8 +63,7 @@ def view_rates(model, ldraw, sizes, repeats: int = 3) -> list[dict]:
     """Views per second of a whole model at each size: RGB (outlines, multisampling) and
     segmentation over the six orthographic views plus the isometric, best of `repeats`, and the
     seconds of one full step render (every image of a step but the catalog)."""
-    from factory.ldraw import get_reader, read_steps
-    from factory.parts import load_part
+    # lazy: factory.render picks the GL backend at import (fails without one), so only a render loads it
     from factory.render import ALL_VIEWS, Framing, Renderer, bounds_of, render_step_full
     from factory.render.images import EDGE_PX
     from factory.render.scene import Item
@@ -147,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
     try:
-        from factory.ldraw import get_reader, read_steps
+        # lazy: factory.render picks the GL backend at import; without one, a line, not a traceback
         from factory.render.scene import MAX_SCENE_PARTS
         from factory.render import (
             Renderer,

@@ -25,9 +25,11 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from factory.cli import add_config_args, add_progress_flag, config_from_args, renamed_flag, run_guarded
-from factory.physics.check import BACKENDS
+from factory.physics import sweep_jax
+from factory.physics.check import BACKENDS, STAGE_SECONDS
 from factory.sampler import Sampler, SamplerConfig, SamplerConfigError
 from factory.atomic import write_atomic
 from pipelines import workers
@@ -147,8 +149,6 @@ def sampler_config(args) -> SamplerConfig:
 
 
 def _run(args, config: SamplerConfig) -> int:
-    from tqdm import tqdm
-
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     indices = range(args.start, args.start + args.n)
@@ -175,15 +175,13 @@ def _run(args, config: SamplerConfig) -> int:
         if pool is not None:
             pool.terminate()
     wall = time.perf_counter() - t0
-    from factory.physics.check import STAGE_SECONDS
-
     records.sort(key=lambda r: r["index"])
     summary = summarize(records, wall, config, _SAMPLER.reader.library.description, args.workers)
     summary["batch"] = args.batch
     if args.workers == 1:  # (worker processes keep their own counts)
         summary["totals"]["check_stage_seconds"] = {k: round(v, 3) for k, v in sorted(STAGE_SECONDS.items())}
         if config.backend == "mjx":
-            from factory.physics import lp_jax, sweep_jax
+            from factory.physics import lp_jax  # optional: JAX (the [mjx] extra)
 
             summary["totals"]["compiles"] = {"loads": len(lp_jax.COMPILES), "sweeps": len(sweep_jax.COMPILES)}
     write_atomic(out / "summary.json", (json.dumps(summary, indent=1, default=_json_default) + "\n").encode())

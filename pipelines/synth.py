@@ -12,8 +12,12 @@ import argparse
 import os
 import sys
 
+from factory import gpus
 from factory.cli import add_config_args, add_progress_flag, config_from_args as config_of, renamed_flag, run_guarded
-from factory.sampler import SamplerConfig
+from factory.sampler import SamplerConfig, SamplerConfigError
+from pipelines.dataset import (ConfigMismatchError, FolderBusyError, ShardFailedError, ShardInputError, build,
+                               summary_line)
+from pipelines.dataset.build import growers_of
 from pipelines.dataset.config import DatasetConfig
 
 
@@ -60,9 +64,6 @@ def add_run_args(ap: argparse.ArgumentParser) -> None:
 
 
 def run(config, args) -> int:
-    from pipelines.dataset import build, summary_line
-    from pipelines.dataset.build import growers_of
-
     synthetic = config.source == "synthetic"
     if args.batch is None:
         args.batch = DEFAULT_GPU_BATCH if synthetic and config.sampler.backend == "mjx" else 1
@@ -73,8 +74,6 @@ def run(config, args) -> int:
         print(f"growth: {args.batch} objects at a time in each of {growers_of(args.workers, args.growers)} "
               f"growers; {args.workers} workers", file=sys.stderr, flush=True)
     if synthetic:
-        from factory import gpus
-
         print(f"physics: {config.sampler.backend} (--check-backend mujoco|mjx); renders: {gpus.render_path()}",
               file=sys.stderr, flush=True)
     summary = build(config, args.out, backend=args.runner, workers=args.workers,
@@ -84,9 +83,6 @@ def run(config, args) -> int:
 
 
 def guarded(body) -> int:
-    from factory.sampler import SamplerConfigError
-    from pipelines.dataset import ConfigMismatchError, FolderBusyError, ShardFailedError, ShardInputError
-
     return run_guarded(body, {ConfigMismatchError: 2, FolderBusyError: 2, SamplerConfigError: 2, ValueError: 2,
                               ShardInputError: 2, ShardFailedError: 1, OSError: 2})
 

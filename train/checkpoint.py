@@ -10,11 +10,15 @@ leaves at worst a temporary folder, removed by the next run.
 from __future__ import annotations
 
 import os
+import random
 import re
 import shutil
 from pathlib import Path
 
 import torch
+
+from eval.processor import save_processor
+from factory.atomic import write_atomic
 
 STATE_FILE = "trainer_state.pt"
 LAST_FILE = "last"
@@ -31,8 +35,6 @@ def tmp_dir(run: Path, name: str) -> Path:
 
 def write_atomic_text(path: Path, text: str) -> None:
     """`factory.atomic.write_atomic` for text (UTF-8)."""
-    from factory.atomic import write_atomic
-
     write_atomic(path, text.encode())
 
 
@@ -84,8 +86,6 @@ def latest(run) -> Path | None:
 
 def save(run, step: int, model, processor, config, state: dict, keep: int = 0) -> Path:
     """Write checkpoint `step` (see the module docstring); keep the newest `keep` (0: all)."""
-    from eval.processor import save_processor
-
     run = Path(run)
     name = checkpoint_name(step)
     tmp = tmp_dir(run, name)
@@ -109,8 +109,6 @@ def load_state(path) -> dict:
 
 
 def rng_state() -> dict:
-    import random
-
     state = {"torch": torch.random.get_rng_state(), "python": list(random.getstate()[1])}
     if torch.cuda.is_available():
         state["cuda"] = torch.cuda.get_rng_state_all()
@@ -118,8 +116,6 @@ def rng_state() -> dict:
 
 
 def set_rng_state(state: dict) -> None:
-    import random
-
     torch.random.set_rng_state(state["torch"])
     if "python" in state:
         random.setstate((3, tuple(state["python"]), None))

@@ -8,18 +8,26 @@ the same split and limit is not redone when the command is re-run.
 
 from __future__ import annotations
 
+import gc
 import json
 from pathlib import Path
 
+import torch
+
+from eval.data import DatasetError, shard_files
+from eval.hf import HFPredictor
+from eval.predict import ModelPredictor, write_predictions
+from eval.processor import load_processor
+from eval.score import score_file
+from train.checkpoint import write_atomic_text
 from train.config import TrainConfig
+from train.model import load_base
 
 METRICS_FILE = "metrics.json"
 
 
 def eval_folder(config: TrainConfig) -> str:
     """The first dataset folder that has the eval split (feedback folders have only train)."""
-    from eval.data import DatasetError, shard_files
-
     for folder in config.data:
         try:
             shard_files(folder, config.eval_split)
@@ -32,13 +40,6 @@ def eval_folder(config: TrainConfig) -> str:
 def _predictor(path, config: TrainConfig, device):
     """An `eval.predict.ModelPredictor` of the model folder `path` (processor via
     `eval.processor.load_processor`, which also works without torchvision)."""
-    from eval.hf import HFPredictor
-    from eval.predict import ModelPredictor
-    from train.model import load_base
-    from eval.processor import load_processor
-
-    import torch
-
     dtype = torch.bfloat16 if device.type == "cuda" and config.dtype != "fp32" else torch.float32
     model = load_base(path, dtype).to(device).eval()
     processor = load_processor(path, config.max_pixels)
@@ -47,14 +48,6 @@ def _predictor(path, config: TrainConfig, device):
 
 def evaluate(config: TrainConfig, base: Path, final: Path, device, progress: bool = True) -> dict:
     """Predict and score the eval split with `base` and `final` (see the module docstring)."""
-    import gc
-
-    import torch
-
-    from eval.predict import write_predictions
-    from eval.score import score_file
-    from train.checkpoint import write_atomic_text
-
     run = Path(config.outdir)
     out = run / METRICS_FILE
     data = eval_folder(config)

@@ -28,10 +28,16 @@ from contextlib import nullcontext
 from pathlib import Path
 
 import torch
+from tqdm import tqdm
 
+from eval.data import shard_files
+from eval.processor import load_processor, save_processor
 from train import checkpoint as ckpt
 from train.config import CONFIG_FILE, ConfigError, TrainConfig, resume_conflicts
 from train.data import IGNORE, ExampleStream, collate
+from train.model import ModelError, add_lora, load_adapter_weights, load_base, merged, trainable
+from train.report import write_summary
+from train.tiny import build_tiny_model, dataset_texts
 
 LOG_FILE = "log.jsonl"
 FINAL = "final"
@@ -65,8 +71,6 @@ def weight_dtype(config: TrainConfig, device: torch.device) -> torch.dtype:
 
 def check_data(config: TrainConfig) -> None:
     """Every --data folder is a dataset with a train split (before anything is built)."""
-    from eval.data import shard_files
-
     for folder in config.data:
         shard_files(folder, "train")
 
@@ -89,16 +93,12 @@ def check_run_folder(config: TrainConfig) -> None:
 def base_model_path(config: TrainConfig, progress: bool = False) -> Path:
     """The base model folder: `config.model`, or `RUN/base` (built on first use)."""
     if config.model:
-        from train.model import ModelError
-
         if not (Path(config.model) / "config.json").is_file():
             raise ModelError(f"{config.model}: not a model folder (no config.json); give a local folder saved "
                              "with save_pretrained, or leave out --model for a tiny model built from a config")
         return Path(config.model)
     base = Path(config.outdir) / BASE
     if not (base / "config.json").is_file():
-        from train.tiny import build_tiny_model, dataset_texts
-
         if progress:
             print(f"building the {config.base_size} {config.base_family} base model into {base}", flush=True)
         build_tiny_model(base, dataset_texts(config.data), seed=config.seed, max_pixels=config.max_pixels,
@@ -145,8 +145,6 @@ def trainable_model(model, config: TrainConfig):
     """`model` ready to train under `config`: LoRA adapters on its language model (`config.lora`,
     initialised from the current torch RNG) or every weight trainable, and gradient checkpointing
     when asked (with LoRA the inputs must require grad, or the checkpointed blocks get none)."""
-    from train.model import add_lora
-
     if config.lora:
         model = add_lora(model, config)
     else:
@@ -251,9 +249,6 @@ def _gpu_mem_gb(device: torch.device) -> float | None:
 
 def build(config: TrainConfig, device: torch.device, resume_from: Path | None, progress: bool = False):
     """(model, processor, base path) for a fresh run or a checkpoint to resume."""
-    from train.model import load_adapter_weights, load_base
-    from eval.processor import load_processor
-
     base = base_model_path(config, progress)
     processor = load_processor(base, config.max_pixels)
     torch.manual_seed(config.seed)
@@ -271,11 +266,6 @@ def build(config: TrainConfig, device: torch.device, resume_from: Path | None, p
 
 def train(config: TrainConfig, progress: bool = True) -> dict:
     """Train (or resume) the run of `config`; returns the training summary (see the module docstring)."""
-    from tqdm import tqdm
-
-    from train.model import trainable
-    from train.report import write_summary
-
     run = Path(config.outdir)
     check_data(config)
     run.mkdir(parents=True, exist_ok=True)
@@ -360,9 +350,6 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
 
 def save_final(config: TrainConfig, model, processor, base: Path) -> Path:
     """`RUN/final/`: the trained model as plain transformers weights (LoRA merged), processor, config."""
-    from train.model import merged
-    from eval.processor import save_processor
-
     run = Path(config.outdir)
     final = run / FINAL
     if (final / "config.json").is_file() and (final / CONFIG_FILE).is_file():

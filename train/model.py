@@ -19,7 +19,7 @@ class ModelError(ValueError):
 
 def load_base(path, dtype: torch.dtype = torch.float32):
     """`AutoModelForImageTextToText.from_pretrained(path)` with a clear error for a bad folder."""
-    from transformers import AutoModelForImageTextToText
+    from transformers import AutoModelForImageTextToText  # optional: the [train] extra, seconds to import
 
     path = Path(path)
     if not (path / "config.json").is_file():
@@ -54,7 +54,7 @@ def lora_modules(model, targets) -> list[str]:
 
 def add_lora(model, config):
     """Wrap `model` with fresh LoRA adapters (initialised from the current torch RNG)."""
-    from peft import LoraConfig, get_peft_model
+    from peft import LoraConfig, get_peft_model  # optional: LoRA alone needs peft
 
     lc = LoraConfig(r=config.lora_r, lora_alpha=config.lora_alpha, lora_dropout=config.lora_dropout,
                     target_modules=lora_modules(model, config.lora_targets), bias="none")
@@ -63,7 +63,7 @@ def add_lora(model, config):
 
 def load_adapter_weights(model, folder) -> None:
     """Load a saved adapter (`adapter_model.safetensors`) into a model wrapped by `add_lora`."""
-    from peft import set_peft_model_state_dict
+    from peft import set_peft_model_state_dict  # optional: LoRA alone needs peft
     from safetensors.torch import load_file
 
     result = set_peft_model_state_dict(model, load_file(str(Path(folder) / "adapter_model.safetensors")))

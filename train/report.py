@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from factory.atomic import write_figure
+from factory.atomic import write_atomic, write_figure
 
 SUMMARY_FILE = "train_summary.json"
 PLOT_FILE = "loss.png"
@@ -23,7 +23,7 @@ def plot_loss(run, records: list[dict]) -> Path | None:
     """The loss per step (and its running mean over 10% of the steps) as `RUN/loss.png`."""
     if not records:
         return None
-    import matplotlib
+    import matplotlib  # optional: the [train] extra
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -51,8 +51,6 @@ def plot_loss(run, records: list[dict]) -> Path | None:
 def write_summary(run, config, state: dict, device, trainable: int, parameters: int, peak_gpu_gb, final,
                   epochs: float) -> dict:
     """Write `RUN/train_summary.json` and `RUN/loss.png`; returns the summary."""
-    from train.checkpoint import write_atomic_text
-
     records = read_log(run)
     secs = float(state["train_seconds"])
     summary = {
@@ -73,6 +71,6 @@ def write_summary(run, config, state: dict, device, trainable: int, parameters: 
         "parameters": int(parameters),
         "final_model": str(final),
     }
-    write_atomic_text(Path(run) / SUMMARY_FILE, json.dumps(summary, indent=1) + "\n")
+    write_atomic(Path(run) / SUMMARY_FILE, (json.dumps(summary, indent=1) + "\n").encode())
     plot_loss(run, records)
     return summary

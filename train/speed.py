@@ -35,12 +35,16 @@ its own examples (the stream's seed plus its rank), the model in DistributedData
 row (printed by rank 0) has `processes`, every process's examples and tokens over the slowest
 process's timed seconds, and the largest peak memory (`--batch-size` is per process). `step_seconds_median`
 is rank 0's.
+
+torch and transformers (the `train` extra, seconds to import) are imported inside the functions that
+build and run, so `--help` and the checks of the arguments need neither.
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
+import importlib.util
 import json
 import os
 import statistics
@@ -50,9 +54,11 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from eval.processor import save_processor
 from factory.atomic import write_atomic
 from train.config import DEVICES, ConfigError, TrainConfig
-from train.tiny import FAMILIES, MAX_PIXELS, SIZES
+from train.tiny import (FAMILIES, MAX_PIXELS, SIZES, dataset_texts, family, make_processor, tiny_config,
+                        train_tokenizer)
 
 EXAMPLES_PROJECTED = 40_000
 
@@ -207,8 +213,6 @@ def build(name: str, texts: list[str], max_pixels: int | None, size: str = "tiny
     or a `train.tiny` family at `size` with the tiny one."""
     import transformers
 
-    from train.tiny import family, make_processor, tiny_config, train_tokenizer
-
     fam = family(REAL[name].family if name in REAL else name)
     tok = train_tokenizer(texts, 1024, fam)
     if name not in REAL:
@@ -253,12 +257,11 @@ def measure(args, progress=print) -> dict:
     import torch
     import transformers
 
+    # torch at import (the [train] extra): loaded when a run starts, so `--help` and refusals need none
     from train.data import ExampleStream
     from train.loop import Batches, autocast_dtype, check_data, make_optimizer, make_scheduler, resolve_device
     from train.loop import train_step, trainable_model
     from train.model import trainable
-    from eval.processor import save_processor
-    from train.tiny import dataset_texts
 
     config = TrainConfig(data=(str(Path(args.data).resolve()),), outdir=str(Path(tempfile.gettempdir()) / "speed"),
                          steps=args.warmup_steps + args.steps, batch_size=args.batch_size, lora=args.mode == "lora",
@@ -423,8 +426,6 @@ def parser() -> argparse.ArgumentParser:
 
 def check(args) -> None:
     """Every choice valid before anything is built."""
-    import importlib.util
-
     for name, valid in (("family", CHOICES), ("mode", MODES), ("weight_dtype", WEIGHT_DTYPES), ("size", SIZES),
                         ("device", DEVICES)):
         if getattr(args, name) not in valid:

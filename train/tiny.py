@@ -14,7 +14,9 @@ are the tokenizer's, so the model finds its image tokens.
 
 The result is a plain `save_pretrained` folder: `AutoModelForImageTextToText.from_pretrained(dir)`
 and `AutoProcessor.from_pretrained(dir)` (or `eval.processor.load_processor` without torchvision)
-load it. Built twice with the same texts, family and seed, the files are identical.
+load it. Built twice with the same texts, family and seed, the files are identical. transformers,
+tokenizers and torch (the `train` extra) are imported inside the functions that build, so the
+families, sizes and settings here read without them.
 
     python -m train.tiny --family gemma3 --data OUT --out MODEL_DIR   # then: make train MODEL=MODEL_DIR
 """
@@ -29,6 +31,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from eval.data import iter_rows, shard_files
+from eval.processor import make_processor as processor_of, save_processor
 from train import templates
 
 QWEN_SPECIAL = (
@@ -283,8 +287,6 @@ def make_processor(tokenizer, max_pixels: int = MAX_PIXELS, fam: str | Family = 
     import transformers
     from transformers import PreTrainedTokenizerFast
 
-    from eval.processor import make_processor as processor_of
-
     fam = family(fam) if isinstance(fam, str) else fam
     named = set(fam.tokens.values()) | set(fam.named.values())
     fast = PreTrainedTokenizerFast(
@@ -322,8 +324,6 @@ def build_tiny_model(out_dir, texts: Iterable[str], vocab_size: int = 1024, seed
     import torch
     from transformers import AutoModelForImageTextToText, GenerationConfig
 
-    from eval.processor import save_processor
-
     fam = family(family_name)
     if size not in SIZES:
         raise ValueError(f"unknown model size {size!r}; valid: {', '.join(SIZES)}")
@@ -355,8 +355,6 @@ def build_tiny_model(out_dir, texts: Iterable[str], vocab_size: int = 1024, seed
 def dataset_texts(folders, split: str = "train") -> list[str]:
     """The distinct message texts (system, prompts, answers, feedback turns) of `split` of each
     dataset folder: what the tiny tokenizer is trained on. Reads no image column."""
-    from eval.data import iter_rows, shard_files
-
     cols = ["selection_messages", "pose_messages"]
     seen: set[str] = set()
     for folder in folders:

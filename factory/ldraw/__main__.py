@@ -7,6 +7,9 @@ import json
 import sys
 
 from factory.cli import run_guarded
+from factory.errors import LDrawError
+from factory.ldraw import NO_PARTS, get_reader, read_steps
+from factory.parts import load_part
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -20,10 +23,6 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--ldraw", help="LDraw library folder (default: $LDRAWDIR, else the embedded library)")
         p.add_argument("--json", action="store_true", help="print JSON (the only format)")
     args = parser.parse_args(argv)
-
-    from factory.errors import LDrawError
-    from factory.ldraw import NO_PARTS, get_reader, read_steps
-    from factory.parts import load_part
 
     def body() -> None:
         if args.command == "steps":

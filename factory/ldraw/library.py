@@ -13,7 +13,9 @@ from functools import cached_property
 from pathlib import Path
 from typing import Callable, Protocol
 
+from factory.embedded import generate_library
 from factory.errors import LDrawError, LDrawReadError, LDrawUnsafePathError
+from factory.ldraw import parse
 from factory.ldraw.parse import normalize_name
 
 LIBRARY_SEARCH = ("parts/", "p/", "parts/s/", "p/48/", "p/8/")
@@ -121,16 +123,14 @@ class DirSource:
 
 
 def _read_file(path: str) -> bytes:
-    from factory.ldraw.parse import MAX_FILE_BYTES
-
     try:
         size = os.path.getsize(path)
-        if size > MAX_FILE_BYTES:
+        if size > parse.MAX_FILE_BYTES:
             raise LDrawReadError(
-                f"file is {size:,} bytes; LDraw files over {MAX_FILE_BYTES:,} bytes are refused", path
+                f"file is {size:,} bytes; LDraw files over {parse.MAX_FILE_BYTES:,} bytes are refused", path
             )
         with open(path, "rb") as fh:
-            return fh.read(MAX_FILE_BYTES + 1)
+            return fh.read(parse.MAX_FILE_BYTES + 1)
     except OSError as exc:
         raise LDrawReadError(f"cannot read file: {exc.strerror or exc}", path) from None
 
@@ -179,8 +179,6 @@ class Library:
 
     @classmethod
     def embedded(cls) -> "Library":
-        from factory.embedded import generate_library
-
         return cls(MemorySource(generate_library(), label="embedded"), "embedded default library")
 
     @classmethod

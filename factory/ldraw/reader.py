@@ -19,7 +19,7 @@ from factory.errors import (
     LDrawMissingFileError,
     LDrawReadError,
 )
-from factory.ldraw.library import LIBRARY_SEARCH, DirSource, Library, Located, check_reference
+from factory.ldraw.library import LIBRARY_SEARCH, DirSource, Library, Located, _read_file, check_reference
 from factory.ldraw.other_connectors import axis_segment, is_other_connector, place_connectors
 from factory.ldraw.parse import LDrawFile, Poly, Ref, decode, parse_lines, split_mpd
 
@@ -135,8 +135,6 @@ class Reader:
         if not path.is_file():
             raise LDrawReadError("not a regular file", str(path))
         folder = DirSource(path.parent, label=str(path.parent), origin="model")
-        from factory.ldraw.library import _read_file
-
         text = decode(_read_file(str(path)), str(path))
         blocks = split_mpd(text)
         parsed: dict[str, LDrawFile] = {}

@@ -28,11 +28,13 @@ import numpy as np
 
 from factory.parts import Part
 from factory.physics.collide import CollisionScene, Penetration
+from factory.physics.collide_jax import penetrations  # numpy at import; JAX at the first launch
 from factory.physics.keep_last import KeepLast
 from factory.physics.mass import part_mass_properties
 from factory.physics.statics import (Failure, Link, LoadBase, LoadConfig, holds_alone_many, judge_many, judge_on_bases,
                                      support_points)
 from factory.physics.sweep import seating_from_connections, sweep
+from factory.physics.sweep_jax import sweep_groups
 from factory.physics.structure import Placed, Structure, connections_at, lowest_point
 from factory.physics.unmodelled import may_hold
 from factory.pose import Pose
@@ -171,9 +173,6 @@ def _run_calls(calls: "Sequence[_Call]", backend: str) -> list[list[Verdict]]:
     (`collide_jax.penetrations`, `sweep_jax.sweep_groups`, `_judge_loads`)."""
     t0 = time.perf_counter()
     if backend == "mjx":
-        from factory.physics.collide_jax import penetrations
-        from factory.physics.sweep_jax import sweep_groups
-
         todo = [c for c in calls if c.to_collide]
         found_all = penetrations([c.collide_group() for c in todo])
         STAGE_SECONDS["collide"] += time.perf_counter() - t0

@@ -17,7 +17,9 @@ from importlib import resources
 
 import mujoco
 import numpy as np
+from scipy.spatial import ConvexHull
 
+from factory.connections import STUD_HEIGHT, STUD_RADIUS
 from factory.parts import Part
 from factory.physics.geometry import INSET_LDU, CollisionShape, collision_shape
 from factory.physics.structure import Structure
@@ -31,8 +33,6 @@ def _template(name: str) -> str:
 
 def _pieces(items) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Body pieces placed by poses: face planes (k, 4) with piece index, owner and centre per piece."""
-    from scipy.spatial import ConvexHull
-
     planes, piece_of, owners, centres = [], [], [], []
     for pose, shape, owner in items:
         for verts in shape.body:
@@ -195,8 +195,6 @@ def studs_cross(pos: np.ndarray, axis: np.ndarray, surface: Surface) -> np.ndarr
 
 def _studs_cross(pos: np.ndarray, axis: np.ndarray, surface: Surface) -> np.ndarray:
     """`studs_cross` computed."""
-    from factory.connections import STUD_HEIGHT, STUD_RADIUS
-
     r, h0, h1 = STUD_RADIUS - STUD_PROBE_INSET_LDU, STUD_PROBE_INSET_LDU, STUD_HEIGHT - STUD_PROBE_INSET_LDU
     centre = pos + axis * (STUD_HEIGHT / 2)
     reach = STUD_RADIUS + STUD_HEIGHT

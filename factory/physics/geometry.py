@@ -33,6 +33,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
 from factory.connections import STUD_HEIGHT, STUD_RADIUS
@@ -130,8 +131,6 @@ def inset_hull(points: np.ndarray, inset: float, clip: np.ndarray | None = None)
 
 def _interior_point(eq: np.ndarray, min_depth: float = 1e-3) -> np.ndarray | None:
     """The point deepest inside the halfspaces (Chebyshev centre), None if thinner than min_depth."""
-    from scipy.optimize import linprog
-
     norms = np.linalg.norm(eq[:, :3], axis=1)
     a = np.column_stack([eq[:, :3], norms])
     res = linprog(c=[0, 0, 0, -1], A_ub=a, b_ub=-eq[:, 3], bounds=[(None, None)] * 3 + [(0, None)])

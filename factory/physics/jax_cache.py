@@ -10,6 +10,9 @@ from __future__ import annotations
 import os
 from functools import cache
 
+from factory import gpus
+from factory.cache import cache_root
+
 MIN_COMPILE_SECONDS = 0.1
 """Kernels that compile faster than this are not written (loading costs about as much)."""
 
@@ -18,10 +21,7 @@ MIN_COMPILE_SECONDS = 0.1
 def enable() -> str:
     """Point JAX at the cache (once per process, before the first compile); returns the folder.
     A numbered worker also takes its share of the GPUs here (`factory.gpus`)."""
-    import jax
-
-    from factory import gpus
-    from factory.cache import cache_root
+    import jax  # optional: the [mjx] extra; the 'mujoco' backend needs none
 
     gpus.choose_jax_device(jax)
     path = os.environ.get("JAX_COMPILATION_CACHE_DIR") or str(cache_root() / "jax")

@@ -5,6 +5,7 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
+import trimesh
 
 from factory.parts import Part
 from factory.physics.geometry import collision_shape
@@ -20,8 +21,6 @@ def part_mass_properties(part: Part) -> tuple[float, np.ndarray, np.ndarray]:
 
     From the convex collision pieces (closed, unlike LDraw meshes), scaled to the part's mass.
     """
-    import trimesh
-
     shape = collision_shape(part)
     mass = part.mass_g / 1000.0
     vols, coms, inertias = [], [], []

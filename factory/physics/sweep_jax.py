@@ -54,6 +54,7 @@ from __future__ import annotations
 import math
 import os
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 from functools import cache, partial
 from dataclasses import dataclass
 from typing import Sequence
@@ -120,7 +121,7 @@ def _pow2(n: int, minimum: int) -> int:
 @cache
 def _on_gpu() -> bool:
     """Whether JAX's default device is a GPU (asked at the first launch, not at import)."""
-    import jax
+    import jax  # optional: the [mjx] extra; the 'mujoco' backend needs none
 
     enable_compile_cache()
     return jax.default_backend() == "gpu"
@@ -323,7 +324,7 @@ def _kernel():
     candidate's pose, `collide_jax`). JAX is imported here: the 'mujoco' backend needs none."""
     global _KERNEL
     if _KERNEL is None:
-        import jax
+        import jax  # optional: the [mjx] extra
         import jax.numpy as jnp
 
         enable_compile_cache()
@@ -399,7 +400,7 @@ def _launch(crosses: bool, ut, st, R, t, d, u, s, k, thr, thr_c, kind: str = "sw
     """(n, 6) intervals of the pairs (lo, hi of the overlap, then of the two centre tests), or for
     kind 'still' (n, 3) depths (of the pieces, of each centre in the other); edge-edge axes only
     with `crosses`."""
-    import jax
+    import jax  # optional: the [mjx] extra
 
     n = len(u)
     nv = ut[0].shape[1] + st[0].shape[1]
@@ -577,8 +578,6 @@ def _in_chunks(fn, count: int) -> tuple:
     if len(spans) <= 1 or PAIR_THREADS <= 1:
         parts = [fn(a, b) for a, b in spans]
     else:
-        from concurrent.futures import ThreadPoolExecutor
-
         with ThreadPoolExecutor(min(PAIR_THREADS, len(spans))) as pool:
             parts = list(pool.map(lambda span: fn(*span), spans))
     return tuple(np.concatenate(x) for x in zip(*parts))

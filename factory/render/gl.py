@@ -77,9 +77,9 @@ class Context:
         chosen = gpus.choose_egl_device() if backend == "egl" else None  # this worker's share of the GPUs
         try:
             if backend == "egl":
-                from mujoco.egl import GLContext
+                from mujoco.egl import GLContext  # lazy: the chosen backend's only (it loads libEGL)
             else:
-                from mujoco.osmesa import GLContext
+                from mujoco.osmesa import GLContext  # lazy: the chosen backend's only (it loads libOSMesa)
             try:
                 self._gl = GLContext(64, 64)
             except Exception:

@@ -23,6 +23,7 @@ ground) and is checked like any other (it must stand on its own).
 
 from __future__ import annotations
 
+import difflib
 import itertools
 import os
 from collections import Counter
@@ -30,6 +31,7 @@ from typing import Generator, Iterable, Iterator
 
 import numpy as np
 
+from factory.errors import LDrawError
 from factory.ldraw import ColourTable, Reader, get_reader
 from factory.ldraw.colours import EDGE, MAIN
 from factory.parts import Part, load_part
@@ -40,6 +42,7 @@ from factory.sampler.assembly import Assembly, AssemblyStep
 from factory.physics.attach import attachment_arrays, lowest_y
 from factory.sampler.config import SamplerConfig, SamplerConfigError
 from factory.sampler.density import CandidateDensities, DensityTracker
+from factory.sampler.lockstep import grow_together
 
 LIST_LIMIT = 80
 """Valid choices listed in full in an error up to this many; beyond, close matches and a count."""
@@ -86,8 +89,6 @@ class Sampler:
         """Objects `indices`, `batch` of them grown together in lockstep (their checks of a step
         asked in one `check_many` call), each yielded when it ends (a finished object's slot goes to
         the next index). Every object is the one `sample` gives alone."""
-        from factory.sampler.lockstep import grow_together
-
         return grow_together(self, [_index(i) for i in indices], batch)
 
     def growth(self, index: int) -> Generator[CheckRequest, list, Assembly]:
@@ -278,16 +279,12 @@ def library_colours(reader: Reader) -> list[int]:
 def _choices(valid: list, wanted: str) -> str:
     if len(valid) <= LIST_LIMIT:
         return "valid choices: " + ", ".join(str(v) for v in valid)
-    import difflib
-
     close = difflib.get_close_matches(wanted, [str(v) for v in valid], n=5, cutoff=0.5)
     hint = f"close matches: {', '.join(close)}; " if close else ""
     return f"{hint}{len(valid)} valid choices in the library (e.g. {', '.join(str(v) for v in valid[:10])})"
 
 
 def _load_parts(reader: Reader, config: SamplerConfig) -> list[Part]:
-    from factory.errors import LDrawError
-
     out = []
     for name, _ in config.parts:
         try:

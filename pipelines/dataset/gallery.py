@@ -41,7 +41,7 @@ def _user_text(messages) -> str:
 
 
 def contact_sheet(rows, width: int = 320) -> Image.Image:
-    from factory.render import compose
+    from factory.render import compose  # lazy: factory.render sets up GL at import
 
     tiles = []
     for r in rows:

@@ -13,6 +13,7 @@ from factory.dataset.answers import normalise_part
 from factory.dataset.tasks import POSE_IMAGES, SELECTION_IMAGES
 from factory.ldraw import get_reader
 from factory.parts import LDU_CM, load_part
+from factory.render import Renderer, bounds_of, compose, render_catalog, render_step_full
 from pipelines.dataset.png import png_bytes
 from pipelines.dataset.sources import _py
 
@@ -39,8 +40,6 @@ def geometry_key(reader, name: str, model: str | None = None) -> str:
 def _parts_image(images: dict, n: int):
     """One image of the step's parts: the part render, or for several bricks a grid of them, each
     labelled `Brick k` (the numbering of the pose answer)."""
-    from factory.render import compose
-
     if n == 1:
         return images["part_1"]
     tiles = [compose.labelled(images[f"part_{k}"], f"Brick {k}") for k in range(1, n + 1)]
@@ -88,15 +87,11 @@ def object_rows(obj, config, split: str, timings: dict, part_images=None) -> lis
     which objects the process rendered before (a resumed run writes the same bytes as an
     uninterrupted one); `part_images` (a `factory.render.PartImages`) may be shared across objects.
     """
-    from factory.render import Renderer
-
     with Renderer(get_reader(config.ldraw), max_singles=SINGLE_SCENES, part_images=part_images) as renderer:
         return _rows(obj, config, split, timings, renderer)
 
 
 def _rows(obj, config, split, timings, renderer) -> list[dict]:
-    from factory.render import bounds_of, render_catalog, render_step_full
-
     reader, colours = renderer.reader, renderer.colours
 
     bounds: dict[str, np.ndarray] = {}

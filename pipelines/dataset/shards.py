@@ -34,6 +34,7 @@ from factory.dataset.schema import arrow_schema
 from factory.dataset.tasks import SPLITS
 from pipelines.dataset import spool
 from pipelines.dataset.config import DatasetConfig
+from pipelines.dataset.sources import make_source
 
 WRITER_OPTIONS = dict(
     compression="zstd",
@@ -82,8 +83,6 @@ def read_marker(out, shard: int, config: DatasetConfig) -> dict | None:
 
 def object_source(config: DatasetConfig):
     """One object source per process and config (a Ray or pool worker reuses it across shards)."""
-    from pipelines.dataset.sources import make_source
-
     key = config.hash
     if key not in _SOURCES:
         _SOURCES.clear()
@@ -133,7 +132,7 @@ def _part_images():
     or Ray worker runs `build_shard` again and again): plain images, each drawn in a scene of that
     part alone, so they do not depend on what the process rendered before; every GL resource
     belongs to the per-object renderer (`rows.object_rows`)."""
-    from factory.render import PartImages  # importing factory.render starts the GL backend's setup
+    from factory.render import PartImages  # lazy: factory.render sets up GL at import
 
     return PartImages()
 
@@ -146,7 +145,7 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
     per-object progress bar). `source`: the object source (default `object_source(config)`); an
     object it gives with finished `rows` is written as it is (world feedback), else rendered.
     """
-    from pipelines.dataset.rows import object_rows
+    from pipelines.dataset.rows import object_rows  # lazy: it imports factory.render (GL at import)
 
     if isinstance(config, dict):
         config = DatasetConfig.from_json(config)
