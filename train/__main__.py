@@ -15,12 +15,17 @@ resumes from the last checkpoint; other settings in an existing RUN are refused.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
-from factory.cli import add_config_args, add_progress_flag, config_from_args as config_of
+from eval.data import DatasetError
+from factory.cli import add_config_args, add_progress_flag, config_from_args as config_of, run_guarded
 from factory.config import field_docs
 from train.config import ConfigError, TrainConfig, lora_value
+from train.evaluate import evaluate, headline
+from train.loop import FINAL, resolve_device, train
+from train.model import ModelError
 
 
 def parser() -> argparse.ArgumentParser:
@@ -43,11 +48,6 @@ def config_from_args(args) -> TrainConfig:
 
 
 def run(args) -> int:
-    import json
-
-    from train.evaluate import evaluate, headline
-    from train.loop import FINAL, resolve_device, train
-
     config = config_from_args(args)
     if args.no_progress:
         from transformers.utils import logging as hf_logging
@@ -66,10 +66,6 @@ def run(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from eval.data import DatasetError
-    from factory.cli import run_guarded
-    from train.model import ModelError
-
     args = parser().parse_args(argv)
     return run_guarded(lambda: run(args), {ConfigError: 2, DatasetError: 2, ModelError: 2})
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -214,8 +215,6 @@ class TrainConfig:
     def resolved_workers(self) -> int:
         if self.workers is not None:
             return int(self.workers)
-        import os
-
         cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
         return min(8, cpus - 2) if cpus >= 4 else 0
 

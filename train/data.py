@@ -33,6 +33,8 @@ would teach a wrong one, and cut image tokens break the model's image alignment.
 from __future__ import annotations
 
 import logging
+import multiprocessing as mp
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,6 +45,7 @@ from torch.utils.data import IterableDataset
 
 from eval.chat import columns_for, task_chat
 from eval.data import info, shard_files
+from eval.processor import load_processor
 from factory.dataset.tasks import TASKS
 from train.config import ConfigError
 
@@ -194,8 +197,6 @@ def _worker_init(processor_path: str, max_pixels: int | None, max_length: int | 
     # per core) in every worker, 8 workers on 16 cores encoded 5.6 examples/s on the GPU machine
     # instead of the ~20/s per worker one thread gives.
     torch.set_num_threads(1)
-    from eval.processor import load_processor
-
     _WORKER.update(processor=load_processor(processor_path, max_pixels), max_length=max_length)
 
 
@@ -318,9 +319,6 @@ class ExampleStream(IterableDataset):
                 messages, images, _ = task_chat(row, task, with_answer=True)
                 yield encode(self.processor, messages, images, self.max_length), after, where
             return
-        import multiprocessing as mp
-        from collections import deque
-
         pool = mp.get_context("spawn").Pool(self.workers, initializer=_worker_init,
                                             initargs=(str(self.processor_path), self.max_pixels, self.max_length))
         try:
