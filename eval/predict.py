@@ -49,6 +49,7 @@ from eval.data import (
     TARGET_COLUMNS,
     DatasetError,
     catalog_of,
+    library,
     catalog_rows,
     count_rows,
     info,
@@ -167,8 +168,10 @@ def parse_tasks(value: str) -> tuple[str, ...]:
 
 
 def iter_predictions(data, predictor: Predictor, split: str | None = "test", tasks=TASKS,
-                     limit: int | None = None, feedback: bool = False, progress: bool = False) -> Iterator[dict]:
-    """The answer records of the split's steps (`split` None: every split), in dataset order."""
+                     limit: int | None = None, feedback: bool = False, progress: bool = False,
+                     ldraw=None) -> Iterator[dict]:
+    """The answer records of the split's steps (`split` None: every split), in dataset order;
+    feedback renders draw parts from `ldraw` (default: the dataset's library, `eval.data.library`)."""
     tasks = tuple(tasks)
     columns = list(TARGET_COLUMNS)
     if predictor.needs_chat:
@@ -178,8 +181,7 @@ def iter_predictions(data, predictor: Predictor, split: str | None = "test", tas
         columns += feedback_columns()
         from factory.render import Renderer  # lazy: GL at import; only feedback images need it
 
-        config = info(data).config
-        reader, size = get_reader(config.get("ldraw")), int(config["size"])
+        reader, size = get_reader(library(data, ldraw)), int(info(data).config["size"])
     columns = list(dict.fromkeys(columns))
     n_rows = count_rows(data, split)
     total = min(n_rows, limit) if limit is not None else n_rows
@@ -219,7 +221,8 @@ def iter_predictions(data, predictor: Predictor, split: str | None = "test", tas
 
 
 def write_predictions(data, predictor: Predictor, out, split: str | None = "test", tasks=TASKS,
-                      limit: int | None = None, feedback: bool = False, progress: bool = False) -> dict:
+                      limit: int | None = None, feedback: bool = False, progress: bool = False,
+                      ldraw=None) -> dict:
     """Write `iter_predictions` to `out` atomically; returns {"lines", "steps", "revised", "path"}."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -229,7 +232,7 @@ def write_predictions(data, predictor: Predictor, out, split: str | None = "test
     try:
         os.fchmod(fd, 0o666 & ~umask())  # readable as a plain open would leave it, not mkstemp's 0600
         with os.fdopen(fd, "w", encoding="utf-8") as f:
-            for rec in iter_predictions(data, predictor, split, tasks, limit, feedback, progress):
+            for rec in iter_predictions(data, predictor, split, tasks, limit, feedback, progress, ldraw):
                 f.write(json.dumps(rec, ensure_ascii=False) + "\n")
                 summary["lines"] += 1
                 summary["revised"] += bool(rec.get("revised"))
@@ -258,9 +261,11 @@ def run(args) -> int:
         raise ModelSpecError(f"--out {args.out} is a folder; give a file name (preds.jsonl)")
     tasks = parse_tasks(args.tasks)
     info(args.data)  # a clear error before a model is loaded
+    if args.feedback:
+        library(args.data, args.ldraw)
     predictor = make_predictor(args.model, args.seed, args.max_new_tokens, args.device)
     summary = write_predictions(args.data, predictor, args.out, args.split, tasks, args.limit, args.feedback,
-                                progress=not args.no_progress)
+                                progress=not args.no_progress, ldraw=args.ldraw)
     print(f"wrote {summary['lines']} answers for {summary['steps']} steps"
           + (f" ({summary['revised']} revised after feedback)" if args.feedback else "")
           + f" to {summary['path']}", file=sys.stderr)
@@ -278,6 +283,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="seed of baseline:random (default 0)")
     ap.add_argument("--limit", type=int, help="answer only N steps, spread evenly over the split")
     ap.add_argument("--feedback", action="store_true", help="revise failed pose answers with world feedback")
+    ap.add_argument("--ldraw", help="with --feedback: the LDraw library the feedback renders draw parts from "
+                    "(default: the one the dataset was built with)")
     ap.add_argument("--max-new-tokens", type=int, default=256, help="hf: longest answer in tokens (default 256)")
     ap.add_argument("--device", help="hf: torch device (default: cuda when available, else cpu)")
     add_progress_flag(ap)

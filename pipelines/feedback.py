@@ -35,7 +35,7 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 
-from eval.data import DatasetError, info, shard_files
+from eval.data import DatasetError, info, library, shard_files
 from eval.feedback import assembly_rows, before_rows, feedback_example, revision_messages
 from eval.parse import parse_pose
 from eval.score import PredictionsError, read_predictions
@@ -81,9 +81,10 @@ def split_objects(data, split: str) -> dict[str, list[tuple[str, int]]]:
     return where
 
 
-def feedback_config(data, pred, split: str = "train", objects_per_shard: int = 4) -> DatasetConfig:
+def feedback_config(data, pred, split: str = "train", objects_per_shard: int = 4, ldraw=None) -> DatasetConfig:
     """The `DatasetConfig` of the correction rows of predictions `pred` on `split` of `data`: the
-    source dataset's view size, library and PNG level, its objects in order."""
+    source dataset's view size, library (or `ldraw`: the same library in another folder,
+    `eval.data.library`) and PNG level, its objects in order."""
     data, pred = Path(data), Path(pred)
     if split not in SPLITS:
         raise DatasetError(f"unknown split {split!r}; valid: {', '.join(SPLITS)}")
@@ -100,10 +101,11 @@ def feedback_config(data, pred, split: str = "train", objects_per_shard: int = 4
                         split=split, predictions=str(pred.resolve()), predictions_sha256=file_sha256(pred),
                         objects=objects)
     seed = src.seed if src.seed is not None else int(config.get("seed", 0))
+    ldraw = library(data, ldraw)
     return DatasetConfig("feedback", len(objects), seed=seed, dataset_id=f"{src.dataset_id}-feedback",
                          size=int(config["size"]), tile=int(config.get("tile", 128)),
                          objects_per_shard=objects_per_shard, png_compress_level=int(config.get("png_compress_level", 6)),
-                         ldraw=config.get("ldraw"), feedback=spec)
+                         ldraw=ldraw, feedback=spec)
 
 
 class FeedbackSource:
@@ -167,11 +169,11 @@ class FeedbackSource:
 
 
 def build_feedback(data, pred, out, split: str = "train", progress: bool = False, workers: int = 1,
-                   objects_per_shard: int = 4) -> dict:
+                   objects_per_shard: int = 4, ldraw=None) -> dict:
     """Build (or resume) the correction dataset `out` from predictions `pred` on `split` of
     `data` with the dataset builder; returns its `meta/info.json` as a dict (`reasons` counts the
     pose answers by what became of them)."""
-    config = feedback_config(data, pred, split, objects_per_shard)
+    config = feedback_config(data, pred, split, objects_per_shard, ldraw)
     build(config, out, workers=workers, progress=progress, desc="feedback", source=FeedbackSource(config))
     return read_info(out).to_dict()
 
@@ -190,6 +192,8 @@ def parser(prog: str = "python -m pipelines.feedback") -> argparse.ArgumentParse
     ap.add_argument("--split", default="train", choices=SPLITS, help="split of the predictions (default: train)")
     ap.add_argument("--workers", type=int, default=1, help="parallel shards (default 1: this process)")
     ap.add_argument("--objects-per-shard", type=int, default=4, help="objects of the split per shard (default 4)")
+    ap.add_argument("--ldraw", help="the LDraw library the feedback renders draw parts from (default: the one "
+                    "the dataset was built with)")
     add_progress_flag(ap)
     return ap
 
@@ -199,7 +203,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m pipelines.feedbac
 
     def run() -> int:
         meta = build_feedback(args.data, args.pred, args.out, args.split, progress=not args.no_progress,
-                              workers=args.workers, objects_per_shard=args.objects_per_shard)
+                              workers=args.workers, objects_per_shard=args.objects_per_shard, ldraw=args.ldraw)
         print(summary_text(args.out, meta), flush=True)
         return 0
 

@@ -10,6 +10,7 @@ import shutil
 import pytest
 
 from factory.dataset.info import INFO_SOURCES
+from conftest import LDRAW as SHARED_LDRAW
 
 
 @pytest.fixture(scope="module")
@@ -108,3 +109,28 @@ def test_a_feedback_folder_written_before_the_builder_is_read(tiny_dataset, rand
     assert "feedback" in INFO_SOURCES and typed.source == "feedback" and typed.schema_version == 1
     assert typed.available_tasks == ("pose",) and typed.extra_images == ("feedback",)
     assert len(list(iter_rows(out, "train"))) == meta["total"]["steps"]
+
+
+def test_a_dataset_built_on_another_machine_names_its_library(tiny_dataset, random_preds, tmp_path, capsys):
+    """A dataset records the LDraw folder it was built with; moved to a machine without that folder,
+    the feedback rows (which render its parts again) stop with an error that names the folder and
+    `--ldraw`, before anything is written; with `--ldraw` they are built from the library given."""
+    from train.feedback import main
+
+    moved = tmp_path / "moved"
+    shutil.copytree(tiny_dataset, moved)
+    meta = moved / "meta" / "info.json"
+    doc = json.loads(meta.read_text())
+    doc["config"]["ldraw"] = str(tmp_path / "nowhere" / "ldraw")
+    meta.write_text(json.dumps(doc))
+    out = tmp_path / "fb"
+    assert main(["--data", str(moved), "--pred", str(random_preds), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert f"built with the LDraw library {tmp_path / 'nowhere' / 'ldraw'}, which is not a folder here" in err
+    assert "--ldraw DIR" in err and not out.exists()
+    if not (SHARED_LDRAW / "parts").is_dir():
+        pytest.skip(f"the rest needs the LDraw subset in {SHARED_LDRAW} (the embedded library has no folder)")
+    assert main(["--data", str(moved), "--pred", str(random_preds), "--out", str(out), "--no-progress",
+                 "--ldraw", str(SHARED_LDRAW)]) == 0
+    built = json.loads((out / "meta" / "info.json").read_text())
+    assert built["config"]["ldraw"] == str(SHARED_LDRAW) and built["reasons"].get("built", 0) > 0

@@ -40,7 +40,7 @@ import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from eval.data import DatasetError, shard_files
+from eval.data import DatasetError, library, shard_files
 from eval.predict import write_predictions
 from eval.score import PredictionsError, score_file
 from factory.atomic import write_atomic
@@ -92,6 +92,10 @@ class RecipeConfig:
     feedback_limit: int | None = None
     """Steps of the designs' train split that stage 1's model answers for the feedback rows, spread
     evenly over the split (None: every step)."""
+    ldraw: str | None = None
+    """The LDraw library the feedback rows' renders draw the designs' parts from (None: the folder
+    the designs were built with; give the same library's folder when the designs were built on
+    another machine)."""
 
     def __post_init__(self):
         object.__setattr__(self, "stage_steps", tuple(int(s) for s in self.stage_steps))
@@ -182,6 +186,7 @@ def check_inputs(recipe: RecipeConfig) -> dict[str, str]:
     if not tests:
         raise DatasetError(f"neither {recipe.designs} nor {recipe.synthetic} has a test split: nothing to "
                            "evaluate the stages on")
+    library(recipe.designs, recipe.ldraw)  # the feedback renders need it: say so now, not after stage 1
     return tests
 
 
@@ -263,7 +268,7 @@ def feedback_rows(recipe: RecipeConfig, model: Path, device, progress: bool, log
     log(f"stage 1's model answers the pose task on the train split of {recipe.designs}")
     answers(recipe, model, recipe.designs, "train", preds, ("pose",), recipe.feedback_limit, device, progress)
     log(f"building the world-feedback rows from its wrong answers into {recipe.feedback_data}")
-    meta = build_feedback(recipe.designs, preds, recipe.feedback_data, "train", progress=progress)
+    meta = build_feedback(recipe.designs, preds, recipe.feedback_data, "train", progress=progress, ldraw=recipe.ldraw)
     meta["predictions_file"] = str(preds)
     return meta
 
@@ -403,7 +408,8 @@ def config_from_args(args) -> RecipeConfig:
         del settings["lora"]
     return recipe_config(args.designs, args.synthetic, args.outdir, settings, stage_steps=args.stage_steps,
                          feedback_weights=args.feedback_weights, synthetic_weights=args.synthetic_weights,
-                         feedback_limit=args.feedback_limit)
+                         feedback_limit=args.feedback_limit,
+                         ldraw=str(Path(args.ldraw).resolve()) if args.ldraw else None)
 
 
 def main(argv: list[str] | None = None) -> int:
