@@ -37,7 +37,7 @@ def eval_folder(config: TrainConfig) -> str:
     raise DatasetError(f"no {config.eval_split} split in {', '.join(config.data)}")
 
 
-def _predictor(path, config: TrainConfig, device):
+def trained_predictor(path, config: TrainConfig, device):
     """An `eval.predict.ModelPredictor` of the model folder `path` (processor via
     `eval.processor.load_processor`, which also works without torchvision)."""
     dtype = torch.bfloat16 if device.type == "cuda" and config.dtype != "fp32" else torch.float32
@@ -61,7 +61,7 @@ def evaluate(config: TrainConfig, base: Path, final: Path, device, progress: boo
     for name, path in (("before", base), ("after", final)):
         if progress:
             print(f"evaluating the {name} model ({path}) on {config.eval_split} of {data}", flush=True)
-        predictor = _predictor(path, config, device)
+        predictor = trained_predictor(path, config, device)
         preds = run / f"preds_{name}.jsonl"
         write_predictions(data, predictor, preds, split=config.eval_split, tasks=config.tasks,
                           limit=config.eval_limit, progress=progress)

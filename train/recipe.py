@@ -48,7 +48,7 @@ from factory.cli import add_config_args, add_progress_flag, run_guarded
 from factory.config import config_from_dict, config_to_dict, field_docs
 from pipelines.feedback import build_feedback
 from train.config import ConfigError, TrainConfig, lora_value, resume_conflicts
-from train.evaluate import _predictor
+from train.evaluate import trained_predictor
 from train.loop import FINAL, base_model_path, resolve_device, train as run_training
 from train.model import ModelError
 
@@ -234,7 +234,7 @@ def answers(recipe: RecipeConfig, model: Path, data: str, split: str, out: Path,
     marker = out.with_name(out.name + ".key.json")
     if out.is_file() and _same(marker, key):
         return out
-    predictor = _predictor(model, recipe.train, device)
+    predictor = trained_predictor(model, recipe.train, device)
     write_predictions(data, predictor, out, split=split, tasks=tasks, limit=limit, progress=progress)
     del predictor
     gc.collect()
