@@ -225,11 +225,19 @@ def _write_json(path: Path, obj) -> None:
     write_atomic(path, (json.dumps(obj, indent=1, sort_keys=True) + "\n").encode())
 
 
+def _weights_id(model: Path) -> list:
+    """The model folder's weight files as (name, bytes, mtime in ns): a folder trained again (a
+    new `final/` renamed into place) gives another id, so its answers are made again."""
+    files = sorted(f for f in Path(model).iterdir() if f.suffix in (".safetensors", ".bin")) if Path(model).is_dir() else []
+    return [[f.name, f.stat().st_size, f.stat().st_mtime_ns] for f in files]
+
+
 def answers(recipe: RecipeConfig, model: Path, data: str, split: str, out: Path, tasks, limit, device,
             progress: bool) -> Path:
     """Predictions of `model` on `split` of `data` into `out` (kept when made by the same model
     on the same steps: `out`.key.json)."""
-    key = {"model": str(model), "data": str(data), "split": split, "tasks": list(tasks), "limit": limit,
+    key = {"model": str(model), "weights": _weights_id(model), "data": str(data), "split": split,
+           "tasks": list(tasks), "limit": limit,
            "max_new_tokens": recipe.train.max_new_tokens, "max_pixels": recipe.train.max_pixels}
     marker = out.with_name(out.name + ".key.json")
     if out.is_file() and _same(marker, key):
@@ -250,7 +258,8 @@ def evaluation(recipe: RecipeConfig, name: str, model: Path, tests: dict[str, st
     for test, data in tests.items():
         preds = recipe.run / "eval" / f"{name}-{test}.jsonl"
         scored = preds.with_suffix(".score.json")
-        key = {"model": str(model), "data": str(data), "limit": limit, "tasks": list(recipe.train.tasks),
+        key = {"model": str(model), "weights": _weights_id(model), "data": str(data), "limit": limit,
+               "tasks": list(recipe.train.tasks),
                "max_new_tokens": recipe.train.max_new_tokens, "max_pixels": recipe.train.max_pixels}
         if not _same(scored, key):
             log(f"evaluating {name} ({model}) on the test split of {test}")
