@@ -52,7 +52,7 @@ def test_staged_recipe_end_to_end_resumes_and_refuses_other_settings(tiny_datase
     from eval.data import iter_rows
     from eval.predict import write_predictions
     from train.config import TrainConfig
-    from train.evaluate import _predictor
+    from train.evaluate import trained_predictor
     from train.recipe import RecipeConfig, main
 
     run = tmp_path / "run"
@@ -74,7 +74,7 @@ def test_staged_recipe_end_to_end_resumes_and_refuses_other_settings(tiny_datase
     # ... and those answers are stage 1's final model's: asked again, it answers the same
     config = RecipeConfig.from_dict(json.loads((run / "recipe_config.json").read_text()))
     again = tmp_path / "again.jsonl"
-    write_predictions(tiny_dataset, _predictor(s1 / "final", config.train, torch.device("cpu")), again,
+    write_predictions(tiny_dataset, trained_predictor(s1 / "final", config.train, torch.device("cpu")), again,
                       split="train", tasks=("pose",), limit=1)
     first = {r["id"]: r["text"] for r in map(json.loads, preds.read_text().splitlines())}
     assert all(first[r["id"]] == r["text"] for r in map(json.loads, again.read_text().splitlines()))
