@@ -138,3 +138,11 @@ def test_lora_with_gradient_checkpointing_and_accumulation(tiny_dataset, tiny_mo
     _two_processes(_argv(tiny_dataset, tiny_model, tmp_path / "two", *more, "--batch-size", "1"))
     assert [r["examples"] for r in train_log(tmp_path / "two")] == [4, 8]
     _assert_same_training(tmp_path / "one", tmp_path / "two", tiny_model)
+
+
+def test_the_staged_recipe_refuses_torchrun(monkeypatch, capsys, tmp_path):
+    from train.recipe import main
+
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    assert main(["--designs", str(tmp_path), "--synthetic", str(tmp_path), "--outdir", str(tmp_path / "run")]) == 2
+    assert "runs in one process (this is one of 2 under torchrun)" in capsys.readouterr().err
