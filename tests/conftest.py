@@ -135,6 +135,29 @@ def tiny_dataset(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.fixture(scope="session")
+def tiny_model(tiny_dataset, tmp_path_factory) -> Path:
+    """The tiny Qwen2-VL (`train.tiny`, seed 0) built from the tiny dataset's texts, once per session."""
+    from train.tiny import build_tiny_model, dataset_texts
+
+    return build_tiny_model(tmp_path_factory.mktemp("tiny") / "base", dataset_texts([tiny_dataset]), seed=0)
+
+
+def torchrun(module: str, *argv: str, processes: int = 2, timeout: float = 600):
+    """`torchrun --standalone --nproc_per_node PROCESSES -m MODULE ARGV` from the checkout (one
+    torch thread per process; --standalone: a free port, so concurrent test runs do not meet);
+    the finished process (stdout and stderr as text; the processes' lines may interleave)."""
+    import os
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", str(processes),
+           "-m", module, *argv]
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(root)}
+    return subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True, timeout=timeout)
+
+
 def children_of(pid: int) -> list[int]:
     """Live (not zombie) processes whose parent is `pid`, from /proc."""
     found = []

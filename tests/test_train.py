@@ -17,13 +17,6 @@ END = "<|im_end|>"
 
 
 @pytest.fixture(scope="module")
-def tiny_model(tiny_dataset, tmp_path_factory):
-    from train.tiny import build_tiny_model, dataset_texts
-
-    return build_tiny_model(tmp_path_factory.mktemp("tiny") / "base", dataset_texts([tiny_dataset]), seed=0)
-
-
-@pytest.fixture(scope="module")
 def processor(tiny_model):
     from eval.processor import load_processor
 

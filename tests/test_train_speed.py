@@ -9,6 +9,7 @@ import math
 import re
 
 import pytest
+from conftest import torchrun
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")
@@ -129,19 +130,11 @@ def test_real_processors_give_the_checkpoints_image_tokens(tiny_dataset):
 def test_two_processes_under_torchrun_write_one_row_for_both(tiny_dataset, tmp_path):
     """torchrun with two CPU processes (gloo): one row, both processes' examples over the slowest's
     seconds, and the processes trained different examples (their own seeds) on one model."""
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
     pytest.importorskip("peft")
     out = tmp_path / "rows.jsonl"
-    root = Path(__file__).resolve().parents[1]
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "-m", "train.speed",
-           "--family", "qwen3-vl", "--mode", "lora", "--data", str(tiny_dataset), "--batch-size", "2",
-           "--steps", "2", "--warmup-steps", "1", "--device", "cpu", "--workers", "0", "--out", str(out)]
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(root)}
-    done = subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True, timeout=600)
+    done = torchrun("train.speed", "--family", "qwen3-vl", "--mode", "lora", "--data", str(tiny_dataset),
+                    "--batch-size", "2", "--steps", "2", "--warmup-steps", "1", "--device", "cpu", "--workers", "0",
+                    "--out", str(out))
     assert done.returncode == 0, done.stderr[-3000:]
     rows = [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
     assert len(rows) == 1 and json.loads(out.read_text()) == rows[0]

@@ -4,12 +4,17 @@ with the untrained model on the test split.
     python -m train --data OUT [--data OUT_FB ...] --outdir RUN [--model PATH] [--tasks selection,pose]
         [--steps N] [--batch-size B] [--grad-accum G] [--lr LR] [--warmup W] [--lora 1|0|auto]
         [--save-every K] [--seed S] [--eval-limit N] [--no-eval] [--device auto|cpu|cuda] [--no-progress] ...
+    torchrun --standalone --nproc_per_node N -m train ...   # N GPUs of this machine, one process each
 
 A flag per `TrainConfig` field, with its default and meaning (`--help`).
 
 Without --model a tiny model of --base-family (default qwen2-vl) is built into RUN/base first. Re-running the same command
 resumes from the last checkpoint; other settings in an existing RUN are refused. See
 `train.loop` for the folder's contents and `train.config.TrainConfig` for every setting.
+
+Under torchrun every process trains (DistributedDataParallel, `batch_size * grad_accum * N`
+examples per step); rank 0 alone writes the run folder, prints, and evaluates after training,
+while the others end (`train.loop`, docs/training.md).
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ from eval.data import DatasetError
 from factory.cli import add_config_args, add_progress_flag, config_from_args as config_of, run_guarded
 from factory.config import field_docs
 from train.config import ConfigError, TrainConfig, lora_value
+from train.distributed import launched_rank
 from train.evaluate import evaluate, headline
 from train.loop import FINAL, resolve_device, train
 from train.model import ModelError
@@ -54,6 +60,8 @@ def run(args) -> int:
 
         hf_logging.disable_progress_bar()
     summary = train(config, progress=not args.no_progress)
+    if launched_rank() != 0:
+        return 0  # under torchrun: rank 0 reports and evaluates
     print(json.dumps({k: summary[k] for k in ("steps", "train_seconds", "samples_per_s", "tokens_per_s",
                                               "final_loss", "peak_gpu_mem_gb")}), flush=True)
     if config.eval:

@@ -71,9 +71,10 @@ class TrainConfig:
     tasks: tuple[str, ...] = field(default=TASKS, metadata={"choices": TASKS})
     """Tasks to train on; each (row, task) is one example. Feedback folders give pose only."""
     steps: int = 200
-    """Optimizer steps (each `batch_size * grad_accum` examples)."""
+    """Optimizer steps (each `batch_size * grad_accum` examples, times N with N processes under
+    torchrun)."""
     batch_size: int = 2
-    """Examples per forward pass."""
+    """Examples per forward pass (of each process under torchrun)."""
     grad_accum: int = 1
     """Forward passes whose gradients are summed before one optimizer step."""
     lr: float = 2e-4
@@ -114,7 +115,8 @@ class TrainConfig:
     shuffled too. Bounds the rows held in memory."""
     workers: int | None = None
     """Processes that decode and encode examples (PNGs, image resizing, tokenizing) ahead of the
-    model; 0 does it in a thread of the trainer; None picks min(8, CPUs - 2), or 0 below 4 CPUs.
+    model; 0 does it in a thread of the trainer; None picks min(8, CPUs - 2), or 0 below 4 CPUs (CPUs:
+    each process's share under torchrun; every process encodes every example).
     Changes speed only, never which examples come in which order."""
     save_every: int = 100
     """Write a checkpoint every this many steps (and always at the last step); 0: only at the end."""
@@ -212,10 +214,13 @@ class TrainConfig:
     def examples_per_step(self) -> int:
         return self.batch_size * self.grad_accum
 
-    def resolved_workers(self) -> int:
+    def resolved_workers(self, processes: int = 1) -> int:
+        """`workers`, or (None) min(8, C - 2) for each of `processes` processes sharing the CPUs,
+        C being their share of the CPUs (0 below 4)."""
         if self.workers is not None:
             return int(self.workers)
         cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        cpus //= max(1, int(processes))
         return min(8, cpus - 2) if cpus >= 4 else 0
 
 

@@ -14,6 +14,16 @@ checkpoints that resume to the same trajectory, per-step logs.
 4. each step appends to `RUN/log.jsonl`; checkpoints every `save_every` steps and at the end;
 5. `RUN/final/` gets the trained model as plain transformers weights (LoRA merged in), the
    processor and the config, so `hf:RUN/final` and `AutoModelForImageTextToText` load it alone.
+
+Several processes (`torchrun --nproc_per_node N -m train`, one per GPU, `train.distributed`): the
+model is in DistributedDataParallel; every process reads the one example stream and a step's
+`batch_size * grad_accum * N` examples are the next ones of it, each forward pass's `batch_size * N`
+examples split by rank (rank r the r-th `batch_size`), each loss weighted by its share of the pass's
+answer tokens, so the averaged gradient is that of one process with `batch_size * N` (dropout
+masks aside: each rank draws its own). Rank 0 alone writes the run folder (checkpoints, log,
+`final/`, summary) while the others wait at a barrier; the logged loss is the pass's over every
+rank (all-reduced). A checkpoint records N and every rank's RNG state; it resumes with N processes
+only (another count is refused, naming both).
 """
 
 from __future__ import annotations
@@ -27,6 +37,7 @@ import time
 from contextlib import nullcontext
 from pathlib import Path
 
+import numpy as np
 import torch
 from tqdm import tqdm
 
@@ -35,6 +46,7 @@ from eval.processor import load_processor, save_processor
 from train import checkpoint as ckpt
 from train.config import CONFIG_FILE, ConfigError, TrainConfig, resume_conflicts
 from train.data import IGNORE, ExampleStream, collate
+from train.distributed import Group, end, parallel, start
 from train.model import ModelError, add_lora, load_adapter_weights, load_base, merged, trainable
 from train.report import write_summary
 from train.tiny import build_tiny_model, dataset_texts
@@ -157,24 +169,38 @@ def trainable_model(model, config: TrainConfig):
 
 
 def train_step(model, optimizer, scheduler, batches, config: TrainConfig, device: torch.device,
-               amp: torch.dtype | None, step: int | None = None) -> dict:
+               amp: torch.dtype | None, step: int | None = None, group: Group = Group()) -> dict:
     """One optimizer step (number `step`, named in the error a non-finite loss raises) over
     `config.grad_accum` batches from `batches` (a `Batches`): forward and backward, gradient
     clipping, AdamW and scheduler steps. Returns the mean loss, grad norm, the
     learning rate used, examples, tokens (non-padding, image tokens included) and answer tokens
     (labels) seen, the stream's position and skip count after the last batch, and the seconds spent
-    waiting for batches (data loading the model's step did not hide)."""
+    waiting for batches (data loading the model's step did not hide).
+
+    `group`: the processes sharing each forward pass's examples (`batches` made with its rank and
+    count, `model` in DistributedDataParallel): each rank's mean loss is weighted by its share of
+    the pass's answer tokens, so the averaged gradient is one process's on the whole pass, and the
+    loss and counts returned are the whole pass's (see the module docstring)."""
     optimizer.zero_grad(set_to_none=True)
     losses, n_ex, n_tok, n_label, wait = [], 0, 0, 0, 0.0
-    for _ in range(config.grad_accum):
+    for i in range(config.grad_accum):
         t = time.perf_counter()
-        batch, position, skipped = next(batches)
+        batch, counts, position, skipped = next(batches)
         wait += time.perf_counter() - t
-        n_ex += int(batch["input_ids"].shape[0])
-        mask = batch.get("attention_mask")
-        n_tok += int(mask.sum()) if mask is not None else batch["input_ids"].numel()
-        n_label += int((batch["labels"] != IGNORE).sum())
-        losses.append(forward_backward(model, batch, device, amp, 1.0 / config.grad_accum))
+        n_ex += counts["examples"]
+        n_tok += counts["tokens"]
+        n_label += counts["label_tokens"]
+        if group.processes == 1:
+            losses.append(forward_backward(model, batch, device, amp, 1.0 / config.grad_accum))
+            continue
+        share = _loss_tokens(batch["labels"]) / counts["loss_tokens"]
+        # gradients are averaged over the processes at the pass's last backward only
+        sync = model.no_sync() if i < config.grad_accum - 1 else nullcontext()
+        with sync:
+            mean = forward_backward(model, batch, device, amp, group.processes * share / config.grad_accum)
+        losses.append(mean * share)
+    if group.processes > 1:
+        losses = group.reduce(losses)  # each pass's loss over every rank's answer tokens
     loss = sum(losses) / len(losses)
     if not math.isfinite(loss):
         at = f" at step {step}" if step is not None else ""
@@ -189,13 +215,35 @@ def train_step(model, optimizer, scheduler, batches, config: TrainConfig, device
 
 
 # -- batches ---------------------------------------------------------------------------------------
+def _loss_tokens(labels: torch.Tensor) -> int:
+    """Tokens a causal LM's loss averages over: labels after the first position (shifted)."""
+    return int((labels[..., 1:] != IGNORE).sum())
+
+
+def pass_counts(examples: list[dict]) -> dict:
+    """A forward pass's examples, tokens (non-padding, image tokens included), answer tokens
+    (labels) and the tokens its loss averages over, over every rank's examples."""
+    tokens = sum(int(e["attention_mask"].sum()) if "attention_mask" in e else int(e["input_ids"].numel())
+                 for e in examples)
+    return {"examples": len(examples), "tokens": tokens,
+            "label_tokens": sum(int((e["labels"] != IGNORE).sum()) for e in examples),
+            "loss_tokens": sum(_loss_tokens(e["labels"]) for e in examples)}
+
+
 class Batches:
     """Collated batches from an `ExampleStream`, prepared one step ahead in a thread (decoding
-    PNGs and processing images overlaps the model's step). Each item carries the stream's
-    position and skip count after it, which is what a checkpoint records."""
+    PNGs and processing images overlaps the model's step). Each item is (batch, `pass_counts`,
+    the stream's position and skip count after it, which is what a checkpoint records).
 
-    def __init__(self, stream: ExampleStream, batch_size: int, pad_id: int, ahead: int = 2):
+    `processes` > 1: each forward pass takes `batch_size * processes` examples from the stream and
+    this process (`rank`) collates the rank-th `batch_size` of them; the counts are the whole
+    pass's. Every process reads (and encodes) every example, so all know the position and which
+    examples were skipped."""
+
+    def __init__(self, stream: ExampleStream, batch_size: int, pad_id: int, ahead: int = 2, rank: int = 0,
+                 processes: int = 1):
         self.stream, self.batch_size, self.pad_id = stream, batch_size, pad_id
+        self.rank, self.processes = rank, processes
         self.q: queue.Queue = queue.Queue(maxsize=ahead)
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -214,8 +262,10 @@ class Batches:
         it = iter(self.stream)
         try:
             while not self.stop.is_set():
-                examples = [next(it) for _ in range(self.batch_size)]
-                self._put((collate(examples, self.pad_id), self.stream.position, self.stream.skipped))
+                examples = [next(it) for _ in range(self.batch_size * self.processes)]
+                mine = examples[self.rank * self.batch_size:(self.rank + 1) * self.batch_size]
+                self._put((collate(mine, self.pad_id), pass_counts(examples), self.stream.position,
+                           self.stream.skipped))
         except BaseException as exc:  # handed to the consumer
             self._put(exc)
         finally:
@@ -264,87 +314,133 @@ def build(config: TrainConfig, device: torch.device, resume_from: Path | None, p
     return model, processor, base
 
 
+def check_processes(saved: dict, resume_from: Path, processes: int, config: TrainConfig) -> None:
+    """Refuse to resume a checkpoint trained by another number of processes: its steps took
+    `batch_size * grad_accum * N` examples, and each rank's RNG state is saved."""
+    done = int(saved.get("processes", 1))
+    if done == processes:
+        return
+    how = "python -m train (one process)" if done == 1 else f"torchrun --nproc_per_node {done} -m train"
+    raise ConfigError(f"{resume_from} was trained by {done} process(es), {done * config.examples_per_step} examples "
+                      f"per step; this run has {processes} ({processes * config.examples_per_step} per step). Resume "
+                      f"it with {how} and the same settings, or use another --outdir.")
+
+
+def rank_seed(seed: int, rank: int) -> int:
+    """The torch seed of rank `rank` > 0 after the model is built (its own dropout masks)."""
+    return int(np.random.SeedSequence([int(seed), int(rank)]).generate_state(1)[0])
+
+
 def train(config: TrainConfig, progress: bool = True) -> dict:
-    """Train (or resume) the run of `config`; returns the training summary (see the module docstring)."""
+    """Train (or resume) the run of `config`; returns the training summary (see the module
+    docstring). Under torchrun, every process calls it; rank 0 returns the summary, the others
+    {"rank": r, "steps": n}."""
     run = Path(config.outdir)
     check_data(config)
-    run.mkdir(parents=True, exist_ok=True)
-    ckpt.remove_stale(run)
     check_run_folder(config)
-    device = resolve_device(config)
+    group, device = start(resolve_device(config))
+    progress = progress and group.main
     amp = autocast_dtype(config, device)
     resume_from = ckpt.latest(run)
+    saved = ckpt.load_state(resume_from) if resume_from is not None else None
+    if saved is not None:
+        check_processes(saved, resume_from, group.processes, config)
+    if group.main:
+        run.mkdir(parents=True, exist_ok=True)
+        ckpt.remove_stale(run)
+        base_model_path(config, progress)  # a base built from a config: by rank 0, before the others load it
+    group.barrier()
     model, processor, base = build(config, device, resume_from, progress)
-    # recorded once the settings are known to work, so a failed start leaves the folder reusable
-    ckpt.write_atomic_text(run / CONFIG_FILE, config.to_json() + "\n")
+    if group.rank:
+        torch.manual_seed(rank_seed(config.seed, group.rank))
+    if group.main:
+        # recorded once the settings are known to work, so a failed start leaves the folder reusable
+        ckpt.write_atomic_text(run / CONFIG_FILE, config.to_json() + "\n")
+    wrapped = parallel(model, group, find_unused_parameters=not config.lora)
     optimizer = make_optimizer(model, config)
     scheduler = make_scheduler(optimizer, config)
     state = {"step": 0, "position": (0, 0), "skipped": 0, "examples": 0, "tokens": 0, "train_seconds": 0.0}
-    if resume_from is not None:
-        saved = ckpt.load_state(resume_from)
+    if saved is not None:
         optimizer.load_state_dict(saved["optimizer"])
         scheduler.load_state_dict(saved["scheduler"])
-        ckpt.set_rng_state(saved["rng"])
+        ckpt.set_rng_state(saved["rng_ranks"][group.rank] if "rng_ranks" in saved else saved["rng"])
         state.update({k: saved[k] for k in state})
         state["position"] = tuple(state["position"])
+        del saved
         if progress:
             print(f"resuming {run} from {resume_from.name} (step {state['step']})", flush=True)
     log_path = run / LOG_FILE
-    _truncate_log(log_path, state["step"])
+    if group.main:
+        _truncate_log(log_path, state["step"])
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats(device)
     n_train, n_all = trainable(model)
     stream = ExampleStream(config.data, processor, config.tasks, config.seed, config.shuffle_window,
-                           config.max_length, state["position"], workers=config.resolved_workers(),
+                           config.max_length, state["position"], workers=config.resolved_workers(group.processes),
                            processor_path=base, max_pixels=config.max_pixels, weights=config.weights)
     pad_id = processor.tokenizer.pad_token_id
     if pad_id is None:
         pad_id = processor.tokenizer.eos_token_id
-    batches = Batches(stream, config.batch_size, pad_id) if state["step"] < config.steps else None
+    batches = (Batches(stream, config.batch_size, pad_id, rank=group.rank, processes=group.processes)
+               if state["step"] < config.steps else None)
     bar = tqdm(total=config.steps, initial=state["step"], unit="step", desc="train", disable=not progress,
                dynamic_ncols=True)
-    last_loss = None
+    log = log_path.open("a", encoding="utf-8") if group.main else None
     try:
-        with log_path.open("a", encoding="utf-8") as log:
-            while state["step"] < config.steps:
-                t0 = time.perf_counter()
-                out = train_step(model, optimizer, scheduler, batches, config, device, amp, state["step"] + 1)
-                last_loss, norm, lr = out["loss"], out["grad_norm"], out["lr"]
-                n_ex, n_tok, position, skipped = out["examples"], out["tokens"], out["position"], out["skipped"]
-                if device.type == "cuda":
-                    torch.cuda.synchronize(device)
-                dt = time.perf_counter() - t0
-                state["step"] += 1
-                state["position"], state["skipped"] = position, skipped
-                state["examples"] += n_ex
-                state["tokens"] += n_tok
-                state["train_seconds"] += dt
-                step = state["step"]
-                if step % config.log_every == 0 or step == config.steps:
-                    rec = {"step": step, "loss": round(last_loss, 6), "lr": lr, "grad_norm": round(float(norm), 6),
-                           "samples_per_s": round(n_ex / dt, 3), "tokens_per_s": round(n_tok / dt, 1),
-                           "epoch": position[0], "examples": state["examples"], "skipped": skipped,
-                           "seconds": round(dt, 4)}
-                    mem = _gpu_mem_gb(device)
-                    if mem is not None:
-                        rec["gpu_mem_gb"] = mem
-                    log.write(json.dumps(rec) + "\n")
-                    log.flush()
-                bar.update(1)
-                bar.set_postfix(loss=f"{last_loss:.4f}", lr=f"{lr:.2e}")
-                if step == config.steps or (config.save_every and step % config.save_every == 0):
+        while state["step"] < config.steps:
+            t0 = time.perf_counter()
+            out = train_step(wrapped, optimizer, scheduler, batches, config, device, amp, state["step"] + 1, group)
+            last_loss, norm, lr = out["loss"], out["grad_norm"], out["lr"]
+            n_ex, n_tok, position, skipped = out["examples"], out["tokens"], out["position"], out["skipped"]
+            if device.type == "cuda":
+                torch.cuda.synchronize(device)
+            dt = time.perf_counter() - t0
+            state["step"] += 1
+            state["position"], state["skipped"] = position, skipped
+            state["examples"] += n_ex
+            state["tokens"] += n_tok
+            state["train_seconds"] += dt
+            step = state["step"]
+            if log is not None and (step % config.log_every == 0 or step == config.steps):
+                rec = {"step": step, "loss": round(last_loss, 6), "lr": lr, "grad_norm": round(float(norm), 6),
+                       "samples_per_s": round(n_ex / dt, 3), "tokens_per_s": round(n_tok / dt, 1),
+                       "epoch": position[0], "examples": state["examples"], "skipped": skipped,
+                       "seconds": round(dt, 4)}
+                mem = _gpu_mem_gb(device)
+                if mem is not None:
+                    rec["gpu_mem_gb"] = mem
+                log.write(json.dumps(rec) + "\n")
+                log.flush()
+            bar.update(1)
+            bar.set_postfix(loss=f"{last_loss:.4f}", lr=f"{lr:.2e}")
+            if step == config.steps or (config.save_every and step % config.save_every == 0):
+                rngs = group.gather(ckpt.rng_state())
+                if group.main:
+                    extra = {"rng_ranks": rngs} if group.processes > 1 else {}
                     ckpt.save(run, step, model, processor, config,
                               {**state, "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
-                               "rng": ckpt.rng_state()}, keep=config.keep_checkpoints)
+                               "rng": rngs[0], "processes": group.processes, **extra}, keep=config.keep_checkpoints)
+                group.barrier()  # no process goes on (or ends) before the checkpoint is whole
     finally:
         bar.close()
+        if log is not None:
+            log.close()
         if batches is not None:
             batches.close()
+    peak = _gpu_mem_gb(device)
+    if peak is not None:
+        peak = group.reduce([peak], op="max")[0]  # the fullest GPU
+    if not group.main:
+        group.barrier()  # rank 0 writes final/ and the summary
+        end()
+        return {"rank": group.rank, "steps": state["step"]}
     final = save_final(config, model, processor, base)
     summary = write_summary(run, config, state, device, trainable=n_train, parameters=n_all,
-                            peak_gpu_gb=_gpu_mem_gb(device), final=final,
+                            peak_gpu_gb=peak, final=final, processes=group.processes,
                             epochs=state["position"][0] + state["position"][1] / stream.examples_per_epoch)
-    del model, optimizer
+    del model, wrapped, optimizer
+    group.barrier()
+    end()
     return summary
 
 

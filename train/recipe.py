@@ -48,6 +48,7 @@ from factory.cli import add_config_args, add_progress_flag, run_guarded
 from factory.config import config_from_dict, config_to_dict, field_docs
 from pipelines.feedback import build_feedback
 from train.config import ConfigError, TrainConfig, lora_value, resume_conflicts
+from train.distributed import launched_processes
 from train.evaluate import trained_predictor
 from train.loop import FINAL, base_model_path, resolve_device, train as run_training
 from train.model import ModelError
@@ -425,6 +426,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
 
     def run() -> int:
+        if launched_processes() > 1:
+            raise ConfigError(f"python -m train.recipe runs in one process (this is one of {launched_processes()} "
+                              "under torchrun): its stages predict and evaluate between trainings; run it with "
+                              "python -m train.recipe, or each stage's training with torchrun -m train")
         run_recipe(config_from_args(args), progress=not args.no_progress)
         return 0
 

@@ -49,7 +49,7 @@ def plot_loss(run, records: list[dict]) -> Path | None:
 
 
 def write_summary(run, config, state: dict, device, trainable: int, parameters: int, peak_gpu_gb, final,
-                  epochs: float) -> dict:
+                  epochs: float, processes: int = 1) -> dict:
     """Write `RUN/train_summary.json` and `RUN/loss.png`; returns the summary."""
     records = read_log(run)
     secs = float(state["train_seconds"])
@@ -66,6 +66,8 @@ def write_summary(run, config, state: dict, device, trainable: int, parameters: 
         "final_loss": records[-1]["loss"] if records else None,
         "first_loss": records[0]["loss"] if records else None,
         "device": str(device),
+        "processes": int(processes),
+        "examples_per_step": int(config.examples_per_step * processes),
         "lora": bool(config.lora),
         "trainable_parameters": int(trainable),
         "parameters": int(parameters),

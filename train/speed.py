@@ -259,6 +259,7 @@ def measure(args, progress=print) -> dict:
 
     # torch at import (the [train] extra): loaded when a run starts, so `--help` and refusals need none
     from train.data import ExampleStream
+    from train.distributed import parallel, start
     from train.loop import Batches, autocast_dtype, check_data, make_optimizer, make_scheduler, resolve_device
     from train.loop import train_step, trainable_model
     from train.model import trainable
@@ -269,14 +270,10 @@ def measure(args, progress=print) -> dict:
                          max_pixels=args.max_pixels or MAX_PIXELS, workers=args.workers, seed=args.seed,
                          dtype="bf16", device=args.device, eval=False)
     check_data(config)
-    device = resolve_device(config)
-    rank, world = _distributed(device)
-    if world > 1:
-        # One process per GPU (torchrun): each its own device, its own examples (the stream's
-        # seed plus the rank), gradients averaged by DistributedDataParallel.
-        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", rank))) if device.type == "cuda" else device
-        if device.type == "cuda":
-            torch.cuda.set_device(device)
+    # One process per GPU (torchrun): each its own device, its own examples (the stream's seed plus
+    # the rank), gradients averaged by DistributedDataParallel.
+    group, device = start(resolve_device(config))
+    rank, world = group.rank, group.processes
     amp = autocast_dtype(config, device)
     wdtype = torch.bfloat16 if args.weight_dtype == "bf16" else torch.float32
     attn = attention_implementation(device)
@@ -297,11 +294,7 @@ def measure(args, progress=print) -> dict:
         model = trainable_model(instantiate(cfg, device, wdtype, attn), config)
         model.train()
         n_train, n_all = trainable(model)
-        if world > 1:
-            from torch.nn.parallel import DistributedDataParallel
-
-            model = DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None,
-                                            find_unused_parameters=args.mode == "full")
+        model = parallel(model, group, find_unused_parameters=args.mode == "full")
         row.update(params_total=n_all, params_trainable=n_train)
         progress(f"built {n_all:,} parameters ({n_train:,} trainable) in {time.perf_counter() - t:.1f} s")
         stage = "optimizer"
@@ -310,7 +303,7 @@ def measure(args, progress=print) -> dict:
         with tempfile.TemporaryDirectory() as tmp:
             save_processor(processor, tmp)  # the data workers load it from here
             stream = ExampleStream(config.data, processor, config.tasks, config.seed + rank, config.shuffle_window,
-                                   config.max_length, workers=config.resolved_workers(), processor_path=tmp,
+                                   config.max_length, workers=config.resolved_workers(world), processor_path=tmp,
                                    max_pixels=args.max_pixels)
             pad_id = processor.tokenizer.pad_token_id
             if pad_id is None:
@@ -321,7 +314,7 @@ def measure(args, progress=print) -> dict:
             for i in range(config.steps):
                 stage = "warmup step" if i < args.warmup_steps else "timed step"
                 if world > 1 and i == args.warmup_steps:
-                    torch.distributed.barrier()  # every process starts its timed steps together
+                    group.barrier()  # every process starts its timed steps together
                 t = time.perf_counter()
                 out = train_step(model, optimizer, scheduler, batches, config, device, amp, i + 1)
                 if device.type == "cuda":
@@ -345,7 +338,7 @@ def measure(args, progress=print) -> dict:
     memory = _memory(device)
     if world > 1:
         # All processes' examples and tokens over the slowest process's seconds; the largest peak.
-        totals, seconds, memory = _gather(totals, seconds, memory, device)
+        totals, seconds, memory = _gather(group, totals, seconds, memory)
     sps = totals["examples"] / seconds
     n_tasks = len(config.tasks)
     row.update(fits=True, steps=args.steps, warmup_steps=args.warmup_steps, seconds=round(seconds, 3),
@@ -359,33 +352,13 @@ def measure(args, progress=print) -> dict:
     return row
 
 
-def _distributed(device) -> tuple[int, int]:
-    """(rank, processes): under torchrun (WORLD_SIZE > 1) the process group is started here
-    (NCCL on GPUs, gloo on the CPU); else (0, 1)."""
-    import torch.distributed as dist
-
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    if world <= 1:
-        return 0, 1
-    if not dist.is_initialized():
-        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
-    return dist.get_rank(), dist.get_world_size()
-
-
-def _gather(totals: dict, seconds: float, memory: dict, device) -> tuple[dict, float, dict]:
+def _gather(group, totals: dict, seconds: float, memory: dict) -> tuple[dict, float, dict]:
     """Totals summed over the processes, seconds and memory peaks their largest."""
-    import torch
-    import torch.distributed as dist
-
-    on = device if device.type == "cuda" else torch.device("cpu")
     keys = sorted(totals)
-    summed = torch.tensor([float(totals[k]) for k in keys], dtype=torch.float64, device=on)
-    dist.all_reduce(summed)
+    summed = group.reduce([totals[k] for k in keys])
     mem_keys = sorted(k for k, v in memory.items() if v is not None)
-    top = torch.tensor([seconds] + [memory[k] for k in mem_keys], dtype=torch.float64, device=on)
-    dist.all_reduce(top, op=dist.ReduceOp.MAX)
-    out = {k: (int(v) if isinstance(totals[k], int) else float(v)) for k, v in zip(keys, summed.tolist())}
-    top = top.tolist()
+    top = group.reduce([seconds] + [memory[k] for k in mem_keys], op="max")
+    out = {k: (int(v) if isinstance(totals[k], int) else float(v)) for k, v in zip(keys, summed)}
     return out, top[0], {**memory, **dict(zip(mem_keys, top[1:]))}
 
 
@@ -450,23 +423,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     finally:
-        _end_distributed()
+        # torch at import (the [train] extra): `--help` and the refusals above need none
+        from train.distributed import end
+
+        end()
     if int(os.environ.get("RANK", "0")) == 0:  # under torchrun, one row for all processes
         print(json.dumps(row), flush=True)
         if args.out:
             append_row(args.out, row)
     return 0
-
-
-def _end_distributed() -> None:
-    import torch.distributed as dist
-
-    if dist.is_available() and dist.is_initialized():
-        # Every process reaches this point before any tears its group down: a process that left
-        # while another was still inside a collective aborted it (gloo: "terminate called without
-        # an active exception", seen once in a CPU test run without this barrier).
-        dist.barrier()
-        dist.destroy_process_group()
 
 
 if __name__ == "__main__":
