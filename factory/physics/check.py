@@ -34,7 +34,7 @@ from factory.physics.statics import (Failure, Link, LoadBase, LoadConfig, holds_
                                      support_points)
 from factory.physics.sweep import seating_from_connections, sweep
 from factory.physics.structure import Placed, Structure, connections_at, lowest_point
-from factory.physics.unmodelled import may_hold
+from factory.physics.unmodelled import joined, may_hold
 from factory.pose import Pose
 
 BACKENDS = ("mujoco", "mjx")
@@ -276,6 +276,13 @@ class _Call:
                     # Held by a connection we do not model (Technic, clip, hinge, tyre): not judged here.
                     self.verdicts[k] = Verdict(**base, held_by=holders, reason="unsupported-connection")
                     continue
+            if collision and outer:
+                partners = self._joined(unit, near)
+                if partners and self.scene.penetration(pose, touched, frozenset(partners))[0] <= config.max_penetration_ldu:
+                    # On studs and joined to a part it overlaps only there (a hinge roof's fingers
+                    # between its holder's): held by a connection we do not model as well.
+                    self.verdicts[k] = Verdict(**base, held_by=partners, reason="unsupported-connection")
+                    continue
             if collision:
                 self.verdicts[k] = Verdict(**base, reason="collision")
                 continue
@@ -287,6 +294,15 @@ class _Call:
         STAGE_SECONDS["rules"] += time.perf_counter() - t0
         if self.backend != "mjx":
             self.clutched(holds_alone_many(self.clutch_cases(), config.loads))
+
+    def _joined(self, unit: Sequence[Placed], near) -> tuple[int, ...]:
+        """The structure parts among `near` that a part of the unit is joined to by a clip, bar,
+        hinge or pin (`unmodelled.joined`)."""
+        if not any(len(p.part.flat.bars) + len(p.part.flat.bores) + len(p.part.flat.other_connectors) for p in unit):
+            return ()  # nothing to be joined by (every part of the sampler's library)
+        placed = self.structure.placed
+        return tuple(sorted(i for i in near if any(
+            joined(p.part, p.pose, placed[i].part, placed[i].pose) for p in unit)))
 
     def clutch_cases(self) -> list[tuple]:
         """`statics.holds_alone_many`'s cases for the connected candidates (mass, centre, the

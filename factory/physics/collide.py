@@ -347,13 +347,14 @@ class CollisionScene:
             return self.structure.placed[gi.owner].pose
         return pose @ self.unit[gi.member][1]
 
-    def penetration(self, pose: Pose, connected: set[int]) -> tuple[float, set[int]]:
+    def penetration(self, pose: Pose, connected: set[int], apart: frozenset = frozenset()) -> tuple[float, set[int]]:
         """(Deepest overlap in LDU with the structure or the floor, structure parts it touches).
 
         Overlap = depth between inset pieces + both insets; 0 when no inset pieces touch. Stud
         contacts with parts in `connected` are ignored; a stud standing in another part's hollow
         (crossing none of its faces) touches it without overlapping. Touching = a real gap under
-        NEAR_LDU.
+        NEAR_LDU. Parts in `apart` are left out (those the candidate is joined to by a connection
+        not modelled, whose overlap is the joint's: `check`).
         """
         pos, quat = pose.to_mujoco_quat()
         self.data.qpos[:3] = pos
@@ -372,6 +373,8 @@ class CollisionScene:
             other_g, cand_g = np.where(cand_first, g2, g1), np.where(cand_first, g1, g2)
             # Candidate against structure or floor only (not within the candidate's unit).
             keep = ((o1 == -1) | (o2 == -1)) & (other != -1)
+            if apart:
+                keep &= ~np.isin(other, np.fromiter(apart, np.int64, len(apart)))
             conn = (other >= 0) & np.isin(other, np.fromiter(connected, np.int64, len(connected)))
             keep &= ~(conn & (self.is_stud[other_g] | self.is_stud[cand_g]))
             overlap = -np.asarray(con.dist[:n], float) / LDU_M + self.inset[g1] + self.inset[g2]
@@ -386,12 +389,13 @@ class CollisionScene:
             if over.any():
                 deepest = float(overlap[over].max())
             near = {int(o) for o in np.unique(other[keep & (other >= 0) & (overlap > -NEAR_LDU)])}
-        depth, owners = self._coincident(pose)
+        depth, owners = self._coincident(pose, apart)
         near |= owners
         return max(deepest, depth), near
 
-    def _coincident(self, pose: Pose) -> tuple[float, set[int]]:
-        """Depth of a candidate piece centre inside a structure piece, or the reverse."""
+    def _coincident(self, pose: Pose, apart: frozenset = frozenset()) -> tuple[float, set[int]]:
+        """Depth of a candidate piece centre inside a structure piece, or the reverse (structure
+        parts in `apart` left out)."""
         if not len(self._s_centre) or not len(self._c_centre):
             return 0.0, set()
         centres = pose.apply(self._c_centre)
@@ -401,6 +405,8 @@ class CollisionScene:
         depth_s = a.max(axis=1)  # per structure piece: deepest candidate centre inside it
         depth_c = b.max(axis=0)  # per structure centre: deepest inside a candidate piece
         per_piece = np.maximum(depth_s, depth_c)
+        if apart:
+            per_piece = np.where(np.isin(self._s_owner, list(apart)), 0.0, per_piece)
         hit = per_piece > 0
         return (float(per_piece.max()) if hit.any() else 0.0), {int(o) for o in self._s_owner[hit]}
 

@@ -8,6 +8,11 @@ drawn without such primitives can only be judged by its shape: a new part with n
 sit on studs (a hinge top, a tyre, a rim), a placed part without studs or sockets offers something
 else (a hinge base, a rim); there is no position to compare then, so touching is enough.
 Minifigure pieces hold one another by joints of their own (`is_minifig`).
+
+Clips, bars and hinges are mostly drawn without connector primitives, but always with cylinders of
+the bar's radius (`Flat.bars`: 4 LDU): a bar in a clip, a pin in a hollow stud and hinge fingers
+between fingers put such cylinders of two parts on one axis (`bars_meet`). A part joined so to a
+part it overlaps is held by that joint, not judged on the overlap (`joined`).
 """
 
 from __future__ import annotations
@@ -25,6 +30,14 @@ mated hinges are within 0.53 LDU of each other's axis (model files round rotated
 and their stretches overlap; the faults the old count-based rule excused are 31 LDU or more off
 any axis, and a fault moves a part 8-10 LDU. A move along the shared axis (a pin slid in its hole)
 keeps the connectors on one line: only sliding past the end is caught."""
+BAR_AXIS_LDU = 1.0
+"""How far apart the axes of two bar-size cylinders may run for them to be one joint. A bar off
+its clip's axis by more than a quarter of its radius is pressed into the clip's wall, not held;
+the joints of the six real designs are on one axis to 0.01 LDU (the clip tile and the round plate
+with bar of the Vintage Car, the car roof hinge, the surf board's pins in hollow side studs)."""
+END_LDU = 0.5
+"""How far two solid bar-size cylinders on one axis may run into each other and still be fingers
+side by side (the checker's overlap tolerance): further, they pass through each other."""
 PARALLEL_DEG = 10.0
 """Most angle between two connector axes that can still be one connection (mated: 0 degrees,
 a turned hinge plate: 90)."""
@@ -65,11 +78,56 @@ def may_hold(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool
         # the head's stud, which sits inside it), none of them a stud connection: the LDraw
         # files place a head and a helmet, or a neck and a head, overlapping by design.
         return True
+    if joined(new, new_pose, placed, placed_pose):
+        return True
     a, b = _connectors(new), _connectors(placed)
     if len(a) and len(b):
         return connectors_meet(place_connectors(a, new_pose.R, new_pose.t),
                                place_connectors(b, placed_pose.R, placed_pose.t))
     return held_otherwise(new) and offers_other(placed)
+
+
+def _rounds(part: Part) -> tuple[np.ndarray, np.ndarray]:
+    """A part's bar-size cylinders (`Flat.bars`) and hollow studs' bores, with their sides: +1
+    solid, -1 hollow (a bore always), 0 not known."""
+    return (np.concatenate([part.flat.bars, part.flat.bores]),
+            np.concatenate([part.flat.bar_out, -np.ones(len(part.flat.bores))]))
+
+
+def bars_meet(a: np.ndarray, a_out: np.ndarray, b: np.ndarray, b_out: np.ndarray) -> bool:
+    """Whether a bar-size cylinder of `a` and one of `b` (in one frame, sides as `_rounds`) are
+    one joint: on one axis (`PARALLEL_DEG`, `BAR_AXIS_LDU`), and a solid one inside a hollow one
+    (a bar or a pin in a clip or a bore: the stretches overlap), or two solid ones end to end
+    (hinge fingers side by side: no more than `END_LDU` into each other, no more than `NEAR_LDU`
+    apart). Two hollow ones hold nothing; where a side is not known, either is allowed."""
+    for s, so in zip(a, a_out):
+        for t, to in zip(b, b_out):
+            if so < 0 and to < 0:
+                continue
+            angle, radial, _ = separation(s, t)
+            if angle > PARALLEL_DEG or radial > BAR_AXIS_LDU:
+                continue
+            u = t[2]
+            x, y = sorted((s[:2] - t[0]) @ u), sorted((t[:2] - t[0]) @ u)
+            overlap = min(x[1], y[1]) - max(x[0], y[0])
+            inside = overlap > 0
+            side_by_side = -NEAR_LDU <= overlap <= END_LDU
+            if (so * to < 0 and inside) or (so * to > 0 and side_by_side) or (so * to == 0 and (inside or side_by_side)):
+                return True
+    return False
+
+
+def joined(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool:
+    """Whether two parts meet at a joint the checker does not model, by position: bar-size
+    cylinders (`bars_meet`: a bar in a clip or a hollow stud, hinge fingers), or connector
+    primitives on one axis (`connectors_meet`: a pin in a hole, click hinge halves)."""
+    (a, a_out), (b, b_out) = _rounds(new), _rounds(placed)
+    if len(a) and len(b) and bars_meet(place_connectors(a, new_pose.R, new_pose.t), a_out,
+                                       place_connectors(b, placed_pose.R, placed_pose.t), b_out):
+        return True
+    a, b = new.flat.other_connectors, placed.flat.other_connectors
+    return bool(len(a) and len(b)) and connectors_meet(place_connectors(a, new_pose.R, new_pose.t),
+                                                        place_connectors(b, placed_pose.R, placed_pose.t))
 
 
 def separation(s: np.ndarray, t: np.ndarray) -> tuple[float, float, float]:
