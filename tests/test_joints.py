@@ -132,3 +132,11 @@ def test_two_hollow_studs_on_one_axis_hold_nothing(at):
     # A bore is hollow: a round brick pushed down into another round brick is a collision.
     v = verdict([at("3062b", 0, 0, 0)], at("3062b", 0, -20, 0))
     assert v.reason == "collision", v
+
+
+def test_two_pins_end_to_end_hold_nothing(at):
+    # Covered Wagon step 19: the horse's 1x2 brick, placed a step before the horse, stands over
+    # the pin of the horse hitching 4587, its own underside pin 2 LDU above that one on one axis.
+    # Two solid cylinders meeting end to end are no hinge (a finger must sit between two).
+    hitch = at("4587", 0, 4, -40, [[0, 0, -1], [0, 1, 0], [1, 0, 0]])
+    assert verdict([hitch], at("3004", 0, -39, -138)).reason == "no-connection"

@@ -36,8 +36,8 @@ its clip's axis by more than a quarter of its radius is pressed into the clip's 
 the joints of the six real designs are on one axis to 0.01 LDU (the clip tile and the round plate
 with bar of the Vintage Car, the car roof hinge, the surf board's pins in hollow side studs)."""
 END_LDU = 0.5
-"""How far two solid bar-size cylinders on one axis may run into each other and still be fingers
-side by side (the checker's overlap tolerance): further, they pass through each other."""
+"""How far the ends of two solid bar-size cylinders on one axis may be apart, or into each other,
+for them to be fingers side by side (the checker's overlap tolerance)."""
 PARALLEL_DEG = 10.0
 """Most angle between two connector axes that can still be one connection (mated: 0 degrees,
 a turned hinge plate: 90)."""
@@ -95,26 +95,42 @@ def _rounds(part: Part) -> tuple[np.ndarray, np.ndarray]:
 
 
 def bars_meet(a: np.ndarray, a_out: np.ndarray, b: np.ndarray, b_out: np.ndarray) -> bool:
-    """Whether a bar-size cylinder of `a` and one of `b` (in one frame, sides as `_rounds`) are
-    one joint: on one axis (`PARALLEL_DEG`, `BAR_AXIS_LDU`), and a solid one inside a hollow one
-    (a bar or a pin in a clip or a bore: the stretches overlap), or two solid ones end to end
-    (hinge fingers side by side: no more than `END_LDU` into each other, no more than `NEAR_LDU`
-    apart). Two hollow ones hold nothing; where a side is not known, either is allowed."""
-    for s, so in zip(a, a_out):
-        for t, to in zip(b, b_out):
-            if so < 0 and to < 0:
-                continue
-            angle, radial, _ = separation(s, t)
-            if angle > PARALLEL_DEG or radial > BAR_AXIS_LDU:
-                continue
-            u = t[2]
-            x, y = sorted((s[:2] - t[0]) @ u), sorted((t[:2] - t[0]) @ u)
-            overlap = min(x[1], y[1]) - max(x[0], y[0])
-            inside = overlap > 0
-            side_by_side = -NEAR_LDU <= overlap <= END_LDU
-            if (so * to < 0 and inside) or (so * to > 0 and side_by_side) or (so * to == 0 and (inside or side_by_side)):
-                return True
+    """Whether bar-size cylinders of `a` and `b` (in one frame, sides as `_rounds`) make a joint:
+    on one axis (`PARALLEL_DEG`, `BAR_AXIS_LDU`), a solid one inside a hollow one (a bar or a pin
+    in a clip or a bore: their stretches overlap), or a solid finger of one part between two solid
+    fingers of the other, end to end within `END_LDU` (a hinge; two pins that only meet end to
+    end, a brick's underside pin on another part's pin, hold nothing). Two hollow ones hold
+    nothing; where a side is not known (0), either is allowed."""
+    pairs = [(i, j) for i in range(len(a)) for j in range(len(b))
+             if not (a_out[i] < 0 and b_out[j] < 0) and _on_one_axis(a[i], b[j])]
+    if any(a_out[i] * b_out[j] <= 0 and _stretch_overlap(a[i], b[j]) > 0 for i, j in pairs):
+        return True
+    solid = [(i, j) for i, j in pairs if a_out[i] >= 0 and b_out[j] >= 0]
+    for fingers, others, side in ((a, b, 0), (b, a, 1)):
+        ends: dict[int, set] = {}
+        for pair in solid:
+            f, o = pair[side], pair[1 - side]
+            u = fingers[f][2]
+            x, y = sorted(fingers[f][:2] @ u), sorted(others[o][:2] @ u)
+            if abs(y[1] - x[0]) <= END_LDU:
+                ends.setdefault(f, set()).add("low")
+            if abs(y[0] - x[1]) <= END_LDU:
+                ends.setdefault(f, set()).add("high")
+        if any(len(e) == 2 for e in ends.values()):
+            return True
     return False
+
+
+def _on_one_axis(s: np.ndarray, t: np.ndarray) -> bool:
+    angle, radial, _ = separation(s, t)
+    return angle <= PARALLEL_DEG and radial <= BAR_AXIS_LDU
+
+
+def _stretch_overlap(s: np.ndarray, t: np.ndarray) -> float:
+    """How far the stretches of two connectors on one axis overlap (negative: the gap between)."""
+    u = t[2]
+    x, y = sorted((s[:2] - t[0]) @ u), sorted((t[:2] - t[0]) @ u)
+    return float(min(x[1], y[1]) - max(x[0], y[0]))
 
 
 def joined(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool:
