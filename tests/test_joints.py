@@ -140,3 +140,22 @@ def test_two_pins_end_to_end_hold_nothing(at):
     # Two solid cylinders meeting end to end are no hinge (a finger must sit between two).
     hitch = at("4587", 0, 4, -40, [[0, 0, -1], [0, 1, 0], [1, 0, 0]])
     assert verdict([hitch], at("3004", 0, -39, -138)).reason == "no-connection"
+
+
+def test_a_plates_pin_in_a_hollow_stud_is_a_connection_not_modelled(at):
+    # A 1x2 plate centred on a round brick: its underside pin in the brick's hollow stud, its two
+    # ends free. Nothing else overlaps.
+    v = verdict([at("3062b", 0, 0, 0)], at("3023", 0, -8, 0))
+    assert v.reason == "unsupported-connection" and v.held_by == (0,), v
+
+
+@pytest.mark.parametrize("case", ["plate onto the open studs", "open studs under the plate"])
+def test_an_overlap_away_from_the_joint_is_still_a_collision(at, case):
+    # Vintage Car step 33 (shift faults): a 1x2 plate on a 1x2 plate with two open studs 35480,
+    # shifted half a stud along it. One plate's pin stands in an open stud (a joint), but the
+    # other open stud is under the 1x2 plate's end wall, 20 LDU from that axis: a collision.
+    if case == "plate onto the open studs":
+        v = verdict([at("35480", -40, 8, 0)], at("3023", -50, 0, 0))
+    else:
+        v = verdict([at("3023", -40, 0, 0)], at("35480", -50, 8, 0))
+    assert v.reason == "collision" and v.max_penetration_ldu > 3, (case, v)

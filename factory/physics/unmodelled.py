@@ -11,8 +11,9 @@ Minifigure pieces hold one another by joints of their own (`is_minifig`).
 
 Clips, bars and hinges are mostly drawn without connector primitives, but always with cylinders of
 the bar's radius (`Flat.bars`: 4 LDU): a bar in a clip, a pin in a hollow stud and hinge fingers
-between fingers put such cylinders of two parts on one axis (`bars_meet`). A part joined so to a
-part it overlaps is held by that joint, not judged on the overlap (`joined`).
+between fingers put such cylinders of two parts on one axis (`bar_joints`). The overlap such a joint
+makes (the collision pieces fill a clip's grip, a hollow stud, the gaps between fingers) lies round
+its axis (`JOINT_RADIUS_LDU`); `check` leaves that out and judges the rest of the overlap.
 """
 
 from __future__ import annotations
@@ -35,6 +36,9 @@ BAR_AXIS_LDU = 1.0
 its clip's axis by more than a quarter of its radius is pressed into the clip's wall, not held;
 the joints of the six real designs are on one axis to 0.01 LDU (the clip tile and the round plate
 with bar of the Vintage Car, the car roof hinge, the surf board's pins in hollow side studs)."""
+JOINT_RADIUS_LDU = 6.5
+"""How far from a bar joint's axis the overlap it makes may lie: a stud's radius (a hollow stud's
+wall round a pin; a clip's grip is thinner), and the overlap tolerance."""
 END_LDU = 0.5
 """How far the ends of two solid bar-size cylinders on one axis may be apart, or into each other,
 for them to be fingers side by side (the checker's overlap tolerance)."""
@@ -78,8 +82,6 @@ def may_hold(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool
         # the head's stud, which sits inside it), none of them a stud connection: the LDraw
         # files place a head and a helmet, or a neck and a head, overlapping by design.
         return True
-    if joined(new, new_pose, placed, placed_pose):
-        return True
     a, b = _connectors(new), _connectors(placed)
     if len(a) and len(b):
         return connectors_meet(place_connectors(a, new_pose.R, new_pose.t),
@@ -94,31 +96,37 @@ def _rounds(part: Part) -> tuple[np.ndarray, np.ndarray]:
             np.concatenate([part.flat.bar_out, -np.ones(len(part.flat.bores))]))
 
 
-def bars_meet(a: np.ndarray, a_out: np.ndarray, b: np.ndarray, b_out: np.ndarray) -> bool:
-    """Whether bar-size cylinders of `a` and `b` (in one frame, sides as `_rounds`) make a joint:
-    on one axis (`PARALLEL_DEG`, `BAR_AXIS_LDU`), a solid one inside a hollow one (a bar or a pin
-    in a clip or a bore: their stretches overlap), or a solid finger of one part between two solid
+def bars_meet(a: np.ndarray, a_out: np.ndarray, b: np.ndarray, b_out: np.ndarray) -> np.ndarray:
+    """Where bar-size cylinders of `a` and `b` (in one frame, sides as `_rounds`) make a joint, as
+    (k, 3, 3) stretches of axis (end, end, axis: the two cylinders' stretches together): on one
+    axis (`PARALLEL_DEG`, `BAR_AXIS_LDU`), a solid one inside a hollow one (a bar or a pin in a
+    clip or a bore: their stretches overlap), or a solid finger of one part between two solid
     fingers of the other, end to end within `END_LDU` (a hinge; two pins that only meet end to
     end, a brick's underside pin on another part's pin, hold nothing). Two hollow ones hold
     nothing; where a side is not known (0), either is allowed."""
     pairs = [(i, j) for i in range(len(a)) for j in range(len(b))
              if not (a_out[i] < 0 and b_out[j] < 0) and _on_one_axis(a[i], b[j])]
-    if any(a_out[i] * b_out[j] <= 0 and _stretch_overlap(a[i], b[j]) > 0 for i, j in pairs):
-        return True
+    found = [(i, j) for i, j in pairs if a_out[i] * b_out[j] <= 0 and _stretch_overlap(a[i], b[j]) > 0]
     solid = [(i, j) for i, j in pairs if a_out[i] >= 0 and b_out[j] >= 0]
     for fingers, others, side in ((a, b, 0), (b, a, 1)):
-        ends: dict[int, set] = {}
+        ends: dict[int, dict] = {}
         for pair in solid:
             f, o = pair[side], pair[1 - side]
             u = fingers[f][2]
             x, y = sorted(fingers[f][:2] @ u), sorted(others[o][:2] @ u)
             if abs(y[1] - x[0]) <= END_LDU:
-                ends.setdefault(f, set()).add("low")
+                ends.setdefault(f, {})["low"] = pair
             if abs(y[0] - x[1]) <= END_LDU:
-                ends.setdefault(f, set()).add("high")
-        if any(len(e) == 2 for e in ends.values()):
-            return True
-    return False
+                ends.setdefault(f, {})["high"] = pair
+        found += [pair for e in ends.values() if len(e) == 2 for pair in e.values()]
+    return np.array([_together(a[i], b[j]) for i, j in found]).reshape(-1, 3, 3)
+
+
+def _together(s: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The stretch of `t`'s axis that `s` and `t` cover together (end, end, axis)."""
+    u = t[2]
+    along = np.concatenate([(s[:2] - t[0]) @ u, (t[:2] - t[0]) @ u])
+    return np.stack([t[0] + along.min() * u, t[0] + along.max() * u, u])
 
 
 def _on_one_axis(s: np.ndarray, t: np.ndarray) -> bool:
@@ -133,17 +141,28 @@ def _stretch_overlap(s: np.ndarray, t: np.ndarray) -> float:
     return float(min(x[1], y[1]) - max(x[0], y[0]))
 
 
-def joined(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool:
-    """Whether two parts meet at a joint the checker does not model, by position: bar-size
-    cylinders (`bars_meet`: a bar in a clip or a hollow stud, hinge fingers), or connector
-    primitives on one axis (`connectors_meet`: a pin in a hole, click hinge halves)."""
+def bar_joints(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> np.ndarray:
+    """Where `new` and `placed` meet at a clip, bar, hinge or pin joint (`bars_meet`), as stretches
+    of axis (k, 3, 3) in the world frame; empty where they do not."""
     (a, a_out), (b, b_out) = _rounds(new), _rounds(placed)
-    if len(a) and len(b) and bars_meet(place_connectors(a, new_pose.R, new_pose.t), a_out,
-                                       place_connectors(b, placed_pose.R, placed_pose.t), b_out):
-        return True
-    a, b = new.flat.other_connectors, placed.flat.other_connectors
-    return bool(len(a) and len(b)) and connectors_meet(place_connectors(a, new_pose.R, new_pose.t),
-                                                        place_connectors(b, placed_pose.R, placed_pose.t))
+    if not (len(a) and len(b)):
+        return np.zeros((0, 3, 3))
+    return bars_meet(place_connectors(a, new_pose.R, new_pose.t), a_out,
+                     place_connectors(b, placed_pose.R, placed_pose.t), b_out)
+
+
+def in_zone(points: np.ndarray, zones: np.ndarray, radius: float = JOINT_RADIUS_LDU) -> np.ndarray:
+    """(n,) whether each point lies within `radius` of one of the stretches of axis `zones`
+    (k, 3, 3), between its ends grown by `radius`."""
+    points = np.asarray(points, float).reshape(-1, 3)
+    out = np.zeros(len(points), bool)
+    for p0, p1, u in zones:
+        d = points - p0
+        along = d @ u
+        radial = np.linalg.norm(d - along[:, None] * u, axis=1)
+        lo, hi = sorted([0.0, float((p1 - p0) @ u)])
+        out |= (radial <= radius) & (along >= lo - radius) & (along <= hi + radius)
+    return out
 
 
 def separation(s: np.ndarray, t: np.ndarray) -> tuple[float, float, float]:
