@@ -10,7 +10,8 @@ expensive ones; its later fields are None (not evaluated).
 
 Reasons, in the order they are reported: `unsupported-connection` (no stud connection, but the
 candidate touches or overlaps a structure part that may hold it by a connection the checker does
-not model: Technic pins and axles, clips, hinges, tyres on rims; `factory.physics.unmodelled`
+not model: Technic pins and axles, clips, hinges, tyres on rims; or, on studs or not, it overlaps
+a part only round the axis of a clip, bar or hinge joint with it; `factory.physics.unmodelled`
 says when), `collision`, `no-connection` (floating), `clutch` (its own connections cannot hold
 it), `clamped` (it sits on studs and under sockets at once: no approach reaches it), `blocked`
 (a part placed earlier is in the way of its approach), `unstable` (the part's component tips: its centre of mass is not over its support polygon),
