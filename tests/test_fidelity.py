@@ -319,3 +319,20 @@ def test_a_plate_beside_a_mudguards_end_is_clear_of_it(at, case):
     into = np.array([4.0, 4.0, 0.0])
     v = verdict([mudguard], at(plate, *(np.array(p_at) + into), p_r))
     assert v.collision and v.max_penetration_ldu > 3.0, (case, v)
+
+
+def test_a_corner_plate_round_a_steering_column_is_clear_of_it(at):
+    # Vintage Car step 22: a corner plate 2420 laid on the steering stand 3829c01, round its
+    # column. A refined piece of the stand was a wedge one sample bin across in the corner between
+    # the column and the plate at its foot (all its bin centres on its sloping face, so never
+    # tested): the corner plate overlapped it by 1.26 LDU. The hull's deepest point is sampled too.
+    stand = at("3829c01", 30, -24, 20, QUARTER)
+    v = check_units(Structure([stand]), [[at("2420", 30, -32, 0, TURN)]], standing=False, require_connection=False)[0]
+    assert v.reason is None and v.max_penetration_ldu <= 0.5, v
+    # Pushed 2 LDU into the column it overlaps it.
+    v = check_units(Structure([stand]), [[at("2420", 30, -32, 2, TURN)]], standing=False, require_connection=False)[0]
+    assert v.reason == "collision" and v.max_penetration_ldu > 1.5, v
+    # No piece holds the corner (the stand's frame: the column's face at x = -10, the plate's
+    # top at y = 0).
+    shape = collision_shape(stand.part)
+    assert not any(np.all(ConvexHull(p).equations @ [-10.6, -0.6, -8.0, 1.0] < 0) for p in shape.body)

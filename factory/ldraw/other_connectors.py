@@ -65,3 +65,52 @@ def axis_segment(name: str, triangles: np.ndarray) -> np.ndarray:
             break
     along = (triangles.reshape(-1, 3) - point) @ axis if len(triangles) else np.zeros(1)
     return np.stack([point + along.min() * axis, point + along.max() * axis, axis])
+
+
+BAR_RADIUS = 4.0
+"""LDU. LEGO's bar (3.2 mm across): a bar or a handle, the grip of a clip, the rounded end of a
+hinge finger and the solid pin under a 1xN plate or brick are all cylinders of this radius, and a
+hollow stud's bore is one too (`Flat.bores`). Two of them on one axis are a clip, bar or hinge
+joint (`factory.physics.unmodelled.bars_meet`)."""
+BAR_RADIUS_TOL = 0.25
+"""How far a cylinder's radius may be from `BAR_RADIUS` (LDraw files draw it as 4 exactly)."""
+
+_CYLINDER = re.compile(r"^\d+-\d+cyl[a-z]*\d?\.dat$")
+"""LDraw's cylinder primitives (`4-4cyli`, `2-4cylc`, `5-8cylo`, `1-8cyls`, in any resolution
+folder): a unit circle in X-Z swept along Y from 0 to 1."""
+
+
+def bar_cylinder(name: str, matrix: np.ndarray, pos: np.ndarray) -> np.ndarray | None:
+    """(3, 3) like a connector (end, end, unit axis) for a cylinder primitive placed with a round
+    cross-section of the bar's radius, square to its axis; None for anything else (an ellipse, a
+    sheared or any other radius: a stud's 6, a tube's 8)."""
+    base = name.replace("\\", "/").rsplit("/", 1)[-1].lower()
+    if not _CYLINDER.match(base):
+        return None
+    m = np.asarray(matrix, float)
+    a, h, b = m[:, 0], m[:, 1], m[:, 2]
+    ra, rb, length = float(np.linalg.norm(a)), float(np.linalg.norm(b)), float(np.linalg.norm(h))
+    if length < 1e-6 or abs(ra - BAR_RADIUS) > BAR_RADIUS_TOL or abs(rb - BAR_RADIUS) > BAR_RADIUS_TOL:
+        return None
+    if max(abs(a @ b) / (ra * rb), abs(a @ h) / (ra * length), abs(b @ h) / (rb * length)) > 1e-3:
+        return None
+    p = np.asarray(pos, float)
+    return np.stack([p, p + h, h / length])
+
+
+def facing_out(triangles: np.ndarray, segment: np.ndarray) -> float:
+    """+1 where the triangles of a cylinder face away from its axis (a solid bar, pin or finger),
+    -1 where they face it (a clip's grip, a hole), 0 where that cannot be told. The triangles must
+    be wound as the part draws them (counter-clockwise seen from outside)."""
+    if not len(triangles):
+        return 0.0
+    n = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    d = triangles.mean(axis=1) - segment[0]
+    radial = d - (d @ segment[2])[:, None] * segment[2]
+    lengths = np.linalg.norm(radial, axis=1)
+    ok = lengths > 1e-6
+    out = np.einsum("ij,ij->i", n[ok], radial[ok] / lengths[ok, None])  # caps add nothing
+    s, total = float(out.sum()), float(np.abs(out).sum())
+    if total < 1e-9 or abs(s) < 0.5 * total:
+        return 0.0
+    return 1.0 if s > 0 else -1.0

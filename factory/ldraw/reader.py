@@ -20,7 +20,8 @@ from factory.errors import (
     LDrawReadError,
 )
 from factory.ldraw.library import LIBRARY_SEARCH, DirSource, Library, Located, _read_file, check_reference
-from factory.ldraw.other_connectors import axis_segment, is_other_connector, place_connectors
+from factory.ldraw.other_connectors import (axis_segment, bar_cylinder, facing_out, is_other_connector,
+                                             place_connectors)
 from factory.ldraw.parse import LDrawFile, Poly, Ref, decode, parse_lines, split_mpd
 
 MAX_DEPTH = 64
@@ -99,6 +100,15 @@ class Flat:
     """(b, 3, 3) float64, like `other_connectors`: the bore of each hollow stud (its stretch of the
     stud's axis). A bore holds a bar (a torch, an antenna, an exhaust pipe's pin), a connection
     the checker does not model; unlike the other connectors it does not hold its own part up."""
+    bars: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    """(c, 3, 3) float64, like `other_connectors`: every cylinder of a bar's radius the part is drawn
+    with (`other_connectors.BAR_RADIUS`, 4 LDU) outside its hollow studs (whose bores are
+    `bores`): a bar or a handle, the grip of a clip, a hinge finger's rounded end, the solid pin
+    under a 1xN plate."""
+    bar_out: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """(c,) float64 for `bars`: +1 where the cylinder's faces look away from its axis (solid: a bar,
+    a pin, a finger), -1 where they look at it (hollow: a clip's grip), 0 where the part's winding
+    is not known (not BFC-certified)."""
 
 
 @dataclass
@@ -241,6 +251,7 @@ class Reader:
             return cached
         self._check_stack(res, stack)
         tris, cols, edges, studs, in_stud, others, bores = [], [], [], [], [], [], []
+        bars, bar_out = [], []
         certified = res.file.certified
         for it in res.file.items:
             if isinstance(it, Poly):
@@ -274,6 +285,16 @@ class Reader:
                     bores.append(place_connectors(axis_segment(it.name, child.triangles)[None], it.matrix, it.pos))
                 elif len(child.bores):
                     bores.append(place_connectors(child.bores, it.matrix, it.pos))
+                cylinder = bar_cylinder(it.name, it.matrix, it.pos)
+                if cylinder is not None:
+                    # `t` is wound as this file draws it (mirrors and INVERTNEXT applied).
+                    bars.append(cylinder[None])
+                    bar_out.append([facing_out(t, cylinder) if child.certified else 0.0])
+                elif len(child.bars) and not is_hollow_stud(it.name):
+                    bars.append(place_connectors(child.bars, it.matrix, it.pos))
+                    # INVERTNEXT turns the child inside out (a mirror does not: `_place` keeps
+                    # its faces looking out).
+                    bar_out.append(-child.bar_out if it.invert else child.bar_out)
                 stud_ref = is_stud_primitive(it.name)
                 in_stud.append(np.ones(len(t), bool) if stud_ref else child.in_stud)
                 if stud_ref:
@@ -294,9 +315,10 @@ class Reader:
             in_stud=np.concatenate(in_stud) if in_stud else np.zeros(0, bool),
             other_connectors=_unique_connectors(np.concatenate(others)) if others else np.zeros((0, 3, 3)),
             bores=_unique_connectors(np.concatenate(bores)) if bores else np.zeros((0, 3, 3)),
+            **_bars(bars, bar_out, certified),
         )
         for arr in (flat.triangles, flat.colours, flat.edges, flat.studs, flat.in_stud,
-                    flat.other_connectors, flat.bores):
+                    flat.other_connectors, flat.bores, flat.bars, flat.bar_out):
             arr.setflags(write=False)
         self._flat[res.key] = flat
         return flat
@@ -320,15 +342,39 @@ def _place(child: Flat, ref: Ref) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
     return tris, cols, edges, studs
 
 
+def _bars(bars: list, bar_out: list, certified: bool) -> dict:
+    """`Flat.bars` and `Flat.bar_out`: each cylinder once (the same stretch of axis drawn twice
+    is one; solid one time and hollow another, it is left undecided), no side where the winding is
+    not known."""
+    if not bars:
+        return {}
+    conns, out = np.concatenate(bars), np.concatenate(bar_out)
+    sides: dict[tuple, set] = {}
+    first: dict[tuple, int] = {}
+    for i, key in enumerate(_connector_key(c) for c in conns):
+        first.setdefault(key, i)
+        sides.setdefault(key, set()).add(float(out[i]))
+    keep = list(first.values())
+    side = [s.pop() if len(s) == 1 and certified else 0.0 for s in sides.values()]
+    return {"bars": conns[keep], "bar_out": np.array(side)}
+
+
+def _connector_key(conn: np.ndarray) -> tuple:
+    """The same for a connector's stretch of axis drawn again (ends in either order, the axis
+    either way round)."""
+    a, b, axis = np.round(conn, 3) + 0.0
+    nz = np.flatnonzero(axis)
+    if len(nz) and axis[nz[0]] < 0:
+        axis = -axis
+    return (tuple(sorted([tuple(a), tuple(b)])), tuple(axis + 0.0))
+
+
 def _unique_connectors(conns: np.ndarray) -> np.ndarray:
     """Drop connectors drawn twice at the same place (the same ends in either order, the same
     axis either way round)."""
     seen, keep = set(), []
-    for i, (a, b, axis) in enumerate(np.round(conns, 3) + 0.0):
-        nz = np.flatnonzero(axis)
-        if len(nz) and axis[nz[0]] < 0:
-            axis = -axis
-        key = (tuple(sorted([tuple(a), tuple(b)])), tuple(axis + 0.0))
+    for i, conn in enumerate(conns):
+        key = _connector_key(conn)
         if key not in seen:
             seen.add(key)
             keep.append(i)

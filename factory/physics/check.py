@@ -10,7 +10,8 @@ expensive ones; its later fields are None (not evaluated).
 
 Reasons, in the order they are reported: `unsupported-connection` (no stud connection, but the
 candidate touches or overlaps a structure part that may hold it by a connection the checker does
-not model: Technic pins and axles, clips, hinges, tyres on rims; `factory.physics.unmodelled`
+not model: Technic pins and axles, clips, hinges, tyres on rims; or, on studs or not, it overlaps
+a part only round the axis of a clip, bar or hinge joint with it; `factory.physics.unmodelled`
 says when), `collision`, `no-connection` (floating), `clutch` (its own connections cannot hold
 it), `clamped` (it sits on studs and under sockets at once: no approach reaches it), `blocked`
 (a part placed earlier is in the way of its approach), `unstable` (the part's component tips: its centre of mass is not over its support polygon),
@@ -36,7 +37,7 @@ from factory.physics.statics import (Failure, Link, LoadBase, LoadConfig, holds_
 from factory.physics.sweep import seating_from_connections, sweep
 from factory.physics.sweep_jax import sweep_groups
 from factory.physics.structure import Placed, Structure, connections_at, lowest_point
-from factory.physics.unmodelled import may_hold
+from factory.physics.unmodelled import bar_joints, may_hold
 from factory.pose import Pose
 
 BACKENDS = ("mujoco", "mjx")
@@ -268,13 +269,21 @@ class _Call:
             collision = depth > config.max_penetration_ldu
             base = dict(pose=pose, connected=bool(outer), connections=len(outer), collision=collision,
                         max_penetration_ldu=round(depth, 4), touching=bool(near))
+            joints = self._joints(unit, near)
+            if joints and collision and self.scene.penetration(pose, touched, joints)[0] > config.max_penetration_ldu:
+                joints = {}  # it overlaps beyond the joints too: judged on that overlap
             if not outer and near:
-                holders = tuple(sorted(i for i in near if any(
-                    may_hold(p.part, p.pose, structure.placed[i].part, structure.placed[i].pose) for p in unit)))
+                holders = tuple(sorted(set(joints) | {i for i in near if any(
+                    may_hold(p.part, p.pose, structure.placed[i].part, structure.placed[i].pose) for p in unit)}))
                 if holders:
                     # Held by a connection we do not model (Technic, clip, hinge, tyre): not judged here.
                     self.verdicts[k] = Verdict(**base, held_by=holders, reason="unsupported-connection")
                     continue
+            if collision and joints:
+                # On studs, and overlapping only where it is joined to a part by a clip, bar or
+                # hinge (a hinge roof's fingers between its holder's): held by that joint too.
+                self.verdicts[k] = Verdict(**base, held_by=tuple(sorted(joints)), reason="unsupported-connection")
+                continue
             if collision:
                 self.verdicts[k] = Verdict(**base, reason="collision")
                 continue
@@ -286,6 +295,19 @@ class _Call:
         STAGE_SECONDS["rules"] += time.perf_counter() - t0
         if self.backend != "mjx":
             self.clutched(holds_alone_many(self.clutch_cases(), config.loads))
+
+    def _joints(self, unit: Sequence[Placed], near) -> dict[int, np.ndarray]:
+        """The structure parts among `near` that a part of the unit meets at a clip, bar, hinge or
+        pin joint, with where (`unmodelled.bar_joints`: stretches of axis, world frame)."""
+        if not any(len(p.part.flat.bars) + len(p.part.flat.bores) for p in unit):
+            return {}  # nothing to be joined by (every part of the sampler's library)
+        placed = self.structure.placed
+        out = {}
+        for i in sorted(near):
+            found = [z for p in unit if len(z := bar_joints(p.part, p.pose, placed[i].part, placed[i].pose))]
+            if found:
+                out[i] = np.concatenate(found)
+        return out
 
     def clutch_cases(self) -> list[tuple]:
         """`statics.holds_alone_many`'s cases for the connected candidates (mass, centre, the

@@ -23,7 +23,8 @@ from factory.connections import STUD_HEIGHT, STUD_RADIUS
 from factory.parts import Part
 from factory.physics.geometry import INSET_LDU, CollisionShape, collision_shape
 from factory.physics.structure import Structure
-from factory.pose import LDU_M, Pose, points_to_mujoco
+from factory.physics.unmodelled import in_zone
+from factory.pose import LDRAW_TO_MUJOCO, LDU_M, Pose, points_to_mujoco
 
 @functools.cache
 def _template(name: str) -> str:
@@ -345,13 +346,16 @@ class CollisionScene:
             return self.structure.placed[gi.owner].pose
         return pose @ self.unit[gi.member][1]
 
-    def penetration(self, pose: Pose, connected: set[int]) -> tuple[float, set[int]]:
+    def penetration(self, pose: Pose, connected: set[int], joints: dict | None = None) -> tuple[float, set[int]]:
         """(Deepest overlap in LDU with the structure or the floor, structure parts it touches).
 
         Overlap = depth between inset pieces + both insets; 0 when no inset pieces touch. Stud
         contacts with parts in `connected` are ignored; a stud standing in another part's hollow
         (crossing none of its faces) touches it without overlapping. Touching = a real gap under
-        NEAR_LDU.
+        NEAR_LDU. `joints`: structure part -> stretches of axis (k, 3, 3) where the candidate
+        meets it at a clip, bar or hinge joint (`unmodelled.bar_joints`); an overlap with that part
+        round such an axis (`unmodelled.in_zone`: a contact's position, a piece's centre) is the
+        joint's and left out.
         """
         pos, quat = pose.to_mujoco_quat()
         self.data.qpos[:3] = pos
@@ -370,6 +374,12 @@ class CollisionScene:
             other_g, cand_g = np.where(cand_first, g2, g1), np.where(cand_first, g1, g2)
             # Candidate against structure or floor only (not within the candidate's unit).
             keep = ((o1 == -1) | (o2 == -1)) & (other != -1)
+            if joints:
+                at = np.asarray(con.pos[:n], float) @ LDRAW_TO_MUJOCO / LDU_M
+                for owner, zones in joints.items():
+                    mine = keep & (other == owner)
+                    mine[mine] = in_zone(at[mine], zones)
+                    keep &= ~mine
             conn = (other >= 0) & np.isin(other, np.fromiter(connected, np.int64, len(connected)))
             keep &= ~(conn & (self.is_stud[other_g] | self.is_stud[cand_g]))
             overlap = -np.asarray(con.dist[:n], float) / LDU_M + self.inset[g1] + self.inset[g2]
@@ -384,18 +394,23 @@ class CollisionScene:
             if over.any():
                 deepest = float(overlap[over].max())
             near = {int(o) for o in np.unique(other[keep & (other >= 0) & (overlap > -NEAR_LDU)])}
-        depth, owners = self._coincident(pose)
+        depth, owners = self._coincident(pose, joints)
         near |= owners
         return max(deepest, depth), near
 
-    def _coincident(self, pose: Pose) -> tuple[float, set[int]]:
-        """Depth of a candidate piece centre inside a structure piece, or the reverse."""
+    def _coincident(self, pose: Pose, joints: dict | None = None) -> tuple[float, set[int]]:
+        """Depth of a candidate piece centre inside a structure piece, or the reverse (a centre
+        within a joint's zone with that piece's part left out: `penetration`)."""
         if not len(self._s_centre) or not len(self._c_centre):
             return 0.0, set()
         centres = pose.apply(self._c_centre)
         a = _inside_depth(self._s_planes, self._s_piece, len(self._s_centre), centres)
         inv = pose.inverse()
         b = _inside_depth(self._c_planes, self._c_piece, len(self._c_centre), inv.apply(self._s_centre))
+        for owner, zones in (joints or {}).items():
+            mine = self._s_owner == owner
+            a[np.ix_(mine, in_zone(centres, zones))] = 0.0
+            b[:, mine & in_zone(self._s_centre, zones)] = 0.0
         depth_s = a.max(axis=1)  # per structure piece: deepest candidate centre inside it
         depth_c = b.max(axis=0)  # per structure centre: deepest inside a candidate piece
         per_piece = np.maximum(depth_s, depth_c)

@@ -29,7 +29,7 @@ import subprocess
 import sys
 import tempfile
 import zipfile
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -82,10 +82,12 @@ class DecompositionConfig:
     cache key: refined pieces are cached under their own (`collision_shape`)."""
 
 
-REFINED_VERSION = 2
-"""Version of the refinement (`_refined`), part of refined pieces' cache key. 2: samples every point
-the inset piece keeps, halves cells down to twice the inset and drops pieces thinner than the
-inset (1: sampled 0.5 LDU in, halved down to `min_cut_ldu`, kept every piece)."""
+REFINED_VERSION = 3
+"""Version of the refinement (`_refined`), part of refined pieces' cache key. 3: samples the deepest point
+of a hull the grid misses (`_Faithfulness.centre`) and keeps a cell too small to cut (it gave up
+the whole piece). 2: samples every point the inset piece keeps,
+halves cells down to twice the inset and drops pieces thinner than the inset (1: sampled 0.5 LDU
+in, halved down to `min_cut_ldu`, kept every piece)."""
 
 
 def cache_dir() -> Path:
@@ -278,6 +280,12 @@ class _Faithfulness:
     """How far inside the hull a sample point must lie. The whole-body split samples 0.5 LDU in;
     the refinement (`_refined`) samples everything the inset piece keeps (`INSET_LDU` in), so a
     cell thinner than 1 LDU still holds sample points (see there)."""
+    centre: bool = False
+    """Whether a hull that holds no bin centre deeper than `depth` is sampled at its deepest point
+    (its Chebyshev centre) where that lies deeper (the refinement's test). The grid's bin centres
+    can all miss a hull: in a wedge one bin across, they lie on its sloping face. The steering stand 3829c01 kept such a wedge,
+    1.35 x 2.2 LDU across, in the concave corner between its column and the plate at its foot, and
+    the corner plate 2420 laid round the column (Vintage Car step 22) overlapped it by 1.26 LDU."""
 
     def escaping(self, points: np.ndarray) -> int:
         """How many sample points inside the hull of `points` see out of the part."""
@@ -295,6 +303,10 @@ class _Faithfulness:
         grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
         inside = np.all(grid @ hull.equations[:, :3].T + hull.equations[:, 3] < -self.depth, axis=1)
         grid = grid[inside]
+        if self.centre and not len(grid):
+            deepest = _interior_point(hull.equations, self.depth + 1e-6)
+            if deepest is not None:
+                grid = np.concatenate([grid, deepest[None]])
         escaped = np.zeros(len(grid), bool)
         for axis, sign in _SIDES:
             open_ = ~escaped
@@ -354,10 +366,13 @@ def _hull_volume(points: np.ndarray) -> float:
 
 
 def _split_faithful(polys: list[np.ndarray], test: _Faithfulness, min_cut: float,
-                    budget: list[int]) -> list[np.ndarray] | None:
+                    budget: list[int], keep_small: bool = False) -> list[np.ndarray] | None:
     """Vertices of convex pieces covering the surface `polys`, each hull faithful (`test`),
     found by halving along the part's own axis-aligned faces (the cut that leaves the least hull
-    volume first); None once `budget[0]` cells have been examined (coacd's case then)."""
+    volume first); None once `budget[0]` cells have been examined (coacd's case then), or where a
+    cell that is not faithful cannot be cut (no face in it, thinner than two `min_cut`), unless
+    `keep_small`: then that cell is kept as it is (the refinement's case: a cell under twice the
+    inset at its thickest, rather than the whole piece it came from)."""
     budget[0] -= 1
     if budget[0] < 0:
         return None
@@ -388,12 +403,12 @@ def _split_faithful(polys: list[np.ndarray], test: _Faithfulness, min_cut: float
         if best is None or volume < best[0]:
             best = (volume, axis, at)
     if best is None:
-        return None
+        return [points] if keep_small else None
     pieces = []
     for half in _cut(polys, best[1], best[2]):
         if not half:
             continue
-        sub = _split_faithful(half, test, min_cut, budget)
+        sub = _split_faithful(half, test, min_cut, budget, keep_small)
         if sub is None:
             return None
         pieces += sub
@@ -446,7 +461,7 @@ def _refined(part: Part, pieces: list[np.ndarray], cfg: DecompositionConfig) -> 
     the face of its side (z = 0) to the wall and the ledge of its row of sockets (x = -20,
     y = 24), spanning the open corner between them, above its sockets beside its rounded end,
     where the design lays 1x3 plates; its inset piece reached 7 LDU into them."""
-    test = _faithfulness(part, cfg, depth=cfg.inset_ldu)
+    test = replace(_faithfulness(part, cfg, depth=cfg.inset_ldu), centre=True)
     body = list(part.flat.triangles[~part.flat.in_stud])
     out = []
     for piece in pieces:
@@ -454,7 +469,7 @@ def _refined(part: Part, pieces: list[np.ndarray], cfg: DecompositionConfig) -> 
             out.append(piece)
             continue
         polys = _within(body, piece, cfg.inset_ldu + cfg.snap_ldu)
-        split = (_split_faithful(polys, test, 2 * cfg.inset_ldu, [cfg.refine_cells])
+        split = (_split_faithful(polys, test, 2 * cfg.inset_ldu, [cfg.refine_cells], keep_small=True)
                  if polys else None)
         if split is None:
             out.append(piece)

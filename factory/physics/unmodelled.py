@@ -8,6 +8,12 @@ drawn without such primitives can only be judged by its shape: a new part with n
 sit on studs (a hinge top, a tyre, a rim), a placed part without studs or sockets offers something
 else (a hinge base, a rim); there is no position to compare then, so touching is enough.
 Minifigure pieces hold one another by joints of their own (`is_minifig`).
+
+Clips, bars and hinges are mostly drawn without connector primitives, but always with cylinders of
+the bar's radius (`Flat.bars`: 4 LDU): a bar in a clip, a pin in a hollow stud and hinge fingers
+between fingers put such cylinders of two parts on one axis (`bar_joints`). The overlap such a joint
+makes (the collision pieces fill a clip's grip, a hollow stud, the gaps between fingers) lies round
+its axis (`JOINT_RADIUS_LDU`); `check` leaves that out and judges the rest of the overlap.
 """
 
 from __future__ import annotations
@@ -25,6 +31,17 @@ mated hinges are within 0.53 LDU of each other's axis (model files round rotated
 and their stretches overlap; the faults the old count-based rule excused are 31 LDU or more off
 any axis, and a fault moves a part 8-10 LDU. A move along the shared axis (a pin slid in its hole)
 keeps the connectors on one line: only sliding past the end is caught."""
+BAR_AXIS_LDU = 1.0
+"""How far apart the axes of two bar-size cylinders may run for them to be one joint. A bar off
+its clip's axis by more than a quarter of its radius is pressed into the clip's wall, not held;
+the joints of the six real designs are on one axis to 0.01 LDU (the clip tile and the round plate
+with bar of the Vintage Car, the car roof hinge, the surf board's pins in hollow side studs)."""
+JOINT_RADIUS_LDU = 6.5
+"""How far from a bar joint's axis the overlap it makes may lie: a stud's radius (a hollow stud's
+wall round a pin; a clip's grip is thinner), and the overlap tolerance."""
+END_LDU = 0.5
+"""How far the ends of two solid bar-size cylinders on one axis may be apart, or into each other,
+for them to be fingers side by side (the checker's overlap tolerance)."""
 PARALLEL_DEG = 10.0
 """Most angle between two connector axes that can still be one connection (mated: 0 degrees,
 a turned hinge plate: 90)."""
@@ -70,6 +87,82 @@ def may_hold(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool
         return connectors_meet(place_connectors(a, new_pose.R, new_pose.t),
                                place_connectors(b, placed_pose.R, placed_pose.t))
     return held_otherwise(new) and offers_other(placed)
+
+
+def _rounds(part: Part) -> tuple[np.ndarray, np.ndarray]:
+    """A part's bar-size cylinders (`Flat.bars`) and hollow studs' bores, with their sides: +1
+    solid, -1 hollow (a bore always), 0 not known."""
+    return (np.concatenate([part.flat.bars, part.flat.bores]),
+            np.concatenate([part.flat.bar_out, -np.ones(len(part.flat.bores))]))
+
+
+def bars_meet(a: np.ndarray, a_out: np.ndarray, b: np.ndarray, b_out: np.ndarray) -> np.ndarray:
+    """Where bar-size cylinders of `a` and `b` (in one frame, sides as `_rounds`) make a joint, as
+    (k, 3, 3) stretches of axis (end, end, axis: the two cylinders' stretches together): on one
+    axis (`PARALLEL_DEG`, `BAR_AXIS_LDU`), a solid one inside a hollow one (a bar or a pin in a
+    clip or a bore: their stretches overlap), or a solid finger of one part between two solid
+    fingers of the other, end to end within `END_LDU` (a hinge; two pins that only meet end to
+    end, a brick's underside pin on another part's pin, hold nothing). Two hollow ones hold
+    nothing; where a side is not known (0), either is allowed."""
+    pairs = [(i, j) for i in range(len(a)) for j in range(len(b))
+             if not (a_out[i] < 0 and b_out[j] < 0) and _on_one_axis(a[i], b[j])]
+    found = [(i, j) for i, j in pairs if a_out[i] * b_out[j] <= 0 and _stretch_overlap(a[i], b[j]) > 0]
+    solid = [(i, j) for i, j in pairs if a_out[i] >= 0 and b_out[j] >= 0]
+    for fingers, others, side in ((a, b, 0), (b, a, 1)):
+        ends: dict[int, dict] = {}
+        for pair in solid:
+            f, o = pair[side], pair[1 - side]
+            u = fingers[f][2]
+            x, y = sorted(fingers[f][:2] @ u), sorted(others[o][:2] @ u)
+            if abs(y[1] - x[0]) <= END_LDU:
+                ends.setdefault(f, {})["low"] = pair
+            if abs(y[0] - x[1]) <= END_LDU:
+                ends.setdefault(f, {})["high"] = pair
+        found += [pair for e in ends.values() if len(e) == 2 for pair in e.values()]
+    return np.array([_together(a[i], b[j]) for i, j in found]).reshape(-1, 3, 3)
+
+
+def _together(s: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The stretch of `t`'s axis that `s` and `t` cover together (end, end, axis)."""
+    u = t[2]
+    along = np.concatenate([(s[:2] - t[0]) @ u, (t[:2] - t[0]) @ u])
+    return np.stack([t[0] + along.min() * u, t[0] + along.max() * u, u])
+
+
+def _on_one_axis(s: np.ndarray, t: np.ndarray) -> bool:
+    angle, radial, _ = separation(s, t)
+    return angle <= PARALLEL_DEG and radial <= BAR_AXIS_LDU
+
+
+def _stretch_overlap(s: np.ndarray, t: np.ndarray) -> float:
+    """How far the stretches of two connectors on one axis overlap (negative: the gap between)."""
+    u = t[2]
+    x, y = sorted((s[:2] - t[0]) @ u), sorted((t[:2] - t[0]) @ u)
+    return float(min(x[1], y[1]) - max(x[0], y[0]))
+
+
+def bar_joints(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> np.ndarray:
+    """Where `new` and `placed` meet at a clip, bar, hinge or pin joint (`bars_meet`), as stretches
+    of axis (k, 3, 3) in the world frame; empty where they do not."""
+    (a, a_out), (b, b_out) = _rounds(new), _rounds(placed)
+    if not (len(a) and len(b)):
+        return np.zeros((0, 3, 3))
+    return bars_meet(place_connectors(a, new_pose.R, new_pose.t), a_out,
+                     place_connectors(b, placed_pose.R, placed_pose.t), b_out)
+
+
+def in_zone(points: np.ndarray, zones: np.ndarray, radius: float = JOINT_RADIUS_LDU) -> np.ndarray:
+    """(n,) whether each point lies within `radius` of one of the stretches of axis `zones`
+    (k, 3, 3), between its ends grown by `radius`."""
+    points = np.asarray(points, float).reshape(-1, 3)
+    out = np.zeros(len(points), bool)
+    for p0, p1, u in zones:
+        d = points - p0
+        along = d @ u
+        radial = np.linalg.norm(d - along[:, None] * u, axis=1)
+        lo, hi = sorted([0.0, float((p1 - p0) @ u)])
+        out |= (radial <= radius) & (along >= lo - radius) & (along <= hi + radius)
+    return out
 
 
 def separation(s: np.ndarray, t: np.ndarray) -> tuple[float, float, float]:

@@ -1,0 +1,172 @@
+"""Clips, bars and hinges, joints the checker does not model: recognised by the cylinders of a
+bar's radius (4 LDU) that both parts are drawn with, on one axis, so that a part held by one is
+reported `unsupported-connection` (left out of the fidelity rate, a rigid link for the loads)
+instead of `collision`, and the same part moved off the joint is still rejected. Poses are those
+of the real designs in `../shared/ldraw_models` (the step is named)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from factory.embedded import generate_library
+from factory.ldraw.library import Library
+from factory.ldraw.reader import Reader
+from factory.parts import load_part
+from factory.physics.check import check_units
+from factory.physics.structure import Placed, Structure
+from factory.pose import Pose
+
+I3 = np.eye(3)
+
+
+@pytest.fixture(scope="module")
+def at(real_reader):
+    def _at(name, x, y, z, R=I3):
+        return Placed(load_part(real_reader, name), 4, Pose(np.array(R, float), [x, y, z]))
+
+    return _at
+
+
+def verdict(structure, unit, backend="mujoco"):
+    unit = unit if isinstance(unit, list) else [unit]
+    (v,) = check_units(Structure(list(structure)), [unit], backend, standing=False)
+    return v
+
+
+def moved(placed, by):
+    return Placed(placed.part, placed.colour, Pose(placed.pose.R, placed.pose.t + np.asarray(by, float)))
+
+
+def test_bar_size_cylinders_are_read_with_their_side(real_reader):
+    # A bar is solid, a clip's grip hollow, hinge fingers solid; a plain brick has none, and a
+    # round brick's hollow stud is a bore, not a bar.
+    def bars(name):
+        flat = load_part(real_reader, name).flat
+        return len(flat.bars), sorted(flat.bar_out.tolist())
+
+    assert bars("32828")[1] == [1.0, 1.0, 1.0]       # round plate with bar (its bar and handle)
+    assert bars("15712") == (1, [-1.0])              # tile with clip
+    assert bars("4214") == (5, [1.0] * 5)            # car roof holder: five fingers
+    assert bars("4213") == (4, [1.0] * 4)            # car roof: four fingers between them
+    assert bars("90397") == (4, [1.0] * 4)           # surf board: four pins underneath
+    assert bars("3005") == (0, [])
+    assert len(load_part(real_reader, "3062b").flat.bores) == 1
+
+
+def test_the_sampler_library_has_no_bars():
+    # Its parts are drawn without cylinder primitives: nothing in the sampler can be joined.
+    reader = Reader(Library.embedded())
+    names = [k.split("/", 1)[1] for k in generate_library() if k.startswith("parts/")]
+    assert names
+    for name in names:
+        flat = load_part(reader, name).flat
+        assert len(flat.bars) == 0 and len(flat.other_connectors) == 0, name
+
+
+# Vintage Car step 38: a round plate with bar under a round tile (a sub-assembly), its bar in the
+# clip of a tile 15712 on the side stud of a 1x1 brick 87087 (step 29): no stud connection, and
+# the clip's collision pieces fill the grip the bar lies in (1.8 LDU).
+def clip_on_brick(at):
+    return [at("87087", 50, -56, 50, [[0, 0, 1], [0, 1, 0], [-1, 0, 0]]),
+            at("15712", 50, -64, 50, [[-1, 0, 0], [0, 1, 0], [0, 0, -1]])]
+
+
+def bar_unit(at, by=(0.0, 0.0, 0.0)):
+    r = [[0, 1, 0], [0, 0, -1], [-1, 0, 0]]
+    return [moved(at("32828", 48, -70, 70, r), by), moved(at("98138", 40, -70, 70, r), by)]
+
+
+def test_a_bar_in_a_clip_is_a_connection_not_modelled(at):
+    v = verdict(clip_on_brick(at), bar_unit(at))
+    assert v.reason == "unsupported-connection" and v.held_by == (1,), v
+    # Slid 4 LDU along the bar it is still in the clip.
+    assert verdict(clip_on_brick(at), bar_unit(at, (0, 0, 4))).reason == "unsupported-connection"
+
+
+@pytest.mark.parametrize("by", [(0, 4, 0), (0, -8, 0), (4, 0, 0), (10, 0, 0)])
+def test_a_bar_off_its_clips_axis_is_judged_like_any_part(at, by):
+    v = verdict(clip_on_brick(at), bar_unit(at, by))
+    assert v.reason in {"collision", "no-connection"}, (by, v)
+
+
+# Car (car.ldr step 7): the hinge roof 4213 on the studs of the windscreen 3823, its four fingers
+# between the five of the roof holder 4214 (1.3 LDU where the pieces fill the gaps between them).
+def roof_holder(at):
+    return [at("3823", 0, -88, -30), at("4214", 0, -88, 30)]
+
+
+def test_hinge_fingers_between_fingers_are_a_connection_not_modelled(at):
+    v = verdict(roof_holder(at), at("4213", 0, -96, 0))
+    assert v.reason == "unsupported-connection" and v.held_by == (1,) and v.connections == 2, v
+
+
+@pytest.mark.parametrize("by", [(10, 0, 0), (0, 0, 10), (0, -8, 0), (0, 4, 0)])
+def test_hinge_fingers_moved_through_the_others_are_rejected(at, by):
+    # Along the hinge's axis the fingers run into each other (no joint); across it, off the axis.
+    v = verdict(roof_holder(at), moved(at("4213", 0, -96, 0), by))
+    assert v.reason in {"collision", "no-connection"}, (by, v)
+
+
+def test_a_collision_beside_a_joint_is_still_a_collision(at):
+    # Joined to the holder, but also pushed into a brick standing where the roof goes: the
+    # overlap that is not the joint's rejects it.
+    v = verdict(roof_holder(at) + [at("3004", 0, -96, 0)], at("4213", 0, -96, 0))
+    assert v.reason == "collision", v
+
+
+# Vintage Car, main model: surf boards 90397 as running boards, their underside pins in the
+# hollow side studs of plates 99206 (no stud connection: 4.0 LDU where the studs' solid
+# collision prisms stand in the pins).
+def test_pins_in_hollow_side_studs_are_a_connection_not_modelled(at):
+    plate = at("99206", 60, -32, 50, [[-1, 0, 0], [0, 1, 0], [0, 0, -1]])
+    board = at("90397", 30, -26, 68, [[0, 0, 1], [-1, 0, 0], [0, -1, 0]])
+    v = verdict([plate], board)
+    assert v.reason == "unsupported-connection" and v.held_by == (0,), v
+    # Off the studs' axes (across the board, or pulled off them) it is judged like any part.
+    for by in [(0, 10, 0), (0, -10, 0), (0, 0, 8)]:
+        assert verdict([plate], moved(board, by)).reason in {"collision", "no-connection"}, by
+
+
+def test_two_hollow_studs_on_one_axis_hold_nothing(at):
+    # A bore is hollow: a round brick pushed down into another round brick is a collision.
+    v = verdict([at("3062b", 0, 0, 0)], at("3062b", 0, -20, 0))
+    assert v.reason == "collision", v
+
+
+def test_two_pins_end_to_end_hold_nothing(at):
+    # Covered Wagon step 19: the horse's 1x2 brick, placed a step before the horse, stands over
+    # the pin of the horse hitching 4587, its own underside pin 2 LDU above that one on one axis.
+    # Two solid cylinders meeting end to end are no hinge (a finger must sit between two).
+    hitch = at("4587", 0, 4, -40, [[0, 0, -1], [0, 1, 0], [1, 0, 0]])
+    assert verdict([hitch], at("3004", 0, -39, -138)).reason == "no-connection"
+
+
+def test_a_plates_pin_in_a_hollow_stud_is_a_connection_not_modelled(at):
+    # A 1x2 plate centred on a round brick: its underside pin in the brick's hollow stud, its two
+    # ends free. Nothing else overlaps.
+    v = verdict([at("3062b", 0, 0, 0)], at("3023", 0, -8, 0))
+    assert v.reason == "unsupported-connection" and v.held_by == (0,), v
+
+
+@pytest.mark.parametrize("case", ["plate onto the open studs", "open studs under the plate"])
+def test_an_overlap_away_from_the_joint_is_still_a_collision(at, case):
+    # Vintage Car step 33 (shift faults): a 1x2 plate on a 1x2 plate with two open studs 35480,
+    # shifted half a stud along it. One plate's pin stands in an open stud (a joint), but the
+    # other open stud is under the 1x2 plate's end wall, 20 LDU from that axis: a collision.
+    if case == "plate onto the open studs":
+        v = verdict([at("35480", -40, 8, 0)], at("3023", -50, 0, 0))
+    else:
+        v = verdict([at("3023", -40, 0, 0)], at("35480", -50, 8, 0))
+    assert v.reason == "collision" and v.max_penetration_ldu > 3, (case, v)
+
+
+@pytest.mark.parametrize("backend", ["mujoco", "mjx"])
+def test_both_backends_judge_joints_alike(at, backend):
+    # The batched collision rule finds the overlap; the joint's zone is left out on the CPU scene.
+    if backend == "mjx":
+        pytest.importorskip("jax")
+    assert verdict(roof_holder(at), at("4213", 0, -96, 0), backend).reason == "unsupported-connection"
+    assert verdict(roof_holder(at), at("4213", 10, -96, 0), backend).reason == "collision"
+    assert verdict(clip_on_brick(at), bar_unit(at), backend).reason == "unsupported-connection"
+    assert verdict([at("35480", -40, 8, 0)], at("3023", -50, 0, 0), backend).reason == "collision"
