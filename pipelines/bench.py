@@ -17,7 +17,9 @@ Sections, each timed and written as soon as it ends (a later failure loses nothi
 
 Outputs: `OUT/report.json`, `OUT/report.md`, `OUT/physics.png`, `OUT/render.png`, `OUT/eval.png`, and
 the work folders under `OUT/work/` (the datasets and prediction files, reused by a re-run: the
-dataset builder resumes). The defaults take about 10 minutes on a 2-core CPU.
+dataset builder resumes). The defaults took 258 s on a 2-core CPU with the six designs of
+`../shared/ldraw_models` (2026-11-26, the parts' decompositions already cached): physics 89 s,
+renders 14 s, synth 28 s, designs 81 s, evaluation 43 s.
 """
 
 from __future__ import annotations
