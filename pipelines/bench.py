@@ -447,7 +447,12 @@ def run(args) -> int:
 
     earlier = _earlier_report(out, report, args.quick) if args.resume else {}
     # A physics section cut short keeps the parts it finished (each saved as it ends).
-    partial = earlier.pop("physics") if "growth" not in earlier.get("physics", {"growth": 0}) else None
+    partial = None
+    if "physics" in earlier and not set(PHYSICS_PARTS) <= earlier["physics"].keys():
+        partial = earlier.pop("physics")
+
+    def save() -> None:
+        write_atomic(out / "report.json", json.dumps(report, indent=1).encode())
     report["kept"] = [k for k in SECTIONS if k in earlier] + (
         [f"physics ({', '.join(k for k in PHYSICS_PARTS if k in partial)})"] if partial else [])
 
@@ -462,7 +467,7 @@ def run(args) -> int:
         report[name] = fn()
         report["section_s"][name] = round(time.perf_counter() - t, 1)
         report["wall_s"] = round(time.perf_counter() - t0, 1)
-        write_atomic(out / "report.json", json.dumps(report, indent=1).encode())
+        save()
 
     backends = None if args.backends == "auto" else [b.strip() for b in args.backends.split(",") if b.strip()]
     for b in backends or []:
@@ -471,7 +476,7 @@ def run(args) -> int:
 
     def save_physics(part: dict) -> None:
         report["physics"] = part
-        write_atomic(out / "report.json", json.dumps(report, indent=1).encode())
+        save()
 
     section("physics", lambda: physics_section(gpu, args.quick, backends, done=partial, save=save_physics))
     render_models = [(EXAMPLE, None)] + ([(m, ldraw) for m in models] if not args.quick else [])
@@ -485,7 +490,7 @@ def run(args) -> int:
     section("evaluation", lambda: evaluation_section(datasets, work))
     report["wall_s"] = round(time.perf_counter() - t0, 1)
     report["plots"] = plots(report, out)
-    write_atomic(out / "report.json", json.dumps(report, indent=1).encode())
+    save()
     write_atomic(out / "report.md", markdown(report).encode())
     print(f"bench: wrote {out / 'report.md'} and {out / 'report.json'} in {report['wall_s']:.0f} s")
     return 0

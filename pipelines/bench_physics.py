@@ -281,14 +281,26 @@ def batched_processes(kind: str, n: int, batch: int, procs: int) -> tuple[list, 
     the first start to the last end, every process compiled and waiting at a barrier before the
     clock starts."""
 
+    done, seconds = _together(_spans(batch, procs), _ctx_init, (kind, n, batch), _shared_run)
+    return [x for *_, got in done for x in got], seconds
+
+
+def _spans(n: int, procs: int) -> list[tuple[int, int]]:
+    """0..n-1 cut into at most `procs` contiguous (start, end) slices."""
+    step = -(-n // procs)
+    return [(a, min(a + step, n)) for a in range(0, n, step)]
+
+
+def _together(spans, init, initargs, run, *args) -> tuple[list, float]:
+    """`run(span, *args, barrier)` for each span, each in a new process of its own (`init(*initargs)`
+    first), the clocks started together at the barrier: (each run's result, seconds from the first
+    start to the last end; every result begins with its start and end times)."""
     spawn = multiprocessing.get_context("spawn")  # not fork: JAX's threads may hold locks
-    step = -(-batch // procs)
-    spans = [(a, min(a + step, batch)) for a in range(0, batch, step)]
     with spawn.Manager() as manager, ProcessPoolExecutor(
-            len(spans), mp_context=spawn, initializer=_ctx_init, initargs=(kind, n, batch)) as pool:
+            len(spans), mp_context=spawn, initializer=init, initargs=initargs) as pool:
         barrier = manager.Barrier(len(spans))  # every task waits for all: one task per process
-        done = list(pool.map(_shared_run, spans, [barrier] * len(spans)))
-    return [x for *_, got in done for x in got], max(d[1] for d in done) - min(d[0] for d in done)
+        done = list(pool.map(run, spans, *[[a] * len(spans) for a in args], [barrier] * len(spans)))
+    return done, max(d[1] for d in done) - min(d[0] for d in done)
 
 
 def _shared_row(kind: str, row: dict, procs: int, cpu_max: int, cpu_workers: int, counts) -> dict:
@@ -499,17 +511,11 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
     from the first start to the last end. Stage seconds are summed over the processes."""
     rows = []
     if procs > 1:
-        spawn = multiprocessing.get_context("spawn")  # not fork: JAX's threads may hold locks
-        step = -(-objects // procs)
-        spans = [(a, min(a + step, objects)) for a in range(0, objects, step)]
+        spans = _spans(objects, procs)
         for batch in batches:
             per = max(1, batch // len(spans))
             # New processes for every row, so that no row finds the answers an earlier one cached.
-            with spawn.Manager() as manager, ProcessPoolExecutor(
-                    len(spans), mp_context=spawn, initializer=_growth_init, initargs=(backend, steps, objects)) as pool:
-                barrier = manager.Barrier(len(spans))
-                done = list(pool.map(_growth_run, spans, [per] * len(spans), [barrier] * len(spans)))
-            wall = max(d[1] for d in done) - min(d[0] for d in done)
+            done, wall = _together(spans, _growth_init, (backend, steps, objects), _growth_run, per)
             stages = Counter()
             for d in done:
                 stages.update(d[3])
