@@ -106,7 +106,7 @@ def feedback_config(data, pred, split: str = "train", objects_per_shard: int = 4
                         split=split, predictions=str(pred.resolve()), predictions_sha256=file_sha256(pred),
                         objects=objects)
     seed = src.seed if src.seed is not None else int(config.get("seed", 0))
-    ldraw = library(data, ldraw)
+    ldraw = library(data, ldraw, src)
     return DatasetConfig("feedback", len(objects), seed=seed, dataset_id=f"{src.dataset_id}-feedback",
                          size=int(config["size"]), tile=int(config.get("tile", 128)),
                          objects_per_shard=objects_per_shard, png_compress_level=int(config.get("png_compress_level", 6)),
