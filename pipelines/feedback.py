@@ -53,8 +53,6 @@ from pipelines.dataset.sources import ObjectSpec, file_sha256
 from pipelines.synth import guarded
 
 (FEEDBACK_COLUMN,) = FEEDBACK_IMAGES
-REASONS = ("built", "right", "unparseable", "missing", "failed")
-"""What became of each pose answer of the split: a correction row, or why not."""
 
 
 def feedback_schema():
