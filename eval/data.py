@@ -37,13 +37,14 @@ def info(out) -> DatasetInfo:
         raise DatasetError(str(exc)) from None
 
 
-def library(out, ldraw=None) -> str | None:
+def library(out, ldraw=None, src: DatasetInfo | None = None) -> str | None:
     """The LDraw library to draw the dataset `out`'s parts from: `ldraw` when given, else the one
     it was built with (`config.ldraw`; None: the embedded library). A dataset moved to another
-    machine records a folder that may not be there: that is a clear error asking for `ldraw`."""
+    machine records a folder that may not be there: that is a clear error asking for `ldraw`.
+    `src`: `info(out)` where the caller has read it already."""
     if ldraw is not None:
         return str(ldraw)
-    recorded = info(out).config.get("ldraw")
+    recorded = (src if src is not None else info(out)).config.get("ldraw")
     if recorded is not None and not Path(recorded).is_dir():
         raise DatasetError(f"{out}: built with the LDraw library {recorded}, which is not a folder here; "
                            f"give the same library's folder on this machine (--ldraw DIR)")

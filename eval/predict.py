@@ -181,7 +181,8 @@ def iter_predictions(data, predictor: Predictor, split: str | None = "test", tas
         columns += feedback_columns()
         from factory.render import Renderer  # lazy: GL at import; only feedback images need it
 
-        reader, size = get_reader(library(data, ldraw)), int(info(data).config["size"])
+        src = info(data)
+        reader, size = get_reader(library(data, ldraw, src)), int(src.config["size"])
     columns = list(dict.fromkeys(columns))
     n_rows = count_rows(data, split)
     total = min(n_rows, limit) if limit is not None else n_rows
@@ -260,9 +261,9 @@ def run(args) -> int:
     if Path(args.out).is_dir():
         raise ModelSpecError(f"--out {args.out} is a folder; give a file name (preds.jsonl)")
     tasks = parse_tasks(args.tasks)
-    info(args.data)  # a clear error before a model is loaded
+    src = info(args.data)  # a clear error before a model is loaded
     if args.feedback:
-        library(args.data, args.ldraw)
+        library(args.data, args.ldraw, src)
     predictor = make_predictor(args.model, args.seed, args.max_new_tokens, args.device)
     summary = write_predictions(args.data, predictor, args.out, args.split, tasks, args.limit, args.feedback,
                                 progress=not args.no_progress, ldraw=args.ldraw)

@@ -53,8 +53,6 @@ from pipelines.dataset.sources import ObjectSpec, file_sha256
 from pipelines.synth import guarded
 
 (FEEDBACK_COLUMN,) = FEEDBACK_IMAGES
-REASONS = ("built", "right", "unparseable", "missing", "failed")
-"""What became of each pose answer of the split: a correction row, or why not."""
 
 
 def feedback_schema():
@@ -69,15 +67,20 @@ def correction_messages(row: dict, predicted: str, errors: list[dict]) -> list[d
             {"role": "assistant", "content": [text_part(row["pose_answer"])]}]
 
 
-def split_objects(data, split: str) -> dict[str, list[tuple[str, int]]]:
+def split_objects(data, split: str, step_ids: list | None = None) -> dict[str, list[tuple[str, int]]]:
     """{object id: [(shard file, row group), ...]} of `split` of dataset `data`, in dataset order
-    (Parquet metadata and the `object_id` column only)."""
+    (Parquet metadata and the `object_id` column only). `step_ids`, when given, gets the split's
+    step ids appended in dataset order, read in the same pass."""
+    columns = ["object_id"] if step_ids is None else ["object_id", "step_id"]
     where: dict[str, list[tuple[str, int]]] = {}
     for f in shard_files(data, split):
         pf = pq.ParquetFile(f)
         for g in range(pf.num_row_groups):
-            for oid in dict.fromkeys(pf.read_row_group(g, columns=["object_id"]).column(0).to_pylist()):
+            table = pf.read_row_group(g, columns=columns)
+            for oid in dict.fromkeys(table.column("object_id").to_pylist()):
                 where.setdefault(oid, []).append((str(f), g))
+            if step_ids is not None:
+                step_ids.extend(table.column("step_id").to_pylist())
     return where
 
 
@@ -101,7 +104,7 @@ def feedback_config(data, pred, split: str = "train", objects_per_shard: int = 4
                         split=split, predictions=str(pred.resolve()), predictions_sha256=file_sha256(pred),
                         objects=objects)
     seed = src.seed if src.seed is not None else int(config.get("seed", 0))
-    ldraw = library(data, ldraw)
+    ldraw = library(data, ldraw, src)
     return DatasetConfig("feedback", len(objects), seed=seed, dataset_id=f"{src.dataset_id}-feedback",
                          size=int(config["size"]), tile=int(config.get("tile", 128)),
                          objects_per_shard=objects_per_shard, png_compress_level=int(config.get("png_compress_level", 6)),
@@ -116,13 +119,12 @@ class FeedbackSource:
         spec = config.feedback
         self.dataset_id, self.ldraw, self.size, self.level = (config.dataset_id, config.ldraw, config.size,
                                                               config.png_compress_level)
-        self.where = split_objects(spec.dataset, spec.split)
+        ids: list[str] = []
+        self.where = split_objects(spec.dataset, spec.split, ids)
         missing = [o for o in spec.objects if o not in self.where]
         if missing:
             raise DatasetError(f"{spec.dataset}: object {missing[0]!r} of the feedback config is not in its "
                                f"{spec.split} split any more; build the feedback dataset again into a new folder")
-        ids = [sid for f in shard_files(spec.dataset, spec.split)
-               for sid in pq.read_table(f, columns=["step_id"]).column(0).to_pylist()]
         self.answers, _ = read_predictions(spec.predictions, ids)
 
     def object(self, index: int, object_id: str) -> ObjectSpec:
