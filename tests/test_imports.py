@@ -135,9 +135,6 @@ OPTIONAL = {
 """Top-level packages that are not core dependencies (the extra or package that brings each): an
 import of one of them may sit inside a function without a comment."""
 
-UNREVIEWED: set[str] = set()
-"""Files whose in-function imports are still to be reviewed (issue 16); not checked yet."""
-
 
 def _comment_lines(source: str) -> tuple[set[int], set[int]]:
     """(lines that carry a comment, lines that are only a comment)."""
@@ -172,8 +169,6 @@ def unexplained_imports(root: Path = ROOT) -> list[str]:
     for package in PACKAGES:
         for path in sorted((root / package).rglob("*.py")):
             rel = path.relative_to(root).as_posix()
-            if rel in UNREVIEWED:
-                continue
             source = path.read_text()
             tree = ast.parse(source, filename=str(path))
             carry, only = _comment_lines(source)
