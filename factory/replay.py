@@ -1,6 +1,6 @@
 """Replay a human-designed model's build steps through the physics checks (`verify_model`).
 
-The library behind `python -m pipelines.verify MODEL [--ldraw DIR] [--backend mujoco|mjx] --json`
+The library behind `python -m pipelines.verify MODEL [--ldraw DIR] [--check-backend mujoco|mjx] --json`
 and the physics records of the design dataset source (`pipelines.dataset.sources`).
 
 Each placed part is checked against the parts placed before it in the same sub-assembly (the first
@@ -61,10 +61,9 @@ def _solid(part) -> bool:
 
 
 def _flat_record(**extra) -> dict:
-    """The record of a part with no volume, in `_record`'s fields: not checked."""
-    return {**extra, "collision": False, "max_penetration_ldu": 0.0, "connected": False, "connections": 0,
-            "stable": None, "load": None, "failing": [], "buildable": None, "approach": None, "blocked_by": [],
-            "reason": NO_VOLUME}
+    """The record of a part with no volume (`_record` of an empty verdict): not checked."""
+    return _record(Verdict(Pose.identity(), connected=False, connections=0, collision=False,
+                           max_penetration_ldu=0.0, reason=NO_VOLUME), **extra)
 
 
 def _faults(structure, local: Placed, backend, config, standing, step, index, finished=None):

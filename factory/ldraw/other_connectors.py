@@ -75,7 +75,7 @@ joint (`factory.physics.unmodelled.bars_meet`)."""
 BAR_RADIUS_TOL = 0.25
 """How far a cylinder's radius may be from `BAR_RADIUS` (LDraw files draw it as 4 exactly)."""
 
-_CYLINDER = re.compile(r"^\d+-\d+cyl[a-z]*\d?\.dat$")
+_CYLINDER = re.compile(r"^(?:.*/)?\d+-\d+cyl[a-z]*\d?\.dat$")
 """LDraw's cylinder primitives (`4-4cyli`, `2-4cylc`, `5-8cylo`, `1-8cyls`, in any resolution
 folder): a unit circle in X-Z swept along Y from 0 to 1."""
 
@@ -83,9 +83,8 @@ folder): a unit circle in X-Z swept along Y from 0 to 1."""
 def bar_cylinder(name: str, matrix: np.ndarray, pos: np.ndarray) -> np.ndarray | None:
     """(3, 3) like a connector (end, end, unit axis) for a cylinder primitive placed with a round
     cross-section of the bar's radius, square to its axis; None for anything else (an ellipse, a
-    sheared or any other radius: a stud's 6, a tube's 8)."""
-    base = name.replace("\\", "/").rsplit("/", 1)[-1].lower()
-    if not _CYLINDER.match(base):
+    sheared or any other radius: a stud's 6, a tube's 8). `name` as `parse.normalize_name` writes it."""
+    if not _CYLINDER.match(name):
         return None
     m = np.asarray(matrix, float)
     a, h, b = m[:, 0], m[:, 1], m[:, 2]

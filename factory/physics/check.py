@@ -269,7 +269,8 @@ class _Call:
             collision = depth > config.max_penetration_ldu
             base = dict(pose=pose, connected=bool(outer), connections=len(outer), collision=collision,
                         max_penetration_ldu=round(depth, 4), touching=bool(near))
-            joints = self._joints(unit, near)
+            # Joints matter only to a candidate that collides or has no stud connection.
+            joints = self._joints(unit, near) if collision or not outer else {}
             if joints and collision and self.scene.penetration(pose, touched, joints)[0] > config.max_penetration_ldu:
                 joints = {}  # it overlaps beyond the joints too: judged on that overlap
             if not outer and near:
