@@ -200,7 +200,7 @@ def check_folder(recipe: RecipeConfig) -> None:
         if conflicts:
             raise ConfigError(f"{recipe.run} holds a recipe run made with other settings, which cannot be resumed "
                               "with these: " + "; ".join(conflicts) + ". Use the same settings, or another --outdir.")
-    write_atomic(path, (json.dumps(recipe.to_dict(), indent=1, sort_keys=True) + "\n").encode())
+    _write_json(path, recipe.to_dict())
 
 
 def stage_done(config: TrainConfig) -> bool:
