@@ -52,6 +52,7 @@ from train.distributed import launched_processes
 from train.evaluate import trained_predictor
 from train.loop import FINAL, base_model_path, resolve_device, train as run_training
 from train.model import ModelError
+from train.report import SUMMARY_FILE
 
 CONFIG_FILE = "recipe_config.json"
 REPORT_JSON = "report.json"
@@ -285,7 +286,7 @@ def feedback_rows(recipe: RecipeConfig, model: Path, device, progress: bool, log
 
 def _train_summary(run: Path) -> dict:
     try:
-        s = json.loads((run / "train_summary.json").read_text())
+        s = json.loads((run / SUMMARY_FILE).read_text())
     except (OSError, ValueError):
         return {}
     return {k: s.get(k) for k in ("steps", "examples", "epochs", "first_loss", "final_loss", "train_seconds",
