@@ -450,7 +450,7 @@ def save_final(config: TrainConfig, model, processor, base: Path) -> Path:
     final = run / FINAL
     if (final / "config.json").is_file() and (final / CONFIG_FILE).is_file():
         done = json.loads((final / CONFIG_FILE).read_text()).get("steps")
-        if done == config.steps and _final_step(final) == config.steps:
+        if done == config.steps and final_step(final) == config.steps:
             return final
     full = merged(model)
     tmp = ckpt.tmp_dir(run, FINAL)
@@ -464,7 +464,8 @@ def save_final(config: TrainConfig, model, processor, base: Path) -> Path:
     return ckpt.publish(tmp, final)
 
 
-def _final_step(final: Path) -> int | None:
+def final_step(final: Path) -> int | None:
+    """The step a `final/` folder was trained to (its final.json), None if it has none."""
     try:
         return int(json.loads((final / "final.json").read_text())["step"])
     except (OSError, ValueError, KeyError):

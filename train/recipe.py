@@ -50,7 +50,7 @@ from pipelines.feedback import build_feedback
 from train.config import ConfigError, TrainConfig, lora_value, resume_conflicts
 from train.distributed import launched_processes
 from train.evaluate import trained_predictor
-from train.loop import FINAL, base_model_path, resolve_device, train as run_training
+from train.loop import FINAL, base_model_path, final_step, resolve_device, train as run_training
 from train.model import ModelError
 from train.report import SUMMARY_FILE
 
@@ -208,12 +208,13 @@ def stage_done(config: TrainConfig) -> bool:
     """Whether the run folder of `config` holds its final model, trained to its step count under
     the same settings."""
     final = Path(config.outdir) / FINAL
+    if final_step(final) != config.steps:
+        return False
     try:
         saved = TrainConfig.load(final)
-        step = json.loads((final / "final.json").read_text())["step"]
     except (OSError, ValueError, KeyError, ConfigError):
         return False
-    return step == config.steps and not resume_conflicts(saved, config)
+    return not resume_conflicts(saved, config)
 
 
 def _same(path: Path, key: dict) -> bool:
