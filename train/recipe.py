@@ -235,13 +235,17 @@ def _weights_id(model: Path) -> list:
     return [[f.name, f.stat().st_size, f.stat().st_mtime_ns] for f in files]
 
 
+def _answers_key(recipe: RecipeConfig, model: Path, data: str, tasks, limit) -> dict:
+    """What decides `model`'s answers on `data`: kept files made under another key are made again."""
+    return {"model": str(model), "weights": _weights_id(model), "data": str(data), "tasks": list(tasks),
+            "limit": limit, "max_new_tokens": recipe.train.max_new_tokens, "max_pixels": recipe.train.max_pixels}
+
+
 def answers(recipe: RecipeConfig, model: Path, data: str, split: str, out: Path, tasks, limit, device,
             progress: bool) -> Path:
     """Predictions of `model` on `split` of `data` into `out` (kept when made by the same model
     on the same steps: `out`.key.json)."""
-    key = {"model": str(model), "weights": _weights_id(model), "data": str(data), "split": split,
-           "tasks": list(tasks), "limit": limit,
-           "max_new_tokens": recipe.train.max_new_tokens, "max_pixels": recipe.train.max_pixels}
+    key = {**_answers_key(recipe, model, data, tasks, limit), "split": split}
     marker = out.with_name(out.name + ".key.json")
     if out.is_file() and _same(marker, key):
         return out
@@ -261,9 +265,7 @@ def evaluation(recipe: RecipeConfig, name: str, model: Path, tests: dict[str, st
     for test, data in tests.items():
         preds = recipe.run / "eval" / f"{name}-{test}.jsonl"
         scored = preds.with_suffix(".score.json")
-        key = {"model": str(model), "weights": _weights_id(model), "data": str(data), "limit": limit,
-               "tasks": list(recipe.train.tasks),
-               "max_new_tokens": recipe.train.max_new_tokens, "max_pixels": recipe.train.max_pixels}
+        key = _answers_key(recipe, model, data, recipe.train.tasks, limit)
         if not _same(scored, key):
             log(f"evaluating {name} ({model}) on the test split of {test}")
             answers(recipe, model, data, "test", preds, recipe.train.tasks, limit, device, progress)
