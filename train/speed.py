@@ -46,7 +46,6 @@ import argparse
 import copy
 import importlib.util
 import json
-import os
 import statistics
 import sys
 import tempfile
@@ -424,10 +423,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     finally:
         # torch at import (the [train] extra): `--help` and the refusals above need none
-        from train.distributed import end
+        from train.distributed import end, launched_rank
 
         end()
-    if int(os.environ.get("RANK", "0")) == 0:  # under torchrun, one row for all processes
+    if launched_rank() == 0:  # under torchrun, one row for all processes
         print(json.dumps(row), flush=True)
         if args.out:
             append_row(args.out, row)
