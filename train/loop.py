@@ -42,7 +42,7 @@ import torch
 from tqdm import tqdm
 
 from eval.data import shard_files
-from eval.processor import load_processor, save_processor
+from eval.processor import load_processor, pad_token_id, save_processor
 from train import checkpoint as ckpt
 from train.config import CONFIG_FILE, ConfigError, TrainConfig, resume_conflicts
 from train.data import IGNORE, ExampleStream, collate
@@ -378,10 +378,7 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
     stream = ExampleStream(config.data, processor, config.tasks, config.seed, config.shuffle_window,
                            config.max_length, state["position"], workers=config.resolved_workers(group.processes),
                            processor_path=base, max_pixels=config.max_pixels, weights=config.weights)
-    pad_id = processor.tokenizer.pad_token_id
-    if pad_id is None:
-        pad_id = processor.tokenizer.eos_token_id
-    batches = (Batches(stream, config.batch_size, pad_id, rank=group.rank, processes=group.processes)
+    batches = (Batches(stream, config.batch_size, pad_token_id(processor.tokenizer), rank=group.rank, processes=group.processes)
                if state["step"] < config.steps else None)
     bar = tqdm(total=config.steps, initial=state["step"], unit="step", desc="train", disable=not progress,
                dynamic_ncols=True)
