@@ -428,15 +428,13 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
     if peak is not None:
         peak = group.reduce([peak], op="max")[0]  # the fullest GPU
     if not group.main:
-        group.barrier()  # rank 0 writes final/ and the summary
-        end()
+        end()  # its barrier waits for rank 0 to write final/ and the summary
         return {"rank": group.rank, "steps": state["step"]}
     final = save_final(config, model, processor, base)
     summary = write_summary(run, config, state, device, trainable=n_train, parameters=n_all,
                             peak_gpu_gb=peak, final=final, processes=group.processes,
                             epochs=state["position"][0] + state["position"][1] / stream.examples_per_epoch)
     del model, wrapped, optimizer
-    group.barrier()
     end()
     return summary
 
