@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from eval.processor import load_processor
+from eval.processor import load_processor, pad_token_id
 
 
 class CheckpointError(ValueError):
@@ -102,7 +102,7 @@ class HFPredictor:
             tok.padding_side = side
         device = getattr(self.model, "device", None) or next(self.model.parameters()).device
         inputs = inputs.to(device)
-        pad = tok.pad_token_id if tok.pad_token_id is not None else tok.eos_token_id
+        pad = pad_token_id(tok)
         with torch.inference_mode():
             out = self.model.generate(**inputs, max_new_tokens=int(max_new_tokens), do_sample=False, num_beams=1,
                                       pad_token_id=pad)

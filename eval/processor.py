@@ -138,3 +138,8 @@ def save_processor(processor, path) -> None:
     # the image processor's own file too, as the hub repositories have it (older loaders and
     # `AutoImageProcessor` read it there)
     processor.image_processor.save_pretrained(str(path))
+
+
+def pad_token_id(tokenizer) -> int | None:
+    """The id that pads a batch: the tokenizer's pad token, else its end-of-sequence token."""
+    return tokenizer.pad_token_id if tokenizer.pad_token_id is not None else tokenizer.eos_token_id

@@ -42,7 +42,7 @@ import torch
 from tqdm import tqdm
 
 from eval.data import shard_files
-from eval.processor import load_processor, save_processor
+from eval.processor import load_processor, pad_token_id, save_processor
 from train import checkpoint as ckpt
 from train.config import CONFIG_FILE, ConfigError, TrainConfig, resume_conflicts
 from train.data import IGNORE, ExampleStream, collate
@@ -378,10 +378,7 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
     stream = ExampleStream(config.data, processor, config.tasks, config.seed, config.shuffle_window,
                            config.max_length, state["position"], workers=config.resolved_workers(group.processes),
                            processor_path=base, max_pixels=config.max_pixels, weights=config.weights)
-    pad_id = processor.tokenizer.pad_token_id
-    if pad_id is None:
-        pad_id = processor.tokenizer.eos_token_id
-    batches = (Batches(stream, config.batch_size, pad_id, rank=group.rank, processes=group.processes)
+    batches = (Batches(stream, config.batch_size, pad_token_id(processor.tokenizer), rank=group.rank, processes=group.processes)
                if state["step"] < config.steps else None)
     bar = tqdm(total=config.steps, initial=state["step"], unit="step", desc="train", disable=not progress,
                dynamic_ncols=True)
@@ -431,15 +428,13 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
     if peak is not None:
         peak = group.reduce([peak], op="max")[0]  # the fullest GPU
     if not group.main:
-        group.barrier()  # rank 0 writes final/ and the summary
-        end()
+        end()  # its barrier waits for rank 0 to write final/ and the summary
         return {"rank": group.rank, "steps": state["step"]}
     final = save_final(config, model, processor, base)
     summary = write_summary(run, config, state, device, trainable=n_train, parameters=n_all,
                             peak_gpu_gb=peak, final=final, processes=group.processes,
                             epochs=state["position"][0] + state["position"][1] / stream.examples_per_epoch)
     del model, wrapped, optimizer
-    group.barrier()
     end()
     return summary
 
@@ -450,7 +445,7 @@ def save_final(config: TrainConfig, model, processor, base: Path) -> Path:
     final = run / FINAL
     if (final / "config.json").is_file() and (final / CONFIG_FILE).is_file():
         done = json.loads((final / CONFIG_FILE).read_text()).get("steps")
-        if done == config.steps and _final_step(final) == config.steps:
+        if done == config.steps and final_step(final) == config.steps:
             return final
     full = merged(model)
     tmp = ckpt.tmp_dir(run, FINAL)
@@ -464,7 +459,8 @@ def save_final(config: TrainConfig, model, processor, base: Path) -> Path:
     return ckpt.publish(tmp, final)
 
 
-def _final_step(final: Path) -> int | None:
+def final_step(final: Path) -> int | None:
+    """The step a `final/` folder was trained to (its final.json), None if it has none."""
     try:
         return int(json.loads((final / "final.json").read_text())["step"])
     except (OSError, ValueError, KeyError):

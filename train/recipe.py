@@ -50,8 +50,9 @@ from pipelines.feedback import build_feedback
 from train.config import ConfigError, TrainConfig, lora_value, resume_conflicts
 from train.distributed import launched_processes
 from train.evaluate import trained_predictor
-from train.loop import FINAL, base_model_path, resolve_device, train as run_training
+from train.loop import FINAL, base_model_path, final_step, resolve_device, train as run_training
 from train.model import ModelError
+from train.report import SUMMARY_FILE
 
 CONFIG_FILE = "recipe_config.json"
 REPORT_JSON = "report.json"
@@ -200,19 +201,20 @@ def check_folder(recipe: RecipeConfig) -> None:
         if conflicts:
             raise ConfigError(f"{recipe.run} holds a recipe run made with other settings, which cannot be resumed "
                               "with these: " + "; ".join(conflicts) + ". Use the same settings, or another --outdir.")
-    write_atomic(path, (json.dumps(recipe.to_dict(), indent=1, sort_keys=True) + "\n").encode())
+    _write_json(path, recipe.to_dict())
 
 
 def stage_done(config: TrainConfig) -> bool:
     """Whether the run folder of `config` holds its final model, trained to its step count under
     the same settings."""
     final = Path(config.outdir) / FINAL
+    if final_step(final) != config.steps:
+        return False
     try:
         saved = TrainConfig.load(final)
-        step = json.loads((final / "final.json").read_text())["step"]
     except (OSError, ValueError, KeyError, ConfigError):
         return False
-    return step == config.steps and not resume_conflicts(saved, config)
+    return not resume_conflicts(saved, config)
 
 
 def _same(path: Path, key: dict) -> bool:
@@ -233,13 +235,17 @@ def _weights_id(model: Path) -> list:
     return [[f.name, f.stat().st_size, f.stat().st_mtime_ns] for f in files]
 
 
+def _answers_key(recipe: RecipeConfig, model: Path, data: str, tasks, limit) -> dict:
+    """What decides `model`'s answers on `data`: kept files made under another key are made again."""
+    return {"model": str(model), "weights": _weights_id(model), "data": str(data), "tasks": list(tasks),
+            "limit": limit, "max_new_tokens": recipe.train.max_new_tokens, "max_pixels": recipe.train.max_pixels}
+
+
 def answers(recipe: RecipeConfig, model: Path, data: str, split: str, out: Path, tasks, limit, device,
             progress: bool) -> Path:
     """Predictions of `model` on `split` of `data` into `out` (kept when made by the same model
     on the same steps: `out`.key.json)."""
-    key = {"model": str(model), "weights": _weights_id(model), "data": str(data), "split": split,
-           "tasks": list(tasks), "limit": limit,
-           "max_new_tokens": recipe.train.max_new_tokens, "max_pixels": recipe.train.max_pixels}
+    key = {**_answers_key(recipe, model, data, tasks, limit), "split": split}
     marker = out.with_name(out.name + ".key.json")
     if out.is_file() and _same(marker, key):
         return out
@@ -259,9 +265,7 @@ def evaluation(recipe: RecipeConfig, name: str, model: Path, tests: dict[str, st
     for test, data in tests.items():
         preds = recipe.run / "eval" / f"{name}-{test}.jsonl"
         scored = preds.with_suffix(".score.json")
-        key = {"model": str(model), "weights": _weights_id(model), "data": str(data), "limit": limit,
-               "tasks": list(recipe.train.tasks),
-               "max_new_tokens": recipe.train.max_new_tokens, "max_pixels": recipe.train.max_pixels}
+        key = _answers_key(recipe, model, data, recipe.train.tasks, limit)
         if not _same(scored, key):
             log(f"evaluating {name} ({model}) on the test split of {test}")
             answers(recipe, model, data, "test", preds, recipe.train.tasks, limit, device, progress)
@@ -285,7 +289,7 @@ def feedback_rows(recipe: RecipeConfig, model: Path, device, progress: bool, log
 
 def _train_summary(run: Path) -> dict:
     try:
-        s = json.loads((run / "train_summary.json").read_text())
+        s = json.loads((run / SUMMARY_FILE).read_text())
     except (OSError, ValueError):
         return {}
     return {k: s.get(k) for k in ("steps", "examples", "epochs", "first_loss", "final_loss", "train_seconds",

@@ -46,7 +46,6 @@ import argparse
 import copy
 import importlib.util
 import json
-import os
 import statistics
 import sys
 import tempfile
@@ -54,7 +53,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from eval.processor import save_processor
+from eval.processor import pad_token_id, save_processor
 from factory.atomic import write_atomic
 from train.config import DEVICES, ConfigError, TrainConfig
 from train.tiny import (FAMILIES, MAX_PIXELS, SIZES, dataset_texts, family, make_processor, tiny_config,
@@ -305,10 +304,7 @@ def measure(args, progress=print) -> dict:
             stream = ExampleStream(config.data, processor, config.tasks, config.seed + rank, config.shuffle_window,
                                    config.max_length, workers=config.resolved_workers(world), processor_path=tmp,
                                    max_pixels=args.max_pixels)
-            pad_id = processor.tokenizer.pad_token_id
-            if pad_id is None:
-                pad_id = processor.tokenizer.eos_token_id
-            batches = Batches(stream, config.batch_size, pad_id)
+            batches = Batches(stream, config.batch_size, pad_token_id(processor.tokenizer))
             totals = {"examples": 0, "tokens": 0, "label_tokens": 0, "data_wait": 0.0}
             times = []
             for i in range(config.steps):
@@ -424,10 +420,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     finally:
         # torch at import (the [train] extra): `--help` and the refusals above need none
-        from train.distributed import end
+        from train.distributed import end, launched_rank
 
         end()
-    if int(os.environ.get("RANK", "0")) == 0:  # under torchrun, one row for all processes
+    if launched_rank() == 0:  # under torchrun, one row for all processes
         print(json.dumps(row), flush=True)
         if args.out:
             append_row(args.out, row)
