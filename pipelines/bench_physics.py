@@ -22,6 +22,7 @@ compiles it made.
 from __future__ import annotations
 
 import argparse
+import functools
 import gc
 import json
 import multiprocessing
@@ -298,9 +299,25 @@ def _together(spans, init, initargs, run, *args) -> tuple[list, float]:
     spawn = multiprocessing.get_context("spawn")  # not fork: JAX's threads may hold locks
     with spawn.Manager() as manager, ProcessPoolExecutor(
             len(spans), mp_context=spawn, initializer=init, initargs=initargs) as pool:
-        barrier = manager.Barrier(len(spans))  # every task waits for all: one task per process
-        done = list(pool.map(run, spans, *[[a] * len(spans) for a in args], [barrier] * len(spans)))
+        barrier = manager.Barrier(len(spans), timeout=BARRIER_S)  # every task waits for all: one task per process
+        done = list(pool.map(functools.partial(_guarded, run), spans, *[[a] * len(spans) for a in args],
+                             [barrier] * len(spans)))
     return done, max(d[1] for d in done) - min(d[0] for d in done)
+
+
+BARRIER_S = 900.0
+"""Seconds a process of `_together` waits at the barrier for the others to be warm, at most."""
+
+
+def _guarded(run, span, *args):
+    """`run(span, *args)`; if it fails, the barrier (the last of `args`) is broken, so that the
+    other processes stop waiting for this one and fail too (a process that ran out of device
+    memory in its warm-up had left the others waiting until the run was killed, 2026-11-26)."""
+    try:
+        return run(span, *args)
+    except BaseException:
+        args[-1].abort()
+        raise
 
 
 def _shared_row(kind: str, row: dict, procs: int, cpu_max: int, cpu_workers: int, counts) -> dict:

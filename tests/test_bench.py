@@ -4,6 +4,9 @@ writes a report whose numbers come from real runs (the oracle scores 1, chance s
 from __future__ import annotations
 
 import json
+import time
+
+import pytest
 
 from pipelines import bench
 
@@ -89,3 +92,27 @@ def test_growth_in_several_processes_grows_the_same_objects():
     (two,) = measure_growth("mujoco", [2], steps=3, objects=4, procs=2)
     assert two["procs"] == 2 and two["batch"] == 2 and one["procs"] == 1
     assert two["steps"] == one["steps"] == 12 and two["steps_per_s"] > 0 and two["stage_seconds"]["rules"] > 0
+
+
+def _noop():
+    pass
+
+
+def _fail_before_the_barrier(span, barrier):
+    if span[0] == 0:
+        raise ValueError("ran out of device memory in its warm-up")
+    barrier.wait()
+    return time.time(), time.time()
+
+
+def test_a_process_that_fails_in_its_warm_up_stops_the_others(monkeypatch):
+    """`bench_physics._together`: when one process fails before the barrier, the others stop
+    waiting for it and the error reaches the caller at once (on 2026-11-26 a process out of device
+    memory left three others waiting until the bench was killed 375 s later)."""
+    from pipelines import bench_physics
+
+    monkeypatch.setattr(bench_physics, "BARRIER_S", 120.0)  # without the guard, the wait ends here
+    t = time.perf_counter()
+    with pytest.raises(ValueError, match="warm-up"):
+        bench_physics._together([(0, 1), (1, 2)], _noop, (), _fail_before_the_barrier)
+    assert time.perf_counter() - t < 60.0
