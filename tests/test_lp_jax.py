@@ -182,6 +182,19 @@ def test_one_compile_per_bucket():
         assert_agrees(lp, r, h)
 
 
+def test_launches_of_programs_with_many_rows_are_smaller():
+    """`_group`: 4,096 programs of 30-brick rows (128) run in one launch; of 90-brick rows (576,
+    whose launch of 4,096 asked an H100 for 32 GiB more than it had) in launches of 1,024, in equal
+    chunks (one launch size), every program in exactly one launch."""
+    small = lp_jax._group([(64, 128, 4, 2)] * 4096)
+    assert [(shape[0], len(chunk)) for shape, chunk in small] == [(4096, 4096)]
+    big = lp_jax._group([(1024, 576, 4, 2)] * 4096 + [(1024, 576, 4, 2)] * 5)
+    assert [shape[0] for shape, _ in big] == [1024] * 5
+    assert sorted(i for _, chunk in big for i in chunk) == list(range(4101))
+    for shape, chunk in big:
+        assert shape[0] * shape[2] ** 2 <= lp_jax.MAX_LAUNCH_ENTRIES and len(chunk) <= shape[0]
+
+
 @pytest.fixture(scope="module")
 def real_models():
     """The load models (those that do not tip; every third) of the distinct attachments of a 2x4

@@ -45,8 +45,8 @@ connection is rigid), so infeasibility is not detected: such a program would end
 Shapes: each LP falls in a bucket (variables and entries per column of A: quarter steps of powers
 of two; equality rows: eighth steps; one-sided rows per variable: exact, 2 for the load programs); a launch holds the
 LPs with the same equality rows and rows per variable, padded to the largest variables and entries
-among them, their count padded to a quarter step (at most `MAX_BATCH` per launch, in equal
-chunks), so a run compiles once per shape met (`COMPILES`), never per call; tolerance and
+among them, their count padded to a quarter step (at most `MAX_BATCH` per launch, fewer where the
+rows are many, `MAX_LAUNCH_ENTRIES`; in equal chunks), so a run compiles once per shape met (`COMPILES`), never per call; tolerance and
 iteration cap are traced values. Memory per LP is dominated by the normal matrix, 8 m^2 bytes for
 m padded rows: 1.2 MB at 384 (60 bricks: 366 rows), 2.7 MB at 576 (90 bricks: 546 rows); 4,096 of
 them, 11 GB.
@@ -107,6 +107,12 @@ the rows before it and is left out."""
 MIN_BUCKET = 16
 MAX_BATCH = 4096
 """LPs of one shape per launch; more run in chunks of this many."""
+MAX_LAUNCH_ENTRIES = 2**29
+"""Members x equality rows squared of one launch, at most (`_launch_cap`): a launch holds each
+member's normal matrix and its factor, so its device memory grows with the rows squared. At 90
+bricks (576 rows) a launch of 4,096 took 106 GB of an H200 and asked an H100 for one block of
+32 GiB more than it had (2026-11-26); at this bound such programs launch 1,024 at a time (on one
+H200, 1,024 and 16,384 candidates ran 1,272 and 1,179 per s: nothing is gained above 1,024)."""
 MIN_LAUNCH = {"gpu": 64, "cpu": 8}
 """Fewest members of a launch by JAX backend (powers of two above; `min_launch`): on a GPU a few
 programs cost a launch of 64 as much as one of 2, and every batch size met is a compile; on a CPU
@@ -558,13 +564,20 @@ def _group(buckets: Sequence[tuple[int, int, int, int]]) -> list[tuple[tuple[int
         size[(m, k)] = tuple(max(a, b) for a, b in zip(size.get((m, k), (0, 0)), (n, w)))
     out = []
     for (m, k), members in groups.items():
-        launches = -(-len(members) // MAX_BATCH)
+        launches = -(-len(members) // _launch_cap(m))
         per = -(-len(members) // launches)
         n, w = size[(m, k)]
         for start in range(0, len(members), per):
             chunk = members[start : start + per]
             out.append(((_pow2(len(chunk), min_launch()), n, m, w, k), chunk))
     return out
+
+
+def _launch_cap(m: int) -> int:
+    """Most members of one launch of programs with `m` equality rows (their bucket): `MAX_BATCH`,
+    or the largest power of two within `MAX_LAUNCH_ENTRIES` (at least `min_launch`)."""
+    fit = MAX_LAUNCH_ENTRIES // max(m * m, 1)
+    return max(min(MAX_BATCH, 1 << (fit.bit_length() - 1) if fit else 0), min_launch())
 
 
 # --- Load programs written straight into the solver's arrays -------------------------------------
