@@ -65,7 +65,7 @@ def test_full_run_trains_every_weight(tiny_dataset, capsys):
                "--steps", "2", "--warmup-steps", "0", "--device", "cpu", "--workers", "0", "--weight-dtype", "fp32")
     _check_rates(row)
     assert row["params_trainable"] == row["params_total"] > 0
-    assert row["weight_dtype"] == "fp32"
+    assert row["weight_dtype"] == "fp32" and row["processes"] == 1 and row["shard"] == "none"
 
 
 @pytest.mark.parametrize("argv, named", [
@@ -73,6 +73,8 @@ def test_full_run_trains_every_weight(tiny_dataset, capsys):
     (["--family", "qwen3-vl", "--mode", "half"], "lora, full"),
     (["--family", "qwen3-vl", "--weight-dtype", "fp16"], "bf16, fp32"),
     (["--family", "qwen3-vl", "--steps", "0"], "at least 1"),
+    (["--family", "qwen3-vl", "--mode", "full", "--shard", "zero"], "ddp, fsdp"),
+    (["--family", "qwen3-vl", "--mode", "lora", "--shard", "fsdp"], "full fine-tuning only; give --mode full"),
 ])
 def test_bad_choices_are_refused_with_the_valid_ones(argv, named, tiny_dataset, capsys):
     code, out, err = _run(capsys, *argv, "--data", str(tiny_dataset), "--device", "cpu")
@@ -139,9 +141,26 @@ def test_two_processes_under_torchrun_write_one_row_for_both(tiny_dataset, tmp_p
     rows = [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
     assert len(rows) == 1 and json.loads(out.read_text()) == rows[0]
     row = rows[0]
-    assert row["processes"] == 2
+    assert row["processes"] == 2 and row["shard"] == "ddp"
     _check_rates(row, steps=2, batch=2)  # per process
     assert row["examples"] == 2 * 2 * 2
     # The two processes' progress lines may interleave on stderr: found anywhere in it.
     last = re.findall(r"timed step 3/3: [\d.]+ s, loss ([\d.]+), (\d+) tokens", done.stderr)
     assert len(last) == 2 and last[0] != last[1]  # each process its own examples
+
+
+def test_two_sharded_processes_write_one_fsdp_row(tiny_dataset):
+    """torchrun with two CPU processes and --shard fsdp: one row that records the mode, both
+    processes' examples, every weight trained."""
+    done = torchrun("train.speed", "--family", "qwen3-vl", "--mode", "full", "--shard", "fsdp", "--data",
+                    str(tiny_dataset), "--batch-size", "2", "--steps", "2", "--warmup-steps", "1", "--device", "cpu",
+                    "--workers", "0", "--weight-dtype", "fp32")
+    assert done.returncode == 0, done.stderr[-3000:]
+    rows = [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
+    assert len(rows) == 1
+    row = rows[0]
+    assert row["processes"] == 2 and row["shard"] == "fsdp" and row["mode"] == "full"
+    _check_rates(row, steps=2, batch=2)
+    assert row["examples"] == 2 * 2 * 2
+    assert row["params_trainable"] == row["params_total"] > 0  # counted whole, not one process's slice
+    assert "2 processes (fsdp)" in done.stderr

@@ -5,6 +5,7 @@ with the untrained model on the test split.
         [--steps N] [--batch-size B] [--grad-accum G] [--lr LR] [--warmup W] [--lora 1|0|auto]
         [--save-every K] [--seed S] [--eval-limit N] [--no-eval] [--device auto|cpu|cuda] [--no-progress] ...
     torchrun --standalone --nproc_per_node N -m train ...   # N GPUs of this machine, one process each
+    torchrun --standalone --nproc_per_node N -m train --shard fsdp --lora 0 ...   # the model sharded over them
 
 A flag per `TrainConfig` field, with its default and meaning (`--help`).
 
@@ -12,9 +13,10 @@ Without --model a tiny model of --base-family (default qwen2-vl) is built into R
 resumes from the last checkpoint; other settings in an existing RUN are refused. See
 `train.loop` for the folder's contents and `train.config.TrainConfig` for every setting.
 
-Under torchrun every process trains (DistributedDataParallel, `batch_size * grad_accum * N`
-examples per step); rank 0 alone writes the run folder, prints, and evaluates after training,
-while the others end (`train.loop`, docs/training.md).
+Under torchrun every process trains (DistributedDataParallel, or with --shard fsdp the model
+sharded by FSDP2 for full fine-tuning; `batch_size * grad_accum * N` examples per step); rank 0
+alone writes the run folder, prints, and evaluates after training, while the others end
+(`train.loop`, docs/training.md).
 """
 
 from __future__ import annotations

@@ -5,6 +5,14 @@ adapter, or the full model), the processor, `train_config.json` and `trainer_sta
 scheduler, RNG states, data position, counters). It is written into a hidden temporary folder and
 renamed into place, so a folder with that name is complete; `RUN/last` then names it. A killed run
 leaves at worst a temporary folder, removed by the next run.
+
+A run sharded by FSDP (`TrainConfig.shard` fsdp under torchrun) writes the same folder, the model
+gathered whole to rank 0 (`full_model_state`) and saved in safetensors files of at most
+`SHARD_SIZE`, except the optimizer: its AdamW states stay split as the processes hold them, in
+`optimizer/` (torch.distributed.checkpoint, one file per process, `save_optimizer_shards`), and
+every process reads its own slice back on resume (`load_optimizer_shards`): no process ever holds
+the whole optimizer state (Gemma-3-12B's is 97 GB in fp32), and the restored states are the
+saved ones bit for bit. The processes write into rank 0's temporary folder, renamed once whole.
 """
 
 from __future__ import annotations
@@ -21,6 +29,10 @@ from eval.processor import save_processor
 from factory.atomic import write_atomic
 
 STATE_FILE = "trainer_state.pt"
+OPTIMIZER_DIR = "optimizer"
+"""A sharded run's optimizer state (torch.distributed.checkpoint) inside its checkpoint folder."""
+SHARD_SIZE = "5GB"
+"""Largest safetensors file of a sharded run's checkpoints and final model."""
 LAST_FILE = "last"
 _NAME = re.compile(r"^checkpoint-(\d{6,})$")
 
@@ -84,14 +96,19 @@ def latest(run) -> Path | None:
     return found[-1][1] if found else None
 
 
-def save(run, step: int, model, processor, config, state: dict, keep: int = 0) -> Path:
-    """Write checkpoint `step` (see the module docstring); keep the newest `keep` (0: all)."""
+def save(run, step: int, model, processor, config, state: dict, keep: int = 0, tmp: Path | None = None,
+         weights: dict | None = None) -> Path:
+    """Write checkpoint `step` (see the module docstring); keep the newest `keep` (0: all).
+    `tmp`: the temporary folder, already made and holding the other processes' files (a sharded
+    run), else a new one; `weights`: the model's state dict to save (a sharded model's, gathered
+    by `full_model_state`), in files of at most `SHARD_SIZE`, else the model's own."""
     run = Path(run)
     name = checkpoint_name(step)
-    tmp = tmp_dir(run, name)
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    model.save_pretrained(str(tmp), safe_serialization=True)
+    if tmp is None:
+        tmp = tmp_dir(run, name)
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+    save_model(model, tmp, weights)
     save_processor(processor, tmp)
     config.save(tmp)
     torch.save(state, tmp / STATE_FILE)
@@ -102,6 +119,56 @@ def save(run, step: int, model, processor, config, state: dict, keep: int = 0) -
             if p != final:
                 shutil.rmtree(p, ignore_errors=True)
     return final
+
+
+def save_model(model, folder, weights: dict | None = None) -> None:
+    """`model.save_pretrained(folder)` in safetensors; with `weights` (a sharded model's state dict,
+    `full_model_state`), those, in files of at most `SHARD_SIZE`."""
+    if weights is None:
+        model.save_pretrained(str(folder), safe_serialization=True)
+    else:
+        model.save_pretrained(str(folder), safe_serialization=True, state_dict=weights, max_shard_size=SHARD_SIZE)
+
+
+def full_model_state(model) -> dict:
+    """A model sharded by FSDP gathered whole: its state dict in CPU tensors on rank 0, {} on the
+    others. A collective: every process calls it (each weight is gathered in turn). Tied weights
+    (Gemma 3's LM head and embeddings: one parameter, two names) are one tensor under both names,
+    as in the model's own state dict, so `save_pretrained` writes them once (gathered, each name
+    got its own copy: Gemma-3-12B's 4 GB in fp32 twice)."""
+    from torch.distributed.checkpoint.state_dict import StateDictOptions, get_model_state_dict
+
+    state = get_model_state_dict(model, options=StateDictOptions(full_state_dict=True, cpu_offload=True))
+    if state:
+        names: dict[int, list[str]] = {}
+        for name, p in model.named_parameters(remove_duplicate=False):
+            names.setdefault(id(p), []).append(name)
+        for tied in names.values():
+            kept = [n for n in tied if n in state]
+            for n in tied[1:] if kept else ():
+                state[n] = state[kept[0]]
+    return state
+
+
+def save_optimizer_shards(model, optimizer, folder) -> None:
+    """Every process writes its slice of the optimizer state of a model sharded by FSDP into
+    `folder` (torch.distributed.checkpoint: a file per process, the layout in `.metadata`). A
+    collective: every process calls it with the same folder."""
+    import torch.distributed.checkpoint as dcp
+    from torch.distributed.checkpoint.state_dict import get_optimizer_state_dict
+
+    dcp.save({"optimizer": get_optimizer_state_dict(model, optimizer)}, checkpoint_id=str(folder))
+
+
+def load_optimizer_shards(model, optimizer, folder) -> None:
+    """`save_optimizer_shards`' inverse: every process reads its slice into `optimizer` (made for
+    `model` sharded as when it was saved: the same processes). A collective."""
+    import torch.distributed.checkpoint as dcp
+    from torch.distributed.checkpoint.state_dict import get_optimizer_state_dict, set_optimizer_state_dict
+
+    state = {"optimizer": get_optimizer_state_dict(model, optimizer)}  # the layout, filled in place
+    dcp.load(state, checkpoint_id=str(folder))
+    set_optimizer_state_dict(model, optimizer, state["optimizer"])
 
 
 def load_state(path) -> dict:

@@ -20,6 +20,8 @@ from factory.dataset.tasks import TASKS
 DTYPES = ("auto", "bf16", "fp32")
 DEVICES = ("auto", "cpu", "cuda")
 SPLITS = ("train", "test")
+SHARD_MODES = ("ddp", "fsdp")
+"""How several processes under torchrun share the model (`TrainConfig.shard`)."""
 LORA_TARGETS = ("q_proj", "k_proj", "v_proj", "o_proj", "gate_proj", "up_proj", "down_proj")
 """The language model's attention and MLP projections (Qwen2 / Llama names)."""
 
@@ -105,6 +107,14 @@ class TrainConfig:
     max_pixels: int = 28 * 28 * 64
     """Most pixels per image after resizing (28 x 28 pixels make one merged image token in
     Qwen2-VL, so 28*28*64 is at most 64 tokens per image)."""
+    shard: str = field(default="ddp", metadata={"choices": SHARD_MODES})
+    """How the processes under torchrun hold the model: ddp (DistributedDataParallel: every GPU
+    holds the whole model, its gradients and AdamW states; for LoRA, and for anything one GPU
+    holds) or fsdp (PyTorch's FSDP2, `fully_shard` on each transformer block and the root: weights,
+    gradients and AdamW states split over the GPUs, each block gathered for its forward and
+    backward; for full fine-tuning of a model whose weights and AdamW states do not fit one GPU;
+    full fine-tuning only). The same examples and updates either way; one process trains the plain
+    model under both."""
     gradient_checkpointing: bool = False
     """Recompute activations in the backward pass (less GPU memory, about a third slower)."""
     max_length: int = 2048
@@ -162,6 +172,11 @@ class TrainConfig:
         choice("dtype", self.dtype, DTYPES)
         choice("device", self.device, DEVICES)
         choice("eval_split", self.eval_split, SPLITS)
+        choice("shard", self.shard, SHARD_MODES)
+        if self.shard == "fsdp" and self.lora:
+            raise ConfigError("shard=fsdp trains every weight (full fine-tuning) and cannot train LoRA adapters: "
+                              "give --lora 0 for full fine-tuning sharded over the GPUs, or --shard ddp for LoRA "
+                              "(its frozen bf16 base fits one GPU)")
         positive = ("steps", "batch_size", "grad_accum", "lora_r", "lora_alpha", "max_pixels", "max_length",
                     "shuffle_window", "log_every", "max_new_tokens")
         for name in positive:

@@ -5,6 +5,11 @@ train.speed` start, and the few collectives they use.
 in their environment; `start` then joins them in one process group (NCCL on GPUs, gloo on the
 CPU) and gives each process its own GPU (cuda:LOCAL_RANK). Without torchrun (WORLD_SIZE unset or
 1) nothing is started and `Group()` is the one process: every collective is the identity.
+
+`parallel` puts the model in DistributedDataParallel (shard "ddp": a whole copy on every GPU) or
+shards it with FSDP2 (shard "fsdp", `shard_model`: each transformer block of the language model and
+of the vision tower is one `fully_shard` unit, the rest, embeddings, LM head, projector, norms, the
+root's).
 """
 
 from __future__ import annotations
@@ -81,15 +86,71 @@ def start(device: torch.device) -> tuple[Group, torch.device]:
     return Group(dist.get_rank(), dist.get_world_size(), device), device
 
 
-def parallel(model, group: Group, find_unused_parameters: bool):
-    """`model` in DistributedDataParallel (its weights broadcast from rank 0, gradients averaged
-    over the processes in the backward pass) when there are several processes; else `model`.
-    `find_unused_parameters`: for full fine-tuning, where an architecture may have weights that a
-    step does not use (LoRA's adapters are all used)."""
+def parallel(model, group: Group, find_unused_parameters: bool, shard: str = "ddp"):
+    """With several processes: `model` in DistributedDataParallel (shard "ddp": its weights
+    broadcast from rank 0, gradients averaged over the processes in the backward pass) or sharded
+    in place by FSDP2 (shard "fsdp", `shard_model`); with one, `model` as it is.
+    `find_unused_parameters` (DDP): for full fine-tuning, where an architecture may have weights
+    that a step does not use (LoRA's adapters are all used)."""
     if group.processes == 1:
         return model
+    if shard == "fsdp":
+        return shard_model(model, group)
+    if shard != "ddp":
+        raise ValueError(f"shard={shard!r} is not valid; valid: ddp, fsdp")
     ids = [group.device.index] if group.device.type == "cuda" else None
     return DistributedDataParallel(model, device_ids=ids, find_unused_parameters=find_unused_parameters)
+
+
+def shard_units(model) -> list[str]:
+    """Names of the modules FSDP shards one by one: the transformer blocks, i.e. the members of
+    the model's ModuleLists whose class is in its `_no_split_modules` (transformers names there the
+    blocks that must stay whole on one device: the language model's decoder layers and the vision
+    tower's blocks, e.g. Qwen2VLDecoderLayer and Qwen2VLVisionBlock); a model that names none:
+    the members of every ModuleList of two or more modules of one class. Deepest first (each
+    unit's `fully_shard` before any module holding it)."""
+    blocks = set(getattr(model, "_no_split_modules", None) or ())
+    out = []
+    for name, mod in model.named_modules():
+        if not isinstance(mod, torch.nn.ModuleList) or not len(mod):
+            continue
+        kinds = {type(m).__name__ for m in mod}
+        for i, m in enumerate(mod):
+            block = type(m).__name__ in blocks if blocks else len(mod) > 1 and len(kinds) == 1
+            if block:
+                out.append(f"{name}.{i}" if name else str(i))
+    if not out:
+        raise ValueError(f"{type(model).__name__}: no transformer blocks to shard (no ModuleList member of a class in "
+                         f"_no_split_modules {sorted(blocks)})")
+    return sorted(out, key=lambda n: -n.count("."))
+
+
+def shard_model(model, group: Group):
+    """`model` sharded in place by FSDP2 over the processes of `group`: `fully_shard` on each of
+    `shard_units` (its weights split over the processes, gathered for its forward and again for
+    its backward, freed after each), then on the model (the remaining weights; the root's
+    forward starts every step). Weights stay in their dtype (no mixed-precision policy: autocast
+    computes as under DDP) and on the CPU they may be: FSDP moves each unit's weights to this
+    process's device as it shards them, so a GPU never holds more than one unit unsharded while
+    the model is sharded. Every process must hold the same weights (FSDP keeps each process's own
+    slice, it broadcasts nothing). Gradients are reduce-scattered (averaged over the processes)
+    after each unit's backward; the optimizer must be made after this (the parameters become
+    DTensors)."""
+    from torch.distributed.device_mesh import init_device_mesh
+    from torch.distributed.fsdp import fully_shard
+
+    mesh = init_device_mesh(group.device.type, (group.processes,))
+    for name in shard_units(model):
+        fully_shard(model.get_submodule(name), mesh=mesh)
+    fully_shard(model, mesh=mesh)
+    return model
+
+
+def is_sharded(model) -> bool:
+    """Whether `model` is sharded by FSDP2 (`shard_model`)."""
+    from torch.distributed.fsdp import FSDPModule
+
+    return isinstance(model, FSDPModule)
 
 
 def end() -> None:

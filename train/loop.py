@@ -24,6 +24,12 @@ masks aside: each rank draws its own). Rank 0 alone writes the run folder (check
 `final/`, summary) while the others wait at a barrier; the logged loss is the pass's over every
 rank (all-reduced). A checkpoint records N and every rank's RNG state; it resumes with N processes
 only (another count is refused, naming both).
+
+`config.shard` fsdp (full fine-tuning): the model is sharded by FSDP2 instead
+(`train.distributed.shard_model`), each process holding 1/N of the weights, gradients and AdamW
+states; the examples, loss weighting, clipping and updates are as above. Its checkpoints and
+`final/` hold the whole model, gathered to rank 0, and the optimizer state as the processes hold it
+(`train.checkpoint`).
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
 from eval.data import shard_files
@@ -46,7 +53,7 @@ from eval.processor import load_processor, pad_token_id, save_processor
 from train import checkpoint as ckpt
 from train.config import CONFIG_FILE, ConfigError, TrainConfig, resume_conflicts
 from train.data import IGNORE, ExampleStream, collate
-from train.distributed import Group, end, parallel, start
+from train.distributed import Group, end, is_sharded, parallel, start
 from train.model import ModelError, add_lora, load_adapter_weights, load_base, merged, trainable
 from train.report import write_summary
 from train.tiny import build_tiny_model, dataset_texts
@@ -178,9 +185,12 @@ def train_step(model, optimizer, scheduler, batches, config: TrainConfig, device
     waiting for batches (data loading the model's step did not hide).
 
     `group`: the processes sharing each forward pass's examples (`batches` made with its rank and
-    count, `model` in DistributedDataParallel): each rank's mean loss is weighted by its share of
-    the pass's answer tokens, so the averaged gradient is one process's on the whole pass, and the
-    loss and counts returned are the whole pass's (see the module docstring)."""
+    count, `model` in DistributedDataParallel or sharded by FSDP): each rank's mean loss is
+    weighted by its share of the pass's answer tokens, so the averaged gradient is one process's on
+    the whole pass, and the loss and counts returned are the whole pass's (see the module
+    docstring). DDP averages the gradients at a step's last backward pass only; FSDP
+    reduce-scatters them after every pass (each process then keeps 1/N of them, summed over the
+    passes: an unsharded gradient held over the passes would be the memory FSDP saves)."""
     optimizer.zero_grad(set_to_none=True)
     losses, n_ex, n_tok, n_label, wait = [], 0, 0, 0, 0.0
     for i in range(config.grad_accum):
@@ -194,8 +204,9 @@ def train_step(model, optimizer, scheduler, batches, config: TrainConfig, device
             losses.append(forward_backward(model, batch, device, amp, 1.0 / config.grad_accum))
             continue
         share = _loss_tokens(batch["labels"]) / counts["loss_tokens"]
-        # gradients are averaged over the processes at the pass's last backward only
-        sync = model.no_sync() if i < config.grad_accum - 1 else nullcontext()
+        # DDP: gradients averaged over the processes at the step's last backward only
+        last = i == config.grad_accum - 1
+        sync = model.no_sync() if isinstance(model, DistributedDataParallel) and not last else nullcontext()
         with sync:
             mean = forward_backward(model, batch, device, amp, group.processes * share / config.grad_accum)
         losses.append(mean * share)
@@ -207,6 +218,8 @@ def train_step(model, optimizer, scheduler, batches, config: TrainConfig, device
         raise FloatingPointError(f"loss is {loss}{at}; lower --lr, or use --dtype fp32")
     params = [p for p in model.parameters() if p.requires_grad]
     norm = torch.nn.utils.clip_grad_norm_(params, config.max_grad_norm if config.max_grad_norm > 0 else float("inf"))
+    if hasattr(norm, "full_tensor"):  # FSDP: a DTensor (the norm of every process's slices, replicated)
+        norm = norm.full_tensor()
     lr = scheduler.get_last_lr()[0]
     optimizer.step()
     scheduler.step()
@@ -297,8 +310,10 @@ def _gpu_mem_gb(device: torch.device) -> float | None:
     return round(torch.cuda.max_memory_allocated(device) / 2**30, 3)
 
 
-def build(config: TrainConfig, device: torch.device, resume_from: Path | None, progress: bool = False):
-    """(model, processor, base path) for a fresh run or a checkpoint to resume."""
+def build(config: TrainConfig, device: torch.device, resume_from: Path | None, progress: bool = False,
+          move: bool = True):
+    """(model, processor, base path) for a fresh run or a checkpoint to resume; on `device` unless
+    not `move` (a model FSDP will shard stays on the CPU: it moves each unit as it shards it)."""
     base = base_model_path(config, progress)
     processor = load_processor(base, config.max_pixels)
     torch.manual_seed(config.seed)
@@ -309,7 +324,8 @@ def build(config: TrainConfig, device: torch.device, resume_from: Path | None, p
             load_adapter_weights(model, resume_from)
     else:
         model = trainable_model(load_base(resume_from if resume_from is not None else base, wdtype), config)
-    model.to(device)
+    if move:
+        model.to(device)
     model.train()
     return model, processor, base
 
@@ -343,25 +359,33 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
     amp = autocast_dtype(config, device)
     resume_from = ckpt.latest(run)
     saved = ckpt.load_state(resume_from) if resume_from is not None else None
+    sharded = config.shard == "fsdp" and group.processes > 1
     if saved is not None:
         check_processes(saved, resume_from, group.processes, config)
+        if (saved.get("shard") == "fsdp") != sharded:  # the config check refuses this first
+            raise ConfigError(f"{resume_from} was written by {'an unsharded' if sharded else 'an FSDP'} run; this run "
+                              f"is {'sharded by FSDP' if sharded else 'not sharded'}: use the settings it was "
+                              "trained with, or another --outdir")
     if group.main:
         run.mkdir(parents=True, exist_ok=True)
         ckpt.remove_stale(run)
         base_model_path(config, progress)  # a base built from a config: by rank 0, before the others load it
     group.barrier()
-    model, processor, base = build(config, device, resume_from, progress)
+    model, processor, base = build(config, device, resume_from, progress, move=not sharded)
     if group.rank:
         torch.manual_seed(rank_seed(config.seed, group.rank))
     if group.main:
         # recorded once the settings are known to work, so a failed start leaves the folder reusable
         ckpt.write_atomic_text(run / CONFIG_FILE, config.to_json() + "\n")
-    wrapped = parallel(model, group, find_unused_parameters=not config.lora)
+    wrapped = parallel(model, group, find_unused_parameters=not config.lora, shard=config.shard)
     optimizer = make_optimizer(model, config)
     scheduler = make_scheduler(optimizer, config)
     state = {"step": 0, "position": (0, 0), "skipped": 0, "examples": 0, "tokens": 0, "train_seconds": 0.0}
     if saved is not None:
-        optimizer.load_state_dict(saved["optimizer"])
+        if sharded:
+            ckpt.load_optimizer_shards(model, optimizer, resume_from / ckpt.OPTIMIZER_DIR)
+        else:
+            optimizer.load_state_dict(saved["optimizer"])
         scheduler.load_state_dict(saved["scheduler"])
         ckpt.set_rng_state(saved["rng_ranks"][group.rank] if "rng_ranks" in saved else saved["rng"])
         state.update({k: saved[k] for k in state})
@@ -411,13 +435,7 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
             bar.update(1)
             bar.set_postfix(loss=f"{last_loss:.4f}", lr=f"{lr:.2e}")
             if step == config.steps or (config.save_every and step % config.save_every == 0):
-                rngs = group.gather(ckpt.rng_state())
-                if group.main:
-                    extra = {"rng_ranks": rngs} if group.processes > 1 else {}
-                    ckpt.save(run, step, model, processor, config,
-                              {**state, "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
-                               "rng": rngs[0], "processes": group.processes, **extra}, keep=config.keep_checkpoints)
-                group.barrier()  # no process goes on (or ends) before the checkpoint is whole
+                save_checkpoint(run, step, model, optimizer, scheduler, processor, config, state, group)
     finally:
         bar.close()
         if log is not None:
@@ -427,10 +445,12 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
     peak = _gpu_mem_gb(device)
     if peak is not None:
         peak = group.reduce([peak], op="max")[0]  # the fullest GPU
+    # a sharded model is gathered whole to rank 0 by every process
+    weights = ckpt.full_model_state(model) if sharded and not final_is_current(config) else None
     if not group.main:
         end()  # its barrier waits for rank 0 to write final/ and the summary
         return {"rank": group.rank, "steps": state["step"]}
-    final = save_final(config, model, processor, base)
+    final = save_final(config, model, processor, base, weights)
     summary = write_summary(run, config, state, device, trainable=n_train, parameters=n_all,
                             peak_gpu_gb=peak, final=final, processes=group.processes,
                             epochs=state["position"][0] + state["position"][1] / stream.examples_per_epoch)
@@ -439,19 +459,56 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
     return summary
 
 
-def save_final(config: TrainConfig, model, processor, base: Path) -> Path:
-    """`RUN/final/`: the trained model as plain transformers weights (LoRA merged), processor, config."""
-    run = Path(config.outdir)
-    final = run / FINAL
+def save_checkpoint(run: Path, step: int, model, optimizer, scheduler, processor, config: TrainConfig, state: dict,
+                    group: Group = Group()) -> None:
+    """Checkpoint `step` (`train.checkpoint`), called by every process: rank 0 writes it, the
+    others give their RNG states (and, sharded by FSDP, their slices of the weights and their
+    optimizer files) and wait until it is whole."""
+    rngs = group.gather(ckpt.rng_state())
+    record = {**state, "scheduler": scheduler.state_dict(), "rng": rngs[0], "processes": group.processes,
+              **({"rng_ranks": rngs} if group.processes > 1 else {})}
+    if not is_sharded(model):
+        if group.main:
+            ckpt.save(run, step, model, processor, config, {**record, "optimizer": optimizer.state_dict()},
+                      keep=config.keep_checkpoints)
+        group.barrier()  # no process goes on (or ends) before the checkpoint is whole
+        return
+    weights = ckpt.full_model_state(model)  # rank 0's; {} on the others
+    tmp = Path(group.gather(str(ckpt.tmp_dir(run, ckpt.checkpoint_name(step))))[0])  # rank 0's folder for all
+    if group.main:
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+    group.barrier()
+    ckpt.save_optimizer_shards(model, optimizer, tmp / ckpt.OPTIMIZER_DIR)
+    group.barrier()
+    if group.main:
+        ckpt.save(run, step, model, processor, config, {**record, "shard": "fsdp"}, keep=config.keep_checkpoints,
+                  tmp=tmp, weights=weights)
+    del weights
+    group.barrier()
+
+
+def final_is_current(config: TrainConfig) -> bool:
+    """Whether `RUN/final/` already holds this run's model trained to `config.steps`."""
+    final = Path(config.outdir) / FINAL
     if (final / "config.json").is_file() and (final / CONFIG_FILE).is_file():
         done = json.loads((final / CONFIG_FILE).read_text()).get("steps")
-        if done == config.steps and final_step(final) == config.steps:
-            return final
+        return done == config.steps and final_step(final) == config.steps
+    return False
+
+
+def save_final(config: TrainConfig, model, processor, base: Path, weights: dict | None = None) -> Path:
+    """`RUN/final/`: the trained model as plain transformers weights (LoRA merged), processor, config.
+    `weights`: a model sharded by FSDP gathered whole (`train.checkpoint.full_model_state`)."""
+    run = Path(config.outdir)
+    final = run / FINAL
+    if final_is_current(config):
+        return final
     full = merged(model)
     tmp = ckpt.tmp_dir(run, FINAL)
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
-    full.save_pretrained(str(tmp), safe_serialization=True)
+    ckpt.save_model(full, tmp, weights)
     save_processor(processor, tmp)
     config.save(tmp)
     (tmp / "final.json").write_text(json.dumps({"step": config.steps, "base": str(base), "lora_merged": config.lora},

@@ -2,6 +2,7 @@
 
     python -m train.speed --family qwen3-vl-8b --mode lora --batch-size 4 --data OUT [--steps 20]
         [--warmup-steps 3] [--max-pixels P] [--weight-dtype bf16|fp32] [--no-gradient-checkpointing] [--out FILE]
+    torchrun --nproc_per_node 2 -m train.speed ... [--shard ddp|fsdp]
 
 Speed and memory do not depend on the weights' values, so no checkpoint is needed: the model is
 built from the exact config of a published checkpoint (`REAL`: every dimension, the vocabulary
@@ -34,7 +35,11 @@ Several GPUs: `torchrun --nproc_per_node N -m train.speed ...` runs one process 
 its own examples (the stream's seed plus its rank), the model in DistributedDataParallel; the one
 row (printed by rank 0) has `processes`, every process's examples and tokens over the slowest
 process's timed seconds, and the largest peak memory (`--batch-size` is per process). `step_seconds_median`
-is rank 0's.
+is rank 0's. `--shard fsdp` (full fine-tuning only) shards the model with FSDP2 instead
+(`train.distributed.shard_model`: weights, gradients and AdamW states split over the GPUs); the row
+records `shard` (ddp or fsdp; none with one process), and its peak memory is per GPU (the fullest),
+counted from after sharding (the random model is built whole on each GPU first, which `python -m
+train` does not do: it loads the weights on the CPU and FSDP moves one block at a time).
 
 torch and transformers (the `train` extra, seconds to import) are imported inside the functions that
 build and run, so `--help` and the checks of the arguments need neither.
@@ -164,6 +169,7 @@ REAL = {
 
 CHOICES = (*REAL, *FAMILIES)
 MODES = ("lora", "full")
+SHARDS = ("ddp", "fsdp")
 WEIGHT_DTYPES = ("bf16", "fp32")
 
 
@@ -267,7 +273,7 @@ def measure(args, progress=print) -> dict:
                          steps=args.warmup_steps + args.steps, batch_size=args.batch_size, lora=args.mode == "lora",
                          gradient_checkpointing=args.gradient_checkpointing, max_length=args.max_length,
                          max_pixels=args.max_pixels or MAX_PIXELS, workers=args.workers, seed=args.seed,
-                         dtype="bf16", device=args.device, eval=False)
+                         dtype="bf16", device=args.device, eval=False, shard=args.shard)
     check_data(config)
     # One process per GPU (torchrun): each its own device, its own examples (the stream's seed plus
     # the rank), gradients averaged by DistributedDataParallel.
@@ -280,9 +286,10 @@ def measure(args, progress=print) -> dict:
     row = {"family": args.family, "mode": args.mode, "batch_size": args.batch_size, "gpu": gpu,
            "attn_implementation": attn, "weight_dtype": args.weight_dtype, "autocast": str(amp).replace("torch.", ""),
            "gradient_checkpointing": args.gradient_checkpointing, "max_pixels": args.max_pixels,
-           "torch": torch.__version__, "transformers": transformers.__version__, "processes": world}
+           "torch": torch.__version__, "transformers": transformers.__version__, "processes": world,
+           "shard": args.shard if world > 1 else "none"}
     progress(f"{args.family}: {args.mode}, batch {args.batch_size}, {args.weight_dtype} weights, attention {attn}, "
-             f"on {gpu}")
+             f"on {gpu}" + (f", {world} processes ({args.shard})" if world > 1 else ""))
     cfg, processor = build(args.family, dataset_texts(config.data), args.max_pixels, args.size)
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats(device)
@@ -293,7 +300,14 @@ def measure(args, progress=print) -> dict:
         model = trainable_model(instantiate(cfg, device, wdtype, attn), config)
         model.train()
         n_train, n_all = trainable(model)
-        model = parallel(model, group, find_unused_parameters=args.mode == "full")
+        sharded = args.shard == "fsdp" and world > 1
+        stage = "shard" if sharded else stage
+        model = parallel(model, group, find_unused_parameters=args.mode == "full", shard=args.shard)
+        if sharded and device.type == "cuda":
+            # built whole on each GPU, then sharded: the peak counts from here (python -m train loads
+            # the model on the CPU and never holds it whole on a GPU)
+            torch.cuda.empty_cache()
+            torch.cuda.reset_peak_memory_stats(device)
         row.update(params_total=n_all, params_trainable=n_train)
         progress(f"built {n_all:,} parameters ({n_train:,} trainable) in {time.perf_counter() - t:.1f} s")
         stage = "optimizer"
@@ -373,6 +387,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--family", required=True, help=f"one of: {', '.join(CHOICES)} (the last ones: tiny test models)")
     ap.add_argument("--size", default="tiny", help=f"size of a tiny family's model: {', '.join(SIZES)}")
     ap.add_argument("--mode", default="lora", help="lora or full (default: lora)")
+    ap.add_argument("--shard", default="ddp",
+                    help="under torchrun: ddp (DistributedDataParallel, the whole model on every GPU; default) or "
+                         "fsdp (FSDP2: weights, gradients and AdamW states split over the GPUs; --mode full only)")
     ap.add_argument("--data", required=True, help="dataset folder (python -m pipelines.synth output)")
     ap.add_argument("--batch-size", type=int, default=4)
     ap.add_argument("--steps", type=int, default=10, help="timed steps (default: 10)")
@@ -395,8 +412,8 @@ def parser() -> argparse.ArgumentParser:
 
 def check(args) -> None:
     """Every choice valid before anything is built."""
-    for name, valid in (("family", CHOICES), ("mode", MODES), ("weight_dtype", WEIGHT_DTYPES), ("size", SIZES),
-                        ("device", DEVICES)):
+    for name, valid in (("family", CHOICES), ("mode", MODES), ("shard", SHARDS), ("weight_dtype", WEIGHT_DTYPES),
+                        ("size", SIZES), ("device", DEVICES)):
         if getattr(args, name) not in valid:
             flag = "--" + name.replace("_", "-")
             raise SpeedError(f"{flag} {getattr(args, name)!r} is not valid; valid: {', '.join(valid)}")
@@ -405,6 +422,8 @@ def check(args) -> None:
             raise SpeedError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     if args.warmup_steps < 0:
         raise SpeedError(f"--warmup-steps must be 0 or more, got {args.warmup_steps}")
+    if args.shard == "fsdp" and args.mode != "full":
+        raise SpeedError("--shard fsdp shards full fine-tuning only; give --mode full (LoRA: --shard ddp)")
     if args.mode == "lora" and importlib.util.find_spec("peft") is None:
         raise SpeedError("--mode lora needs peft (pip install peft), which is not installed; "
                          "--mode full runs without it")
