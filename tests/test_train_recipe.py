@@ -150,3 +150,16 @@ def test_no_wrong_answer_skips_stage_2_and_bad_inputs_are_named(tiny_dataset, sy
     (tmp_path / "empty").mkdir()
     assert main(_argv(tiny_dataset, tmp_path / "empty", tmp_path / "r3")) == 2
     assert "--synthetic" in capsys.readouterr().err and not (tmp_path / "r3").exists()
+
+
+@pytest.mark.parametrize("text, step", [('{"step": 12}', 12), ('{"step": null}', None), ("[12]", None),
+                                        ('{"steps": 12}', None), ("{", None), (None, None)])
+def test_final_step_reads_a_final_folder_and_takes_a_damaged_one_as_unfinished(tmp_path, text, step):
+    """`train.loop.final_step`: the step a stage's `final/` was trained to; a missing or damaged
+    final.json (a null step, not an object, cut short) reads as no step, so the stage trains
+    again instead of the recipe stopping with a TypeError."""
+    from train.loop import final_step
+
+    if text is not None:
+        (tmp_path / "final.json").write_text(text)
+    assert final_step(tmp_path) == step

@@ -517,8 +517,9 @@ def save_final(config: TrainConfig, model, processor, base: Path, weights: dict 
 
 
 def final_step(final: Path) -> int | None:
-    """The step a `final/` folder was trained to (its final.json), None if it has none."""
+    """The step a `final/` folder was trained to (its final.json), None if it has none or the file
+    does not hold one (a damaged file: the stage is trained again)."""
     try:
         return int(json.loads((final / "final.json").read_text())["step"])
-    except (OSError, ValueError, KeyError):
+    except (OSError, ValueError, KeyError, TypeError):  # TypeError: not an object, or a null step
         return None
