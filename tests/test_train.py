@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import pytest
 from conftest import assert_resumed_run_is_the_same, train_log
@@ -302,3 +303,41 @@ def test_command_line_trains_evaluates_and_leaves_a_loadable_model(tiny_dataset,
     capsys.readouterr()
     assert main([*argv[:-1], "--lr", "5e-4", "--no-progress"]) == 2
     assert "lr: 0.001 -> 0.0005" in capsys.readouterr().err
+
+
+def _weights(folder: Path) -> dict:
+    from safetensors.torch import load_file
+
+    return {k: v for f in sorted(folder.glob("*.safetensors")) for k, v in load_file(str(f)).items()}
+
+
+def test_large_weights_are_saved_in_shards_and_a_run_resumes_from_them(tiny_dataset, tmp_path, monkeypatch):
+    """Checkpoints and `final/` write the weights in safetensors files of at most `SHARD_SIZE`
+    with an index (transformers' default, 50GB, puts an 8B model's fp32 weights in one file); a run
+    resumed from such a checkpoint ends with the uninterrupted run's weights. Here `SHARD_SIZE` is
+    cut to 1 MB so that the tiny model (3.6 MB in fp32) takes several files."""
+    import torch
+
+    from train import checkpoint as ckpt
+    from train.loop import train
+
+    monkeypatch.setattr(ckpt, "SHARD_SIZE", "1MB")
+    run = tmp_path / "run"
+    cfg = _base_cfg(tiny_dataset, run, lora=False)
+    train(cfg, progress=False)
+    for folder in (run / "checkpoint-000002", run / "final"):
+        files = sorted(p.name for p in folder.glob("model*.safetensors"))
+        assert len(files) >= 3 and "model.safetensors.index.json" in {p.name for p in folder.iterdir()}, files
+        assert max(p.stat().st_size for p in folder.glob("model*.safetensors")) <= 1_100_000
+        index = json.loads((folder / "model.safetensors.index.json").read_text())
+        assert set(index["weight_map"].values()) == set(files)
+    uninterrupted, log_before = _weights(run / "final"), train_log(run)
+
+    shutil.rmtree(run / "checkpoint-000004")
+    shutil.rmtree(run / "final")
+    train(cfg, progress=False)
+    assert [r["loss"] for r in train_log(run)] == pytest.approx([r["loss"] for r in log_before], abs=1e-5)
+    resumed = _weights(run / "final")
+    assert resumed.keys() == uninterrupted.keys()
+    for k in resumed:
+        torch.testing.assert_close(resumed[k], uninterrupted[k], atol=1e-6, rtol=1e-5)

@@ -1,7 +1,7 @@
 """Checkpoints of a run folder: written whole or not at all, found again on resume.
 
 `RUN/checkpoint-{step:06d}/` holds the model (`save_pretrained(safe_serialization=True)`: the LoRA
-adapter, or the full model), the processor, `train_config.json` and `trainer_state.pt` (optimizer,
+adapter, or the full model, in safetensors files of at most `SHARD_SIZE`), the processor, `train_config.json` and `trainer_state.pt` (optimizer,
 scheduler, RNG states, data position, counters). It is written into a hidden temporary folder and
 renamed into place, so a folder with that name is complete; `RUN/last` then names it. A killed run
 leaves at worst a temporary folder, removed by the next run.
@@ -32,7 +32,7 @@ STATE_FILE = "trainer_state.pt"
 OPTIMIZER_DIR = "optimizer"
 """A sharded run's optimizer state (torch.distributed.checkpoint) inside its checkpoint folder."""
 SHARD_SIZE = "5GB"
-"""Largest safetensors file of a sharded run's checkpoints and final model."""
+"""Largest safetensors file of a checkpoint's or final model's weights."""
 LAST_FILE = "last"
 _NAME = re.compile(r"^checkpoint-(\d{6,})$")
 
@@ -122,12 +122,11 @@ def save(run, step: int, model, processor, config, state: dict, keep: int = 0, t
 
 
 def save_model(model, folder, weights: dict | None = None) -> None:
-    """`model.save_pretrained(folder)` in safetensors; with `weights` (a sharded model's state dict,
-    `full_model_state`), those, in files of at most `SHARD_SIZE`."""
-    if weights is None:
-        model.save_pretrained(str(folder), safe_serialization=True)
-    else:
-        model.save_pretrained(str(folder), safe_serialization=True, state_dict=weights, max_shard_size=SHARD_SIZE)
+    """`model.save_pretrained(folder)` in safetensors files of at most `SHARD_SIZE` (with an index
+    when there are several: transformers' default, 50GB, would put an 8B model's fp32 weights in
+    one 35 GB file); with `weights` (a sharded model's state dict, `full_model_state`), those."""
+    extra = {} if weights is None else {"state_dict": weights}
+    model.save_pretrained(str(folder), safe_serialization=True, max_shard_size=SHARD_SIZE, **extra)
 
 
 def full_model_state(model) -> dict:
