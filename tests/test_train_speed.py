@@ -68,6 +68,33 @@ def test_full_run_trains_every_weight(tiny_dataset, capsys):
     assert row["weight_dtype"] == "fp32" and row["processes"] == 1 and row["shard"] == "none"
 
 
+def test_saved_model_trains_with_python_m_train(tiny_dataset, tmp_path, capsys):
+    """`--save-model DIR` writes the family's model with random weights and its processor as a
+    checkpoint folder (nothing timed) that `python -m train --model DIR` fine-tunes; the same seed
+    writes the same weights; an existing folder is refused."""
+    from safetensors.torch import load_file
+
+    from train.config import TrainConfig
+    from train.loop import train
+
+    base = tmp_path / "base"
+    argv = ["--family", "qwen3-vl", "--data", str(tiny_dataset), "--device", "cpu", "--weight-dtype", "fp32"]
+    row = _row(capsys, *argv, "--save-model", str(base))
+    assert row["saved"] == str(base) and row["files"] == 1 and row["parameters"] > 0
+    assert not list(tmp_path.glob(".*"))  # the temporary folder was renamed
+    again = _row(capsys, *argv, "--save-model", str(tmp_path / "again"))
+    first, second = load_file(str(base / "model.safetensors")), load_file(str(tmp_path / "again" / "model.safetensors"))
+    assert sum(p.numel() for p in first.values()) == row["parameters"] == again["parameters"]
+    assert all(torch.equal(first[k], second[k]) for k in first)
+    code, _, err = _run(capsys, *argv, "--save-model", str(base))
+    assert code == 2 and "exists already" in err
+
+    summary = train(TrainConfig(data=(str(tiny_dataset),), outdir=str(tmp_path / "run"), model=str(base), lora=False,
+                                steps=2, batch_size=2, save_every=2, eval=False, workers=0, device="cpu"),
+                    progress=False)
+    assert summary["steps"] == 2 and (tmp_path / "run" / "final" / "model.safetensors").is_file()
+
+
 @pytest.mark.parametrize("argv, named", [
     (["--family", "qwen3-vl-9b"], "qwen3-vl-8b, gemma3-12b, qwen2-vl"),
     (["--family", "qwen3-vl", "--mode", "half"], "lora, full"),

@@ -3,6 +3,7 @@
     python -m train.speed --family qwen3-vl-8b --mode lora --batch-size 4 --data OUT [--steps 20]
         [--warmup-steps 3] [--max-pixels P] [--weight-dtype bf16|fp32] [--no-gradient-checkpointing] [--out FILE]
     torchrun --nproc_per_node 2 -m train.speed ... [--shard ddp|fsdp]
+    python -m train.speed --family qwen3-vl-8b --data OUT --save-model DIR [--weight-dtype bf16|fp32]
 
 Speed and memory do not depend on the weights' values, so no checkpoint is needed: the model is
 built from the exact config of a published checkpoint (`REAL`: every dimension, the vocabulary
@@ -41,6 +42,9 @@ records `shard` (ddp or fsdp; none with one process), and its peak memory is per
 counted from after sharding (the random model is built whole on each GPU first, which `python -m
 train` does not do: it loads the weights on the CPU and FSDP moves one block at a time).
 
+`--save-model DIR` times nothing: it writes the random-weight model and its processor to DIR, a
+local checkpoint folder for `python -m train --model DIR` (the trainer itself at a real size).
+
 torch and transformers (the `train` extra, seconds to import) are imported inside the functions that
 build and run, so `--help` and the checks of the arguments need neither.
 """
@@ -51,6 +55,8 @@ import argparse
 import copy
 import importlib.util
 import json
+import os
+import shutil
 import statistics
 import sys
 import tempfile
@@ -407,6 +413,10 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--device", default="auto", help=f"one of: {', '.join(DEVICES)}")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=None, help="append the JSON row to this file too")
+    ap.add_argument("--save-model", default=None, metavar="DIR",
+                    help="instead of timing steps, write the random-weight model (in --weight-dtype) and its "
+                         "processor to DIR as a local checkpoint folder that `python -m train --model DIR` takes "
+                         "(safetensors files of at most 5 GB); nothing is trained")
     return ap
 
 
@@ -429,11 +439,50 @@ def check(args) -> None:
                          "--mode full runs without it")
 
 
+def save_model(args, progress=print) -> dict:
+    """`--save-model DIR`: the model of `--family` with random weights (seeded by `--seed`) in
+    `--weight-dtype`, and its processor, written to DIR as a checkpoint folder (a temporary folder
+    renamed into place, as `train.tiny` writes its models); a JSON row of what was written."""
+    import torch
+
+    # torch at import (the [train] extra): loaded when a run starts, so `--help` and refusals need none
+    from train.checkpoint import save_model as save_weights
+    from train.loop import check_data, resolve_device
+
+    out = Path(args.save_model)
+    if out.exists():
+        raise SpeedError(f"--save-model {out}: exists already; give a new folder")
+    config = TrainConfig(data=(str(Path(args.data).resolve()),), outdir=str(out), device=args.device)
+    check_data(config)
+    device = resolve_device(config)
+    cfg, processor = build(args.family, dataset_texts(config.data), args.max_pixels, args.size)
+    wdtype = torch.bfloat16 if args.weight_dtype == "bf16" else torch.float32
+    torch.manual_seed(args.seed)
+    t = time.perf_counter()
+    model = instantiate(cfg, device, wdtype, "sdpa")
+    built = time.perf_counter() - t
+    progress(f"{args.family}: {sum(p.numel() for p in model.parameters()):,} parameters built in {built:.1f} s; "
+             f"writing {out}")
+    tmp = out.with_name(f".{out.name}.tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    t = time.perf_counter()
+    save_weights(model, tmp)
+    save_processor(processor, tmp)
+    os.replace(tmp, out)
+    files = sorted(out.glob("*.safetensors"))
+    return {"family": args.family, "saved": str(out), "weight_dtype": args.weight_dtype,
+            "parameters": sum(p.numel() for p in model.parameters()), "build_seconds": round(built, 2),
+            "save_seconds": round(time.perf_counter() - t, 2), "files": len(files),
+            "bytes": sum(f.stat().st_size for f in files)}
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     try:
         check(args)
-        row = measure(args, progress=lambda m: print(m, file=sys.stderr, flush=True))
+        run = save_model if args.save_model else measure
+        row = run(args, progress=lambda m: print(m, file=sys.stderr, flush=True))
     except (SpeedError, ConfigError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
