@@ -223,6 +223,21 @@ def train_log(run: Path) -> list[dict]:
     return [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
 
 
+def run_weights(run: Path) -> dict:
+    """The weights of run folder `run`'s `final/`, from all its safetensors files."""
+    from safetensors.torch import load_file
+
+    return {k: v for f in sorted((run / "final").glob("*.safetensors")) for k, v in load_file(str(f)).items()}
+
+
+def train_argv(dataset, model, outdir, *more) -> list[str]:
+    """`python -m train` arguments of the several-process tests: 3 steps on the CPU from `model`,
+    a checkpoint every 2, no data workers, then `more`."""
+    return ["--data", str(dataset), "--model", str(model), "--outdir", str(outdir), "--steps", "3", "--lr", "1e-3",
+            "--warmup", "1", "--save-every", "2", "--keep-checkpoints", "0", "--workers", "0", "--device", "cpu",
+            "--no-progress", *map(str, more)]
+
+
 def assert_resumed_run_is_the_same(run: Path, log_before: list[dict], weights_before: dict) -> None:
     """A run resumed from a checkpoint logged the same losses step for step and ended with the
     same final weights as the uninterrupted run (`log_before`, `weights_before`)."""

@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import json
 import shutil
-from pathlib import Path
 
 import pytest
-from conftest import assert_resumed_run_is_the_same, train_log
+from conftest import assert_resumed_run_is_the_same, run_weights, train_log
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")
@@ -305,12 +304,6 @@ def test_command_line_trains_evaluates_and_leaves_a_loadable_model(tiny_dataset,
     assert "lr: 0.001 -> 0.0005" in capsys.readouterr().err
 
 
-def _weights(folder: Path) -> dict:
-    from safetensors.torch import load_file
-
-    return {k: v for f in sorted(folder.glob("*.safetensors")) for k, v in load_file(str(f)).items()}
-
-
 def test_large_weights_are_saved_in_shards_and_a_run_resumes_from_them(tiny_dataset, tmp_path, monkeypatch):
     """Checkpoints and `final/` write the weights in safetensors files of at most `SHARD_SIZE`
     with an index (transformers' default, 50GB, puts an 8B model's fp32 weights in one file); a run
@@ -331,13 +324,13 @@ def test_large_weights_are_saved_in_shards_and_a_run_resumes_from_them(tiny_data
         assert max(p.stat().st_size for p in folder.glob("model*.safetensors")) <= 1_100_000
         index = json.loads((folder / "model.safetensors.index.json").read_text())
         assert set(index["weight_map"].values()) == set(files)
-    uninterrupted, log_before = _weights(run / "final"), train_log(run)
+    uninterrupted, log_before = run_weights(run), train_log(run)
 
     shutil.rmtree(run / "checkpoint-000004")
     shutil.rmtree(run / "final")
     train(cfg, progress=False)
     assert [r["loss"] for r in train_log(run)] == pytest.approx([r["loss"] for r in log_before], abs=1e-5)
-    resumed = _weights(run / "final")
+    resumed = run_weights(run)
     assert resumed.keys() == uninterrupted.keys()
     for k in resumed:
         torch.testing.assert_close(resumed[k], uninterrupted[k], atol=1e-6, rtol=1e-5)

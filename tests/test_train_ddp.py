@@ -10,23 +10,11 @@ import json
 import shutil
 
 import pytest
-from conftest import assert_resumed_run_is_the_same, torchrun, train_log
+from conftest import assert_resumed_run_is_the_same, run_weights, torchrun, train_argv, train_log
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")
 pytest.importorskip("peft")
-
-
-def _argv(dataset, model, outdir, *more):
-    return ["--data", str(dataset), "--model", str(model), "--outdir", str(outdir), "--steps", "3", "--lr", "1e-3",
-            "--warmup", "1", "--save-every", "2", "--keep-checkpoints", "0", "--workers", "0", "--device", "cpu",
-            "--no-progress", *map(str, more)]
-
-
-def _weights(run):
-    from safetensors.torch import load_file
-
-    return load_file(str(run / "final" / "model.safetensors"))
 
 
 def _one_process(argv, capsys):
@@ -52,7 +40,7 @@ def _assert_same_training(one, two, base, atol=1e-5):
     assert [r["examples"] for r in a] == [r["examples"] for r in b]
     for ra, rb in zip(a, b):
         assert ra["loss"] == pytest.approx(rb["loss"], abs=1e-4)
-    wa, wb, w0 = _weights(one), _weights(two), load_file(str(base / "model.safetensors"))
+    wa, wb, w0 = run_weights(one), run_weights(two), load_file(str(base / "model.safetensors"))
     assert wa.keys() == wb.keys()
     for k in wa:
         torch.testing.assert_close(wb[k], wa[k], atol=atol, rtol=0, msg=k)
@@ -67,8 +55,8 @@ def full_runs(tiny_dataset, tiny_model, tmp_path_factory):
 
     root = tmp_path_factory.mktemp("ddp")
     one, two = root / "one", root / "two"
-    assert main(_argv(tiny_dataset, tiny_model, one, "--lora", "0", "--batch-size", "2", "--no-eval")) == 0
-    done = _two_processes(_argv(tiny_dataset, tiny_model, two, "--lora", "0", "--batch-size", "1",
+    assert main(train_argv(tiny_dataset, tiny_model, one, "--lora", "0", "--batch-size", "2", "--no-eval")) == 0
+    done = _two_processes(train_argv(tiny_dataset, tiny_model, two, "--lora", "0", "--batch-size", "1",
                                 "--eval-limit", "1", "--max-new-tokens", "8"))
     return one, two, done
 
@@ -101,7 +89,7 @@ def test_an_interrupted_two_process_run_resumes_to_the_same_result(full_runs, tm
     _, two, _ = full_runs
     run = tmp_path / "two"
     shutil.copytree(two, run)
-    log_before, weights_before = train_log(run), _weights(run)
+    log_before, weights_before = train_log(run), run_weights(run)
     # killed after step 3 was logged but before its checkpoint: checkpoint 2 is the last whole one
     shutil.rmtree(run / "checkpoint-000003")
     shutil.rmtree(run / "final")
@@ -109,7 +97,7 @@ def test_an_interrupted_two_process_run_resumes_to_the_same_result(full_runs, tm
     config = json.loads((run / "train_config.json").read_text())
     config["outdir"] = str(run)  # the copy is another run folder
     (run / "train_config.json").write_text(json.dumps(config))
-    _two_processes(_argv(config["data"][0], config["model"], run, "--lora", "0", "--batch-size", "1", "--no-eval"))
+    _two_processes(train_argv(config["data"][0], config["model"], run, "--lora", "0", "--batch-size", "1", "--no-eval"))
     assert_resumed_run_is_the_same(run, log_before, weights_before)
 
 
@@ -120,7 +108,7 @@ def test_another_process_count_is_refused(full_runs, tiny_dataset, tiny_model, c
 
     _, two, _ = full_runs
     capsys.readouterr()
-    assert main(_argv(tiny_dataset, tiny_model, two, "--lora", "0", "--batch-size", "1", "--no-eval")) == 2
+    assert main(train_argv(tiny_dataset, tiny_model, two, "--lora", "0", "--batch-size", "1", "--no-eval")) == 2
     err = capsys.readouterr().err
     assert "checkpoint-000003 was trained by 2 process(es)" in err and "this run has 1" in err
     assert "torchrun --nproc_per_node 2" in err
@@ -134,8 +122,8 @@ def test_lora_with_gradient_checkpointing_and_accumulation(tiny_dataset, tiny_mo
     processes at batch 1 train as one at batch 2."""
     more = ["--lora", "1", "--lora-dropout", "0", "--gradient-checkpointing", "--grad-accum", "2", "--no-eval",
             "--steps", "2"]
-    _one_process(_argv(tiny_dataset, tiny_model, tmp_path / "one", *more, "--batch-size", "2"), capsys)
-    _two_processes(_argv(tiny_dataset, tiny_model, tmp_path / "two", *more, "--batch-size", "1"))
+    _one_process(train_argv(tiny_dataset, tiny_model, tmp_path / "one", *more, "--batch-size", "2"), capsys)
+    _two_processes(train_argv(tiny_dataset, tiny_model, tmp_path / "two", *more, "--batch-size", "1"))
     assert [r["examples"] for r in train_log(tmp_path / "two")] == [4, 8]
     _assert_same_training(tmp_path / "one", tmp_path / "two", tiny_model)
 

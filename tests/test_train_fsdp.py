@@ -11,24 +11,12 @@ import json
 import shutil
 
 import pytest
-from conftest import assert_resumed_run_is_the_same, torchrun, train_log
+from conftest import assert_resumed_run_is_the_same, run_weights, torchrun, train_argv, train_log
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")
 
 MORE = ("--lora", "0", "--gradient-checkpointing", "--grad-accum", "2", "--no-eval")
-
-
-def _argv(dataset, model, outdir, *more):
-    return ["--data", str(dataset), "--model", str(model), "--outdir", str(outdir), "--steps", "3", "--lr", "1e-3",
-            "--warmup", "1", "--save-every", "2", "--keep-checkpoints", "0", "--workers", "0", "--device", "cpu",
-            "--no-progress", *map(str, more)]
-
-
-def _weights(run):
-    from safetensors.torch import load_file
-
-    return load_file(str(run / "final" / "model.safetensors"))
 
 
 def _two_sharded_processes(argv):
@@ -45,8 +33,8 @@ def runs(tiny_dataset, tiny_model, tmp_path_factory):
 
     root = tmp_path_factory.mktemp("fsdp")
     one, two = root / "one", root / "two"
-    assert main(_argv(tiny_dataset, tiny_model, one, *MORE, "--batch-size", "2")) == 0
-    _two_sharded_processes(_argv(tiny_dataset, tiny_model, two, *MORE, "--batch-size", "1"))
+    assert main(train_argv(tiny_dataset, tiny_model, one, *MORE, "--batch-size", "2")) == 0
+    _two_sharded_processes(train_argv(tiny_dataset, tiny_model, two, *MORE, "--batch-size", "1"))
     return one, two
 
 
@@ -62,7 +50,7 @@ def test_two_sharded_processes_train_as_one_with_their_global_batch(runs, tiny_m
         # the norm of the sharded gradient (DTensors) before clipping, the same as one process's
         assert rb["grad_norm"] == pytest.approx(ra["grad_norm"], rel=1e-4)
     assert min(r["grad_norm"] for r in b) > 1.0  # above --max-grad-norm 1: every step was clipped
-    wa, wb, w0 = _weights(one), _weights(two), load_file(str(tiny_model / "model.safetensors"))
+    wa, wb, w0 = run_weights(one), run_weights(two), load_file(str(tiny_model / "model.safetensors"))
     assert wa.keys() == wb.keys() == w0.keys()
     for k in wa:
         assert wb[k].dtype == wa[k].dtype == torch.float32
@@ -85,7 +73,7 @@ def test_a_sharded_checkpoint_holds_the_whole_model_and_each_process_optimizer_s
     # the gathered weights are the final model's (nothing trained after the last checkpoint)
     from safetensors.torch import load_file
 
-    saved, final = load_file(str(folder / "model.safetensors")), _weights(two)
+    saved, final = load_file(str(folder / "model.safetensors")), run_weights(two)
     assert saved.keys() == final.keys() and all(torch.equal(saved[k], final[k]) for k in saved)
     assert json.loads((two / "train_summary.json").read_text())["processes"] == 2
 
@@ -94,7 +82,7 @@ def test_an_interrupted_sharded_run_resumes_to_the_same_result(runs, tmp_path):
     _, two = runs
     run = tmp_path / "two"
     shutil.copytree(two, run)
-    log_before, weights_before = train_log(run), _weights(run)
+    log_before, weights_before = train_log(run), run_weights(run)
     # killed after step 3 was logged but before its checkpoint: checkpoint 2 is the last whole one
     shutil.rmtree(run / "checkpoint-000003")
     shutil.rmtree(run / "final")
@@ -102,7 +90,7 @@ def test_an_interrupted_sharded_run_resumes_to_the_same_result(runs, tmp_path):
     config = json.loads((run / "train_config.json").read_text())
     config["outdir"] = str(run)  # the copy is another run folder
     (run / "train_config.json").write_text(json.dumps(config))
-    _two_sharded_processes(_argv(config["data"][0], config["model"], run, *MORE, "--batch-size", "1"))
+    _two_sharded_processes(train_argv(config["data"][0], config["model"], run, *MORE, "--batch-size", "1"))
     assert_resumed_run_is_the_same(run, log_before, weights_before)
 
 
@@ -110,7 +98,7 @@ def test_a_sharded_run_is_resumed_sharded_by_as_many_processes_only(runs, tiny_d
     from train.__main__ import main
 
     _, two = runs
-    argv = _argv(tiny_dataset, tiny_model, two, *MORE, "--batch-size", "1")
+    argv = train_argv(tiny_dataset, tiny_model, two, *MORE, "--batch-size", "1")
     capsys.readouterr()
     assert main(argv) == 2  # DDP settings (the default) in the sharded run's folder
     assert "shard: 'fsdp' -> 'ddp'" in capsys.readouterr().err
@@ -128,10 +116,10 @@ def test_fsdp_refuses_lora_and_unknown_modes(tiny_dataset, tiny_model, tmp_path,
     with pytest.raises(ConfigError, match=r"shard=fsdp trains every weight.*--lora 0.*--shard ddp"):
         TrainConfig(data=("d",), outdir="o", lora=True, shard="fsdp")
     # --lora auto is LoRA for a given --model: refused, naming --lora 0
-    assert main(_argv(tiny_dataset, tiny_model, tmp_path / "run", "--shard", "fsdp")) == 2
+    assert main(train_argv(tiny_dataset, tiny_model, tmp_path / "run", "--shard", "fsdp")) == 2
     assert "--lora 0" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        main(_argv(tiny_dataset, tiny_model, tmp_path / "run", "--shard", "zero"))
+        main(train_argv(tiny_dataset, tiny_model, tmp_path / "run", "--shard", "zero"))
     assert "invalid choice: 'zero' (choose from ddp, fsdp)" in capsys.readouterr().err.replace("'ddp', 'fsdp'",
                                                                                               "ddp, fsdp")
 
