@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -236,6 +237,22 @@ def train_argv(dataset, model, outdir, *more) -> list[str]:
     return ["--data", str(dataset), "--model", str(model), "--outdir", str(outdir), "--steps", "3", "--lr", "1e-3",
             "--warmup", "1", "--save-every", "2", "--keep-checkpoints", "0", "--workers", "0", "--device", "cpu",
             "--no-progress", *map(str, more)]
+
+
+def interrupted_copy(run: Path, into: Path) -> tuple[Path, dict, list[dict], dict]:
+    """A copy of the finished 3-step run `run` (a checkpoint every 2) in `into`, as if killed
+    after step 3 was logged but before its checkpoint (checkpoint 2 the last whole one), its config
+    pointing at the copy: (copy, its config, the run's log, the run's final weights)."""
+    copy = into / run.name
+    shutil.copytree(run, copy)
+    log_before, weights_before = train_log(copy), run_weights(copy)
+    shutil.rmtree(copy / "checkpoint-000003")
+    shutil.rmtree(copy / "final")
+    (copy / "last").write_text("checkpoint-000003\n")
+    config = json.loads((copy / "train_config.json").read_text())
+    config["outdir"] = str(copy)  # the copy is another run folder
+    (copy / "train_config.json").write_text(json.dumps(config))
+    return copy, config, log_before, weights_before
 
 
 def assert_resumed_run_is_the_same(run: Path, log_before: list[dict], weights_before: dict) -> None:

@@ -7,10 +7,9 @@ two-process run resumes to the same result; another process count is refused."""
 from __future__ import annotations
 
 import json
-import shutil
 
 import pytest
-from conftest import assert_resumed_run_is_the_same, run_weights, torchrun, train_argv, train_log
+from conftest import assert_resumed_run_is_the_same, interrupted_copy, run_weights, torchrun, train_argv, train_log
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")
@@ -87,16 +86,7 @@ def test_two_processes_train_as_one_with_their_global_batch(full_runs, tiny_mode
 
 def test_an_interrupted_two_process_run_resumes_to_the_same_result(full_runs, tmp_path):
     _, two, _ = full_runs
-    run = tmp_path / "two"
-    shutil.copytree(two, run)
-    log_before, weights_before = train_log(run), run_weights(run)
-    # killed after step 3 was logged but before its checkpoint: checkpoint 2 is the last whole one
-    shutil.rmtree(run / "checkpoint-000003")
-    shutil.rmtree(run / "final")
-    (run / "last").write_text("checkpoint-000003\n")
-    config = json.loads((run / "train_config.json").read_text())
-    config["outdir"] = str(run)  # the copy is another run folder
-    (run / "train_config.json").write_text(json.dumps(config))
+    run, config, log_before, weights_before = interrupted_copy(two, tmp_path)
     _two_processes(train_argv(config["data"][0], config["model"], run, "--lora", "0", "--batch-size", "1", "--no-eval"))
     assert_resumed_run_is_the_same(run, log_before, weights_before)
 

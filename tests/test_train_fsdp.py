@@ -8,10 +8,9 @@ modules become FSDP units in every family; the settings FSDP refuses."""
 from __future__ import annotations
 
 import json
-import shutil
 
 import pytest
-from conftest import assert_resumed_run_is_the_same, run_weights, torchrun, train_argv, train_log
+from conftest import assert_resumed_run_is_the_same, interrupted_copy, run_weights, torchrun, train_argv, train_log
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")
@@ -80,16 +79,7 @@ def test_a_sharded_checkpoint_holds_the_whole_model_and_each_process_optimizer_s
 
 def test_an_interrupted_sharded_run_resumes_to_the_same_result(runs, tmp_path):
     _, two = runs
-    run = tmp_path / "two"
-    shutil.copytree(two, run)
-    log_before, weights_before = train_log(run), run_weights(run)
-    # killed after step 3 was logged but before its checkpoint: checkpoint 2 is the last whole one
-    shutil.rmtree(run / "checkpoint-000003")
-    shutil.rmtree(run / "final")
-    (run / "last").write_text("checkpoint-000003\n")
-    config = json.loads((run / "train_config.json").read_text())
-    config["outdir"] = str(run)  # the copy is another run folder
-    (run / "train_config.json").write_text(json.dumps(config))
+    run, config, log_before, weights_before = interrupted_copy(two, tmp_path)
     _two_sharded_processes(train_argv(config["data"][0], config["model"], run, *MORE, "--batch-size", "1"))
     assert_resumed_run_is_the_same(run, log_before, weights_before)
 
