@@ -245,6 +245,10 @@ def _fmt(v, digits: int = 3) -> str:
     return "-" if v is None else f"{v:.{digits}f}"
 
 
+def _or_dash(v):
+    return "-" if v is None else v
+
+
 def _table(header: list[str], rows: list[list]) -> list[str]:
     """A markdown table: the first column left-aligned, the numbers right-aligned."""
     return ["| " + " | ".join(header) + " |", "|---|" + "---:|" * (len(header) - 1),
@@ -348,9 +352,12 @@ def markdown(report: dict) -> str:
         lines += ["### Lockstep growth (`bench_physics --growth`)", "",
                   "The same objects (default config, exactly the given parts each) grown a batch at a time "
                   "in one process; steps per second over the whole growth.", ""]
-        lines += _table(["backend", "batch", "objects", "steps", "seconds", "steps/s"],
-                        [[r["backend"], r["batch"], r["objects"], r["steps"], r["seconds"], r["steps_per_s"]]
-                         for r in growth])
+        lines += _table(["backend", "batch", "objects", "steps", "seconds", "steps/s", "warm-up s",
+                         "compiles in the window (compiled here), s"],
+                        [[r["backend"], r["batch"], r["objects"], r["steps"], r["seconds"], r["steps_per_s"],
+                          _or_dash(r.get("warm_seconds")),
+                          f"{r['compiles']} ({r['compile_cache_misses']}), {r['compile_seconds']}" if "compiles" in r
+                          else "-"] for r in growth])
         lines += [""]
     if "render" in report:
         lines += ["## Renders", "", "Best of 3 passes over 7 views (6 orthographic, 1 isometric) at 256 px; "

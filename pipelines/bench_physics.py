@@ -533,21 +533,58 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
             per = max(1, batch // len(spans))
             # New processes for every row, so that no row finds the answers an earlier one cached.
             done, wall = _together(spans, _growth_init, (backend, steps, objects), _growth_run, per)
-            stages = Counter()
+            stages, jit = Counter(), Counter()
             for d in done:
                 stages.update(d[3])
+                jit.update(d[4])
             _emit(rows, log, _growth_row(backend, per * len(spans), objects, sum(d[2] for d in done), steps, wall,
-                                         stages, procs=len(spans)))
+                                         stages, procs=len(spans), jit=jit, warm_s=max(d[5] for d in done)))
         return rows
+    t0 = time.perf_counter()
     sampler = _warm_sampler(backend, steps, objects)
+    warm_s = time.perf_counter() - t0
     for batch in batches:
         _forget_answers()
         STAGE_SECONDS.clear()
+        _JIT.clear()
         t0 = time.perf_counter()
         placed = sum(len(a.steps) for a in sampler.grow(range(objects), batch=batch))
         wall = time.perf_counter() - t0
-        _emit(rows, log, _growth_row(backend, batch, objects, placed, steps, wall, STAGE_SECONDS))
+        _emit(rows, log, _growth_row(backend, batch, objects, placed, steps, wall, STAGE_SECONDS, jit=_JIT,
+                                     warm_s=warm_s))
+        warm_s = None  # the warm-up came before the first row only
     return rows
+
+
+_JIT: Counter = Counter()
+"""This process's JAX compiles since the last clear (`_count_compiles`): `compiles` (each a backend
+compile or a load from the persistent cache), `cache_misses` (compiled here), `compile_s`."""
+
+
+_LISTENING: list[bool] = []
+
+
+def _count_compiles() -> None:
+    """Count this process's JAX compiles into `_JIT` from now on (the listeners are registered once
+    per process: JAX has no way to remove them)."""
+    import jax.monitoring  # optional: the [mjx] extra
+
+    if not _LISTENING:
+        jax.monitoring.register_event_duration_secs_listener(_on_duration)
+        jax.monitoring.register_event_listener(_on_event)
+        _LISTENING.append(True)
+    _JIT.clear()
+
+
+def _on_duration(event: str, duration: float, **_) -> None:
+    if event == "/jax/core/compile/backend_compile_duration":
+        _JIT["compiles"] += 1
+        _JIT["compile_s"] += duration
+
+
+def _on_event(event: str, **_) -> None:
+    if event == "/jax/compilation_cache/cache_misses":
+        _JIT["cache_misses"] += 1
 
 
 def _forget_answers() -> None:
@@ -557,15 +594,26 @@ def _forget_answers() -> None:
     _ALONE.clear()
 
 
-def _growth_row(backend, batch, objects, placed, steps, wall, stages, procs=1) -> dict:
-    return {"kind": "growth", "backend": backend, "batch": batch, "procs": procs, "objects": objects,
-            "steps": placed, "target_steps": steps, "seconds": round(wall, 2), "steps_per_s": round(placed / wall, 2),
-            "stage_seconds": {k: round(v, 2) for k, v in sorted(stages.items())}}
+def _growth_row(backend, batch, objects, placed, steps, wall, stages, procs=1, jit=None, warm_s=None) -> dict:
+    """A growth row; with the batched path, the JAX compiles inside the timed window (`_JIT`, summed
+    over the processes) and the warm-up's seconds (the slowest process's; None after the first row
+    of one process), where compiles of the shapes the warm-up objects met fall."""
+    row = {"kind": "growth", "backend": backend, "batch": batch, "procs": procs, "objects": objects,
+           "steps": placed, "target_steps": steps, "seconds": round(wall, 2), "steps_per_s": round(placed / wall, 2),
+           "stage_seconds": {k: round(v, 2) for k, v in sorted(stages.items())}}
+    if backend == "mjx":
+        jit = jit or {}
+        row.update(warm_seconds=None if warm_s is None else round(warm_s, 2), compiles=int(jit.get("compiles", 0)),
+                   compile_cache_misses=int(jit.get("cache_misses", 0)), compile_seconds=round(jit.get("compile_s", 0.0), 2))
+    return row
 
 
 def _growth_init(backend: str, steps: int, objects: int) -> None:
-    """A grower process of `measure_growth`: its sampler, warmed (`_warm_sampler`)."""
+    """A grower process of `measure_growth`: its sampler, warmed (`_warm_sampler`), and the seconds
+    that took."""
+    t = time.perf_counter()
     _CTX["sampler"] = _warm_sampler(backend, steps, objects)
+    _CTX["warm_s"] = time.perf_counter() - t
 
 
 WARM_OBJECTS = 4
@@ -574,6 +622,8 @@ scenes' meshes made, the first kernels compiled."""
 
 
 def _warm_sampler(backend: str, steps: int, objects: int) -> Sampler:
+    if backend == "mjx":
+        _count_compiles()
     sampler = Sampler(SamplerConfig(seed=0, min_steps=steps, max_steps=steps, backend=backend), None)
     for part in sampler.parts:  # found on a part's first use otherwise (0.1 s each), inside a row
         part.sockets
@@ -582,15 +632,16 @@ def _warm_sampler(backend: str, steps: int, objects: int) -> Sampler:
     return sampler
 
 
-def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, float, int, dict]:
+def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, float, int, dict, dict, float]:
     """Objects span[0]..span[1]-1 grown `batch` at a time once every process is ready: (start,
-    end, steps placed, stage seconds)."""
+    end, steps placed, stage seconds, JAX compiles meanwhile, warm-up seconds)."""
     gc.collect()
     STAGE_SECONDS.clear()
+    _JIT.clear()
     barrier.wait()
     t = time.time()
     placed = sum(len(a.steps) for a in _CTX["sampler"].grow(range(*span), batch=batch))
-    return t, time.time(), placed, dict(STAGE_SECONDS)
+    return t, time.time(), placed, dict(STAGE_SECONDS), dict(_JIT), _CTX["warm_s"]
 
 
 def main(argv=None) -> int:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import time
 
+import numpy as np
 import pytest
 
 from pipelines import bench
@@ -116,3 +117,31 @@ def test_a_process_that_fails_in_its_warm_up_stops_the_others(monkeypatch):
     with pytest.raises(ValueError, match="warm-up"):
         bench_physics._together([(0, 1), (1, 2)], _noop, (), _fail_before_the_barrier)
     assert time.perf_counter() - t < 60.0
+
+
+def test_batched_growth_rows_count_the_compiles_in_their_window():
+    """`bench_physics --growth` on the batched path (JAX on the CPU here): each row says how long
+    the warm-up took (the first row) and how many JAX compiles fell inside its timed window; a
+    second row over the same objects meets no new shape, so it compiles nothing."""
+    pytest.importorskip("jax")
+    from pipelines.bench_physics import measure_growth
+
+    first, second = measure_growth("mjx", [2, 2], steps=3, objects=2)
+    assert first["warm_seconds"] > 0 and second["warm_seconds"] is None
+    assert first["steps"] == second["steps"] > 0
+    assert second["compiles"] == second["compile_cache_misses"] == 0 and second["compile_seconds"] == 0
+    assert first["compiles"] >= first["compile_cache_misses"] >= 0
+
+    # the counter itself: a shape never met is one compile, a second call none
+    import jax
+    import jax.numpy as jnp
+
+    from pipelines import bench_physics
+
+    bench_physics._count_compiles()
+    f = jax.jit(lambda x: jnp.cumsum(x * 3.25))
+    x = np.ones(1237, np.float32)  # a numpy input: jnp.ones would compile a kernel of its own
+    f(x).block_until_ready()
+    assert bench_physics._JIT["compiles"] == 1 and bench_physics._JIT["compile_s"] > 0
+    f(x).block_until_ready()
+    assert bench_physics._JIT["compiles"] == 1
