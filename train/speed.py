@@ -66,7 +66,7 @@ from pathlib import Path
 
 from eval.processor import pad_token_id, save_processor
 from factory.atomic import write_atomic
-from train.config import DEVICES, ConfigError, TrainConfig
+from train.config import DEVICES, SHARD_MODES, ConfigError, TrainConfig
 from train.tiny import (FAMILIES, MAX_PIXELS, SIZES, dataset_texts, family, make_processor, tiny_config,
                         train_tokenizer)
 
@@ -175,7 +175,6 @@ REAL = {
 
 CHOICES = (*REAL, *FAMILIES)
 MODES = ("lora", "full")
-SHARDS = ("ddp", "fsdp")
 WEIGHT_DTYPES = ("bf16", "fp32")
 
 
@@ -422,7 +421,7 @@ def parser() -> argparse.ArgumentParser:
 
 def check(args) -> None:
     """Every choice valid before anything is built."""
-    for name, valid in (("family", CHOICES), ("mode", MODES), ("shard", SHARDS), ("weight_dtype", WEIGHT_DTYPES),
+    for name, valid in (("family", CHOICES), ("mode", MODES), ("shard", SHARD_MODES), ("weight_dtype", WEIGHT_DTYPES),
                         ("size", SIZES), ("device", DEVICES)):
         if getattr(args, name) not in valid:
             flag = "--" + name.replace("_", "-")
@@ -461,9 +460,9 @@ def save_model(args, progress=print) -> dict:
     t = time.perf_counter()
     model = instantiate(cfg, device, wdtype, "sdpa")
     built = time.perf_counter() - t
-    progress(f"{args.family}: {sum(p.numel() for p in model.parameters()):,} parameters built in {built:.1f} s; "
-             f"writing {out}")
-    tmp = out.with_name(f".{out.name}.tmp")
+    n = sum(p.numel() for p in model.parameters())
+    progress(f"{args.family}: {n:,} parameters built in {built:.1f} s; writing {out}")
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")  # this run's own: two runs never share one
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     t = time.perf_counter()
@@ -472,7 +471,7 @@ def save_model(args, progress=print) -> dict:
     os.replace(tmp, out)
     files = sorted(out.glob("*.safetensors"))
     return {"family": args.family, "saved": str(out), "weight_dtype": args.weight_dtype,
-            "parameters": sum(p.numel() for p in model.parameters()), "build_seconds": round(built, 2),
+            "parameters": n, "build_seconds": round(built, 2),
             "save_seconds": round(time.perf_counter() - t, 2), "files": len(files),
             "bytes": sum(f.stat().st_size for f in files)}
 
