@@ -318,12 +318,11 @@ def build(config: TrainConfig, device: torch.device, resume_from: Path | None, p
     processor = load_processor(base, config.max_pixels)
     torch.manual_seed(config.seed)
     wdtype = weight_dtype(config, device)
-    if config.lora:
-        model = trainable_model(load_base(base, wdtype), config)
-        if resume_from is not None:
-            load_adapter_weights(model, resume_from)
-    else:
-        model = trainable_model(load_base(resume_from if resume_from is not None else base, wdtype), config)
+    # A LoRA checkpoint holds the adapters only (loaded onto the base below); a full one, every weight.
+    full_checkpoint = resume_from if resume_from is not None and not config.lora else None
+    model = trainable_model(load_base(full_checkpoint or base, wdtype), config)
+    if config.lora and resume_from is not None:
+        load_adapter_weights(model, resume_from)
     if move:
         model.to(device)
     model.train()
