@@ -529,6 +529,7 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
     rows = []
     if procs > 1:
         spans = _spans(objects, procs)
+        fill = _fill_compile_cache(backend, steps, objects) if backend == "mjx" else None
         for batch in batches:
             per = max(1, batch // len(spans))
             # New processes for every row, so that no row finds the answers an earlier one cached.
@@ -537,8 +538,12 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
             for d in done:
                 stages.update(d[3])
                 jit.update(d[4])
-            _emit(rows, log, _growth_row(backend, per * len(spans), objects, sum(d[2] for d in done), steps, wall,
-                                         stages, procs=len(spans), jit=jit, warm_s=max(d[5] for d in done)))
+            row = _growth_row(backend, per * len(spans), objects, sum(d[2] for d in done), steps, wall, stages,
+                              procs=len(spans), jit=jit, warm_s=max(d[5] for d in done))
+            if fill is not None:
+                row.update(cache_fill_seconds=round(fill[0], 2), cache_fill_misses=fill[1],
+                           warm_cache_misses=sum(d[6] for d in done))
+            _emit(rows, log, row)
         return rows
     t0 = time.perf_counter()
     sampler = _warm_sampler(backend, steps, objects)
@@ -608,12 +613,30 @@ def _growth_row(backend, batch, objects, placed, steps, wall, stages, procs=1, j
     return row
 
 
+def _fill_compile_cache(backend: str, steps: int, objects: int) -> tuple[float, int]:
+    """(seconds, kernels compiled): one process grows the warm-up objects alone before the grower
+    processes start, so the kernels they meet go into the persistent compilation cache
+    (`jax_cache`) once and the grower processes load them, where each would otherwise compile
+    every one of them at the same moment as the others (kernels that compile in under
+    `jax_cache.MIN_COMPILE_SECONDS` are not written, and each process compiles those)."""
+    t = time.perf_counter()
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        misses = pool.submit(_fill_run, backend, steps, objects).result()
+    return time.perf_counter() - t, misses
+
+
+def _fill_run(backend: str, steps: int, objects: int) -> int:
+    _warm_sampler(backend, steps, objects, keep=False)
+    return int(_JIT.get("cache_misses", 0))
+
+
 def _growth_init(backend: str, steps: int, objects: int) -> None:
     """A grower process of `measure_growth`: its sampler, warmed (`_warm_sampler`), and the seconds
     that took."""
     t = time.perf_counter()
     _CTX["sampler"] = _warm_sampler(backend, steps, objects)
     _CTX["warm_s"] = time.perf_counter() - t
+    _CTX["warm_misses"] = int(_JIT.get("cache_misses", 0))
 
 
 WARM_OBJECTS = 4
@@ -621,7 +644,8 @@ WARM_OBJECTS = 4
 scenes' meshes made, the first kernels compiled."""
 
 
-def _warm_sampler(backend: str, steps: int, objects: int) -> Sampler:
+def _warm_sampler(backend: str, steps: int, objects: int, keep: bool = True) -> Sampler | None:
+    """A sampler that has grown the `WARM_OBJECTS` warm-up objects (returned when `keep`)."""
     if backend == "mjx":
         _count_compiles()
     sampler = Sampler(SamplerConfig(seed=0, min_steps=steps, max_steps=steps, backend=backend), None)
@@ -629,19 +653,20 @@ def _warm_sampler(backend: str, steps: int, objects: int) -> Sampler:
         part.sockets
     list(sampler.grow(range(objects, objects + WARM_OBJECTS), batch=WARM_OBJECTS))
     _forget_answers()
-    return sampler
+    return sampler if keep else None
 
 
-def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, float, int, dict, dict, float]:
+def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, float, int, dict, dict, float, int]:
     """Objects span[0]..span[1]-1 grown `batch` at a time once every process is ready: (start,
-    end, steps placed, stage seconds, JAX compiles meanwhile, warm-up seconds)."""
+    end, steps placed, stage seconds, JAX compiles meanwhile, warm-up seconds, kernels compiled
+    in the warm-up)."""
     gc.collect()
     STAGE_SECONDS.clear()
     _JIT.clear()
     barrier.wait()
     t = time.time()
     placed = sum(len(a.steps) for a in _CTX["sampler"].grow(range(*span), batch=batch))
-    return t, time.time(), placed, dict(STAGE_SECONDS), dict(_JIT), _CTX["warm_s"]
+    return t, time.time(), placed, dict(STAGE_SECONDS), dict(_JIT), _CTX["warm_s"], _CTX["warm_misses"]
 
 
 def main(argv=None) -> int:

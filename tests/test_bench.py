@@ -145,3 +145,19 @@ def test_batched_growth_rows_count_the_compiles_in_their_window():
     assert bench_physics._JIT["compiles"] == 1 and bench_physics._JIT["compile_s"] > 0
     f(x).block_until_ready()
     assert bench_physics._JIT["compiles"] == 1
+
+
+def test_grower_processes_load_the_kernels_one_process_compiled(tmp_path, monkeypatch):
+    """`bench_physics --growth --procs 2` on the batched path, with an empty compilation cache:
+    one process grows the warm-up objects alone first and compiles their kernels into the
+    persistent cache; the two grower processes then compile fewer of them each (only those too
+    quick to compile to be written), and the row says so."""
+    pytest.importorskip("jax")
+    from pipelines.bench_physics import measure_growth
+
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "jax"))  # the spawned processes' cache
+    (row,) = measure_growth("mjx", [2], steps=3, objects=2, procs=2)
+    assert row["steps"] == 6 and row["cache_fill_seconds"] > 0 and row["cache_fill_misses"] > 0
+    # without the shared cache each of the two would compile what the one did (2x); here together at most 1x
+    assert row["warm_cache_misses"] <= row["cache_fill_misses"]
+    assert any((tmp_path / "jax").iterdir())
