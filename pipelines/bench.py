@@ -112,6 +112,36 @@ def _isolated(fn):
         return pool.submit(_call, fn).result()
 
 
+def _out_of_memory(exc: BaseException) -> bool:
+    text = str(exc)
+    return "RESOURCE_EXHAUSTED" in text or "out of memory" in text.lower()
+
+
+def _describe(call) -> str:
+    """A part's call as `fn(arguments)`, for the report's list of calls that did not fit."""
+    args = [repr(a) for a in call.args] + [f"{k}={v!r}" for k, v in call.keywords.items() if k != "log"]
+    return f"{call.func.__name__}({', '.join(args)})"
+
+
+def part_rows(name: str, calls, isolated: bool, failed: list) -> list:
+    """The rows of each call, in order. `isolated` (on a GPU): each call in a process of its own,
+    and a call that runs out of device memory is listed in `failed` (part, call, error) and the
+    part goes on with the next call: a card with less memory than the one the batches were chosen
+    for measures what fits. Any other error stops the bench."""
+    rows = []
+    for call in calls:
+        try:
+            rows += _isolated(call) if isolated else call()
+        except Exception as exc:  # noqa: BLE001 - only out of memory is kept going, below
+            if not (isolated and _out_of_memory(exc)):
+                raise
+            error = next((line for line in str(exc).splitlines() if "RESOURCE_EXHAUSTED" in line
+                          or "out of memory" in line.lower()), str(exc).splitlines()[0])[:300]
+            failed.append({"part": name, "call": _describe(call), "error": error})
+            print(f"  {name}: {_describe(call)} ran out of the device's memory; going on", flush=True)
+    return rows
+
+
 def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None, done: dict | None = None,
                     save=None) -> dict:
     """The physics section; parts already in `done` (a resumed run's) are kept, and `save(part)`
@@ -119,6 +149,7 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None, d
     if backends is None:
         backends = ["mujoco"] + (["mjx"] if _version("jax") else [])
     section = {"backends": backends, **{k: v for k, v in (done or {}).items() if k in PHYSICS_PARTS}}
+    section["failed"] = [f for f in (done or {}).get("failed", []) if f["part"] in section]
     log = lambda kind: functools.partial(_log_row, kind)
 
     def part(name, *calls):
@@ -128,7 +159,7 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None, d
             # grown until its process ends, and the next call's processes need it (2026-11-26, one
             # H200: the shared load rows ran out of memory behind the one-process rows, twice:
             # behind the bench's own process, then behind the part's).
-            section[name] = [row for call in calls for row in (_isolated(call) if gpu else call())]
+            section[name] = part_rows(name, calls, gpu, section["failed"])
             if save is not None:
                 save(section)
 
@@ -347,6 +378,8 @@ def markdown(report: dict) -> str:
                                 [[r["bricks"], r["batch"], r.get("procs", 1) if "cpu_per_s" not in r else "-",
                                   r.get("jax_per_s", r.get("gpu_per_s", "-")), r.get("cpu_per_s", "-")] for r in rows])
                 lines += [""]
+    for f in report.get("physics", {}).get("failed") or []:
+        lines += [f"Not measured, out of the device's memory ({f['part']}): `{f['call']}`: {f['error']}", ""]
     growth = report.get("physics", {}).get("growth") or []
     if growth:
         lines += ["### Lockstep growth (`bench_physics --growth`)", "",

@@ -161,3 +161,39 @@ def test_grower_processes_load_the_kernels_one_process_compiled(tmp_path, monkey
     # without the shared cache each of the two would compile what the one did (2x); here together at most 1x
     assert row["warm_cache_misses"] <= row["cache_fill_misses"]
     assert any((tmp_path / "jax").iterdir())
+
+
+def _too_big_for_memory(rows: int):
+    import jax.numpy as jnp
+
+    jnp.zeros((rows,), jnp.float32).block_until_ready()  # far more than any machine holds
+    return [{"rows": rows}]
+
+
+def _rows(n: int):
+    return [{"row": i} for i in range(n)]
+
+
+def _fails(n: int):
+    raise ValueError(f"not an out-of-memory error ({n})")
+
+
+def test_a_call_out_of_device_memory_is_listed_and_the_part_goes_on():
+    """`bench.part_rows` on a GPU (each call in its own process): a call that runs out of the
+    device's memory (a real JAX allocation failure, here of the CPU backend) is listed with its
+    part, call and error, and the part keeps the other calls' rows; any other error stops it."""
+    import functools
+
+    pytest.importorskip("jax")
+    failed = []
+    calls = [functools.partial(_too_big_for_memory, 10**13), functools.partial(_rows, 2)]
+    assert bench.part_rows("loads", calls, True, failed) == [{"row": 0}, {"row": 1}]
+    (entry,) = failed
+    assert entry["part"] == "loads" and entry["call"] == "_too_big_for_memory(10000000000000)"
+    assert "RESOURCE_EXHAUSTED" in entry["error"]
+    with pytest.raises(ValueError, match="not an out-of-memory"):
+        bench.part_rows("loads", [functools.partial(_fails, 1)], True, failed)
+    assert len(failed) == 1
+    md = bench.markdown({"machine": {"cpus": 2, "processor": "x", "gpu": "g", "python": "3", "mujoco_gl": "egl"},
+                         "wall_s": 1.0, "section_s": {}, "physics": {"note": "n", "rows": [], "failed": failed}})
+    assert "Not measured, out of the device's memory (loads): `_too_big_for_memory(10000000000000)`" in md
