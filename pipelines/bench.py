@@ -27,12 +27,10 @@ from __future__ import annotations
 import argparse
 import functools
 import json
-import multiprocessing
 import os
 import platform
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from importlib import metadata
 from pathlib import Path
 
@@ -42,7 +40,7 @@ from eval.score import score_file
 from factory.atomic import write_atomic, write_figure
 from factory.cli import run_guarded
 from factory.sampler import SamplerConfig, SamplerConfigError
-from pipelines.bench_physics import measure, measure_growth, measure_lp, measure_sweep, measure_whole
+from pipelines.bench_physics import in_own_process, measure, measure_growth, measure_lp, measure_sweep, measure_whole
 from pipelines.dataset import ConfigMismatchError, DatasetConfig, build
 from pipelines.designs import design_config
 from pipelines.render import view_rates
@@ -102,19 +100,10 @@ def _log_row(kind: str, row: dict) -> None:
     print(f"  {kind} {json.dumps(row)}", flush=True)
 
 
-def _call(fn):
-    return fn()
-
-
-def _isolated(fn):
-    """fn() in a new process (spawned: JAX's threads may hold locks across a fork)."""
-    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
-        return pool.submit(_call, fn).result()
-
-
-def _out_of_memory(exc: BaseException) -> bool:
-    text = str(exc)
-    return "RESOURCE_EXHAUSTED" in text or "out of memory" in text.lower()
+def _memory_error(exc: BaseException) -> str | None:
+    """The line of `exc`'s message saying the device ran out of memory, None if it does not."""
+    return next((line[:300] for line in str(exc).splitlines()
+                 if "RESOURCE_EXHAUSTED" in line or "out of memory" in line.lower()), None)
 
 
 def _describe(call) -> str:
@@ -131,14 +120,13 @@ def part_rows(name: str, calls, isolated: bool, failed: list) -> list:
     rows = []
     for call in calls:
         try:
-            rows += _isolated(call) if isolated else call()
+            rows += in_own_process(call) if isolated else call()
         except Exception as exc:  # noqa: BLE001 - only out of memory is kept going, below
-            if not (isolated and _out_of_memory(exc)):
+            error = _memory_error(exc) if isolated else None
+            if error is None:
                 raise
-            error = next((line for line in str(exc).splitlines() if "RESOURCE_EXHAUSTED" in line
-                          or "out of memory" in line.lower()), str(exc).splitlines()[0])[:300]
             failed.append({"part": name, "call": _describe(call), "error": error})
-            print(f"  {name}: {_describe(call)} ran out of the device's memory; going on", flush=True)
+            print(f"  {name}: {failed[-1]['call']} ran out of the device's memory; going on", flush=True)
     return rows
 
 
@@ -276,10 +264,6 @@ def _fmt(v, digits: int = 3) -> str:
     return "-" if v is None else f"{v:.{digits}f}"
 
 
-def _or_dash(v):
-    return "-" if v is None else v
-
-
 def _table(header: list[str], rows: list[list]) -> list[str]:
     """A markdown table: the first column left-aligned, the numbers right-aligned."""
     return ["| " + " | ".join(header) + " |", "|---|" + "---:|" * (len(header) - 1),
@@ -388,7 +372,7 @@ def markdown(report: dict) -> str:
         lines += _table(["backend", "batch", "objects", "steps", "seconds", "steps/s", "warm-up s",
                          "compiles in the window (compiled here), s"],
                         [[r["backend"], r["batch"], r["objects"], r["steps"], r["seconds"], r["steps_per_s"],
-                          _or_dash(r.get("warm_seconds")),
+                          _fmt(r.get("warm_seconds"), 2),
                           f"{r['compiles']} ({r['compile_cache_misses']}), {r['compile_seconds']}" if "compiles" in r
                           else "-"] for r in growth])
         lines += [""]

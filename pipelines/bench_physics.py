@@ -292,6 +292,17 @@ def _spans(n: int, procs: int) -> list[tuple[int, int]]:
     return [(a, min(a + step, n)) for a in range(0, n, step)]
 
 
+def _call(fn):
+    return fn()
+
+
+def in_own_process(fn):
+    """fn() in a new process (spawned: JAX's threads may hold locks across a fork), so that the
+    device memory JAX grows for it is given back when it ends."""
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return pool.submit(_call, fn).result()
+
+
 def _together(spans, init, initargs, run, *args) -> tuple[list, float]:
     """`run(span, *args, barrier)` for each span, each in a new process of its own (`init(*initargs)`
     first), the clocks started together at the barrier: (each run's result, seconds from the first
@@ -534,15 +545,16 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
             per = max(1, batch // len(spans))
             # New processes for every row, so that no row finds the answers an earlier one cached.
             done, wall = _together(spans, _growth_init, (backend, steps, objects), _growth_run, per)
+            infos = [info for *_, info in done]
             stages, jit = Counter(), Counter()
-            for d in done:
-                stages.update(d[3])
-                jit.update(d[4])
-            row = _growth_row(backend, per * len(spans), objects, sum(d[2] for d in done), steps, wall, stages,
-                              procs=len(spans), jit=jit, warm_s=max(d[5] for d in done))
+            for info in infos:
+                stages.update(info["stages"])
+                jit.update(info["jit"])
+            row = _growth_row(backend, per * len(spans), objects, sum(i["placed"] for i in infos), steps, wall, stages,
+                              procs=len(spans), jit=jit, warm_s=max(i["warm_s"] for i in infos))
             if fill is not None:
                 row.update(cache_fill_seconds=round(fill[0], 2), cache_fill_misses=fill[1],
-                           warm_cache_misses=sum(d[6] for d in done))
+                           warm_cache_misses=sum(i["warm_misses"] for i in infos))
             _emit(rows, log, row)
         return rows
     t0 = time.perf_counter()
@@ -566,19 +578,19 @@ _JIT: Counter = Counter()
 compile or a load from the persistent cache), `cache_misses` (compiled here), `compile_s`."""
 
 
-_LISTENING: list[bool] = []
-
-
 def _count_compiles() -> None:
-    """Count this process's JAX compiles into `_JIT` from now on (the listeners are registered once
-    per process: JAX has no way to remove them)."""
+    """Count this process's JAX compiles into `_JIT` from now on."""
+    _listen()
+    _JIT.clear()
+
+
+@functools.cache
+def _listen() -> None:
+    """JAX's compile events to `_JIT`, once per process (JAX has no way to remove a listener)."""
     import jax.monitoring  # optional: the [mjx] extra
 
-    if not _LISTENING:
-        jax.monitoring.register_event_duration_secs_listener(_on_duration)
-        jax.monitoring.register_event_listener(_on_event)
-        _LISTENING.append(True)
-    _JIT.clear()
+    jax.monitoring.register_event_duration_secs_listener(_on_duration)
+    jax.monitoring.register_event_listener(_on_event)
 
 
 def _on_duration(event: str, duration: float, **_) -> None:
@@ -608,8 +620,9 @@ def _growth_row(backend, batch, objects, placed, steps, wall, stages, procs=1, j
            "stage_seconds": {k: round(v, 2) for k, v in sorted(stages.items())}}
     if backend == "mjx":
         jit = jit or {}
-        row.update(warm_seconds=None if warm_s is None else round(warm_s, 2), compiles=int(jit.get("compiles", 0)),
-                   compile_cache_misses=int(jit.get("cache_misses", 0)), compile_seconds=round(jit.get("compile_s", 0.0), 2))
+        row.update(warm_seconds=None if warm_s is None else round(warm_s, 2),
+                   compiles=int(jit.get("compiles", 0)), compile_cache_misses=int(jit.get("cache_misses", 0)),
+                   compile_seconds=round(jit.get("compile_s", 0.0), 2))
     return row
 
 
@@ -620,8 +633,7 @@ def _fill_compile_cache(backend: str, steps: int, objects: int) -> tuple[float, 
     every one of them at the same moment as the others (kernels that compile in under
     `jax_cache.MIN_COMPILE_SECONDS` are not written, and each process compiles those)."""
     t = time.perf_counter()
-    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
-        misses = pool.submit(_fill_run, backend, steps, objects).result()
+    misses = in_own_process(functools.partial(_fill_run, backend, steps, objects))
     return time.perf_counter() - t, misses
 
 
@@ -656,17 +668,18 @@ def _warm_sampler(backend: str, steps: int, objects: int, keep: bool = True) -> 
     return sampler if keep else None
 
 
-def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, float, int, dict, dict, float, int]:
+def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, float, dict]:
     """Objects span[0]..span[1]-1 grown `batch` at a time once every process is ready: (start,
-    end, steps placed, stage seconds, JAX compiles meanwhile, warm-up seconds, kernels compiled
-    in the warm-up)."""
+    end, {steps placed, stage seconds, JAX compiles meanwhile, warm-up seconds, kernels compiled in
+    the warm-up})."""
     gc.collect()
     STAGE_SECONDS.clear()
     _JIT.clear()
     barrier.wait()
     t = time.time()
     placed = sum(len(a.steps) for a in _CTX["sampler"].grow(range(*span), batch=batch))
-    return t, time.time(), placed, dict(STAGE_SECONDS), dict(_JIT), _CTX["warm_s"], _CTX["warm_misses"]
+    return t, time.time(), {"placed": placed, "stages": dict(STAGE_SECONDS), "jit": dict(_JIT),
+                            "warm_s": _CTX["warm_s"], "warm_misses": _CTX["warm_misses"]}
 
 
 def main(argv=None) -> int:

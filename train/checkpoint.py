@@ -1,8 +1,9 @@
 """Checkpoints of a run folder: written whole or not at all, found again on resume.
 
 `RUN/checkpoint-{step:06d}/` holds the model (`save_pretrained(safe_serialization=True)`: the LoRA
-adapter, or the full model, in safetensors files of at most `SHARD_SIZE`), the processor, `train_config.json` and `trainer_state.pt` (optimizer,
-scheduler, RNG states, data position, counters). It is written into a hidden temporary folder and
+adapter, or the full model, in safetensors files of at most `SHARD_SIZE`), the processor,
+`train_config.json` and `trainer_state.pt` (optimizer, scheduler, RNG states, data position,
+counters). It is written into a hidden temporary folder and
 renamed into place, so a folder with that name is complete; `RUN/last` then names it. A killed run
 leaves at worst a temporary folder, removed by the next run.
 

@@ -43,11 +43,11 @@ Every program of the load form is feasible once it does not tip (s can grow unti
 connection is rigid), so infeasibility is not detected: such a program would end at the cap.
 
 Shapes: each LP falls in a bucket (variables and entries per column of A: quarter steps of powers
-of two; equality rows: eighth steps; one-sided rows per variable: exact, 2 for the load programs); a launch holds the
-LPs with the same equality rows and rows per variable, padded to the largest variables and entries
-among them, their count padded to a quarter step (at most `MAX_BATCH` per launch, fewer where the
-rows are many, `MAX_LAUNCH_ENTRIES`; in equal chunks), so a run compiles once per shape met (`COMPILES`), never per call; tolerance and
-iteration cap are traced values. Memory per LP is dominated by the normal matrix, 8 m^2 bytes for
+of two; equality rows: eighth steps; one-sided rows per variable: exact, 2 for the load programs);
+a launch holds the LPs with the same equality rows and rows per variable, padded to the largest
+variables and entries among them, their count padded to a quarter step (at most `MAX_BATCH` per
+launch, fewer where the rows are many, `MAX_LAUNCH_ENTRIES`; in equal chunks), so a run compiles
+once per shape met (`COMPILES`), never per call; tolerance and iteration cap are traced values. Memory per LP is dominated by the normal matrix, 8 m^2 bytes for
 m padded rows: 1.2 MB at 384 (60 bricks: 366 rows), 2.7 MB at 576 (90 bricks: 546 rows); 4,096 of
 them, 11 GB.
 
