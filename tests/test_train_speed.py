@@ -4,6 +4,7 @@ the real checkpoints' image token counts on the dataset's images."""
 
 from __future__ import annotations
 
+import gzip
 import json
 import math
 import re
@@ -95,11 +96,38 @@ def test_saved_model_trains_with_python_m_train(tiny_dataset, tmp_path, capsys):
     assert summary["steps"] == 2 and (tmp_path / "run" / "final" / "model.safetensors").is_file()
 
 
+def test_profile_writes_each_process_trace_and_tables_outside_the_timed_steps(tiny_dataset, tmp_path, capsys):
+    prof = tmp_path / "prof"
+    row = _row(capsys, "--family", "qwen3-vl", "--mode", "full", "--data", str(tiny_dataset), "--batch-size", "2",
+               "--steps", "1", "--warmup-steps", "0", "--device", "cpu", "--workers", "0", "--profile", str(prof),
+               "--profile-steps", "2")
+    _check_rates(row, steps=1)  # the profiled steps are not among the timed ones
+    summary = row["profile"]
+    assert summary["steps"] == 2 and summary["seconds"] > 0
+    assert summary["device_kernel_s"] == 0 and summary["nccl_kernel_s"] == 0  # no GPU here
+    with gzip.open(summary["trace"], "rt") as f:
+        events = json.load(f)["traceEvents"]
+    names = {e.get("name", "") for e in events}
+    assert any("aten::mm" in n or "aten::addmm" in n for n in names)  # the model's matmuls were recorded
+    tables = (prof / "ops-rank0.txt").read_text()
+    assert "most CPU time" in tables and "aten::" in tables
+
+
+def test_idle_seconds_count_the_union_of_kernel_intervals():
+    from train.profile import idle_seconds
+
+    # two overlapping kernels (0-4 and 2-6 us) and one apart (10-11 us): busy 7 us of a 20 us wall
+    assert idle_seconds([(10, 11), (0, 4), (2, 6)], 20e-6) == pytest.approx(13e-6)
+    assert idle_seconds([(0, 5), (1, 2)], 5e-6) == pytest.approx(0.0)
+    assert idle_seconds([], 1.0) == 1.0
+
+
 @pytest.mark.parametrize("argv, named", [
     (["--family", "qwen3-vl-9b"], "qwen3-vl-8b, gemma3-12b, qwen2-vl"),
     (["--family", "qwen3-vl", "--mode", "half"], "lora, full"),
     (["--family", "qwen3-vl", "--weight-dtype", "fp16"], "bf16, fp32"),
     (["--family", "qwen3-vl", "--steps", "0"], "at least 1"),
+    (["--family", "qwen3-vl", "--profile", "p", "--profile-steps", "0"], "--profile-steps must be at least 1"),
     (["--family", "qwen3-vl", "--mode", "full", "--shard", "zero"], "ddp, fsdp"),
     (["--family", "qwen3-vl", "--mode", "lora", "--shard", "fsdp"], "full fine-tuning only; give --mode full"),
 ])

@@ -2,7 +2,7 @@
 
     python -m train.speed --family qwen3-vl-8b --mode lora --batch-size 4 --data OUT [--steps 20]
         [--warmup-steps 3] [--max-pixels P] [--weight-dtype bf16|fp32] [--no-gradient-checkpointing] [--out FILE]
-    torchrun --nproc_per_node 2 -m train.speed ... [--shard ddp|fsdp]
+    torchrun --nproc_per_node 2 -m train.speed ... [--shard ddp|fsdp] [--profile DIR [--profile-steps 3]]
     python -m train.speed --family qwen3-vl-8b --data OUT --save-model DIR [--weight-dtype bf16|fp32]
 
 Speed and memory do not depend on the weights' values, so no checkpoint is needed: the model is
@@ -41,6 +41,10 @@ is rank 0's. `--shard fsdp` (full fine-tuning only) shards the model with FSDP2 
 records `shard` (ddp or fsdp; none with one process), and its peak memory is per GPU (the fullest),
 counted from after sharding (the random model is built whole on each GPU first, which `python -m
 train` does not do: it loads the weights on the CPU and FSDP moves one block at a time).
+
+`--profile DIR` runs `--profile-steps` more steps after the timed ones under torch.profiler and
+writes each process's trace and operator tables to DIR (`train.profile`); the row gets `profile`:
+their wall seconds, device kernel seconds, NCCL's share, and the seconds the GPU ran no kernel.
 
 `--save-model DIR` times nothing: it writes the random-weight model and its processor to DIR, a
 local checkpoint folder for `python -m train --model DIR` (the trainer itself at a real size).
@@ -273,9 +277,11 @@ def measure(args, progress=print) -> dict:
     from train.loop import Batches, autocast_dtype, check_data, make_optimizer, make_scheduler, resolve_device
     from train.loop import train_step, trainable_model
     from train.model import trainable
+    from train.profile import profile_steps
 
     config = TrainConfig(data=(str(Path(args.data).resolve()),), outdir=str(Path(tempfile.gettempdir()) / "speed"),
-                         steps=args.warmup_steps + args.steps, batch_size=args.batch_size, lora=args.mode == "lora",
+                         steps=args.warmup_steps + args.steps + (args.profile_steps if args.profile else 0),
+                         batch_size=args.batch_size, lora=args.mode == "lora",
                          gradient_checkpointing=args.gradient_checkpointing, max_length=args.max_length,
                          max_pixels=args.max_pixels or MAX_PIXELS, workers=args.workers, seed=args.seed,
                          dtype="bf16", device=args.device, eval=False, shard=args.shard)
@@ -326,7 +332,7 @@ def measure(args, progress=print) -> dict:
             batches = Batches(stream, config.batch_size, pad_token_id(processor.tokenizer))
             totals = {"examples": 0, "tokens": 0, "label_tokens": 0, "data_wait": 0.0}
             times = []
-            for i in range(config.steps):
+            for i in range(args.warmup_steps + args.steps):
                 stage = "warmup step" if i < args.warmup_steps else "timed step"
                 if world > 1 and i == args.warmup_steps:
                     group.barrier()  # every process starts its timed steps together
@@ -342,6 +348,16 @@ def measure(args, progress=print) -> dict:
                 progress(f"{stage} {i + 1}/{config.steps}: {dt:.2f} s, loss {out['loss']:.3f}, "
                          f"{out['tokens']} tokens, data wait {out['data_wait']:.2f} s")
             skipped = out["skipped"]
+            if args.profile:
+                stage = "profiled step"
+                done = [args.warmup_steps + args.steps]
+
+                def step():
+                    done[0] += 1
+                    train_step(model, optimizer, scheduler, batches, config, device, amp, done[0])
+
+                row["profile"] = profile_steps(step, args.profile_steps, args.profile, rank, device)
+                progress(f"profiled {args.profile_steps} steps: {row['profile']}")
     except torch.OutOfMemoryError as exc:
         row.update(fits=False, oom_stage=stage, error=str(exc).splitlines()[0][:300], **_memory(device))
         row.setdefault("params_total", count_parameters(cfg))  # out of memory before the model was whole
@@ -412,6 +428,10 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--device", default="auto", help=f"one of: {', '.join(DEVICES)}")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=None, help="append the JSON row to this file too")
+    ap.add_argument("--profile", default=None, metavar="DIR",
+                    help="after the timed steps, run --profile-steps more under torch.profiler and write each "
+                         "process's trace and operator tables to DIR (train.profile); the row gets a summary")
+    ap.add_argument("--profile-steps", type=int, default=3, help="steps profiled with --profile (default: 3)")
     ap.add_argument("--save-model", default=None, metavar="DIR",
                     help="instead of timing steps, write the random-weight model (in --weight-dtype) and its "
                          "processor to DIR as a local checkpoint folder that `python -m train --model DIR` takes "
@@ -426,7 +446,7 @@ def check(args) -> None:
         if getattr(args, name) not in valid:
             flag = "--" + name.replace("_", "-")
             raise SpeedError(f"{flag} {getattr(args, name)!r} is not valid; valid: {', '.join(valid)}")
-    for name in ("batch_size", "steps", "max_length"):
+    for name in ("batch_size", "steps", "max_length", "profile_steps"):
         if getattr(args, name) < 1:
             raise SpeedError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     if args.warmup_steps < 0:
