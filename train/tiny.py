@@ -324,6 +324,8 @@ def build_tiny_model(out_dir, texts: Iterable[str], vocab_size: int = 1024, seed
     import torch
     from transformers import AutoModelForImageTextToText, GenerationConfig
 
+    from train.checkpoint import save_model  # imports torch (the [train] extra), as the lines above
+
     fam = family(family_name)
     if size not in SIZES:
         raise ValueError(f"unknown model size {size!r}; valid: {', '.join(SIZES)}")
@@ -344,7 +346,7 @@ def build_tiny_model(out_dir, texts: Iterable[str], vocab_size: int = 1024, seed
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
-    model.save_pretrained(tmp, safe_serialization=True)
+    save_model(model, tmp)  # safetensors files of at most 5 GB, as every checkpoint the trainer writes
     save_processor(processor, tmp)
     if out.exists():
         shutil.rmtree(out)
