@@ -58,6 +58,7 @@ from __future__ import annotations
 import argparse
 import copy
 import importlib.util
+import itertools
 import json
 import os
 import shutil
@@ -332,7 +333,8 @@ def measure(args, progress=print) -> dict:
             batches = Batches(stream, config.batch_size, pad_token_id(processor.tokenizer))
             totals = {"examples": 0, "tokens": 0, "label_tokens": 0, "data_wait": 0.0}
             times = []
-            for i in range(args.warmup_steps + args.steps):
+            measured = args.warmup_steps + args.steps
+            for i in range(measured):
                 stage = "warmup step" if i < args.warmup_steps else "timed step"
                 if world > 1 and i == args.warmup_steps:
                     group.barrier()  # every process starts its timed steps together
@@ -345,17 +347,13 @@ def measure(args, progress=print) -> dict:
                     times.append(dt)
                     for k in totals:
                         totals[k] += out[k]
-                progress(f"{stage} {i + 1}/{config.steps}: {dt:.2f} s, loss {out['loss']:.3f}, "
+                progress(f"{stage} {i + 1}/{measured}: {dt:.2f} s, loss {out['loss']:.3f}, "
                          f"{out['tokens']} tokens, data wait {out['data_wait']:.2f} s")
             skipped = out["skipped"]
             if args.profile:
                 stage = "profiled step"
-                done = [args.warmup_steps + args.steps]
-
-                def step():
-                    done[0] += 1
-                    train_step(model, optimizer, scheduler, batches, config, device, amp, done[0])
-
+                numbers = itertools.count(args.warmup_steps + args.steps + 1)  # the scheduler's step numbers go on
+                step = lambda: train_step(model, optimizer, scheduler, batches, config, device, amp, next(numbers))
                 row["profile"] = profile_steps(step, args.profile_steps, args.profile, rank, device)
                 progress(f"profiled {args.profile_steps} steps: {row['profile']}")
     except torch.OutOfMemoryError as exc:
