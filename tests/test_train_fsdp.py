@@ -105,6 +105,8 @@ def test_fsdp_refuses_lora_and_unknown_modes(tiny_dataset, tiny_model, tmp_path,
         TrainConfig(data=("d",), outdir="o", lora=False, shard="zero")
     with pytest.raises(ConfigError, match=r"shard=fsdp trains every weight.*--lora 0.*--shard ddp"):
         TrainConfig(data=("d",), outdir="o", lora=True, shard="fsdp")
+    with pytest.raises(ConfigError, match=r"applies with shard=fsdp only; give --shard fsdp"):
+        TrainConfig(data=("d",), outdir="o", lora=False, fsdp_keep_gathered=True)
     # --lora auto is LoRA for a given --model: refused, naming --lora 0
     assert main(train_argv(tiny_dataset, tiny_model, tmp_path / "run", "--shard", "fsdp")) == 2
     assert "--lora 0" in capsys.readouterr().err
@@ -166,6 +168,48 @@ def test_sharding_makes_each_block_and_the_root_a_unit(tiny_model):
         assert all(isinstance(p.grad, DTensor) for p in model.parameters() if p.grad is not None)
     finally:
         dist.destroy_process_group()
+
+
+@pytest.mark.parametrize("keep", [False, True])
+def test_kept_gathered_weights_stay_gathered_from_forward_to_backward(tiny_model, keep):
+    """`shard_model(keep_gathered=...)` in this process (a gloo group of one): after a forward pass
+    a block's weights are its sharded DTensors again (freed, to be gathered for the backward), or
+    with `keep_gathered` still the gathered plain tensors; both then train the same step."""
+    import torch.distributed as dist
+    from torch.distributed.tensor import DTensor
+
+    from train.distributed import Group, shard_model, shard_units
+    from train.model import load_base
+
+    torch.manual_seed(0)
+    model = load_base(tiny_model)
+    block = next(u for u in shard_units(model) if "language_model" in u)  # a text-only pass skips the vision blocks
+    dist.init_process_group("gloo", store=dist.HashStore(), rank=0, world_size=1)
+    try:
+        shard_model(model, Group(processes=1), keep_gathered=keep)
+        ids = torch.randint(0, 100, (1, 8))
+        loss = model(input_ids=ids, labels=ids).loss
+        weights = list(model.get_submodule(block).parameters())
+        assert all(isinstance(w, DTensor) != keep for w in weights)
+        loss.backward()
+        assert all(isinstance(w, DTensor) for w in model.get_submodule(block).parameters())  # resharded
+    finally:
+        dist.destroy_process_group()
+
+
+def test_two_processes_keeping_gathered_weights_train_as_the_sharded_run(runs, tiny_dataset, tiny_model, tmp_path):
+    """`--fsdp-keep-gathered` (python -m train under torchrun): the same losses and final weights as
+    the sharded run that gathers each block twice."""
+    _, two = runs
+    kept = tmp_path / "kept"
+    _two_sharded_processes(train_argv(tiny_dataset, tiny_model, kept, *MORE, "--batch-size", "1",
+                                      "--fsdp-keep-gathered"))
+    assert json.loads((kept / "train_config.json").read_text())["fsdp_keep_gathered"] is True
+    for ra, rb in zip(train_log(two), train_log(kept), strict=True):
+        assert rb["loss"] == pytest.approx(ra["loss"], abs=1e-6)
+    wa, wb = run_weights(two), run_weights(kept)
+    for k in wa:
+        torch.testing.assert_close(wb[k], wa[k], atol=1e-6, rtol=0, msg=k)
 
 
 def test_a_sharded_gemma3_saves_its_tied_lm_head_once(tiny_dataset, tmp_path):

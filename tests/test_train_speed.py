@@ -130,6 +130,7 @@ def test_idle_seconds_count_the_union_of_kernel_intervals():
     (["--family", "qwen3-vl", "--profile", "p", "--profile-steps", "0"], "--profile-steps must be at least 1"),
     (["--family", "qwen3-vl", "--mode", "full", "--shard", "zero"], "ddp, fsdp"),
     (["--family", "qwen3-vl", "--mode", "lora", "--shard", "fsdp"], "full fine-tuning only; give --mode full"),
+    (["--family", "qwen3-vl", "--mode", "full", "--fsdp-keep-gathered"], "applies with shard=fsdp only"),
 ])
 def test_bad_choices_are_refused_with_the_valid_ones(argv, named, tiny_dataset, capsys):
     code, out, err = _run(capsys, *argv, "--data", str(tiny_dataset), "--device", "cpu")

@@ -26,7 +26,7 @@ LORA_TARGETS = ("q_proj", "k_proj", "v_proj", "o_proj", "gate_proj", "up_proj", 
 """The language model's attention and MLP projections (Qwen2 / Llama names)."""
 
 RESUME_FREE = ("outdir", "workers", "save_every", "log_every", "keep_checkpoints", "eval", "eval_limit", "eval_split",
-               "max_new_tokens", "device")
+               "max_new_tokens", "device", "fsdp_keep_gathered")
 """Fields that may differ between a checkpoint's config and the run resuming it."""
 
 CONFIG_FILE = "train_config.json"
@@ -115,6 +115,11 @@ class TrainConfig:
     backward; for full fine-tuning of a model whose weights and AdamW states do not fit one GPU;
     full fine-tuning only). The same examples and updates either way; one process trains the plain
     model under both."""
+    fsdp_keep_gathered: bool = False
+    """With shard=fsdp: keep each block's gathered weights from its forward until its backward
+    (FSDP2's `reshard_after_forward=False`, as ZeRO-2 does) instead of freeing them after the
+    forward and gathering them again. One all-gather per block and step less, for the memory of
+    the whole model's weights held gathered at the end of the forward. The same updates either way."""
     gradient_checkpointing: bool = False
     """Recompute activations in the backward pass (less GPU memory, about a third slower)."""
     max_length: int = 2048
@@ -177,6 +182,9 @@ class TrainConfig:
             raise ConfigError("shard=fsdp trains every weight (full fine-tuning) and cannot train LoRA adapters: "
                               "give --lora 0 for full fine-tuning sharded over the GPUs, or --shard ddp for LoRA "
                               "(its frozen bf16 base fits one GPU)")
+        if self.fsdp_keep_gathered and self.shard != "fsdp":
+            raise ConfigError("fsdp_keep_gathered keeps FSDP's gathered weights and applies with shard=fsdp only; "
+                              "give --shard fsdp, or leave out --fsdp-keep-gathered")
         positive = ("steps", "batch_size", "grad_accum", "lora_r", "lora_alpha", "max_pixels", "max_length",
                     "shuffle_window", "log_every", "max_new_tokens")
         for name in positive:

@@ -86,16 +86,17 @@ def start(device: torch.device) -> tuple[Group, torch.device]:
     return Group(dist.get_rank(), dist.get_world_size(), device), device
 
 
-def parallel(model, group: Group, find_unused_parameters: bool, shard: str = "ddp"):
+def parallel(model, group: Group, find_unused_parameters: bool, shard: str = "ddp", keep_gathered: bool = False):
     """With several processes: `model` in DistributedDataParallel (shard "ddp": its weights
     broadcast from rank 0, gradients averaged over the processes in the backward pass) or sharded
     in place by FSDP2 (shard "fsdp", `shard_model`); with one, `model` as it is.
     `find_unused_parameters` (DDP): for full fine-tuning, where an architecture may have weights
-    that a step does not use (LoRA's adapters are all used)."""
+    that a step does not use (LoRA's adapters are all used). `keep_gathered` (FSDP): see
+    `shard_model`."""
     if group.processes == 1:
         return model
     if shard == "fsdp":
-        return shard_model(model, group)
+        return shard_model(model, group, keep_gathered)
     if shard != "ddp":
         raise ValueError(f"shard={shard!r} is not valid; valid: ddp, fsdp")
     ids = [group.device.index] if group.device.type == "cuda" else None
@@ -125,7 +126,7 @@ def shard_units(model) -> list[str]:
     return sorted(out, key=lambda n: -n.count("."))
 
 
-def shard_model(model, group: Group):
+def shard_model(model, group: Group, keep_gathered: bool = False):
     """`model` sharded in place by FSDP2 over the processes of `group`: `fully_shard` on each of
     `shard_units` (its weights split over the processes, gathered for its forward and again for
     its backward, freed after each), then on the model (the remaining weights; the root's
@@ -135,14 +136,16 @@ def shard_model(model, group: Group):
     the model is sharded. Every process must hold the same weights (FSDP keeps each process's own
     slice, it broadcasts nothing). Gradients are reduce-scattered (averaged over the processes)
     after each unit's backward; the optimizer must be made after this (the parameters become
-    DTensors)."""
+    DTensors). `keep_gathered` keeps each unit's gathered weights from its forward to its backward
+    (`reshard_after_forward=False`: one all-gather per unit and step less, the whole model's
+    weights held gathered by the forward's end; `TrainConfig.fsdp_keep_gathered`)."""
     from torch.distributed.device_mesh import init_device_mesh
     from torch.distributed.fsdp import fully_shard
 
     mesh = init_device_mesh(group.device.type, (group.processes,))
     for name in shard_units(model):
-        fully_shard(model.get_submodule(name), mesh=mesh)
-    fully_shard(model, mesh=mesh)
+        fully_shard(model.get_submodule(name), mesh=mesh, reshard_after_forward=not keep_gathered)
+    fully_shard(model, mesh=mesh, reshard_after_forward=not keep_gathered)
     return model
 
 

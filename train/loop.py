@@ -376,7 +376,8 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
     if group.main:
         # recorded once the settings are known to work, so a failed start leaves the folder reusable
         ckpt.write_atomic_text(run / CONFIG_FILE, config.to_json() + "\n")
-    wrapped = parallel(model, group, find_unused_parameters=not config.lora, shard=config.shard)
+    wrapped = parallel(model, group, find_unused_parameters=not config.lora, shard=config.shard,
+                       keep_gathered=config.fsdp_keep_gathered)
     optimizer = make_optimizer(model, config)
     scheduler = make_scheduler(optimizer, config)
     state = {"step": 0, "position": (0, 0), "skipped": 0, "examples": 0, "tokens": 0, "train_seconds": 0.0}

@@ -2,7 +2,7 @@
 
     python -m train.speed --family qwen3-vl-8b --mode lora --batch-size 4 --data OUT [--steps 20]
         [--warmup-steps 3] [--max-pixels P] [--weight-dtype bf16|fp32] [--no-gradient-checkpointing] [--out FILE]
-    torchrun --nproc_per_node 2 -m train.speed ... [--shard ddp|fsdp] [--profile DIR [--profile-steps 3]]
+    torchrun --nproc_per_node 2 -m train.speed ... [--shard ddp|fsdp [--fsdp-keep-gathered]] [--profile DIR]
     python -m train.speed --family qwen3-vl-8b --data OUT --save-model DIR [--weight-dtype bf16|fp32]
 
 Speed and memory do not depend on the weights' values, so no checkpoint is needed: the model is
@@ -285,7 +285,8 @@ def measure(args, progress=print) -> dict:
                          batch_size=args.batch_size, lora=args.mode == "lora",
                          gradient_checkpointing=args.gradient_checkpointing, max_length=args.max_length,
                          max_pixels=args.max_pixels or MAX_PIXELS, workers=args.workers, seed=args.seed,
-                         dtype="bf16", device=args.device, eval=False, shard=args.shard)
+                         dtype="bf16", device=args.device, eval=False, shard=args.shard,
+                         fsdp_keep_gathered=args.fsdp_keep_gathered)
     check_data(config)
     # One process per GPU (torchrun): each its own device, its own examples (the stream's seed plus
     # the rank), gradients averaged by DistributedDataParallel.
@@ -299,7 +300,7 @@ def measure(args, progress=print) -> dict:
            "attn_implementation": attn, "weight_dtype": args.weight_dtype, "autocast": str(amp).replace("torch.", ""),
            "gradient_checkpointing": args.gradient_checkpointing, "max_pixels": args.max_pixels,
            "torch": torch.__version__, "transformers": transformers.__version__, "processes": world,
-           "shard": args.shard if world > 1 else "none"}
+           "shard": args.shard if world > 1 else "none", "fsdp_keep_gathered": args.fsdp_keep_gathered}
     progress(f"{args.family}: {args.mode}, batch {args.batch_size}, {args.weight_dtype} weights, attention {attn}, "
              f"on {gpu}" + (f", {world} processes ({args.shard})" if world > 1 else ""))
     cfg, processor = build(args.family, dataset_texts(config.data), args.max_pixels, args.size)
@@ -314,7 +315,8 @@ def measure(args, progress=print) -> dict:
         n_train, n_all = trainable(model)
         sharded = args.shard == "fsdp" and world > 1
         stage = "shard" if sharded else stage
-        model = parallel(model, group, find_unused_parameters=args.mode == "full", shard=args.shard)
+        model = parallel(model, group, find_unused_parameters=args.mode == "full", shard=args.shard,
+                         keep_gathered=args.fsdp_keep_gathered)
         if sharded and device.type == "cuda":
             # built whole on each GPU, then sharded: the peak counts from here (python -m train loads
             # the model on the CPU and never holds it whole on a GPU)
@@ -409,6 +411,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--shard", default="ddp",
                     help="under torchrun: ddp (DistributedDataParallel, the whole model on every GPU; default) or "
                          "fsdp (FSDP2: weights, gradients and AdamW states split over the GPUs; --mode full only)")
+    ap.add_argument("--fsdp-keep-gathered", action="store_true",
+                    help="with --shard fsdp: keep each block's gathered weights from its forward to its backward "
+                         "(one all-gather per block and step less, more memory; TrainConfig.fsdp_keep_gathered)")
     ap.add_argument("--data", required=True, help="dataset folder (python -m pipelines.synth output)")
     ap.add_argument("--batch-size", type=int, default=4)
     ap.add_argument("--steps", type=int, default=10, help="timed steps (default: 10)")
