@@ -46,6 +46,14 @@ def tmp_dir(run: Path, name: str) -> Path:
     return Path(run) / f".tmp-{name}-{os.getpid()}"
 
 
+def fresh_tmp(run: Path, name: str) -> Path:
+    """This process's temporary folder for `run/name` (`tmp_dir`), made empty."""
+    tmp = tmp_dir(run, name)
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    return tmp
+
+
 def write_atomic_text(path: Path, text: str) -> None:
     """`factory.atomic.write_atomic` for text (UTF-8)."""
     write_atomic(path, text.encode())
@@ -106,9 +114,7 @@ def save(run, step: int, model, processor, config, state: dict, keep: int = 0, t
     run = Path(run)
     name = checkpoint_name(step)
     if tmp is None:
-        tmp = tmp_dir(run, name)
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir(parents=True)
+        tmp = fresh_tmp(run, name)
     save_model(model, tmp, weights)
     save_processor(processor, tmp)
     config.save(tmp)
@@ -128,6 +134,16 @@ def save_model(model, folder, weights: dict | None = None) -> None:
     one 35 GB file); with `weights` (a sharded model's state dict, `full_model_state`), those."""
     extra = {} if weights is None else {"state_dict": weights}
     model.save_pretrained(str(folder), safe_serialization=True, max_shard_size=SHARD_SIZE, **extra)
+
+
+def write_model_folder(model, processor, out) -> Path:
+    """`model` (`save_model`) and `processor` as the checkpoint folder `out`, whole or not at all
+    (written beside it and renamed into place, replacing an older one: `publish`)."""
+    out = Path(out)
+    tmp = fresh_tmp(out.parent, out.name)
+    save_model(model, tmp)
+    save_processor(processor, tmp)
+    return publish(tmp, out)
 
 
 def full_model_state(model) -> dict:

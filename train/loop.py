@@ -505,9 +505,7 @@ def save_final(config: TrainConfig, model, processor, base: Path, weights: dict 
     if final_is_current(config):
         return final
     full = merged(model)
-    tmp = ckpt.tmp_dir(run, FINAL)
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
+    tmp = ckpt.fresh_tmp(run, FINAL)
     ckpt.save_model(full, tmp, weights)
     save_processor(processor, tmp)
     config.save(tmp)

@@ -60,8 +60,6 @@ import copy
 import importlib.util
 import itertools
 import json
-import os
-import shutil
 import statistics
 import sys
 import tempfile
@@ -354,7 +352,7 @@ def measure(args, progress=print) -> dict:
             skipped = out["skipped"]
             if args.profile:
                 stage = "profiled step"
-                numbers = itertools.count(args.warmup_steps + args.steps + 1)  # the scheduler's step numbers go on
+                numbers = itertools.count(measured + 1)  # the scheduler's step numbers go on
                 step = lambda: train_step(model, optimizer, scheduler, batches, config, device, amp, next(numbers))
                 row["profile"] = profile_steps(step, args.profile_steps, args.profile, rank, device)
                 progress(f"profiled {args.profile_steps} steps: {row['profile']}")
@@ -464,11 +462,11 @@ def check(args) -> None:
 def save_model(args, progress=print) -> dict:
     """`--save-model DIR`: the model of `--family` with random weights (seeded by `--seed`) in
     `--weight-dtype`, and its processor, written to DIR as a checkpoint folder (a temporary folder
-    renamed into place, as `train.tiny` writes its models); a JSON row of what was written."""
+    renamed into place: `train.checkpoint.write_model_folder`); a JSON row of what was written."""
     import torch
 
     # torch at import (the [train] extra): loaded when a run starts, so `--help` and refusals need none
-    from train.checkpoint import save_model as save_weights
+    from train.checkpoint import write_model_folder
     from train.loop import check_data, resolve_device
 
     out = Path(args.save_model)
@@ -485,13 +483,8 @@ def save_model(args, progress=print) -> dict:
     built = time.perf_counter() - t
     n = sum(p.numel() for p in model.parameters())
     progress(f"{args.family}: {n:,} parameters built in {built:.1f} s; writing {out}")
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")  # this run's own: two runs never share one
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
     t = time.perf_counter()
-    save_weights(model, tmp)
-    save_processor(processor, tmp)
-    os.replace(tmp, out)
+    write_model_folder(model, processor, out)
     files = sorted(out.glob("*.safetensors"))
     return {"family": args.family, "saved": str(out), "weight_dtype": args.weight_dtype,
             "parameters": n, "build_seconds": round(built, 2),

@@ -24,15 +24,13 @@ families, sizes and settings here read without them.
 from __future__ import annotations
 
 import argparse
-import os
-import shutil
 import sys
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from eval.data import iter_rows, shard_files
-from eval.processor import make_processor as processor_of, save_processor
+from eval.processor import make_processor as processor_of
 from train import templates
 
 QWEN_SPECIAL = (
@@ -324,7 +322,7 @@ def build_tiny_model(out_dir, texts: Iterable[str], vocab_size: int = 1024, seed
     import torch
     from transformers import AutoModelForImageTextToText, GenerationConfig
 
-    from train.checkpoint import save_model  # imports torch (the [train] extra), as the lines above
+    from train.checkpoint import write_model_folder  # imports torch (the [train] extra), as the lines above
 
     fam = family(family_name)
     if size not in SIZES:
@@ -343,15 +341,7 @@ def build_tiny_model(out_dir, texts: Iterable[str], vocab_size: int = 1024, seed
     model.generation_config = GenerationConfig(
         bos_token_id=cfg.bos_token_id, eos_token_id=[tok.token_to_id(t) for t in fam.stop],
         pad_token_id=cfg.pad_token_id, do_sample=False)
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    save_model(model, tmp)  # safetensors files of at most 5 GB, as every checkpoint the trainer writes
-    save_processor(processor, tmp)
-    if out.exists():
-        shutil.rmtree(out)
-    os.replace(tmp, out)
-    return out
+    return write_model_folder(model, processor, out)
 
 
 def dataset_texts(folders, split: str = "train") -> list[str]:

@@ -47,9 +47,9 @@ of two; equality rows: eighth steps; one-sided rows per variable: exact, 2 for t
 a launch holds the LPs with the same equality rows and rows per variable, padded to the largest
 variables and entries among them, their count padded to a quarter step (at most `MAX_BATCH` per
 launch, fewer where the rows are many, `MAX_LAUNCH_ENTRIES`; in equal chunks), so a run compiles
-once per shape met (`COMPILES`), never per call; tolerance and iteration cap are traced values. Memory per LP is dominated by the normal matrix, 8 m^2 bytes for
-m padded rows: 1.2 MB at 384 (60 bricks: 366 rows), 2.7 MB at 576 (90 bricks: 546 rows); 4,096 of
-them, 11 GB.
+once per shape met (`COMPILES`), never per call; tolerance and iteration cap are traced values.
+Memory per LP is dominated by the normal matrix, 8 m^2 bytes for m padded rows: 1.2 MB at 384 (60
+bricks: 366 rows), 2.7 MB at 576 (90 bricks: 546 rows); 4,096 of them, 11 GB.
 
 Measured (CPU and one H200, `pipelines.bench_physics --lp`): docs/physics.md, Backends.
 
