@@ -100,7 +100,10 @@ def parallel(model, group: Group, find_unused_parameters: bool, shard: str = "dd
     if shard != "ddp":
         raise ValueError(f"shard={shard!r} is not valid; valid: ddp, fsdp")
     ids = [group.device.index] if group.device.type == "cuda" else None
-    return DistributedDataParallel(model, device_ids=ids, find_unused_parameters=find_unused_parameters)
+    # gradient_as_bucket_view: the gradients live in DDP's all-reduce buckets instead of beside
+    # them, one gradient-sized copy less per GPU (16 GB at 8B parameters in bf16).
+    return DistributedDataParallel(model, device_ids=ids, find_unused_parameters=find_unused_parameters,
+                                   gradient_as_bucket_view=True)
 
 
 def shard_units(model) -> list[str]:
