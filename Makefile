@@ -17,6 +17,7 @@ LORA ?= auto
 MODEL ?=
 WEIGHTS ?=
 SHARD ?=
+WEIGHT_DTYPE ?=
 RECIPE ?=
 DESIGNS ?= out/designs
 STAGE_STEPS ?= 200,100,200
@@ -49,14 +50,15 @@ designs: setup
 # DESIGNS, then + world feedback from the stage-1 model's wrong answers, then + DATA as synthetic
 # data, STAGE_STEPS steps each. Re-running resumes (finished stages are skipped). GPUS=N trains on N
 # GPUs of this machine (torchrun, one process per GPU, each step N times the examples; not with RECIPE);
-# SHARD=fsdp with LORA=0 shards the model over them (FSDP) for models whose full fine-tuning one GPU cannot hold.
+# SHARD=fsdp with LORA=0 shards the model over them (FSDP) for models whose full fine-tuning one GPU cannot hold;
+# WEIGHT_DTYPE=bf16 holds every weight and AdamW state in bf16 (full fine-tuning of an 8B-12B model on one 141 GB GPU).
 TRAIN_LAUNCH = $(if $(filter-out 1,$(GPUS)),$(PY) -m torch.distributed.run --standalone --nproc_per_node $(GPUS),$(PY))
 train: setup
 ifeq ($(RECIPE),staged)
 	$(if $(filter-out 1,$(GPUS)),$(error RECIPE=staged runs in one process; leave out GPUS))
 	$(PY) -m train.recipe --designs $(DESIGNS) --synthetic $(DATA) --outdir $(OUTDIR) --tasks $(TASKS) --stage-steps $(STAGE_STEPS) --lora $(LORA) $(if $(MODEL),--model $(MODEL))
 else ifeq ($(RECIPE),)
-	$(TRAIN_LAUNCH) -m train --data $(DATA) --outdir $(OUTDIR) --tasks $(TASKS) --steps $(STEPS) --lora $(LORA) $(if $(WEIGHTS),--weights $(WEIGHTS)) $(if $(SHARD),--shard $(SHARD)) $(if $(MODEL),--model $(MODEL))
+	$(TRAIN_LAUNCH) -m train --data $(DATA) --outdir $(OUTDIR) --tasks $(TASKS) --steps $(STEPS) --lora $(LORA) $(if $(WEIGHTS),--weights $(WEIGHTS)) $(if $(SHARD),--shard $(SHARD)) $(if $(WEIGHT_DTYPE),--weight-dtype $(WEIGHT_DTYPE)) $(if $(MODEL),--model $(MODEL))
 else
 	$(error RECIPE=$(RECIPE) is not a recipe; valid: staged (or leave it out for one training run))
 endif

@@ -334,3 +334,40 @@ def test_large_weights_are_saved_in_shards_and_a_run_resumes_from_them(tiny_data
     assert resumed.keys() == uninterrupted.keys()
     for k in resumed:
         torch.testing.assert_close(resumed[k], uninterrupted[k], atol=1e-6, rtol=1e-5)
+
+
+def test_bf16_weights_train_and_resume_in_bf16(tiny_dataset, tmp_path):
+    """weight_dtype=bf16 holds every weight of a full fine-tuning in bf16, and with them the AdamW
+    states (what lets full fine-tuning of an 8B model fit one GPU); its checkpoints and `final/` are
+    bf16, a resume continues to the same losses and weights, and resuming with another
+    weight_dtype is refused."""
+    import torch
+
+    from train.config import ConfigError
+    from train.loop import train
+
+    run = tmp_path / "run"
+    cfg = _base_cfg(tiny_dataset, run, lora=False, weight_dtype="bf16")
+    train(cfg, progress=False)
+    weights, log_before = run_weights(run), train_log(run)
+    assert {v.dtype for v in weights.values()} == {torch.bfloat16}
+    state = torch.load(run / "checkpoint-000004" / "trainer_state.pt", weights_only=False)
+    moments = [s["exp_avg"] for s in state["optimizer"]["state"].values()]
+    assert moments and {m.dtype for m in moments} == {torch.bfloat16}
+    assert all(abs(r["loss"]) < float("inf") for r in log_before)
+    # the weights moved: bf16 did not round the updates away (lr 1e-3, 4 AdamW steps)
+    from safetensors.torch import load_file
+
+    base = {k: v.to(torch.bfloat16) for f in (run / "base").glob("*.safetensors") for k, v in load_file(str(f)).items()}
+    changed = sum(int((weights[k] != base[k]).sum()) for k in weights if k in base)
+    assert changed > 0.5 * sum(v.numel() for k, v in weights.items() if k in base)
+
+    shutil.rmtree(run / "checkpoint-000004")
+    shutil.rmtree(run / "final")
+    train(cfg, progress=False)
+    assert [r["loss"] for r in train_log(run)] == pytest.approx([r["loss"] for r in log_before], abs=1e-5)
+    resumed = run_weights(run)
+    for k in resumed:
+        torch.testing.assert_close(resumed[k], weights[k], atol=0, rtol=0)
+    with pytest.raises(ConfigError, match=r"weight_dtype: 'bf16' -> 'fp32'"):
+        train(_base_cfg(tiny_dataset, run, lora=False, weight_dtype="fp32"), progress=False)

@@ -122,6 +122,27 @@ def test_idle_seconds_count_the_union_of_kernel_intervals():
     assert idle_seconds([], 1.0) == 1.0
 
 
+def test_kernel_totals_count_each_kernel_once():
+    """The device totals come from the kernels themselves: the CPU operators that launched them
+    (which the operator tables credit with the same device time) and CUPTI's full-launch-queue
+    spans are not added again."""
+    from torch.autograd import DeviceType
+    from torch.autograd.profiler_util import FunctionEvent
+
+    from train.profile import kernel_events, kernel_totals
+
+    def ev(i, name, a, b, device):
+        return FunctionEvent(i, name, thread=0, start_us=a, end_us=b, device_type=device)
+
+    events = [ev(0, "aten::mm", 0, 50, DeviceType.CPU), ev(1, "nvjet_sm90_tst_128x256", 10, 40, DeviceType.CUDA),
+              ev(2, "nccl:_all_gather_base", 40, 60, DeviceType.CPU),
+              ev(3, "ncclDevKernel_AllGather_RING_LL", 45, 70, DeviceType.CUDA),
+              ev(4, "Command Buffer Full", 0, 100, DeviceType.CUDA), ev(5, "empty", 80, 80, DeviceType.CUDA)]
+    kernels = kernel_events(events)
+    assert [k.name for k in kernels] == ["nvjet_sm90_tst_128x256", "ncclDevKernel_AllGather_RING_LL"]
+    assert kernel_totals(kernels) == (55.0, 25.0)
+
+
 @pytest.mark.parametrize("argv, named", [
     (["--family", "qwen3-vl-9b"], "qwen3-vl-8b, gemma3-12b, qwen2-vl"),
     (["--family", "qwen3-vl", "--mode", "half"], "lora, full"),

@@ -18,6 +18,7 @@ from factory.config import ConfigError as _ConfigError, config_from_dict, config
 from factory.dataset.tasks import TASKS
 
 DTYPES = ("auto", "bf16", "fp32")
+WEIGHT_DTYPES = ("auto", "bf16", "fp32")
 DEVICES = ("auto", "cpu", "cuda")
 SPLITS = ("train", "test")
 SHARD_MODES = ("ddp", "fsdp")
@@ -143,6 +144,12 @@ class TrainConfig:
     """Seed of the model build, LoRA init, data order and dropout."""
     dtype: str = field(default="auto", metadata={"choices": DTYPES})
     """Compute precision: auto (bf16 autocast on CUDA, fp32 on CPU), bf16, or fp32."""
+    weight_dtype: str = field(default="auto", metadata={"choices": WEIGHT_DTYPES})
+    """Precision the weights are held in: auto (a LoRA run's frozen base in bf16 on CUDA with bf16
+    compute, every trained weight in fp32), bf16 (every weight, so in full fine-tuning also its
+    gradients and AdamW states: 8 bytes a parameter instead of 16, which lets full fine-tuning of
+    an 8B-12B model fit one 141 GB GPU; an update smaller than a weight's bf16 step is lost), or
+    fp32 (every weight, a LoRA base too)."""
     device: str = field(default="auto", metadata={"choices": DEVICES})
     """auto (cuda when available), cpu or cuda."""
     eval: bool = True
@@ -175,6 +182,7 @@ class TrainConfig:
         for t in self.tasks:
             choice("task", t, TASKS)
         choice("dtype", self.dtype, DTYPES)
+        choice("weight_dtype", self.weight_dtype, WEIGHT_DTYPES)
         choice("device", self.device, DEVICES)
         choice("eval_split", self.eval_split, SPLITS)
         choice("shard", self.shard, SHARD_MODES)

@@ -82,7 +82,10 @@ def autocast_dtype(config: TrainConfig, device: torch.device) -> torch.dtype | N
 
 
 def weight_dtype(config: TrainConfig, device: torch.device) -> torch.dtype:
-    """Frozen base weights of a LoRA run on CUDA in bf16 (half the memory); trained weights fp32."""
+    """`config.weight_dtype`; auto: the frozen base weights of a LoRA run on CUDA in bf16 (half the
+    memory), trained weights fp32."""
+    if config.weight_dtype != "auto":
+        return torch.bfloat16 if config.weight_dtype == "bf16" else torch.float32
     if config.lora and autocast_dtype(config, device) is torch.bfloat16 and device.type == "cuda":
         return torch.bfloat16
     return torch.float32

@@ -22,24 +22,27 @@ TABLE_ROWS = 40
 """Rows of each table in `ops-rank{R}.txt`."""
 
 
-def _device_total(event) -> float:
-    """An averaged event's own device time in microseconds (the attribute was renamed in torch 2.4)."""
-    for name in ("self_device_time_total", "self_cuda_time_total"):
-        value = getattr(event, name, None)
-        if value is not None:
-            return float(value)
-    return 0.0
+NOT_KERNELS = ("Command Buffer Full",)
+"""Device-side records that are no kernel: CUPTI's span of a launch queue that was full (the host
+ahead of the GPU), which overlaps the kernels it waited for."""
 
 
-def _kernel_intervals(prof) -> list[tuple[float, float]]:
-    """(start, end) in microseconds of every kernel the profiler saw on a device."""
+def kernel_events(events) -> list:
+    """The kernels (and memory copies) among profiler `events`: device-side events of nonzero
+    length. Each kernel once: the operator tables also credit a kernel's time to the CPU operator
+    that launched it (`aten::mm` and its `nvjet_...` kernel; `nccl:_all_gather_base` and its
+    `ncclDevKernel_...`), so summing their device columns counts it twice."""
     from torch.autograd import DeviceType
 
-    out = []
-    for ev in prof.events():
-        if getattr(ev, "device_type", None) == DeviceType.CUDA and ev.time_range.elapsed_us() > 0:
-            out.append((ev.time_range.start, ev.time_range.end))
-    return out
+    return [ev for ev in events if getattr(ev, "device_type", None) == DeviceType.CUDA
+            and ev.time_range.elapsed_us() > 0 and ev.name not in NOT_KERNELS]
+
+
+def kernel_totals(kernels) -> tuple[float, float]:
+    """(all, NCCL's) summed length in microseconds of `kernels` (`kernel_events`)."""
+    total = sum(ev.time_range.elapsed_us() for ev in kernels)
+    nccl = sum(ev.time_range.elapsed_us() for ev in kernels if "nccl" in ev.name.lower())
+    return float(total), float(nccl)
 
 
 def idle_seconds(intervals: list[tuple[float, float]], wall_s: float) -> float:
@@ -78,10 +81,10 @@ def profile_steps(step, steps: int, outdir, rank: int, device) -> dict:
                                row_limit=TABLE_ROWS)
     by_cpu = averages.table(sort_by="self_cpu_time_total", row_limit=TABLE_ROWS)
     (out / f"ops-rank{rank}.txt").write_text(f"most device time:\n{by_device}\n\nmost CPU time:\n{by_cpu}\n")
-    kernel_us = sum(_device_total(e) for e in averages)
-    nccl_us = sum(_device_total(e) for e in averages if "nccl" in e.key.lower())
+    kernels = kernel_events(prof.events())
+    kernel_us, nccl_us = kernel_totals(kernels)
     summary = {"steps": steps, "seconds": round(wall, 3), "device_kernel_s": round(kernel_us / 1e6, 3),
                "nccl_kernel_s": round(nccl_us / 1e6, 3), "trace": str(trace)}
     if device.type == "cuda":
-        summary["device_idle_s"] = round(idle_seconds(_kernel_intervals(prof), wall), 3)
+        summary["device_idle_s"] = round(idle_seconds([(ev.time_range.start, ev.time_range.end) for ev in kernels], wall), 3)
     return summary

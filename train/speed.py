@@ -8,8 +8,8 @@
 Speed and memory do not depend on the weights' values, so no checkpoint is needed: the model is
 built from the exact config of a published checkpoint (`REAL`: every dimension, the vocabulary
 size included, so embedding and logit memory are real) with random weights, directly on the device,
-in bf16 (`--weight-dtype fp32` gives what `python -m train` keeps for full fine-tuning: fp32
-weights under bf16 autocast). The tokenizer is trained on the dataset's texts as `train.tiny` does,
+in bf16, as `python -m train --weight-dtype bf16` holds them (`--weight-dtype fp32` gives
+`python -m train`'s default for full fine-tuning: fp32 weights under bf16 autocast). The tokenizer is trained on the dataset's texts as `train.tiny` does,
 with the family's special tokens and real chat template, and the processor is the family's class
 with the checkpoint's own image processor settings (Qwen3-VL-8B: 16-pixel patches merged 2 x 2,
 65,536 to 16,777,216 pixels per image; Gemma 3: 896 x 896 pixels, 256 image tokens), so an
@@ -424,7 +424,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--max-length", type=int, default=16384,
                     help="longer examples are skipped and counted, as in python -m train (default: 16384)")
     ap.add_argument("--weight-dtype", default="bf16",
-                    help="bf16 (default) or fp32 (what python -m train keeps for full fine-tuning)")
+                    help="bf16 (default; python -m train --weight-dtype bf16) or fp32 (python -m train's default for full fine-tuning)")
     ap.add_argument("--workers", type=int, default=None, help="data worker processes (default: as python -m train)")
     ap.add_argument("--device", default="auto", help=f"one of: {', '.join(DEVICES)}")
     ap.add_argument("--seed", type=int, default=0)
