@@ -524,7 +524,8 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
     return rows
 
 
-def measure_growth(backend: str, batches, steps: int, objects: int, log=None, procs: int = 1) -> list[dict]:
+def measure_growth(backend: str, batches, steps: int, objects: int, log=None, procs: int = 1,
+                   judge_first: int | None = None) -> list[dict]:
     """Lockstep growth: objects 0..objects-1 of the default sampler config with exactly `steps`
     parts each, grown `batch` at a time, for each batch: steps per second over the whole growth
     (the same objects whatever the batch, so rows compare on the same inputs). `WARM_OBJECTS` other
@@ -536,29 +537,31 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
     process at `batch // procs` objects a round (so `batch` objects grow at once in all), the
     processes sharing the default device as the factory's grower workers do; every process is
     warmed and waits at a barrier before the clock starts, and the rate is all steps over the time
-    from the first start to the last end. Stage seconds are summed over the processes."""
+    from the first start to the last end. Stage seconds are summed over the processes.
+    `judge_first`: the sampler's (None: its default); the rows record the value used."""
     rows = []
     if procs > 1:
         spans = _spans(objects, procs)
-        fill = _fill_compile_cache(backend, steps, objects) if backend == "mjx" else None
+        fill = _fill_compile_cache(backend, steps, objects, judge_first) if backend == "mjx" else None
         for batch in batches:
             per = max(1, batch // len(spans))
             # New processes for every row, so that no row finds the answers an earlier one cached.
-            done, wall = _together(spans, _growth_init, (backend, steps, objects), _growth_run, per)
+            done, wall = _together(spans, _growth_init, (backend, steps, objects, judge_first), _growth_run, per)
             infos = [info for *_, info in done]
             stages, jit = Counter(), Counter()
             for info in infos:
                 stages.update(info["stages"])
                 jit.update(info["jit"])
             row = _growth_row(backend, per * len(spans), objects, sum(i["placed"] for i in infos), steps, wall, stages,
-                              procs=len(spans), jit=jit, warm_s=max(i["warm_s"] for i in infos))
+                              procs=len(spans), jit=jit, warm_s=max(i["warm_s"] for i in infos),
+                              judge_first=infos[0]["judge_first"])
             if fill is not None:
                 row.update(cache_fill_seconds=round(fill[0], 2), cache_fill_misses=fill[1],
                            warm_cache_misses=sum(i["warm_misses"] for i in infos))
             _emit(rows, log, row)
         return rows
     t0 = time.perf_counter()
-    sampler = _warm_sampler(backend, steps, objects)
+    sampler = _warm_sampler(backend, steps, objects, judge_first=judge_first)
     warm_s = time.perf_counter() - t0
     for batch in batches:
         _forget_answers()
@@ -568,7 +571,7 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
         placed = sum(len(a.steps) for a in sampler.grow(range(objects), batch=batch))
         wall = time.perf_counter() - t0
         _emit(rows, log, _growth_row(backend, batch, objects, placed, steps, wall, STAGE_SECONDS, jit=_JIT,
-                                     warm_s=warm_s))
+                                     warm_s=warm_s, judge_first=sampler.config.judge_first))
         warm_s = None  # the warm-up came before the first row only
     return rows
 
@@ -611,12 +614,14 @@ def _forget_answers() -> None:
     _ALONE.clear()
 
 
-def _growth_row(backend, batch, objects, placed, steps, wall, stages, procs=1, jit=None, warm_s=None) -> dict:
+def _growth_row(backend, batch, objects, placed, steps, wall, stages, procs=1, jit=None, warm_s=None,
+                judge_first=None) -> dict:
     """A growth row; with the batched path, the JAX compiles inside the timed window (`_JIT`, summed
     over the processes) and the warm-up's seconds (the slowest process's; None after the first row
     of one process), where compiles of the shapes the warm-up objects met fall."""
     row = {"kind": "growth", "backend": backend, "batch": batch, "procs": procs, "objects": objects,
-           "steps": placed, "target_steps": steps, "seconds": round(wall, 2), "steps_per_s": round(placed / wall, 2),
+           "steps": placed, "target_steps": steps, "judge_first": judge_first, "seconds": round(wall, 2),
+           "steps_per_s": round(placed / wall, 2),
            "stage_seconds": {k: round(v, 2) for k, v in sorted(stages.items())}}
     if backend == "mjx":
         jit = jit or {}
@@ -626,27 +631,27 @@ def _growth_row(backend, batch, objects, placed, steps, wall, stages, procs=1, j
     return row
 
 
-def _fill_compile_cache(backend: str, steps: int, objects: int) -> tuple[float, int]:
+def _fill_compile_cache(backend: str, steps: int, objects: int, judge_first: int | None = None) -> tuple[float, int]:
     """(seconds, kernels compiled): one process grows the warm-up objects alone before the grower
     processes start, so the kernels they meet go into the persistent compilation cache
     (`jax_cache`) once and the grower processes load them, where each would otherwise compile
     every one of them at the same moment as the others (kernels that compile in under
     `jax_cache.MIN_COMPILE_SECONDS` are not written, and each process compiles those)."""
     t = time.perf_counter()
-    misses = in_own_process(functools.partial(_fill_run, backend, steps, objects))
+    misses = in_own_process(functools.partial(_fill_run, backend, steps, objects, judge_first))
     return time.perf_counter() - t, misses
 
 
-def _fill_run(backend: str, steps: int, objects: int) -> int:
-    _warm_sampler(backend, steps, objects, keep=False)
+def _fill_run(backend: str, steps: int, objects: int, judge_first: int | None = None) -> int:
+    _warm_sampler(backend, steps, objects, keep=False, judge_first=judge_first)
     return int(_JIT.get("cache_misses", 0))
 
 
-def _growth_init(backend: str, steps: int, objects: int) -> None:
+def _growth_init(backend: str, steps: int, objects: int, judge_first: int | None = None) -> None:
     """A grower process of `measure_growth`: its sampler, warmed (`_warm_sampler`), and the seconds
     that took."""
     t = time.perf_counter()
-    _CTX["sampler"] = _warm_sampler(backend, steps, objects)
+    _CTX["sampler"] = _warm_sampler(backend, steps, objects, judge_first=judge_first)
     _CTX["warm_s"] = time.perf_counter() - t
     _CTX["warm_misses"] = int(_JIT.get("cache_misses", 0))
 
@@ -656,11 +661,13 @@ WARM_OBJECTS = 4
 scenes' meshes made, the first kernels compiled."""
 
 
-def _warm_sampler(backend: str, steps: int, objects: int, keep: bool = True) -> Sampler | None:
+def _warm_sampler(backend: str, steps: int, objects: int, keep: bool = True,
+                  judge_first: int | None = None) -> Sampler | None:
     """A sampler that has grown the `WARM_OBJECTS` warm-up objects (returned when `keep`)."""
     if backend == "mjx":
         _count_compiles()
-    sampler = Sampler(SamplerConfig(seed=0, min_steps=steps, max_steps=steps, backend=backend), None)
+    sampler = Sampler(SamplerConfig(seed=0, min_steps=steps, max_steps=steps, backend=backend,
+                                    judge_first=judge_first), None)
     for part in sampler.parts:  # found on a part's first use otherwise (0.1 s each), inside a row
         part.sockets
     list(sampler.grow(range(objects, objects + WARM_OBJECTS), batch=WARM_OBJECTS))
@@ -679,7 +686,8 @@ def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, floa
     t = time.time()
     placed = sum(len(a.steps) for a in _CTX["sampler"].grow(range(*span), batch=batch))
     return t, time.time(), {"placed": placed, "stages": dict(STAGE_SECONDS), "jit": dict(_JIT),
-                            "warm_s": _CTX["warm_s"], "warm_misses": _CTX["warm_misses"]}
+                            "warm_s": _CTX["warm_s"], "warm_misses": _CTX["warm_misses"],
+                            "judge_first": _CTX["sampler"].config.judge_first}
 
 
 def main(argv=None) -> int:
@@ -708,12 +716,13 @@ def main(argv=None) -> int:
                          "growing a contiguous slice of the objects, BATCH/PROCS at a time (default 1)")
     ap.add_argument("--steps", type=int, default=30, help="with --growth: parts per object (default 30)")
     ap.add_argument("--objects", type=int, default=64, help="with --growth: objects grown (default 64)")
+    ap.add_argument("--judge-first", type=int, help="with --growth: the sampler's judge_first (default: its own)")
     args = ap.parse_args(argv)
     sizes, batches = [int(x) for x in args.sizes.split(",")], [int(x) for x in args.batches.split(",")]
     log = lambda r: print(json.dumps(r), flush=True)
     if args.growth:
         rows = measure_growth(args.backends.split(",")[0], batches, args.steps, args.objects, log=log,
-                              procs=args.procs)
+                              procs=args.procs, judge_first=args.judge_first)
     elif args.sweep:
         rows = measure_sweep(sizes, batches, 512 if args.cpu_max is None else args.cpu_max, log=log,
                              cpu_workers=args.cpu_workers, batched=not args.reference_only, procs=args.procs)

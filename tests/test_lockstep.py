@@ -32,6 +32,14 @@ def test_objects_are_byte_identical_whatever_the_batch(alone, batch, tmp_path):
     assert len(set(alone.values())) == 64  # 64 different objects, not one repeated
 
 
+def test_objects_are_the_same_whatever_judge_first(alone):
+    """Judging only the first candidate past the clutch rule per request (more requests, fewer
+    sweeps and load programs) grows the objects byte for byte as judging all of them does."""
+    s = Sampler(SamplerConfig(seed=3, **{**TINY, "check_batch": 8, "judge_first": 1}))
+    got = {a.index: a.ldr_text(f"object_{a.index:05d}.ldr").encode() for a in s.grow(range(64), batch=8)}
+    assert got == alone
+
+
 def _rounds(s: Sampler, index: int) -> int:
     """How many check requests object `index` makes (each answered by `check`, alone)."""
     gen, n = s.growth(index), 0
@@ -133,3 +141,29 @@ def test_jax_processes_share_the_gpu_memory(given, expected):
             "print(os.environ['XLA_PYTHON_CLIENT_PREALLOCATE'])")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == expected
+
+
+@pytest.mark.parametrize("backend", ["mujoco", "mjx"])
+def test_judge_first_leaves_only_later_survivors_unjudged(backend):
+    """With `judge_first=2` the sweep and the loads judge the first two candidates of each request
+    that pass the clutch rule; every later one comes back None, and every other verdict is `check`'s."""
+    if backend == "mjx":
+        pytest.importorskip("jax")
+    from dataclasses import replace
+
+    requests = _requests()
+    many = check_many([replace(r, judge_first=2) for r in requests], backend, explain=False)
+    unjudged = 0
+    for r, got in zip(requests, many):
+        want = check(r.structure, r.part, list(r.poses), "mujoco", colour=r.colour, floor_y=r.floor_y,
+                     explain=False)
+        past_clutch = [i for i, v in enumerate(want) if v.clutch]
+        assert [i for i, v in enumerate(got) if v is None] == past_clutch[2:]
+        for v, w in zip(got, want):
+            if v is not None:
+                assert (v.reason, v.buildable, v.clutch) == (w.reason, w.buildable, w.clutch)
+                assert v.load == pytest.approx(w.load, abs=1e-6)
+        unjudged += len(past_clutch[2:])
+    assert unjudged >= 10  # requests with more survivors than two: the limit was exercised
+    with pytest.raises(ValueError, match="judge_first must be None or >= 1"):
+        check_many([replace(requests[0], judge_first=0)], backend)

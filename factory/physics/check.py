@@ -145,18 +145,24 @@ class CheckRequest:
     poses: tuple[Pose, ...]
     colour: int = 16
     floor_y: float | None = None
+    judge_first: int | None = None
+    """Of the candidates that pass connection, collision and clutch, only the first this many (in
+    `poses`' order) go on to the sweep and the loads, the two dearest checks; the others' verdicts
+    are None (not judged). For an asker that takes the first survivor of an order, as the sampler
+    does: a later request judges them if it needs to. None judges every candidate."""
 
 
 def check_many(requests: Sequence[CheckRequest], backend: str = "mujoco", config: CheckConfig = CheckConfig(),
                explain: bool = True) -> list[list[Verdict]]:
     """`check` of every request, each against its own structure (objects grown in lockstep:
-    `factory.sampler.lockstep`). The verdicts are those `check` gives each request alone; with
-    'mjx' the collision rule, the sweeps and the load programs of all requests go to the device
-    together (`collide_jax`, `sweep_jax`, `lp_jax.solve_on_bases`)."""
+    `factory.sampler.lockstep`). The verdicts are those `check` gives each request alone, except
+    None for the candidates a request's `judge_first` leaves unjudged; with 'mjx' the collision
+    rule, the sweeps and the load programs of all requests go to the device together
+    (`collide_jax`, `sweep_jax`, `lp_jax.solve_on_bases`)."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
     calls = [_Call(r.structure, [[Placed(r.part, r.colour, p)] for p in r.poses], backend, config,
-                   floor_y=r.floor_y, explain=explain) for r in requests if r.poses]
+                   floor_y=r.floor_y, explain=explain, judge_first=r.judge_first) for r in requests if r.poses]
     done = iter(_run_calls(calls, backend))
     return [next(done) if r.poses else [] for r in requests]
 
@@ -208,8 +214,11 @@ class _Call:
 
     def __init__(self, structure: Structure, units: Sequence[Sequence[Placed]], backend: str, config: CheckConfig,
                  require_connection: bool = True, floor_y: float | None = None, standing: bool = True,
-                 unit_links: Sequence[Link] = (), explain: bool = True):
+                 unit_links: Sequence[Link] = (), explain: bool = True, judge_first: int | None = None):
         t0 = time.perf_counter()
+        if judge_first is not None and judge_first < 1:
+            raise ValueError(f"judge_first must be None or >= 1, got {judge_first}")
+        self.judge_first = judge_first
         self.structure, self.config, self.floor_y, self.backend = structure, config, floor_y, backend
         self.standing, self.unit_links, self.explain = standing, unit_links, explain
         self.require_connection = require_connection
@@ -338,10 +347,14 @@ class _Call:
         t0 = time.perf_counter()
         structure, config = self.structure, self.config
         held = iter(holds)
+        judged = 0
         for k, base, unit, world, conns, outer, touched in self.to_clutch:
             if outer and not next(held):
                 self.verdicts[k] = Verdict(**base, clutch=False, reason="clutch")
                 continue
+            if self.judge_first is not None and judged >= self.judge_first:
+                continue  # not judged: its verdict stays None (`CheckRequest.judge_first`)
+            judged += 1
             dirs = seating_from_connections(outer, self.base_n)
             if outer and self.backend == "mjx":
                 # Swept later, with every call's candidates at once on the device (`sweep_jax`).

@@ -14,7 +14,9 @@ Growth, per step:
    Gumbel-max trick: key = logit + Gumbel noise, candidates are checked in batches of
    `check_batch` in decreasing key order, and the first survivor is the choice. That is exactly
    the softmax over all survivors of the subset (the argmax of logit + Gumbel over the survivors),
-   whatever `check_batch` is; it only spares checking the candidates after it;
+   whatever `check_batch` is; it only spares checking the candidates after it. Within a batch
+   only the first `judge_first` candidates past the clutch rule get the sweep and the loads; a
+   later request judges more if the walk in key order reaches an unjudged one first;
 5. if none survives, draw another part (and colour), at most `max_redraws` times, then end the
    object ('stuck', with the rejections of that step).
 The first part is placed at the origin with the identity rotation (its lowest point fixes the
@@ -150,11 +152,26 @@ class Sampler:
                         batch = list(itertools.islice(order, cfg.check_batch))
                         walk = iter(batch)
                     # A rejected candidate's reason is counted, never its failing connections.
-                    verdicts = yield CheckRequest(structure, part, tuple(poses[i] for i in batch), colour, ground)
+                    # Only the first `judge_first` candidates past the clutch rule are swept and
+                    # load-judged (the dearest checks); the rest come back None.
+                    verdicts = yield CheckRequest(structure, part, tuple(poses[i] for i in batch), colour, ground,
+                                                  judge_first=cfg.judge_first)
                     verdict_of = dict(zip(batch, verdicts))
                     for i in walk:
                         checked += 1
                         v = verdict_of[i]
+                        while v is None:
+                            # Next in key order but not judged: it and the next unjudged ones, in
+                            # the request's order, go again with every check (the verdict of a
+                            # candidate does not depend on the others asked with it).
+                            again = [i] + [j for j in batch if j != i and verdict_of[j] is None][:cfg.judge_first - 1]
+                            more = yield CheckRequest(structure, part, tuple(poses[j] for j in again), colour, ground,
+                                                      judge_first=cfg.judge_first)
+                            verdict_of.update((j, w) for j, w in zip(again, more) if w is not None)
+                            v = verdict_of[i]
+                            if v is None:
+                                raise RuntimeError(f"object {index}: the checker left the first candidate of a "
+                                                   f"request unjudged (judge_first={cfg.judge_first})")
                         if v.ok:
                             chosen = (part, colour, v, ground, draw + 1, feasible)
                             break
