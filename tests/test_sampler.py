@@ -137,6 +137,8 @@ def test_library_validation_lists_choices(kwargs, message):
         (dict(parts=[]), "parts: the set is empty"),
         (dict(temperature=0), "temperature must be"),
         (dict(candidates_per_step=0), "candidates_per_step must be >= 1"),
+        (dict(judge_first=0), "judge_first must be >= 1"),
+        (dict(judge_first=2.5), "judge_first must be an integer"),
         (dict(parts=["3001", "3001.dat"]), "'3001' is listed twice"),
     ],
 )
@@ -152,6 +154,13 @@ def test_config_is_frozen_and_normalised():
     with pytest.raises(Exception):
         c.seed = 3  # type: ignore[misc]
     assert SamplerConfig().min_steps == 20 and SamplerConfig().max_steps == 90
+    # judge_first only changes the cost: left out of the recorded settings at its default, kept
+    # when set otherwise, and read back to the same config either way.
+    mjx = SamplerConfig(backend="mjx")
+    assert (mjx.check_batch, mjx.judge_first) == (64, 4) and SamplerConfig().judge_first == 1
+    assert "judge_first" not in mjx.to_dict() and SamplerConfig.from_dict(mjx.to_dict()) == mjx
+    two = SamplerConfig(backend="mjx", judge_first=2)
+    assert two.to_dict()["judge_first"] == 2 and SamplerConfig.from_dict(two.to_dict()) == two
 
 
 def test_cli_tiny_run(tmp_path):
