@@ -26,7 +26,9 @@ import functools
 import gc
 import json
 import multiprocessing
+import os
 import platform
+import sys
 import time
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
@@ -343,6 +345,16 @@ def _shared_row(kind: str, row: dict, procs: int, cpu_max: int, cpu_workers: int
     return row
 
 
+SAY_EVERY_S = 10.0
+"""Seconds between a grower process's progress lines."""
+
+
+def _say(message: str) -> None:
+    """Progress of a long measurement on stderr (the rows go to stdout): a run cut short by a
+    time limit still shows how far it got."""
+    print(f"bench_physics: {message}", file=sys.stderr, flush=True)
+
+
 def _emit(rows: list, log, row: dict) -> None:
     """Keep `row`, and log it as it comes."""
     rows.append(row)
@@ -543,6 +555,8 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
     if procs > 1:
         spans = _spans(objects, procs)
         fill = _fill_compile_cache(backend, steps, objects, judge_first) if backend == "mjx" else None
+        if fill is not None:
+            _say(f"compile cache filled by one process in {fill[0]:.1f} s ({fill[1]} kernels compiled)")
         for batch in batches:
             per = max(1, batch // len(spans))
             # New processes for every row, so that no row finds the answers an earlier one cached.
@@ -563,6 +577,7 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
     t0 = time.perf_counter()
     sampler = _warm_sampler(backend, steps, objects, judge_first=judge_first)
     warm_s = time.perf_counter() - t0
+    _say(f"warm-up: {WARM_OBJECTS} objects in {warm_s:.1f} s")
     for batch in batches:
         _forget_answers()
         STAGE_SECONDS.clear()
@@ -654,6 +669,7 @@ def _growth_init(backend: str, steps: int, objects: int, judge_first: int | None
     _CTX["sampler"] = _warm_sampler(backend, steps, objects, judge_first=judge_first)
     _CTX["warm_s"] = time.perf_counter() - t
     _CTX["warm_misses"] = int(_JIT.get("cache_misses", 0))
+    _say(f"grower {os.getpid()}: warm-up in {_CTX['warm_s']:.1f} s, waiting for the others")
 
 
 WARM_OBJECTS = 4
@@ -684,7 +700,13 @@ def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, floa
     _JIT.clear()
     barrier.wait()
     t = time.time()
-    placed = sum(len(a.steps) for a in _CTX["sampler"].grow(range(*span), batch=batch))
+    placed = done = 0
+    said = t
+    for a in _CTX["sampler"].grow(range(*span), batch=batch):
+        placed, done = placed + len(a.steps), done + 1
+        if time.time() - said >= SAY_EVERY_S or done == span[1] - span[0]:
+            said = time.time()
+            _say(f"grower {os.getpid()}: {done} of {span[1] - span[0]} objects, {placed} parts, {said - t:.1f} s")
     return t, time.time(), {"placed": placed, "stages": dict(STAGE_SECONDS), "jit": dict(_JIT),
                             "warm_s": _CTX["warm_s"], "warm_misses": _CTX["warm_misses"],
                             "judge_first": _CTX["sampler"].config.judge_first}

@@ -73,24 +73,27 @@ def test_unknown_backend_is_a_clear_error(tmp_path, capsys):
     assert "unknown backend 'cuda'; valid: mujoco, mjx, auto" in capsys.readouterr().err
 
 
-def test_growth_rows_grow_the_same_objects_at_every_batch():
+def test_growth_rows_grow_the_same_objects_at_every_batch(capsys):
     """`bench_physics --growth`: one row per batch, each over the same objects (the same parts placed),
     with a positive rate."""
     from pipelines.bench_physics import measure_growth
 
     rows = measure_growth("mujoco", [1, 3], steps=3, objects=3)
+    assert "bench_physics: warm-up: 4 objects in" in capsys.readouterr().err  # progress on stderr
     assert [r["batch"] for r in rows] == [1, 3]
     assert rows[0]["steps"] == rows[1]["steps"] > 0
     assert all(r["steps_per_s"] > 0 and r["stage_seconds"]["rules"] > 0 for r in rows)
 
 
-def test_growth_in_several_processes_grows_the_same_objects():
+def test_growth_in_several_processes_grows_the_same_objects(capfd):
     """`bench_physics --growth --procs 2`: the objects split over two grower processes, each
     growing its half, all of them to their length, with each process's stage seconds summed."""
     from pipelines.bench_physics import measure_growth
 
     (one,) = measure_growth("mujoco", [2], steps=3, objects=4)
     (two,) = measure_growth("mujoco", [2], steps=3, objects=4, procs=2)
+    err = capfd.readouterr().err  # the grower processes' progress, on the inherited stderr
+    assert err.count("warm-up in") == 2 and err.count("2 of 2 objects") == 2
     assert two["procs"] == 2 and two["batch"] == 2 and one["procs"] == 1
     assert two["steps"] == one["steps"] == 12 and two["steps_per_s"] > 0 and two["stage_seconds"]["rules"] > 0
 
