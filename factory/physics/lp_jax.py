@@ -71,6 +71,7 @@ import numpy as np
 import scipy.sparse as sp
 from jax import lax
 
+from factory.physics import jax_export
 from factory.physics.jax_cache import enable as enable_compile_cache
 from factory.physics.lp import LinearProgram, LPResult, solve_highs
 from factory.physics.mass import GRAVITY, part_mass_properties
@@ -535,7 +536,7 @@ def _solve(lps: Sequence[LinearProgram], tol: float, max_iterations: int) -> tup
             if shape not in COMPILES:
                 COMPILES.append(shape)
             arrays = _stack([parts[i] for i in chunk], *shape)
-            x, status, t = _SOLVE(*(arrays[k] for k in _ARRAYS), np.float64(tol), np.int32(max_iterations))
+            x, status, t = _launch(arrays, tol, max_iterations)
             x, status, t = np.asarray(x), np.asarray(status), np.asarray(t)
             for j, i in enumerate(chunk):
                 iterations[i] = t[j]
@@ -665,8 +666,15 @@ def _load_arrays(models: Sequence[LoadModel], cfg: LoadConfig, batch: int, n: in
 
 def _run(arrays: dict, tol: float, max_iterations: int) -> tuple[np.ndarray, np.ndarray]:
     """(x, status) of one launch."""
-    x, status, _ = _SOLVE(*(arrays[k] for k in _ARRAYS), np.float64(tol), np.int32(max_iterations))
+    x, status, _ = _launch(arrays, tol, max_iterations)
     return np.asarray(x), np.asarray(status)
+
+
+def _launch(arrays: dict, tol: float, max_iterations: int):
+    """`_SOLVE` of one launch's arrays, through its export (`jax_export`: a shape this process has
+    not met is not traced again)."""
+    return jax_export.call("lp", _SOLVE, *(arrays[k] for k in _ARRAYS), np.float64(tol), np.int32(max_iterations),
+                           source=__file__)
 
 
 def _optimal(xi: np.ndarray, ground: slice) -> LPResult:

@@ -65,6 +65,7 @@ from scipy.spatial import ConvexHull
 from factory.parts import Part
 from factory.physics.collide import CONNECTED_SLACK_LDU, CollisionScene
 from factory.physics.geometry import INSET_LDU, collision_shape
+from factory.physics import jax_export
 from factory.physics.jax_cache import enable as enable_compile_cache
 from factory.physics.keep_last import KeepLast
 from factory.physics.structure import Structure
@@ -419,7 +420,9 @@ def _launch(crosses: bool, ut, st, R, t, d, u, s, k, thr, thr_c, kind: str = "sw
                      ut[2].shape[1], st[0].shape[1], st[1].shape[1], st[2].shape[1])
             if shape not in COMPILES:
                 COMPILES.append(shape)
-            res = _kernel()[kind](crosses, ut, st, R, t, d, pad(u), pad(s), pad(k), pad(thr), pad(thr_c))
+            # Through its export: a shape this process has not met is not traced again (`jax_export`).
+            res = jax_export.call(f"{kind}-{int(crosses)}", partial(_kernel()[kind], crosses), ut, st, R, t, d, pad(u),
+                                  pad(s), pad(k), pad(thr), pad(thr_c), source=__file__)
             out[a:a + m] = np.asarray(res)[:m]
     return out
 
