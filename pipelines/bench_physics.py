@@ -552,6 +552,8 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
     from the first start to the last end. Stage seconds are summed over the processes.
     `judge_first`: the sampler's (None: its default); the rows record the value used."""
     rows = []
+    # The value the sampler takes (its default when None), recorded in every row.
+    used = SamplerConfig(backend=backend, judge_first=judge_first).judge_first
     if procs > 1:
         spans = _spans(objects, procs)
         fill = _fill_compile_cache(backend, steps, objects, judge_first) if backend == "mjx" else None
@@ -567,8 +569,7 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
                 stages.update(info["stages"])
                 jit.update(info["jit"])
             row = _growth_row(backend, per * len(spans), objects, sum(i["placed"] for i in infos), steps, wall, stages,
-                              procs=len(spans), jit=jit, warm_s=max(i["warm_s"] for i in infos),
-                              judge_first=infos[0]["judge_first"])
+                              procs=len(spans), jit=jit, warm_s=max(i["warm_s"] for i in infos), judge_first=used)
             if fill is not None:
                 row.update(cache_fill_seconds=round(fill[0], 2), cache_fill_misses=fill[1],
                            warm_cache_misses=sum(i["warm_misses"] for i in infos))
@@ -586,7 +587,7 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
         placed = sum(len(a.steps) for a in sampler.grow(range(objects), batch=batch))
         wall = time.perf_counter() - t0
         _emit(rows, log, _growth_row(backend, batch, objects, placed, steps, wall, STAGE_SECONDS, jit=_JIT,
-                                     warm_s=warm_s, judge_first=sampler.config.judge_first))
+                                     warm_s=warm_s, judge_first=used))
         warm_s = None  # the warm-up came before the first row only
     return rows
 
@@ -708,8 +709,7 @@ def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, floa
             said = time.time()
             _say(f"grower {os.getpid()}: {done} of {span[1] - span[0]} objects, {placed} parts, {said - t:.1f} s")
     return t, time.time(), {"placed": placed, "stages": dict(STAGE_SECONDS), "jit": dict(_JIT),
-                            "warm_s": _CTX["warm_s"], "warm_misses": _CTX["warm_misses"],
-                            "judge_first": _CTX["sampler"].config.judge_first}
+                            "warm_s": _CTX["warm_s"], "warm_misses": _CTX["warm_misses"]}
 
 
 def main(argv=None) -> int:

@@ -81,11 +81,15 @@ def autocast_dtype(config: TrainConfig, device: torch.device) -> torch.dtype | N
     return None
 
 
+TORCH_DTYPES = {"bf16": torch.bfloat16, "fp32": torch.float32}
+"""The torch dtype of each weight precision named in settings (`TrainConfig.weight_dtype`, `train.speed`)."""
+
+
 def weight_dtype(config: TrainConfig, device: torch.device) -> torch.dtype:
     """`config.weight_dtype`; auto: the frozen base weights of a LoRA run on CUDA in bf16 (half the
     memory), trained weights fp32."""
     if config.weight_dtype != "auto":
-        return torch.bfloat16 if config.weight_dtype == "bf16" else torch.float32
+        return TORCH_DTYPES[config.weight_dtype]
     if config.lora and autocast_dtype(config, device) is torch.bfloat16 and device.type == "cuda":
         return torch.bfloat16
     return torch.float32

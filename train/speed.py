@@ -9,11 +9,12 @@ Speed and memory do not depend on the weights' values, so no checkpoint is neede
 built from the exact config of a published checkpoint (`REAL`: every dimension, the vocabulary
 size included, so embedding and logit memory are real) with random weights, directly on the device,
 in bf16, as `python -m train --weight-dtype bf16` holds them (`--weight-dtype fp32` gives
-`python -m train`'s default for full fine-tuning: fp32 weights under bf16 autocast). The tokenizer is trained on the dataset's texts as `train.tiny` does,
-with the family's special tokens and real chat template, and the processor is the family's class
-with the checkpoint's own image processor settings (Qwen3-VL-8B: 16-pixel patches merged 2 x 2,
-65,536 to 16,777,216 pixels per image; Gemma 3: 896 x 896 pixels, 256 image tokens), so an
-example has the real checkpoint's image and text token counts up to the tokenizer's text splits.
+`python -m train`'s default for full fine-tuning: fp32 weights under bf16 autocast). The tokenizer
+is trained on the dataset's texts as `train.tiny` does, with the family's special tokens and real
+chat template, and the processor is the family's class with the checkpoint's own image processor
+settings (Qwen3-VL-8B: 16-pixel patches merged 2 x 2, 65,536 to 16,777,216 pixels per image; Gemma
+3: 896 x 896 pixels, 256 image tokens), so an example has the real checkpoint's image and text
+token counts up to the tokenizer's text splits.
 The special tokens' ids in the config are the local tokenizer's (all below the real vocabulary
 size); nothing else differs from the checkpoint's config.
 
@@ -274,7 +275,7 @@ def measure(args, progress=print) -> dict:
     from train.data import ExampleStream
     from train.distributed import parallel, start
     from train.loop import Batches, autocast_dtype, check_data, make_optimizer, make_scheduler, resolve_device
-    from train.loop import train_step, trainable_model
+    from train.loop import TORCH_DTYPES, train_step, trainable_model
     from train.model import trainable
     from train.profile import profile_steps
 
@@ -291,7 +292,7 @@ def measure(args, progress=print) -> dict:
     group, device = start(resolve_device(config))
     rank, world = group.rank, group.processes
     amp = autocast_dtype(config, device)
-    wdtype = torch.bfloat16 if args.weight_dtype == "bf16" else torch.float32
+    wdtype = TORCH_DTYPES[args.weight_dtype]
     attn = attention_implementation(device)
     gpu = torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"
     row = {"family": args.family, "mode": args.mode, "batch_size": args.batch_size, "gpu": gpu,
@@ -424,7 +425,8 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--max-length", type=int, default=16384,
                     help="longer examples are skipped and counted, as in python -m train (default: 16384)")
     ap.add_argument("--weight-dtype", default="bf16",
-                    help="bf16 (default; python -m train --weight-dtype bf16) or fp32 (python -m train's default for full fine-tuning)")
+                    help="bf16 (default; python -m train --weight-dtype bf16) or fp32 (python -m train's default "
+                         "for full fine-tuning)")
     ap.add_argument("--workers", type=int, default=None, help="data worker processes (default: as python -m train)")
     ap.add_argument("--device", default="auto", help=f"one of: {', '.join(DEVICES)}")
     ap.add_argument("--seed", type=int, default=0)
@@ -467,7 +469,7 @@ def save_model(args, progress=print) -> dict:
 
     # torch at import (the [train] extra): loaded when a run starts, so `--help` and refusals need none
     from train.checkpoint import write_model_folder
-    from train.loop import check_data, resolve_device
+    from train.loop import TORCH_DTYPES, check_data, resolve_device
 
     out = Path(args.save_model)
     if out.exists():
@@ -476,7 +478,7 @@ def save_model(args, progress=print) -> dict:
     check_data(config)
     device = resolve_device(config)
     cfg, processor = build(args.family, dataset_texts(config.data), args.max_pixels, args.size)
-    wdtype = torch.bfloat16 if args.weight_dtype == "bf16" else torch.float32
+    wdtype = TORCH_DTYPES[args.weight_dtype]
     torch.manual_seed(args.seed)
     t = time.perf_counter()
     model = instantiate(cfg, device, wdtype, "sdpa")

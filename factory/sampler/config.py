@@ -195,7 +195,7 @@ was faster than 2 and 1 (docs/sampler.md): each further request is another round
 
 def default_judge_first(check_batch: int) -> int:
     """`judge_first` for a `check_batch`: `JUDGE_FIRST`, or the whole batch when it is no larger."""
-    return min(JUDGE_FIRST, check_batch) if check_batch >= 1 else JUDGE_FIRST
+    return min(JUDGE_FIRST, check_batch)
 
 
 def _colour_key(code) -> int:
