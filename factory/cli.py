@@ -173,6 +173,17 @@ def renamed_flag(ap, old: str, new: str, dest: str, **kw) -> None:
                     **kw)
 
 
+def add_mps_flag(ap) -> None:
+    """`--mps auto|off`: whether a job whose processes share a GPU starts an NVIDIA MPS daemon of
+    its own (`factory.mps`; default `$BRICK_FACTORY_MPS`, else auto)."""
+    from factory.mps import MODES
+
+    ap.add_argument("--mps", choices=MODES, default=None,
+                    help="processes that share a GPU through NVIDIA MPS, a daemon of this job's own where "
+                         "nvidia-cuda-mps-control is there (auto, the default unless $BRICK_FACTORY_MPS "
+                         "says otherwise) or not (off)")
+
+
 def add_progress_flag(ap) -> None:
     """`--no-progress`: no progress bars (the one spelling; `--quiet` is its old name)."""
     ap.add_argument("--no-progress", action="store_true", help="no progress bars")

@@ -22,6 +22,7 @@ compiles it made.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import gc
 import json
@@ -36,8 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-from factory import Pose, get_reader, load_part
+from factory import Pose, get_reader, load_part, mps
 from factory.atomic import write_atomic
+from factory.cli import add_mps_flag
 from factory.physics import check as check_mod
 from factory.physics import sweep_jax
 from factory.physics.check import STAGE_SECONDS, CheckConfig, check
@@ -277,15 +279,15 @@ def _shared_run(span: tuple[int, int], barrier) -> tuple[float, float, list]:
     return t, time.time(), got
 
 
-def batched_processes(kind: str, n: int, batch: int, procs: int) -> tuple[list, float]:
-    """(answers, seconds): the batch on the batched path ('whole', 'loads' or 'sweep') in `procs`
-    processes that share the default JAX device, each on a contiguous slice, so that one
+def batched_processes(kind: str, n: int, batch: int, procs: int) -> tuple[list, float, bool]:
+    """(answers, seconds, mps): the batch on the batched path ('whole', 'loads' or 'sweep') in
+    `procs` processes that share the default JAX device, each on a contiguous slice, so that one
     process's host work overlaps another's device work, as the factory's workers do. Seconds from
     the first start to the last end, every process compiled and waiting at a barrier before the
-    clock starts."""
+    clock starts; `mps`: whether they shared the GPU through MPS (`factory.mps`, `MPS_MODE`)."""
 
-    done, seconds = _together(_spans(batch, procs), _ctx_init, (kind, n, batch), _shared_run)
-    return [x for *_, got in done for x in got], seconds
+    done, seconds, sharing = _together(_spans(batch, procs), _ctx_init, (kind, n, batch), _shared_run, gpu=True)
+    return [x for *_, got in done for x in got], seconds, sharing.mps
 
 
 def _spans(n: int, procs: int) -> list[tuple[int, int]]:
@@ -305,17 +307,25 @@ def in_own_process(fn):
         return pool.submit(_call, fn).result()
 
 
-def _together(spans, init, initargs, run, *args) -> tuple[list, float]:
+MPS_MODE: str | None = None
+"""`--mps`: how `_together`'s JAX processes share a GPU (`factory.mps.shared_gpu`; None: its default)."""
+
+
+def _together(spans, init, initargs, run, *args, gpu: bool = False) -> tuple[list, float, mps.Sharing]:
     """`run(span, *args, barrier)` for each span, each in a new process of its own (`init(*initargs)`
     first), the clocks started together at the barrier: (each run's result, seconds from the first
-    start to the last end; every result begins with its start and end times)."""
+    start to the last end, how the processes shared the GPU; every result begins with its start
+    and end times). `gpu`: the processes run JAX kernels (on a GPU, through MPS where
+    `factory.mps` finds it useful)."""
     spawn = multiprocessing.get_context("spawn")  # not fork: JAX's threads may hold locks
-    with spawn.Manager() as manager, ProcessPoolExecutor(
+    sharing = mps.shared_gpu(len(spans), MPS_MODE, say=_say) if gpu else contextlib.nullcontext(
+        mps.Sharing(False, "no GPU work"))
+    with sharing as shared, spawn.Manager() as manager, ProcessPoolExecutor(
             len(spans), mp_context=spawn, initializer=init, initargs=initargs) as pool:
         barrier = manager.Barrier(len(spans), timeout=BARRIER_S)  # every task waits for all: one task per process
         done = list(pool.map(functools.partial(_guarded, run), spans, *[[a] * len(spans) for a in args],
                              [barrier] * len(spans)))
-    return done, max(d[1] for d in done) - min(d[0] for d in done)
+    return done, max(d[1] for d in done) - min(d[0] for d in done), shared
 
 
 BARRIER_S = 900.0
@@ -338,8 +348,8 @@ def _shared_row(kind: str, row: dict, procs: int, cpu_max: int, cpu_workers: int
     processes sharing the device (`batched_processes`): `procs`, `jax_per_s`, `counts(answers)`,
     and with `cpu_max` the reference's rate and how many answers agree."""
     n, batch = row["bricks"], row["batch"]
-    answers, seconds = batched_processes(kind, n, batch, procs)
-    row.update(procs=procs, jax_per_s=round(batch / seconds, 1), **counts(answers))
+    answers, seconds, on_mps = batched_processes(kind, n, batch, procs)
+    row.update(procs=procs, mps=on_mps, jax_per_s=round(batch / seconds, 1), **counts(answers))
     if cpu_max:
         _with_reference(row, kind, n, batch, cpu_max, cpu_workers, (seconds, answers))
     return row
@@ -455,8 +465,8 @@ def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int
             row = {"bricks": n, "batch": batch}
             got = answers = gpu_s = None
             if batched and procs > 1:
-                answers, gpu_s = batched_processes("whole", n, batch, procs)
-                row.update(procs=procs, gpu_per_s=round(batch / gpu_s, 1), accepted=sum(ok for ok, _ in answers),
+                answers, gpu_s, on_mps = batched_processes("whole", n, batch, procs)
+                row.update(procs=procs, mps=on_mps, gpu_per_s=round(batch / gpu_s, 1), accepted=sum(ok for ok, _ in answers),
                            reasons=dict(Counter(r for _, r in answers if r)))
             elif batched:
                 t = time.perf_counter()
@@ -562,7 +572,8 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
         for batch in batches:
             per = max(1, batch // len(spans))
             # New processes for every row, so that no row finds the answers an earlier one cached.
-            done, wall = _together(spans, _growth_init, (backend, steps, objects, judge_first), _growth_run, per)
+            done, wall, shared = _together(spans, _growth_init, (backend, steps, objects, judge_first), _growth_run,
+                                           per, gpu=backend == "mjx")
             infos = [info for *_, info in done]
             stages, jit = Counter(), Counter()
             for info in infos:
@@ -570,6 +581,7 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
                 jit.update(info["jit"])
             row = _growth_row(backend, per * len(spans), objects, sum(i["placed"] for i in infos), steps, wall, stages,
                               procs=len(spans), jit=jit, warm_s=max(i["warm_s"] for i in infos), judge_first=used)
+            row["mps"] = shared.mps
             if fill is not None:
                 row.update(cache_fill_seconds=round(fill[0], 2), cache_fill_misses=fill[1],
                            warm_cache_misses=sum(i["warm_misses"] for i in infos))
@@ -739,7 +751,10 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=30, help="with --growth: parts per object (default 30)")
     ap.add_argument("--objects", type=int, default=64, help="with --growth: objects grown (default 64)")
     ap.add_argument("--judge-first", type=int, help="with --growth: the sampler's judge_first (default: its own)")
+    add_mps_flag(ap)
     args = ap.parse_args(argv)
+    global MPS_MODE
+    MPS_MODE = args.mps
     sizes, batches = [int(x) for x in args.sizes.split(",")], [int(x) for x in args.batches.split(",")]
     log = lambda r: print(json.dumps(r), flush=True)
     if args.growth:

@@ -17,6 +17,7 @@ import argparse
 import json
 import multiprocessing as mp
 import os
+import contextlib
 import platform
 import sys
 import time
@@ -27,7 +28,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from factory.cli import add_config_args, add_progress_flag, config_from_args, renamed_flag, run_guarded
+from factory import mps
+from factory.cli import add_config_args, add_mps_flag, add_progress_flag, config_from_args, renamed_flag, run_guarded
 from factory.physics import sweep_jax
 from factory.physics.check import BACKENDS, STAGE_SECONDS
 from factory.sampler import Sampler, SamplerConfig, SamplerConfigError
@@ -122,6 +124,7 @@ def parser() -> argparse.ArgumentParser:
                          "per step (objects do not depend on it; with mjx the round's collision tests, sweeps and load "
                          "programs go to the device together)")
     ap.add_argument("--steps-json", action="store_true", help="also list every step in summary.json")
+    add_mps_flag(ap)
     add_progress_flag(ap)
     # The sampler's settings: the same flags, defaults and check_batch rule as pipelines.synth's.
     add_config_args(ap, SamplerConfig, skip=("check",))
@@ -156,24 +159,30 @@ def _run(args, config: SamplerConfig) -> int:
     t0 = time.perf_counter()
     pool = None
     chunks = _chunks(indices, args.batch, args.workers)
-    if args.workers > 1:
-        ctx = mp.get_context("fork")
-        pool = ctx.Pool(args.workers, initializer=_init_worker,
-                        initargs=(*workers.numbering(ctx), config, args.ldraw))
-        results = (x for done in pool.imap_unordered(partial(_chunk, batch=args.batch), chunks) for x in done)
-    else:
-        results = (x for c in chunks for x in _timed(c, args.batch))
-    try:
-        bar = tqdm(results, total=args.n, unit="obj", desc="sampling", dynamic_ncols=True, disable=args.no_progress)
-        for assembly, seconds in bar:
-            name = f"object_{assembly.index:05d}.ldr"
-            assembly.to_ldr(out / name)
-            rec = {"file": name, **assembly.to_json(steps=args.steps_json), "seconds": round(seconds, 3)}
-            records.append(rec)
-            bar.set_postfix(steps=len(assembly), density=f"{assembly.density:.3f}")
-    finally:
-        if pool is not None:
-            pool.terminate()
+    # The workers' batched checks share each GPU through MPS where that helps (`factory.mps`).
+    sharing = mps.shared_gpu(args.workers, args.mps) if config.backend == "mjx" and args.workers > 1 \
+        else contextlib.nullcontext()
+    with sharing:
+        if args.workers > 1:
+            ctx = mp.get_context("fork")
+            pool = ctx.Pool(args.workers, initializer=_init_worker,
+                            initargs=(*workers.numbering(ctx), config, args.ldraw))
+            results = (x for done in pool.imap_unordered(partial(_chunk, batch=args.batch), chunks) for x in done)
+        else:
+            results = (x for c in chunks for x in _timed(c, args.batch))
+        try:
+            bar = tqdm(results, total=args.n, unit="obj", desc="sampling", dynamic_ncols=True,
+                       disable=args.no_progress)
+            for assembly, seconds in bar:
+                name = f"object_{assembly.index:05d}.ldr"
+                assembly.to_ldr(out / name)
+                rec = {"file": name, **assembly.to_json(steps=args.steps_json), "seconds": round(seconds, 3)}
+                records.append(rec)
+                bar.set_postfix(steps=len(assembly), density=f"{assembly.density:.3f}")
+        finally:
+            if pool is not None:
+                pool.terminate()
+                pool.join()  # before the MPS daemon (if any) is stopped
     wall = time.perf_counter() - t0
     records.sort(key=lambda r: r["index"])
     summary = summarize(records, wall, config, _SAMPLER.reader.library.description, args.workers)

@@ -13,7 +13,8 @@ import os
 import sys
 
 from factory import gpus
-from factory.cli import add_config_args, add_progress_flag, config_from_args as config_of, renamed_flag, run_guarded
+from factory.cli import (add_config_args, add_mps_flag, add_progress_flag, config_from_args as config_of, renamed_flag,
+                         run_guarded)
 from factory.sampler import SamplerConfig, SamplerConfigError
 from pipelines.dataset import (ConfigMismatchError, FolderBusyError, ShardFailedError, ShardInputError, build,
                                summary_line)
@@ -60,6 +61,7 @@ def add_run_args(ap: argparse.ArgumentParser) -> None:
                          "is the same whatever it is)")
     ap.add_argument("--growers", type=int, default=None,
                     help="with --batch > 1: workers that grow objects (default two thirds of --workers)")
+    add_mps_flag(ap)
     add_progress_flag(ap)
 
 
@@ -77,7 +79,7 @@ def run(config, args) -> int:
         print(f"physics: {config.sampler.backend} (--check-backend mujoco|mjx); renders: {gpus.render_path()}",
               file=sys.stderr, flush=True)
     summary = build(config, args.out, backend=args.runner, workers=args.workers,
-                    progress=not args.no_progress, batch=args.batch, growers=args.growers)
+                    progress=not args.no_progress, batch=args.batch, growers=args.growers, mps_mode=args.mps)
     print(summary_line(summary), flush=True)
     return 0
 

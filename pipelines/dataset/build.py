@@ -12,6 +12,7 @@ model's answers through `eval`, which the builder does not import).
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import json
 import os
@@ -26,6 +27,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from factory import mps
 from factory.atomic import write_atomic
 from factory.dataset.info import Counts, DatasetInfo, json_bytes, write_info
 from factory.dataset.tasks import FEEDBACK_IMAGES, SPLITS
@@ -315,14 +317,17 @@ def _check_source(config: DatasetConfig, source=None) -> None:
 
 
 def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, progress: bool = True,
-          desc: str = "objects", batch: int = 1, growers: int | None = None, source=None) -> dict:
+          desc: str = "objects", batch: int = 1, growers: int | None = None, source=None,
+          mps_mode: str | None = None) -> dict:
     """Build every missing shard of `config` into `out`, then the metadata; returns the summary.
 
     `batch` > 1 (synthetic data): objects grown `batch` at a time by `growers` of the workers
     (default two thirds) while the others render (`_run_grown`); the data files are the same
     whatever `batch` and `growers`. `source`: the object source, for a source the builder does not
     make from the config (world feedback, `pipelines.feedback.FeedbackSource`; sent to the worker
-    processes or Ray tasks with each shard). The folder is held for the build (`holding`)."""
+    processes or Ray tasks with each shard). The folder is held for the build (`holding`).
+    `mps_mode`: with the batched checks ('mjx') in several local processes, whether they share each
+    GPU through an MPS daemon of the build's own (`factory.mps.shared_gpu`; None: its default)."""
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
@@ -334,8 +339,18 @@ def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, 
     # corrected command is not refused as another config).
     _check_source(config, source)
     _started_with(config, Path(out))
-    with holding(out):
+    mps.mode_of(mps_mode)  # a bad value is refused before any work
+    with holding(out), _gpu_sharing(config, backend, workers, batch, growers, mps_mode):
         return _build(config, out, backend, workers, progress, desc, batch, growers, t0, source)
+
+
+def _gpu_sharing(config: DatasetConfig, backend: str, workers: int, batch: int, growers: int | None, mode):
+    """MPS for a local build whose worker processes run the batched checks (`factory.mps`): the
+    growers of a lockstep build, else every worker; nothing for the reference's checks or Ray."""
+    if config.source != "synthetic" or config.sampler.backend != "mjx" or backend != "local":
+        return contextlib.nullcontext()
+    clients = growers_of(workers, growers) if batch > 1 else max(1, workers)
+    return mps.shared_gpu(clients, mode)
 
 
 def _build(config, out, backend, workers, progress, desc, batch, growers, t0, source=None) -> dict:
