@@ -22,9 +22,12 @@ iteration cap, `MAX_ITERATIONS`, is a bound, not a budget).
   through s's Schur complement (computed per variable by the Lagrange identity, without the
   cancellation of large D). The equality multipliers solve the normal equations
   (A diag(1/d) A^T + q q^T / sigma) dy = r: a dense m x m matrix (m = 6 x bodies) formed by one
-  scatter of A's columns' outer products, a batched Cholesky factorisation per iteration, the
-  rank-one part by Sherman-Morrison. Predictor and corrector share the factorisation; each solve
-  is refined once against the full system.
+  scatter of A's columns' outer products, a batched Cholesky factorisation per iteration and the
+  factor's inverse (one triangular solve with m right-hand sides), the rank-one part by
+  Sherman-Morrison. Predictor and corrector share the factorisation; each of the iteration's five
+  solves is two matrix-vector products with the inverse factor (on one H100, 64 programs of a
+  60-brick structure a launch: 1,223 per s, against 801 with two substitutions per solve), and
+  each is refined once against the full system.
 - Regularisation: rho = 1e-4 (scaled) on H, a proximal term: a free variable (a rigid link's
   force) has an invertible block, and no variable strictly inside its rows weighs more than
   1 / rho in the normal matrix (`REG_PRIMAL` says what smaller values did). Equality rows that
@@ -394,17 +397,22 @@ def _solve_one(c, b, a_rows, a_vals, coef, link, rhs, mask, link_col, tol, max_i
         q = a_mul(p)
         normal = gram(dinv)
         normal = normal + jnp.diag(jnp.where(keep, REG_DUAL * jnp.diag(normal), 1.0))
+        # The factor's inverse, once per iteration (one triangular solve with m right-hand sides):
+        # the iteration's five solves with the normal matrix are then two matrix-vector products
+        # each, not two sequential substitutions of m steps each (on a GPU a substitution's steps
+        # are launches that wait on each other).
         chol = jnp.linalg.cholesky(normal)
-        mq = jax.scipy.linalg.cho_solve((chol, True), q)
-        return dinv, p, sigma, chol, q, mq, sigma + q @ mq
+        linv = jax.scipy.linalg.solve_triangular(chol, jnp.eye(m), lower=True)
+        mq = linv.T @ (linv @ q)
+        return dinv, p, sigma, linv, q, mq, sigma + q @ mq
 
     def h_inv(fac, v):
         dinv, p, sigma = fac[:3]
         return dinv * v + p * (p @ v) / sigma
 
     def normal_solve(fac, r):  # (M0 + q q^T / sigma)^-1 r, Sherman-Morrison
-        _, _, _, chol, q, mq, denom = fac
-        v = jax.scipy.linalg.cho_solve((chol, True), r)
+        _, _, _, linv, q, mq, denom = fac
+        v = linv.T @ (linv @ r)
         return v - mq * (q @ v) / denom
 
     def newton_once(fac, f, rp):
