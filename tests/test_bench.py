@@ -164,6 +164,7 @@ def test_grower_processes_load_the_kernels_one_process_compiled(tmp_path, monkey
     # without the shared cache each of the two would compile what the one did (2x); here together at most 1x
     assert row["warm_cache_misses"] <= row["cache_fill_misses"]
     assert any((tmp_path / "jax").iterdir())
+    assert row["mps"] is False  # how the growers shared the GPU: no GPU here (factory.mps)
 
 
 def _too_big_for_memory(rows: int):
