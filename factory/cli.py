@@ -12,6 +12,7 @@ from typing import Callable
 
 from factory.config import field_docs, field_types, nested_config, optional_of
 from factory.errors import LDrawError
+from factory.mps import MODES
 
 
 def run_guarded(body: Callable[[], int | None], extra: dict[type[BaseException], int] | None = None) -> int:
@@ -176,8 +177,6 @@ def renamed_flag(ap, old: str, new: str, dest: str, **kw) -> None:
 def add_mps_flag(ap) -> None:
     """`--mps auto|off`: whether a job whose processes share a GPU starts an NVIDIA MPS daemon of
     its own (`factory.mps`; default `$BRICK_FACTORY_MPS`, else auto)."""
-    from factory.mps import MODES
-
     ap.add_argument("--mps", choices=MODES, default=None,
                     help="processes that share a GPU through NVIDIA MPS, a daemon of this job's own where "
                          "nvidia-cuda-mps-control is there (auto, the default unless $BRICK_FACTORY_MPS "
