@@ -466,7 +466,8 @@ def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int
             got = answers = gpu_s = None
             if batched and procs > 1:
                 answers, gpu_s, on_mps = batched_processes("whole", n, batch, procs)
-                row.update(procs=procs, mps=on_mps, gpu_per_s=round(batch / gpu_s, 1), accepted=sum(ok for ok, _ in answers),
+                row.update(procs=procs, mps=on_mps, gpu_per_s=round(batch / gpu_s, 1),
+                           accepted=sum(ok for ok, _ in answers),
                            reasons=dict(Counter(r for _, r in answers if r)))
             elif batched:
                 t = time.perf_counter()
