@@ -110,10 +110,14 @@ def plan(clients: int, mode: str | None = None) -> Sharing | None:
     return None
 
 
-def _die_with_parent() -> None:  # runs in the daemon's process before exec
-    if sys.platform.startswith("linux"):
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+def _dying_with_parent():
+    """A function for `Popen(preexec_fn=...)` that makes the child get SIGTERM when this process
+    dies (Linux; else None). libc is loaded here, in the parent: between fork and exec the child
+    only makes the one call."""
+    if not sys.platform.startswith("linux"):
+        return None
+    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+    return lambda: libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 
 
 def _control(env: dict, command: str, timeout: float = 10.0) -> str:
@@ -136,10 +140,11 @@ def _start() -> tuple[subprocess.Popen, dict, str] | str:
     """(daemon, its environment, its folder) with a server up, or why not."""
     folder = tempfile.mkdtemp(prefix="brick-factory-mps-")
     env = {**os.environ, PIPE_ENV: os.path.join(folder, "pipe"), LOG_ENV: os.path.join(folder, "log")}
-    os.makedirs(env[PIPE_ENV]), os.makedirs(env[LOG_ENV])
+    os.makedirs(env[PIPE_ENV])
+    os.makedirs(env[LOG_ENV])
     with open(os.path.join(folder, "daemon.out"), "wb") as out:
         daemon = subprocess.Popen([CONTROL, "-f"], env=env, stdin=subprocess.DEVNULL, stdout=out,
-                                  stderr=subprocess.STDOUT, preexec_fn=_die_with_parent)
+                                  stderr=subprocess.STDOUT, preexec_fn=_dying_with_parent())
     why = None
     try:
         end = time.monotonic() + START_S
