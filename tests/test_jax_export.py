@@ -82,3 +82,27 @@ def test_changed_source_or_shape_names_another_export(exports, tmp_path):
     src.write_text("x = 2\n")
     jax_export._source_digest.cache_clear()
     assert jax_export._digest(key, str(src)) != one
+
+
+def _first_launch(barrier) -> list[int]:
+    """In a new process: wait for the other, then launch the solver on programs of a shape neither
+    has met; this process's (exported, loaded) counts."""
+    lps = _programs(4, seed=7)
+    barrier.wait()
+    assert all(r.status == "optimal" for r in lp_jax.solve_batch(lps, fallback=False))
+    return list(jax_export.EXPORTS)
+
+
+def test_processes_meeting_a_new_shape_at_once_export_it_once(exports, tmp_path, monkeypatch):
+    """Two processes launch the same new shape at the same moment: one exports and compiles it, the
+    other waits on its lock and then reads the export (without the lock both would export it)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "jax"))
+    spawn = multiprocessing.get_context("spawn")
+    with spawn.Manager() as manager, ProcessPoolExecutor(2, mp_context=spawn) as pool:
+        barrier = manager.Barrier(2, timeout=600)
+        counts = list(pool.map(_first_launch, [barrier, barrier]))
+    assert sorted(counts) == [[0, 1], [1, 0]], counts
+    assert len(list(exports.glob("lp-*.jaxexport"))) == 1

@@ -10,6 +10,11 @@ when an earlier process wrote it, else exported (traced once) and written; eithe
 exported module is compiled through `jax.jit` and the compilation cache. The results are those
 of `jax.jit(fn)` (the same module; `tests/test_jax_export.py`).
 
+A process's first launch of a shape holds a lock on that shape's file (`fcntl`, beside it) while it
+exports or reads it and compiles it, so processes that meet a new shape at once (lockstep growers
+on a fresh machine: 16 of them compiled 133 kernels inside one H100 row, 2026-11-26) export and
+compile it once; the others wait, read the export and load the kernel from the compilation cache.
+
 A file is named by the kernel, the argument shapes and dtypes, the platform, the JAX and jaxlib
 versions and a digest of the kernel's source file, so changed code never loads an old export. A
 file that does not load is exported again. Without the `flatbuffers` package (JAX's
@@ -18,9 +23,11 @@ serialisation needs it; the [mjx] extra installs it) kernels are called directly
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import os
 import warnings
+from contextlib import contextmanager
 from functools import cache
 from pathlib import Path
 
@@ -57,17 +64,38 @@ def call(name: str, fn, *args, source: str):
     specs = tuple((tuple(np.shape(a)), str(_dtype(a))) for a in leaves)
     key = (name, str(tree), specs, bool(jax.config.jax_enable_x64))
     kernel = _LOADED.get(key)
-    if kernel is None:
-        kernel = _LOADED[key] = jax.jit(_exported(name, fn, args, key, source).call)
-    return kernel(*args)
+    if kernel is not None:
+        return kernel(*args)
+    path = folder() / f"{name}-{_digest(key, source)}.jaxexport"
+    # A process's first launch of a shape exports it (or reads its export) and compiles it. Many
+    # processes meeting a new shape at once (lockstep growers, each a round behind the other) would
+    # each do both; under a lock per shape one does, and the others then read its export and load
+    # its compiled kernel from the compilation cache.
+    with _first_use(path):
+        kernel = jax.jit(_exported(fn, args, path).call)
+        out = kernel(*args)  # compiled here, inside the lock
+    _LOADED[key] = kernel
+    return out
 
 
-def _exported(name: str, fn, args, key: tuple, source: str):
-    """The export of `fn` at `args`' shapes: from its file, else made and written."""
+@contextmanager
+def _first_use(path: Path):
+    """An exclusive lock on `path`'s lock file while this process exports or loads it and compiles
+    it (released when the process dies, too)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path.with_suffix(".lock"), "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+def _exported(fn, args, path: Path):
+    """The export of `fn` at `args`' shapes: from its file (`path`), else made and written."""
     import jax
     from jax import export
 
-    path = folder() / f"{name}-{_digest(key, source)}.jaxexport"
     if path.is_file():
         try:
             exp = export.deserialize(bytearray(path.read_bytes()))
@@ -79,7 +107,6 @@ def _exported(name: str, fn, args, key: tuple, source: str):
     structs = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(np.shape(a), _dtype(a)), args)
     exp = export.export(fn if hasattr(fn, "lower") else jax.jit(fn))(*structs)
     EXPORTS[0] += 1
-    path.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(path, bytes(exp.serialize()))
     return exp
 
