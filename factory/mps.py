@@ -23,11 +23,8 @@ is and used.
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import ctypes.util
 import os
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -36,6 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from factory import gpus
+from factory.parent_death import sigterm_on_parent_death
 
 MODE_ENV = "BRICK_FACTORY_MPS"
 """'auto' (the default: start a daemon where `plan` finds it useful) or 'off'."""
@@ -110,16 +108,6 @@ def plan(clients: int, mode: str | None = None) -> Sharing | None:
     return None
 
 
-def _dying_with_parent():
-    """A function for `Popen(preexec_fn=...)` that makes the child get SIGTERM when this process
-    dies (Linux; else None). libc is loaded here, in the parent: between fork and exec the child
-    only makes the one call."""
-    if not sys.platform.startswith("linux"):
-        return None
-    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-    return lambda: libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-
-
 def _control(env: dict, command: str, timeout: float = 10.0) -> str:
     """One command to the daemon (`get_server_list`, `quit`), its answer."""
     done = subprocess.run([CONTROL], input=command + "\n", env=env, capture_output=True, text=True, timeout=timeout)
@@ -144,7 +132,7 @@ def _start() -> tuple[subprocess.Popen, dict, str] | str:
     os.makedirs(env[LOG_ENV])
     with open(os.path.join(folder, "daemon.out"), "wb") as out:
         daemon = subprocess.Popen([CONTROL, "-f"], env=env, stdin=subprocess.DEVNULL, stdout=out,
-                                  stderr=subprocess.STDOUT, preexec_fn=_dying_with_parent())
+                                  stderr=subprocess.STDOUT, preexec_fn=sigterm_on_parent_death())
     why = None
     try:
         end = time.monotonic() + START_S
@@ -177,22 +165,20 @@ def shared_gpu(clients: int, mode: str | None = None, say=None):
     `plan` finds it useful (see the module's docstring); yields the `Sharing`. `say(line)`: told
     how the GPUs are shared (stderr by default)."""
     say = say or (lambda line: print(line, file=sys.stderr, flush=True))
-    sharing = plan(clients, mode)
-    if sharing is not None:
-        say(f"gpu sharing: {sharing.why}")
-        yield sharing
-        return
-    started = _start()
-    if isinstance(started, str):
-        sharing = Sharing(False, f"MPS not started: {started}")
-        say(f"gpu sharing: {sharing.why}")
+    sharing, started = plan(clients, mode), None
+    if sharing is None:
+        started = _start()
+        if isinstance(started, str):
+            sharing, started = Sharing(False, f"MPS not started: {started}"), None
+        else:
+            sharing = Sharing(True, f"MPS, a daemon of this job's own for {clients} processes ({started[2]})")
+    say(f"gpu sharing: {sharing.why}")
+    if started is None:
         yield sharing
         return
     daemon, env, folder = started
     before = {k: os.environ.get(k) for k in (PIPE_ENV, LOG_ENV)}
     os.environ[PIPE_ENV], os.environ[LOG_ENV] = env[PIPE_ENV], env[LOG_ENV]
-    sharing = Sharing(True, f"MPS, a daemon of this job's own for {clients} processes ({folder})")
-    say(f"gpu sharing: {sharing.why}")
     try:
         yield sharing
     finally:

@@ -4,22 +4,18 @@ machine's GPUs (`factory.gpus`), and ended with the process that started them.""
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import multiprocessing
 import os
 import signal
-import sys
 from concurrent.futures import ProcessPoolExecutor
 
 from factory import gpus
+from factory.parent_death import sigterm_on_parent_death
 
 ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 """Numeric libraries' threads per worker process, unless the user set them: the workers fill the
 cores, and a pool per process oversubscribes them (16 samplers on 16 cores of an H200 machine:
 980 steps in 58.7 s with the libraries' default threads, 45.4 s with one each)."""
-
-_PR_SET_PDEATHSIG = 1
 
 
 def one_thread_each() -> None:
@@ -46,11 +42,9 @@ def start_worker(counter, parent: int) -> None:
     # ignored (a background job: so is it in the parent), the worker keeps ignoring it.
     if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
         signal.signal(signal.SIGINT, lambda *_: os._exit(130))
-    if sys.platform.startswith("linux"):
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-        if os.getppid() != parent:  # the parent died before the line above took effect
-            os._exit(1)
+    sigterm_on_parent_death()()
+    if os.getppid() != parent:  # the parent died before the line above took effect
+        os._exit(1)
 
 
 def pool(workers: int) -> ProcessPoolExecutor:
