@@ -548,7 +548,7 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
 
 
 def measure_growth(backend: str, batches, steps: int, objects: int, log=None, procs: int = 1,
-                   judge_first: int | None = None) -> list[dict]:
+                   judge_first: int | None = None, check_batch: int | None = None) -> list[dict]:
     """Lockstep growth: objects 0..objects-1 of the default sampler config with exactly `steps`
     parts each, grown `batch` at a time, for each batch: steps per second over the whole growth
     (the same objects whatever the batch, so rows compare on the same inputs). `WARM_OBJECTS` other
@@ -561,19 +561,21 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
     processes sharing the default device as the factory's grower workers do; every process is
     warmed and waits at a barrier before the clock starts, and the rate is all steps over the time
     from the first start to the last end. Stage seconds are summed over the processes.
-    `judge_first`: the sampler's (None: its default); the rows record the value used."""
+    `judge_first`, `check_batch`: the sampler's (None: its defaults); the rows record the values used."""
     rows = []
     # The value the sampler takes (its default when None), recorded in every row.
-    used = SamplerConfig(backend=backend, judge_first=judge_first).judge_first
+    knobs = {"judge_first": judge_first, "check_batch": check_batch}
+    config = SamplerConfig(backend=backend, **knobs)
+    used = {"judge_first": config.judge_first, "check_batch": config.check_batch}
     if procs > 1:
         spans = _spans(objects, procs)
-        fill = _fill_compile_cache(backend, steps, objects, judge_first) if backend == "mjx" else None
+        fill = _fill_compile_cache(backend, steps, objects, knobs) if backend == "mjx" else None
         if fill is not None:
             _say(f"compile cache filled by one process in {fill[0]:.1f} s ({fill[1]} kernels compiled)")
         for batch in batches:
             per = max(1, batch // len(spans))
             # New processes for every row, so that no row finds the answers an earlier one cached.
-            done, wall, shared = _together(spans, _growth_init, (backend, steps, objects, judge_first), _growth_run,
+            done, wall, shared = _together(spans, _growth_init, (backend, steps, objects, knobs), _growth_run,
                                            per, gpu=backend == "mjx")
             infos = [info for *_, info in done]
             stages, jit = Counter(), Counter()
@@ -581,7 +583,8 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
                 stages.update(info["stages"])
                 jit.update(info["jit"])
             row = _growth_row(backend, per * len(spans), objects, sum(i["placed"] for i in infos), steps, wall, stages,
-                              procs=len(spans), jit=jit, warm_s=max(i["warm_s"] for i in infos), judge_first=used)
+                              procs=len(spans), jit=jit, warm_s=max(i["warm_s"] for i in infos), used=used,
+                              cpu_s=sum(i["cpu_s"] for i in infos))
             row["mps"] = shared.mps
             if fill is not None:
                 row.update(cache_fill_seconds=round(fill[0], 2), cache_fill_misses=fill[1],
@@ -589,18 +592,18 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
             _emit(rows, log, row)
         return rows
     t0 = time.perf_counter()
-    sampler = _warm_sampler(backend, steps, objects, judge_first=judge_first)
+    sampler = _warm_sampler(backend, steps, objects, knobs)
     warm_s = time.perf_counter() - t0
     _say(f"warm-up: {WARM_OBJECTS} objects in {warm_s:.1f} s")
     for batch in batches:
         _forget_answers()
         STAGE_SECONDS.clear()
         _JIT.clear()
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         placed = sum(len(a.steps) for a in sampler.grow(range(objects), batch=batch))
         wall = time.perf_counter() - t0
         _emit(rows, log, _growth_row(backend, batch, objects, placed, steps, wall, STAGE_SECONDS, jit=_JIT,
-                                     warm_s=warm_s, judge_first=used))
+                                     warm_s=warm_s, used=used, cpu_s=time.process_time() - c0))
         warm_s = None  # the warm-up came before the first row only
     return rows
 
@@ -644,14 +647,18 @@ def _forget_answers() -> None:
 
 
 def _growth_row(backend, batch, objects, placed, steps, wall, stages, procs=1, jit=None, warm_s=None,
-                judge_first=None) -> dict:
+                used=None, cpu_s=None) -> dict:
     """A growth row; with the batched path, the JAX compiles inside the timed window (`_JIT`, summed
     over the processes) and the warm-up's seconds (the slowest process's; None after the first row
-    of one process), where compiles of the shapes the warm-up objects met fall."""
+    of one process), where compiles of the shapes the warm-up objects met fall. `cpu_s`: the
+    processes' CPU seconds in the window (all their threads), against `procs` x seconds: how much
+    of the growth is host work and how much waiting on the device."""
     row = {"kind": "growth", "backend": backend, "batch": batch, "procs": procs, "objects": objects,
-           "steps": placed, "target_steps": steps, "judge_first": judge_first, "seconds": round(wall, 2),
+           "steps": placed, "target_steps": steps, **(used or {}), "seconds": round(wall, 2),
            "steps_per_s": round(placed / wall, 2),
            "stage_seconds": {k: round(v, 2) for k, v in sorted(stages.items())}}
+    if cpu_s is not None:
+        row.update(cpu_seconds=round(cpu_s, 2), cpu_share=round(cpu_s / (procs * wall), 3))
     if backend == "mjx":
         jit = jit or {}
         row.update(warm_seconds=None if warm_s is None else round(warm_s, 2),
@@ -660,27 +667,27 @@ def _growth_row(backend, batch, objects, placed, steps, wall, stages, procs=1, j
     return row
 
 
-def _fill_compile_cache(backend: str, steps: int, objects: int, judge_first: int | None = None) -> tuple[float, int]:
+def _fill_compile_cache(backend: str, steps: int, objects: int, knobs: dict | None = None) -> tuple[float, int]:
     """(seconds, kernels compiled): one process grows the warm-up objects alone before the grower
     processes start, so the kernels they meet go into the persistent compilation cache
     (`jax_cache`) once and the grower processes load them, where each would otherwise compile
     every one of them at the same moment as the others (kernels that compile in under
     `jax_cache.MIN_COMPILE_SECONDS` are not written, and each process compiles those)."""
     t = time.perf_counter()
-    misses = in_own_process(functools.partial(_fill_run, backend, steps, objects, judge_first))
+    misses = in_own_process(functools.partial(_fill_run, backend, steps, objects, knobs))
     return time.perf_counter() - t, misses
 
 
-def _fill_run(backend: str, steps: int, objects: int, judge_first: int | None = None) -> int:
-    _warm_sampler(backend, steps, objects, keep=False, judge_first=judge_first)
+def _fill_run(backend: str, steps: int, objects: int, knobs: dict | None = None) -> int:
+    _warm_sampler(backend, steps, objects, knobs, keep=False)
     return int(_JIT.get("cache_misses", 0))
 
 
-def _growth_init(backend: str, steps: int, objects: int, judge_first: int | None = None) -> None:
+def _growth_init(backend: str, steps: int, objects: int, knobs: dict | None = None) -> None:
     """A grower process of `measure_growth`: its sampler, warmed (`_warm_sampler`), and the seconds
     that took."""
     t = time.perf_counter()
-    _CTX["sampler"] = _warm_sampler(backend, steps, objects, judge_first=judge_first)
+    _CTX["sampler"] = _warm_sampler(backend, steps, objects, knobs)
     _CTX["warm_s"] = time.perf_counter() - t
     _CTX["warm_misses"] = int(_JIT.get("cache_misses", 0))
     _say(f"grower {os.getpid()}: warm-up in {_CTX['warm_s']:.1f} s, waiting for the others")
@@ -691,13 +698,14 @@ WARM_OBJECTS = 4
 scenes' meshes made, the first kernels compiled."""
 
 
-def _warm_sampler(backend: str, steps: int, objects: int, keep: bool = True,
-                  judge_first: int | None = None) -> Sampler | None:
-    """A sampler that has grown the `WARM_OBJECTS` warm-up objects (returned when `keep`)."""
+def _warm_sampler(backend: str, steps: int, objects: int, knobs: dict | None = None,
+                  keep: bool = True) -> Sampler | None:
+    """A sampler (with `knobs`: `SamplerConfig` fields, None for their defaults) that has grown the
+    `WARM_OBJECTS` warm-up objects (returned when `keep`)."""
     if backend == "mjx":
         _count_compiles()
-    sampler = Sampler(SamplerConfig(seed=0, min_steps=steps, max_steps=steps, backend=backend,
-                                    judge_first=judge_first), None)
+    sampler = Sampler(SamplerConfig(seed=0, min_steps=steps, max_steps=steps, backend=backend, **(knobs or {})),
+                      None)
     for part in sampler.parts:  # found on a part's first use otherwise (0.1 s each), inside a row
         part.sockets
     list(sampler.grow(range(objects, objects + WARM_OBJECTS), batch=WARM_OBJECTS))
@@ -713,7 +721,7 @@ def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, floa
     STAGE_SECONDS.clear()
     _JIT.clear()
     barrier.wait()
-    t = time.time()
+    t, c = time.time(), time.process_time()
     placed = done = 0
     said = t
     for a in _CTX["sampler"].grow(range(*span), batch=batch):
@@ -721,7 +729,8 @@ def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, floa
         if time.time() - said >= SAY_EVERY_S or done == span[1] - span[0]:
             said = time.time()
             _say(f"grower {os.getpid()}: {done} of {span[1] - span[0]} objects, {placed} parts, {said - t:.1f} s")
-    return t, time.time(), {"placed": placed, "stages": dict(STAGE_SECONDS), "jit": dict(_JIT),
+    end, cpu = time.time(), time.process_time() - c
+    return t, end, {"placed": placed, "stages": dict(STAGE_SECONDS), "jit": dict(_JIT), "cpu_s": cpu,
                             "warm_s": _CTX["warm_s"], "warm_misses": _CTX["warm_misses"]}
 
 
@@ -752,6 +761,7 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=30, help="with --growth: parts per object (default 30)")
     ap.add_argument("--objects", type=int, default=64, help="with --growth: objects grown (default 64)")
     ap.add_argument("--judge-first", type=int, help="with --growth: the sampler's judge_first (default: its own)")
+    ap.add_argument("--check-batch", type=int, help="with --growth: the sampler's check_batch (default: its own)")
     add_mps_flag(ap)
     args = ap.parse_args(argv)
     global MPS_MODE
@@ -760,7 +770,7 @@ def main(argv=None) -> int:
     log = lambda r: print(json.dumps(r), flush=True)
     if args.growth:
         rows = measure_growth(args.backends.split(",")[0], batches, args.steps, args.objects, log=log,
-                              procs=args.procs, judge_first=args.judge_first)
+                              procs=args.procs, judge_first=args.judge_first, check_batch=args.check_batch)
     elif args.sweep:
         rows = measure_sweep(sizes, batches, 512 if args.cpu_max is None else args.cpu_max, log=log,
                              cpu_workers=args.cpu_workers, batched=not args.reference_only, procs=args.procs)

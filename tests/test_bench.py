@@ -83,6 +83,8 @@ def test_growth_rows_grow_the_same_objects_at_every_batch(capsys):
     assert [r["batch"] for r in rows] == [1, 3]
     assert rows[0]["steps"] == rows[1]["steps"] > 0
     assert all(r["steps_per_s"] > 0 and r["stage_seconds"]["rules"] > 0 for r in rows)
+    # the process's CPU seconds in the window: this path is all host work
+    assert all(0 < r["cpu_seconds"] and r["cpu_share"] > 0.5 for r in rows)
 
 
 def test_growth_in_several_processes_grows_the_same_objects(capfd):
@@ -96,6 +98,7 @@ def test_growth_in_several_processes_grows_the_same_objects(capfd):
     assert err.count("warm-up in") == 2 and err.count("2 of 2 objects") == 2
     assert two["procs"] == 2 and two["batch"] == 2 and one["procs"] == 1
     assert two["steps"] == one["steps"] == 12 and two["steps_per_s"] > 0 and two["stage_seconds"]["rules"] > 0
+    assert two["cpu_seconds"] > 0 and abs(two["cpu_share"] - two["cpu_seconds"] / (2 * two["seconds"])) < 0.01
 
 
 def _noop():

@@ -371,3 +371,14 @@ def test_clutch_programs_on_the_device_give_the_verdicts_of_highs():
     highs = holds_alone_many(cases, cfg)
     assert device == highs
     assert 0 < sum(highs) < len(highs)  # both verdicts occur
+
+
+def test_the_arrays_cross_products_are_numpys_bit_for_bit():
+    """`_load_arrays` takes its torques from `lp_jax._cross`, written out for (n, 3) rows: the
+    same bits as `np.cross`, so the programs are unchanged."""
+    from factory.physics.lp_jax import _cross
+
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 7, 500):
+        a, b = rng.normal(size=(n, 3)) * 60, rng.normal(size=(n, 3))
+        assert _cross(a, b).tobytes() == np.cross(a, b).tobytes()

@@ -260,6 +260,29 @@ def test_candidate_order_computes_only_the_densities_it_needs(twelve_parts, weig
         assert computed < total
 
 
+def test_candidate_density_is_the_hull_volume_convex_hull_gives(twelve_parts):
+    """A candidate's exact density reads qhull's volume without `ConvexHull`'s facet arrays
+    (`density._volume`): the same number, bit for bit, on real candidates of a 12-part object, and
+    0 for a flat point set."""
+    from scipy.spatial import ConvexHull
+
+    from factory.physics.attach import attachment_arrays
+    from factory.sampler.density import _Qhull, _volume
+
+    assert _Qhull is not None  # the pinned scipy has it; the fallback is ConvexHull itself
+    sampler, (tracker, structure) = twelve_parts
+    compared = 0
+    for part in sampler.parts[::4]:
+        r, t = attachment_arrays(structure, part)
+        cands = tracker.candidates(part, r[:40], t[:40])
+        for i in range(len(cands.points)):
+            points = np.concatenate([tracker.points, cands.points[i][cands.outside[i]]])
+            assert _volume(points) == ConvexHull(points).volume
+            compared += 1
+    assert compared > 100
+    assert _volume(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])) == 0.0
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc; the parent-death signal is Linux's")
 def test_sample_workers_end_with_a_killed_command(tmp_path):
     """`kill -9` of `pipelines.sample --workers 2` ends its worker processes too."""

@@ -188,3 +188,21 @@ def test_a_units_model_from_the_structures_load_base_is_the_component_holding_it
         assert got.parts.tolist() == want.parts.tolist()
         for field in want.__dataclass_fields__:
             assert np.array_equal(getattr(got, field), getattr(want, field)), field
+
+
+def test_clutch_case_keys_round_each_position_and_axis_alone():
+    """`holds_alone_many` keys a case by its connections relative to its centre of mass, rounded
+    (`statics._alone_key`, which rounds all of a case's rows at once): the key is the one rounding
+    each connection by itself gives, on random cases with positions off the grid."""
+    from factory.physics.statics import _alone_key
+
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        com = rng.normal(size=3) * 40
+        conns = [(bool(rng.integers(2)), rng.normal(size=3) * 40 + rng.normal(size=3) * 1e-7,
+                  rng.normal(size=3)) for _ in range(int(rng.integers(0, 6)))]
+        ground = rng.normal(size=(int(rng.integers(0, 4)), 3)) * 40
+        by_row = tuple((h, tuple(np.round(p - com, 6).tolist()), tuple(np.round(n, 9).tolist())) for h, p, n in conns)
+        key = _alone_key(0.00234, com, conns, ground)
+        assert key[1] == by_row and key[0] == 0.00234
+        assert key[2] == tuple(map(tuple, np.round(ground - com, 6).tolist()))

@@ -646,10 +646,13 @@ _ALONE: dict = {}
 
 def _alone_key(mass_kg, com, conns, ground) -> tuple:
     com = np.asarray(com, float)
-    rel = [(bool(h), tuple(np.round(np.asarray(p, float) - com, 6).tolist()), tuple(np.round(n, 9).tolist()))
-           for h, p, n in conns]
+    rel = ()
+    if conns:  # rounded as whole arrays: elementwise, so the same numbers as row by row
+        pos = np.round(np.array([p for _, p, _ in conns], float).reshape(-1, 3) - com, 6).tolist()
+        axes = np.round(np.array([n for _, _, n in conns], float).reshape(-1, 3), 9).tolist()
+        rel = tuple((bool(h), tuple(p), tuple(n)) for (h, _, _), p, n in zip(conns, pos, axes))
     g = tuple(map(tuple, np.round(np.asarray(ground, float).reshape(-1, 3) - com, 6).tolist()))
-    return float(mass_kg), tuple(rel), g
+    return float(mass_kg), rel, g
 
 
 def _alone_unkey(key: tuple) -> tuple:

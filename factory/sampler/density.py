@@ -18,6 +18,11 @@ from typing import Iterable
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+try:  # qhull without the facet arrays `ConvexHull` builds; the same volume (see `_volume`)
+    from scipy.spatial._qhull import _Qhull
+except ImportError:  # a scipy that moved it: `ConvexHull` gives the same number
+    _Qhull = None
+
 from factory.parts import Part
 from factory.pose import Pose
 
@@ -40,6 +45,24 @@ def _hull(points: np.ndarray, areas: bool = False):
         a, b, c = (points[h.simplices[:, k]] for k in range(3))
         area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
     return float(h.volume), points[h.vertices], h.equations, area
+
+
+def _volume(points: np.ndarray) -> float:
+    """The volume of the points' hull (0 when it is flat or too small): qhull's run as
+    `ConvexHull` makes it (option Qt, triangulated), read without building its facet arrays. A
+    candidate's density needs the volume alone, and the sampler asks for ~17 a step (0.16 ms
+    against 0.25 ms for 150 points on the development machine)."""
+    if _Qhull is None:
+        return _hull(points)[0]
+    try:
+        q = _Qhull(b"i", np.ascontiguousarray(points, dtype=np.double), b"", required_options=b"Qt")
+    except (QhullError, ValueError):
+        return 0.0
+    try:
+        q.triangulate()
+        return float(q.volume_area()[0])
+    finally:
+        q.close()
 
 
 INSIDE_LDU = 1e-9
@@ -127,7 +150,7 @@ class CandidateDensities:
             p = self.points[i]
             if self.tracker.planes is not None:
                 p = p[self.outside[i]]
-            hull, _ = hull_volume(np.concatenate([self.tracker.points, p]))
+            hull = _volume(np.concatenate([self.tracker.points, p]))
             self._exact[i] = self.volume / hull if hull > 0 else 0.0
         return self._exact[i]
 
