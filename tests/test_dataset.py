@@ -406,6 +406,62 @@ def test_gpu_share_of_a_numbered_worker(monkeypatch):
     assert gpus.choose_egl_device() is None and "MUJOCO_EGL_DEVICE_ID" not in os.environ
 
 
+def test_a_waiting_shard_renders_each_object_as_it_is_grown(tmp_path):
+    """`build_shard(..., wait=True)` (a lockstep build's shard started before its objects are all
+    grown) renders each object as it is spooled, whatever its index, waits while the growers run,
+    grows what is still missing itself once they stop, and writes the same bytes as a shard built
+    in one go."""
+    import threading
+
+    from factory.sampler import Sampler
+    from pipelines.dataset import spool
+    from pipelines.dataset.shards import build_shard, object_source
+
+    config = _config(objects_per_shard=3)
+    whole = tmp_path / "whole"
+    build_shard(config, 0, whole)
+    source = object_source(config)
+    made, rendered, failed = [], [], []
+
+    class Recording:  # the build's own source, recording which objects came grown
+        def object(self, index, oid, grown=None):
+            made.append((index, grown is not None))
+            return source.object(index, oid, grown)
+
+    def run():
+        try:
+            build_shard(config, 0, out, progress=rendered.append, source=Recording(), wait=True)
+        except Exception as exc:  # noqa: BLE001 - reported by the test
+            failed.append(exc)
+
+    def until(condition, seconds=120.0):
+        end = time.monotonic() + seconds
+        while not condition() and time.monotonic() < end and not failed:
+            time.sleep(0.05)
+        assert condition(), failed
+
+    out = tmp_path / "waiting"
+    sampler = Sampler(config.sampler, config.ldraw)
+    grown = {i: sampler.sample(i) for i in (0, 2)}
+    worker = threading.Thread(target=run)
+    with spool.growers_running(out):
+        spool.put(out, 2, grown[2], 1.0)
+        worker.start()
+        until(lambda: len(rendered) == 1)
+        time.sleep(1.0)  # the shard now waits: objects 0 and 1 are neither grown nor made
+        assert made == [(2, True)]
+        spool.put(out, 0, grown[0], 1.0)
+        until(lambda: len(rendered) == 2)
+    # the growers stopped without object 1: the shard grows it itself
+    worker.join(300)
+    assert not worker.is_alive() and not failed
+    assert made == [(2, True), (0, True), (1, False)]
+    files = sorted(p.name for p in (whole / "data").glob("*.parquet"))
+    assert files and files == sorted(p.name for p in (out / "data").glob("*.parquet"))
+    assert all((out / "data" / f).read_bytes() == (whole / "data" / f).read_bytes() for f in files)
+    assert not spool.growers_active(out)
+
+
 def test_largest_shards_are_scheduled_first():
     from factory.sampler.sampler import target_steps
     from pipelines.dataset.build import largest_first

@@ -213,16 +213,17 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, grower
     """A lockstep build: `growers` tasks (default two thirds of the workers) grow the objects of the
     missing shards, each the objects of every G-th shard `batch` at a time (`spool.grow`: each
     kept in `spool` as it ends), while the other workers render and encode each shard whose objects
-    are all grown (the shard function): physics and rendering overlap, and every grower's checks go
-    to the device. Returns the failed shards as `_run_local` does."""
+    are all grown, or, when a worker is free, one whose objects are partly grown, rendering each
+    object as it is grown (the shard function, `wait=True`): physics and rendering overlap, and
+    every grower's checks go to the device. Returns the failed shards as `_run_local` does."""
     workers = max(1, workers)
     growers = growers_of(workers, growers)
     # (An unreadable or foreign spool entry counts as grown here; the shard function grows it.)
     missing = {k: [i for i in config.shard_objects(k) if not spool.has(out, i)] for k in todo}
-    # Each grower takes whole shards (every G-th, in order), so a shard's objects end together and
-    # its render starts as soon as they have.
+    # Each grower takes whole shards (every G-th, in order), so a shard's objects end close together.
     parts = [[i for k in todo[g::growers] for i in missing[k]] for g in range(growers)]
     waiting = {k: set(v) for k, v in missing.items()}
+    rank = {k: r for r, k in enumerate(todo)}
     errors: list = []
     running: dict = {}
     with ExitStack() as stack:
@@ -231,15 +232,17 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, grower
 
             task = stack.enter_context(_ray_tasks(workers))
             grow_task = ray.remote(num_cpus=1, max_retries=2)(spool.grow)
-            submit = lambda k: task.remote(config.to_json(), k, str(out))  # noqa: E731
+            submit = lambda k: task.remote(config.to_json(), k, str(out), None, None, True)  # noqa: E731
             submit_grow = lambda part: grow_task.remote(config.to_json(), part, str(out), batch)  # noqa: E731
             finish = ray.get
         else:
             # Growers are submitted first: they hold `growers` of the workers while they run.
             pool = stack.enter_context(workers_pool(workers))
-            submit = lambda k: pool.submit(build_shard, config.to_json(), k, str(out))  # noqa: E731
+            submit = lambda k: pool.submit(build_shard, config.to_json(), k, str(out), None, None, True)  # noqa: E731
             submit_grow = lambda part: pool.submit(spool.grow, config.to_json(), part, str(out), batch)  # noqa: E731
             finish = lambda f: f.result()  # noqa: E731
+        # While this is there, a shard started before its objects are all grown waits for them.
+        stack.enter_context(spool.growers_running(out))
         grow_jobs = [submit_grow(part) for part in parts if part]
 
         def collect(block: bool) -> None:
@@ -259,13 +262,29 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, grower
                 except Exception as exc:  # noqa: BLE001 - the shards then grow their objects themselves
                     print(f"warning: a grower failed ({type(exc).__name__}: {exc}); its shards grow their "
                           f"own objects", file=sys.stderr)
+                    spool.growers_stopped(out)
+            if not grow_jobs:
+                spool.growers_stopped(out)
+            collect(False)
             grown = spool.present(out)
             for k in list(waiting):
                 waiting[k] -= grown
                 if not waiting[k] or not grow_jobs:
                     del waiting[k]
                     running[k] = submit(k)
-            collect(False)
+            # Then, while a worker is free, the shard with the most objects grown, in schedule order:
+            # it renders each object as it is grown (`build_shard(..., wait=True)`). In lockstep an
+            # object ends only after as many rounds as it has parts, so a shard waiting for all of
+            # its objects left the renderers idle while its slowest grew.
+            free = workers - len(grow_jobs) - len(running)
+            while free > 0:
+                started = [k for k in waiting if len(waiting[k]) < len(config.shard_objects(k))]
+                if not started:
+                    break
+                k = min(started, key=lambda k: (len(waiting[k]), rank[k]))
+                del waiting[k]
+                running[k] = submit(k)
+                free -= 1
             if waiting:
                 time.sleep(0.2)
         collect(True)

@@ -137,13 +137,41 @@ def _part_images():
     return PartImages()
 
 
+WAIT_POLL_S = 0.2
+"""How often a waiting shard (`build_shard(..., wait=True)`) looks for newly grown objects."""
+
+
+def _arrivals(out: Path, config: DatasetConfig, indices: list[int], wait: bool):
+    """(index, grown) for each object of a shard, `grown` from `spool` or None (the shard makes the
+    object itself). In index order; with `wait`, a synthetic object grown ahead is taken as soon as
+    it is there, whatever its index, and while the build's growers run (`spool.growers_active`) the
+    shard waits for its next grown object rather than growing one itself."""
+    left = list(indices)
+    synthetic = config.source == "synthetic"
+    while left:
+        pick = left[0]
+        if wait and synthetic:
+            present = spool.present(out)
+            ready = [i for i in left if i in present]
+            if not ready and spool.growers_active(out):
+                time.sleep(WAIT_POLL_S)
+                continue
+            pick = ready[0] if ready else left[0]
+        left.remove(pick)
+        yield pick, spool.get(out, pick, config.seed) if synthetic else None
+
+
 def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike, progress=None,
-                source=None) -> Path:
+                source=None, wait: bool = False) -> Path:
     """Build shard `shard` of `config` into the folder `out`; returns its completion marker's path.
 
     `progress`, if given, is called with 1 after each object (in-process runs use it for a
     per-object progress bar). `source`: the object source (default `object_source(config)`); an
     object it gives with finished `rows` is written as it is (world feedback), else rendered.
+    `wait` (a lockstep build, started before all the shard's objects are grown): render each
+    object as it is grown (`_arrivals`), so rendering overlaps the growth of the shard's slowest
+    object; the files are the same bytes (rows are written in index order, an object's rows held
+    until those before it are written).
     """
     from pipelines.dataset.rows import object_rows  # lazy: it imports factory.render (GL at import)
 
@@ -164,28 +192,37 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
     counts = {s: {"objects": 0, "steps": 0} for s in SPLITS}
     stats: dict[str, dict[str, int]] = {}
     objects = []
+    def write(index, obj, rows):
+        oid, split = config.object_id(index), config.split(index)
+        t = time.perf_counter()
+        if rows:
+            writers[split].write_table(pa.Table.from_pylist(rows, schema=schema))
+        timings["write"] += time.perf_counter() - t
+        counts[split]["objects"] += 1
+        counts[split]["steps"] += len(rows)
+        for group, counter in obj.stats.items():
+            agg = stats.setdefault(group, {})
+            for reason, n in counter.items():
+                agg[str(reason)] = agg.get(str(reason), 0) + int(n)
+        objects.append({"index": index, "object_id": oid, "split": split, "steps": len(rows), **obj.info})
+
     try:
         source = source if source is not None else object_source(config)
-        for index in config.shard_objects(shard):
+        indices = config.shard_objects(shard)
+        made: dict[int, tuple] = {}  # objects made out of index order, until those before them are written
+        at = 0
+        for index, grown in _arrivals(out, config, indices, wait):
             oid = config.object_id(index)
-            split = config.split(index)
-            grown = spool.get(out, index, config.seed) if config.source == "synthetic" else None
             obj = source.object(index, oid, grown) if grown is not None else source.object(index, oid)
             for k, v in obj.timings.items():
                 timings[k] = timings.get(k, 0.0) + v
-            rows = obj.rows if obj.rows is not None else object_rows(obj, config, split, timings, _part_images())
-            t = time.perf_counter()
-            if rows:
-                writers[split].write_table(pa.Table.from_pylist(rows, schema=schema))
-            timings["write"] += time.perf_counter() - t
-            counts[split]["objects"] += 1
-            counts[split]["steps"] += len(rows)
-            for group, counter in obj.stats.items():
-                agg = stats.setdefault(group, {})
-                for reason, n in counter.items():
-                    agg[str(reason)] = agg.get(str(reason), 0) + int(n)
-            objects.append({"index": index, "object_id": oid, "split": split, "steps": len(rows), **obj.info})
+            rows = obj.rows if obj.rows is not None else object_rows(obj, config, config.split(index), timings,
+                                                                     _part_images())
+            made[index] = (obj, rows)
             del rows
+            while at < len(indices) and indices[at] in made:
+                write(indices[at], *made.pop(indices[at]))
+                at += 1
             if progress is not None:
                 progress(1)
         t = time.perf_counter()

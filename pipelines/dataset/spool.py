@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 import pickle
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 from factory.atomic import write_atomic
@@ -59,6 +60,42 @@ def present(out) -> set[int]:
     except FileNotFoundError:
         return set()
     return {int(n[:-4]) for n in names if n.endswith(".pkl") and n[:-4].isdigit()}
+
+
+GROWING = ".growing"
+"""A file in the spool folder while a build's growers run (`growers_running`): a shard started
+before all its objects are grown waits for them (`build_shard(..., wait=True)`) instead of
+growing them itself."""
+
+
+def growing_path(out) -> Path:
+    return spool_path(out, 0).parent / GROWING
+
+
+@contextmanager
+def growers_running(out):
+    """Say, for the span of the block, that growers are growing this build's objects (the file
+    `GROWING`); removed when the block ends, however it ends, or earlier by `growers_stopped`."""
+    path = growing_path(out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(str(os.getpid()).encode())
+    try:
+        yield
+    finally:
+        growers_stopped(out)
+
+
+def growers_stopped(out) -> None:
+    """No object is grown ahead any more (a grower failed, or all ended): waiting shards grow what
+    is still missing themselves."""
+    try:
+        os.unlink(growing_path(out))
+    except FileNotFoundError:
+        pass
+
+
+def growers_active(out) -> bool:
+    return growing_path(out).exists()
 
 
 def drop(out, indices) -> None:
