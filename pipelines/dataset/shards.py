@@ -192,7 +192,9 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
     counts = {s: {"objects": 0, "steps": 0} for s in SPLITS}
     stats: dict[str, dict[str, int]] = {}
     objects = []
+
     def write(index, obj, rows):
+        """One object's rows into its split's file, its counts and statistics into the marker's."""
         oid, split = config.object_id(index), config.split(index)
         t = time.perf_counter()
         if rows:
