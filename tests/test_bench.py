@@ -83,8 +83,9 @@ def test_growth_rows_grow_the_same_objects_at_every_batch(capsys):
     assert [r["batch"] for r in rows] == [1, 3]
     assert rows[0]["steps"] == rows[1]["steps"] > 0
     assert all(r["steps_per_s"] > 0 and r["stage_seconds"]["rules"] > 0 for r in rows)
-    # the process's CPU seconds in the window: this path is all host work
-    assert all(0 < r["cpu_seconds"] and r["cpu_share"] > 0.5 for r in rows)
+    # the process's CPU seconds in the window, and their share of it (not bounded here: a loaded
+    # machine makes the process wait for a core)
+    assert all(0 < r["cpu_seconds"] and abs(r["cpu_share"] - r["cpu_seconds"] / r["seconds"]) < 0.01 for r in rows)
 
 
 def test_growth_in_several_processes_grows_the_same_objects(capfd):
