@@ -27,15 +27,10 @@ from factory.parts import Part
 from factory.pose import Pose
 
 
-def hull_volume(points: np.ndarray) -> tuple[float, np.ndarray]:
-    """(volume, hull vertices) of a point set; (0, points) when it is flat or too small."""
-    volume, vertices, _, _ = _hull(points)
-    return volume, vertices
-
-
 def _hull(points: np.ndarray, areas: bool = False):
-    """`hull_volume`, the hull's facet planes (n . x + d <= 0 inside, unit n; None without a hull)
-    and, with `areas`, each facet's area (qhull's facets are triangles, one plane each)."""
+    """(volume, hull vertices) of a point set ((0, points) when it is flat or too small), the
+    hull's facet planes (n . x + d <= 0 inside, unit n; None without a hull) and, with `areas`,
+    each facet's area (qhull's facets are triangles, one plane each)."""
     try:
         h = ConvexHull(points)
     except (QhullError, ValueError):

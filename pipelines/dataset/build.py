@@ -244,6 +244,7 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, grower
         # While this is there, a shard started before its objects are all grown waits for them.
         stack.enter_context(spool.growers_running(out))
         grow_jobs = [submit_grow(part) for part in parts if part]
+        growing = True  # until the spool's mark is removed: a grower failed, or none is left
 
         def collect(block: bool) -> None:
             for k in [k for k, f in running.items() if block or _done(f)]:
@@ -256,15 +257,17 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, grower
         while waiting:
             ended = [f for f in grow_jobs if _done(f)]
             grow_jobs = [f for f in grow_jobs if f not in ended]
+            failed = False
             for f in ended:
                 try:
                     finish(f)
                 except Exception as exc:  # noqa: BLE001 - the shards then grow their objects themselves
                     print(f"warning: a grower failed ({type(exc).__name__}: {exc}); its shards grow their "
                           f"own objects", file=sys.stderr)
-                    spool.growers_stopped(out)
-            if not grow_jobs:
+                    failed = True
+            if growing and (failed or not grow_jobs):
                 spool.growers_stopped(out)
+                growing = False
             collect(False)
             grown = spool.present(out)
             for k in list(waiting):
