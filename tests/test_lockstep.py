@@ -167,3 +167,32 @@ def test_judge_first_leaves_only_later_survivors_unjudged(backend):
     assert unjudged >= 10  # requests with more survivors than two: the limit was exercised
     with pytest.raises(ValueError, match="judge_first must be None or >= 1"):
         check_many([replace(requests[0], judge_first=0)], backend)
+
+
+def _asked(s: Sampler, index: int) -> tuple[list[int], bytes]:
+    """The sizes of object `index`'s check requests (each answered by `check_many` alone, so
+    `judge_first` holds) and the object's LDraw bytes."""
+    gen, sizes = s.growth(index), []
+    req = next(gen)
+    while True:
+        sizes.append(len(req.poses))
+        (verdicts,) = check_many([req], s.config.backend, s.config.check, explain=False)
+        try:
+            req = gen.send(verdicts)
+        except StopIteration as end:
+            return sizes, end.value.ldr_text(f"object_{index:05d}.ldr").encode()
+
+
+def test_check_batch_bounds_each_request_and_smaller_requests_ask_fewer_candidates():
+    """A request holds at most `check_batch` candidates: the walk's next one and the next unasked
+    ones by their keys' bounds. Smaller requests check fewer candidates in all (the walk stops at
+    the first survivor, usually long before a draw's last candidate) and grow the same objects."""
+    cfg = {**TINY, "candidates_per_step": 16, "min_steps": 5, "max_steps": 5}
+    asked = {}
+    for k in (3, 16):
+        s = Sampler(SamplerConfig(seed=5, **{**cfg, "check_batch": k}))
+        asked[k] = [_asked(s, i) for i in range(3)]
+        assert max(n for sizes, _ in asked[k] for n in sizes) <= k
+    assert [ldr for _, ldr in asked[3]] == [ldr for _, ldr in asked[16]]
+    assert sum(map(sum, (sizes for sizes, _ in asked[3]))) < sum(map(sum, (sizes for sizes, _ in asked[16])))
+    assert max(n for sizes, _ in asked[16] for n in sizes) > 3  # the larger bound was used

@@ -11,12 +11,14 @@ Growth, per step:
 4. choose among those that pass the physics checks (`factory.physics.check.check`, ground fixed at
    the first part's lowest point) by a softmax of `density_weight * n * ln(density) / temperature`
    (n = parts after placement; see `SamplerConfig.temperature`). The softmax is drawn by the
-   Gumbel-max trick: key = logit + Gumbel noise, candidates are checked in batches of
-   `check_batch` in decreasing key order, and the first survivor is the choice. That is exactly
-   the softmax over all survivors of the subset (the argmax of logit + Gumbel over the survivors),
-   whatever `check_batch` is; it only spares checking the candidates after it. Within a batch
-   only the first `judge_first` candidates past the clutch rule get the sweep and the loads; a
-   later request judges more if the walk in key order reaches an unjudged one first;
+   Gumbel-max trick: key = logit + Gumbel noise, candidates are walked in decreasing key order,
+   and the first survivor is the choice. That is exactly the softmax over all survivors of the
+   subset (the argmax of logit + Gumbel over the survivors), and it spares checking the
+   candidates after it. When the walk reaches a candidate not checked yet, one request asks it
+   and, after it, the next unasked candidates by their keys' upper bounds, up to `check_batch`
+   (so densities are computed only as far as the walk goes); within a request only the first
+   `judge_first` candidates past the clutch rule get the sweep and the loads, and a later request
+   judges more if the walk reaches an unjudged one. Neither changes the object, only the cost;
 5. if none survives, draw another part (and colour), at most `max_redraws` times, then end the
    object ('stuck', with the rejections of that step).
 The first part is placed at the origin with the identity rotation (its lowest point fixes the
@@ -26,7 +28,6 @@ ground) and is checked like any other (it must stand on its own).
 from __future__ import annotations
 
 import difflib
-import itertools
 import os
 from collections import Counter
 from typing import Generator, Iterable, Iterator
@@ -37,7 +38,7 @@ from factory.errors import LDrawError
 from factory.ldraw import ColourTable, Reader, get_reader
 from factory.ldraw.colours import EDGE, MAIN
 from factory.parts import Part, load_part
-from factory.physics.check import CheckRequest
+from factory.physics.check import CheckRequest, Verdict
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
 from factory.sampler.assembly import Assembly, AssemblyStep
@@ -143,39 +144,42 @@ class Sampler:
                 n = len(steps) + 1  # parts after placement
                 order = KeyOrder(tracker.candidates(part, r, t), cfg.density_weight * n, cfg.temperature,
                                  rng.gumbel(size=len(poses)))
-                while chosen is None and order.left:
-                    if order.left <= cfg.check_batch:
-                        # The rest in one request: which of them is first is settled after the
-                        # checks, so only the densities down to the first survivor are computed.
-                        batch, walk = order.rest(), order
-                    else:
-                        batch = list(itertools.islice(order, cfg.check_batch))
-                        walk = iter(batch)
-                    # A rejected candidate's reason is counted, never its failing connections.
-                    # Only the first `judge_first` candidates past the clutch rule are swept and
-                    # load-judged (the dearest checks); the rest come back None.
-                    verdicts = yield CheckRequest(structure, part, tuple(poses[i] for i in batch), colour, ground,
-                                                  judge_first=cfg.judge_first)
-                    verdict_of = dict(zip(batch, verdicts))
-                    for i in walk:
-                        checked += 1
-                        v = verdict_of[i]
-                        while v is None:
-                            # Next in key order but not judged: it and the next unjudged ones, in
-                            # the request's order, go again with every check (the verdict of a
-                            # candidate does not depend on the others asked with it).
-                            again = [i] + [j for j in batch if j != i and verdict_of[j] is None][:cfg.judge_first - 1]
-                            more = yield CheckRequest(structure, part, tuple(poses[j] for j in again), colour, ground,
+                # Each candidate's verdict, once asked (it does not depend on the others asked with
+                # it), and those asked whose sweep and loads were left for later (`judge_first`).
+                verdict_of: dict[int, Verdict] = {}
+                unjudged: set[int] = set()
+                for i in order:  # exact key order; the walk stops at the first survivor
+                    checked += 1
+                    if i not in verdict_of:
+                        if i in unjudged:
+                            # Past the clutch rule but not judged: it and the next unjudged ones go
+                            # again with every check.
+                            ask = [i] + [j for j in order.rest() if j in unjudged][:cfg.judge_first - 1]
+                        else:
+                            # It and, after it, the next candidates not asked yet in the order of
+                            # their keys' bounds, up to `check_batch` in one request: their
+                            # densities are computed only if the walk reaches them.
+                            ask = [i] + [j for j in order.rest() if j not in verdict_of and j not in unjudged
+                                         ][:cfg.check_batch - 1]
+                        # A rejected candidate's reason is counted, never its failing connections.
+                        # Only the first `judge_first` candidates past the clutch rule are swept
+                        # and load-judged (the dearest checks); the rest come back None.
+                        verdicts = yield CheckRequest(structure, part, tuple(poses[j] for j in ask), colour, ground,
                                                       judge_first=cfg.judge_first)
-                            verdict_of.update((j, w) for j, w in zip(again, more) if w is not None)
-                            v = verdict_of[i]
-                            if v is None:
-                                raise RuntimeError(f"object {index}: the checker left the first candidate of a "
-                                                   f"request unjudged (judge_first={cfg.judge_first})")
-                        if v.ok:
-                            chosen = (part, colour, v, ground, draw + 1, feasible)
-                            break
-                        rejected[v.reason] += 1
+                        for j, w in zip(ask, verdicts):
+                            if w is None:
+                                unjudged.add(j)
+                            else:
+                                verdict_of[j] = w
+                                unjudged.discard(j)
+                        if i not in verdict_of:
+                            raise RuntimeError(f"object {index}: the checker left the first candidate of a "
+                                               f"request unjudged (judge_first={cfg.judge_first})")
+                    v = verdict_of[i]
+                    if v.ok:
+                        chosen = (part, colour, v, ground, draw + 1, feasible)
+                        break
+                    rejected[v.reason] += 1
                 if chosen is not None:
                     break
             if chosen is None:
