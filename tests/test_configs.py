@@ -143,6 +143,8 @@ def test_check_thresholds_are_recorded_only_when_changed():
 def test_check_batch_default_follows_the_backend():
     assert SamplerConfig().check_batch == 1
     assert SamplerConfig(backend="mjx", candidates_per_step=16).check_batch == 16
+    assert SamplerConfig(backend="mjx").check_batch == 16  # MJX_CHECK_BATCH, below the 64 candidates
+    assert SamplerConfig(backend="mjx", candidates_per_step=8).check_batch == 8
     assert SamplerConfig(backend="mjx", candidates_per_step=16, check_batch=4).check_batch == 4
     with pytest.raises(SamplerConfigError, match="check_batch must be >= 1"):
         SamplerConfig(check_batch=0)

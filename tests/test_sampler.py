@@ -157,7 +157,7 @@ def test_config_is_frozen_and_normalised():
     # judge_first only changes the cost: left out of the recorded settings at its default, kept
     # when set otherwise, and read back to the same config either way.
     mjx = SamplerConfig(backend="mjx")
-    assert (mjx.check_batch, mjx.judge_first) == (64, 4) and SamplerConfig().judge_first == 1
+    assert (mjx.check_batch, mjx.judge_first) == (16, 4) and SamplerConfig().judge_first == 1
     assert "judge_first" not in mjx.to_dict() and SamplerConfig.from_dict(mjx.to_dict()) == mjx
     two = SamplerConfig(backend="mjx", judge_first=2)
     assert two.to_dict()["judge_first"] == 2 and SamplerConfig.from_dict(two.to_dict()) == two
