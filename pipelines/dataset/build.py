@@ -232,13 +232,13 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, grower
 
             task = stack.enter_context(_ray_tasks(workers))
             grow_task = ray.remote(num_cpus=1, max_retries=2)(spool.grow)
-            submit = lambda k: task.remote(config.to_json(), k, str(out), None, None, True)  # noqa: E731
+            submit = lambda k: task.remote(config.to_json(), k, str(out), wait=True)  # noqa: E731
             submit_grow = lambda part: grow_task.remote(config.to_json(), part, str(out), batch)  # noqa: E731
             finish = ray.get
         else:
             # Growers are submitted first: they hold `growers` of the workers while they run.
             pool = stack.enter_context(workers_pool(workers))
-            submit = lambda k: pool.submit(build_shard, config.to_json(), k, str(out), None, None, True)  # noqa: E731
+            submit = lambda k: pool.submit(build_shard, config.to_json(), k, str(out), wait=True)  # noqa: E731
             submit_grow = lambda part: pool.submit(spool.grow, config.to_json(), part, str(out), batch)  # noqa: E731
             finish = lambda f: f.result()  # noqa: E731
         # While this is there, a shard started before its objects are all grown waits for them.

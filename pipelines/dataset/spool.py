@@ -27,8 +27,13 @@ SPOOL_VERSION = 1
 """Bumped when what is written here changes; an entry of another version is grown again."""
 
 
+def folder(out) -> Path:
+    """The build's spool folder."""
+    return Path(out) / "meta" / "spool"
+
+
 def spool_path(out, index: int) -> Path:
-    return Path(out) / "meta" / "spool" / f"{index:07d}.pkl"
+    return folder(out) / f"{index:07d}.pkl"
 
 
 def put(out, index: int, assembly, seconds: float) -> None:
@@ -56,7 +61,7 @@ def has(out, index: int) -> bool:
 def present(out) -> set[int]:
     """The indices of every object kept here (one listing of the folder)."""
     try:
-        names = os.listdir(spool_path(out, 0).parent)
+        names = os.listdir(folder(out))
     except FileNotFoundError:
         return set()
     return {int(n[:-4]) for n in names if n.endswith(".pkl") and n[:-4].isdigit()}
@@ -69,7 +74,7 @@ growing them itself."""
 
 
 def growing_path(out) -> Path:
-    return spool_path(out, 0).parent / GROWING
+    return folder(out) / GROWING
 
 
 @contextmanager
