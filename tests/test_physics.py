@@ -15,8 +15,9 @@ from factory import Pose, load_part
 from factory.physics.check import CheckConfig, check, check_units
 from factory.physics.geometry import DecompositionConfig, cache_dir, collision_shape
 from factory.physics.statics import LoadConfig
-from factory.physics.attach import feasible_poses
-from factory.physics.structure import Placed, Structure, align, canonical_key
+from factory.physics import attach
+from factory.physics.attach import attachment_arrays, feasible_poses
+from factory.physics.structure import Placed, Structure, align, canonical_key, match
 from factory.symmetry import rotation_about
 from conftest import at, part
 
@@ -88,6 +89,57 @@ def test_enumeration_matches_the_plain_loop_with_side_studs(real_reader):
         mine, theirs = feasible_poses(s, real[name]), _plain_loop(s, real[name])
         assert len(mine) == len(theirs) > 0
         assert all(a.allclose(b) for a, b in zip(mine, theirs))
+
+
+def _occupied_from_scratch(structure):
+    """Every stud and socket of two different parts that coincide with the same axis (`match` of
+    all of them at once, the definition)."""
+    sp, sa, so = structure.studs
+    kp, ka, ko = structure.sockets
+    studs, socks = np.zeros(len(sp), bool), np.zeros(len(kp), bool)
+    for i, j in match(sp, sa, kp, ka):
+        if so[i] != ko[j]:
+            studs[i] = socks[j] = True
+    return studs, socks
+
+
+def test_occupied_masks_kept_as_parts_come_match_the_definition():
+    """A structure of bricks, plates and a slope grown at random attachments (overlaps allowed:
+    parts covering several others' studs, studs under sockets of two parts): after every part,
+    the occupied masks kept by `add` equal `match` of all studs and sockets, and the list of
+    attachments does not change when the masks are changed by the caller."""
+    rng = np.random.default_rng(3)
+    names = ("3001", "3020", "3022", "3039", "3003")
+    s = Structure([at("3001", 0, 0, 0)])
+    for k in range(40):
+        p = part(names[k % len(names)])
+        r, t = attachment_arrays(s, p)
+        i = int(rng.integers(len(t)))
+        s.add(Placed(p, 4, Pose(r[i], t[i])))
+        studs, socks = s.occupied()
+        want_studs, want_socks = _occupied_from_scratch(s)
+        assert np.array_equal(studs, want_studs) and np.array_equal(socks, want_socks)
+    assert studs.sum() > 40 and socks.sum() > 40
+    studs[:] = True  # a copy: the structure's masks stay
+    assert not s.occupied()[0].all()
+
+
+def test_first_rows_packed_and_sorted_paths_agree_with_the_definition():
+    """`_first_rows` on integer rows (packed into one number when their spans fit, else sorted)
+    and on float rows: each distinct row's first index, ascending, and each row's group (the rank
+    of its first occurrence), as a dict over the rows in order gives them."""
+    rng = np.random.default_rng(0)
+    cases = [rng.integers(-3, 4, size=(500, 4)), rng.integers(0, 2, size=(7, 1)),
+             np.concatenate([rng.integers(-2**40, 2**40, size=(50, 3)), rng.integers(0, 3, size=(50, 1))], axis=1),
+             np.round(rng.integers(0, 3, size=(300, 3)) * 0.1, 9)]
+    cases.append(np.concatenate([cases[2], cases[2][::-1]]))  # spans too wide to pack: the sorted path
+    assert attach._packed(cases[2]) is None and attach._packed(cases[0]) is not None
+    for keys in cases:
+        seen: dict[tuple, int] = {}
+        group = np.array([seen.setdefault(tuple(row), len(seen)) for row in keys.tolist()])
+        firsts = np.array([group.tolist().index(g) for g in range(len(seen))])
+        got_firsts, got_group = attach._first_rows(keys)
+        assert np.array_equal(got_firsts, firsts) and np.array_equal(got_group, group)
 
 
 def test_occupied_studs_are_not_offered():

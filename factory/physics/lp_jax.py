@@ -798,22 +798,23 @@ def solve_on_bases(groups: Sequence[tuple], cfg: LoadConfig | None = None, *, to
             m = shape[2]
             arrays = _empty(*shape)
             arrays["c"][:, 0] = 1.0
-            # The chunk's members by group, each group's candidates written together.
-            rows_of: dict[int, list[tuple[int, int]]] = {}
+            # Every candidate's own columns in one go (row r of `new` is the chunk's row r, in the
+            # widest group's columns), then each group's rows joined to its structure's block.
+            rows_of: dict[int, list[int]] = {}
             for row, e in enumerate(chunk):
-                gi, i = members[e]
-                rows_of.setdefault(gi, []).append((row, i))
-            for gi, pairs in rows_of.items():
-                own, _, n_block, width, block = info[gi]
-                rows = np.array([r for r, _ in pairs])
-                new = _load_arrays([own[i] for _, i in pairs], cfg, len(pairs), width, m, 12, 2)
+                rows_of.setdefault(members[e][0], []).append(row)
+            widest = max(info[gi][3] for gi in rows_of)
+            new = _load_arrays([info[members[e][0]][0][members[e][1]] for e in chunk], cfg, len(chunk), widest, m, 12, 2)
+            for gi, rows in rows_of.items():
+                _, _, n_block, width, block = info[gi]
+                rows = np.array(rows)
                 # Columns: s, the structure's (connections, supports, links), the candidate's own.
                 for key in _ASSEMBLED:
-                    arrays[key][rows, :1] = new[key][:, :1]
+                    arrays[key][rows, :1] = new[key][rows, :1]
                     arrays[key][rows, 1:1 + n_block] = block[key]
-                    arrays[key][rows, 1 + n_block:n_block + width] = new[key][:, 1:]
-                arrays["b"][rows] = new["b"]
-                arrays["link_col"][rows] = new["link_col"]
+                    arrays[key][rows, 1 + n_block:n_block + width] = new[key][rows, 1:width]
+            arrays["b"][:len(chunk)] = new["b"]
+            arrays["link_col"][:len(chunk)] = new["link_col"]
             for key, v in arrays.items():  # padding members copy the first (they converge with it)
                 v[len(chunk):] = v[0]
             x, status = _run(arrays, tol, max_iterations)

@@ -119,6 +119,8 @@ class Structure:
         self._sock_pos = np.zeros((0, 3))
         self._sock_axis = np.zeros((0, 3))
         self._sock_owner = np.zeros(0, np.int64)
+        self._stud_busy = np.zeros(0, bool)
+        self._sock_busy = np.zeros(0, bool)
         for p in parts:
             self.add(p)
 
@@ -128,10 +130,17 @@ class Structure:
         self.placed.append(placed)
         sp, sa = connectors(placed.part, placed.pose, "studs")
         kp, ka = connectors(placed.part, placed.pose, "sockets")
-        for i, _ in match(self._stud_pos, self._stud_axis, kp, ka):
+        stud_busy = np.concatenate([self._stud_busy, np.zeros(len(sp), bool)])
+        sock_busy = np.concatenate([self._sock_busy, np.zeros(len(kp), bool)])
+        # Each stud-socket pair of two parts is matched once, when the later part comes: the
+        # occupied masks follow from these matches (as `match` of all studs and sockets would).
+        for i, j in match(self._stud_pos, self._stud_axis, kp, ka):
             self.connections.append((int(self._stud_owner[i]), idx, self._stud_pos[i], self._stud_axis[i]))
+            stud_busy[i] = sock_busy[len(self._sock_pos) + j] = True
         for i, j in match(sp, sa, self._sock_pos, self._sock_axis):
             self.connections.append((idx, int(self._sock_owner[j]), sp[i], sa[i]))
+            stud_busy[len(self._stud_pos) + i] = sock_busy[j] = True
+        self._stud_busy, self._sock_busy = stud_busy, sock_busy
         self.links.extend(links)
         self._stud_pos = np.concatenate([self._stud_pos, sp])
         self._stud_axis = np.concatenate([self._stud_axis, sa])
@@ -152,13 +161,9 @@ class Structure:
         return self._sock_pos, self._sock_axis, self._sock_owner
 
     def occupied(self) -> tuple[np.ndarray, np.ndarray]:
-        """Boolean masks over studs and sockets: connected to another part of the structure."""
-        studs = np.zeros(len(self._stud_pos), bool)
-        socks = np.zeros(len(self._sock_pos), bool)
-        for i, j in match(self._stud_pos, self._stud_axis, self._sock_pos, self._sock_axis):
-            if self._stud_owner[i] != self._sock_owner[j]:
-                studs[i] = socks[j] = True
-        return studs, socks
+        """Boolean masks over studs and sockets: connected to another part of the structure (kept
+        as parts are added: `add`). Copies, so a caller may change them."""
+        return self._stud_busy.copy(), self._sock_busy.copy()
 
     def connections_with(self, part: Part, pose: Pose) -> list[tuple[int, str]]:
         """(structure part index, 'stud'|'socket') for each connection a placed part would make.
