@@ -269,3 +269,28 @@ def test_a_stud_reaching_into_the_path_is_referred_to_the_reference():
     assert sweep_jax.COUNTS["referred"] == before + 1
     assert ref.buildable is False and ref.blocked_by == (1,)
     assert got == ref
+
+
+def test_a_rounds_stacked_tables_go_to_the_device_once_and_are_not_widened_with_the_batch():
+    """The same sets' tables at the same padded row count give the same device stack (kept, not
+    sent again); other rows or sets give a new one, padded by repeating the first row; a lockstep
+    grower's widening of the per-structure caches leaves this cache at its own size."""
+    from factory.physics.keep_last import widened
+
+    brick = load_part(get_reader(None), "3001")
+    sets = [sweep_jax._structure_set(Structure([Placed(brick, 4, Pose(np.eye(3), np.array([x, 0.0, 0.0])))]))[0]
+            for x in (0.0, 40.0)]
+    parts = [sets[0].tables[0], sets[1].tables[0]]  # one bucket of two structures
+    n = [len(p[0]) for p in parts]
+    rows = 2 * sum(n)
+    first = sweep_jax._stacked(parts, rows)
+    assert sweep_jax._stacked(list(parts), rows) is first
+    assert sweep_jax._stacked(parts, 2 * rows) is not first
+    assert sweep_jax._stacked(parts[::-1], rows) is not first
+    assert all(x.shape[0] == rows for x in first) and str(first[0].dtype) == "float64"
+    verts = np.asarray(first[0])
+    np.testing.assert_array_equal(verts[:n[0]], parts[0][0])
+    np.testing.assert_array_equal(verts[n[0]:sum(n)], parts[1][0])
+    assert (verts[sum(n):] == parts[0][0][0]).all()  # padding repeats the first row
+    with widened(1000):
+        assert sweep_jax._STACKS.capacity == 32 and sweep_jax._STRUCTURE.capacity == 1000

@@ -126,8 +126,7 @@ def attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarray, np.
     t = np.concatenate(chunks_t)
     rid = np.concatenate(chunks_key)
     # Order: plan (connector), target, turn.
-    # (Each row is one plan, target and turn: distinct rows, so one sort of their packed numbers
-    # gives lexsort's order.)
+    # (One stable sort of the rows packed into one number gives lexsort's order.)
     packed = _packed(order)
     perm = np.argsort(packed, kind="stable") if packed is not None else np.lexsort(order.T[::-1])
     rot_index, t, rid = rot_index[perm], t[perm], rid[perm]

@@ -19,8 +19,11 @@ class KeepLast:
     objects by `id`, so the objects themselves are held (`held`) as long as the entry is: no id in
     the key can be reused meanwhile."""
 
-    def __init__(self, capacity: int = 1) -> None:
+    def __init__(self, capacity: int = 1, widens: bool = True) -> None:
         self.capacity = capacity
+        self.widens = widens
+        """Whether `widened` widens it (caches of one structure or unit each; not a cache of a
+        round's launches, whose entries are large and whose count does not grow with the batch)."""
         self._entries: OrderedDict[Any, tuple[Any, Any]] = OrderedDict()
         _ALL.append(self)
 
@@ -40,7 +43,7 @@ class KeepLast:
 def widened(capacity: int):
     """Every cache keeps at least `capacity` entries inside the block; back to its own size (and
     its newest entries) after."""
-    old = [(c, c.capacity) for c in _ALL]
+    old = [(c, c.capacity) for c in _ALL if c.widens]
     for c, cap in old:
         c.capacity = max(cap, capacity)
     try:

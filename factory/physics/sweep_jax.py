@@ -427,11 +427,13 @@ def _launch(crosses: bool, ut, st, R, t, d, u, s, k, thr, thr_c, kind: str = "sw
     return out
 
 
-_STACKS = KeepLast(64)
+_STACKS = KeepLast(32, widens=False)
 """Stacked tables on the device by the sets' tables in them and the padded row count: a round's
 collision and sweep launches, and the rounds in which no object of the batch placed a part, stack
-the same sets; a stack goes to the device once (a round's tables were 15 MB a launch, 3.9 ms a
-launch on an H100 with its copies, 0.1-0.2 ms without)."""
+the same sets, so a stack goes to the device once (a round's tables were 14.5 MB a launch on
+average, and a launch from host arrays 600-910 us against 65-195 us from the device on an H100,
+docs/sampler.md). A round makes one stack per piece bucket and side, whatever the batch, so the
+cache is not widened with it (`keep_last.widened`): its entries are megabytes each."""
 
 
 def _stacked(parts: list[tuple], rows: int) -> tuple:
