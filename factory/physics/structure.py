@@ -51,12 +51,15 @@ def match(pos_a, axis_a, pos_b, axis_b, tol: float = MATCH_LDU) -> list[tuple[in
     return out
 
 
-def _pairs_within(pos_a, axis_a, pos_b, axis_b, tol: float) -> tuple[np.ndarray, np.ndarray]:
+def _pairs_within(pos_a, axis_a, pos_b, axis_b, tol: float, tree_a=None, tree_b=None) -> tuple[np.ndarray, np.ndarray]:
     """All index pairs (i, j) that `match` gives, as two arrays sorted by (i, j): in one tree query
-    instead of one Python list per point."""
+    instead of one Python list per point. `tree_a`, `tree_b`: the points' trees when the caller
+    keeps them (a structure's, asked for every candidate of a step)."""
     if len(pos_a) == 0 or len(pos_b) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    near = cKDTree(pos_a).sparse_distance_matrix(cKDTree(pos_b), tol, output_type="ndarray")
+    tree_a = cKDTree(pos_a) if tree_a is None else tree_a
+    tree_b = cKDTree(pos_b) if tree_b is None else tree_b
+    near = tree_a.sparse_distance_matrix(tree_b, tol, output_type="ndarray")
     i, j = near["i"].astype(np.int64), near["j"].astype(np.int64)
     # sparse_distance_matrix leaves out pairs at distance 0 only when both trees are the same
     # object; here they never are. It stores pairs with distance <= tol, as query_ball_point.
@@ -87,13 +90,13 @@ def connections_at(structure: "Structure", part: Part, rotations: np.ndarray, tr
         pos = (np.einsum("bij,kj->bki", rotations, local_p) + translations[:, None, :]).reshape(-1, 3)
         axis = np.einsum("bij,kj->bki", rotations, local_a).reshape(-1, 3)
         if which == "sockets":
-            i, j = _pairs_within(sp, sa, pos, axis, MATCH_LDU)  # structure stud i, candidate socket j
+            i, j = _pairs_within(sp, sa, pos, axis, MATCH_LDU, tree_a=structure.tree("studs"))  # structure stud i, candidate socket j
             owner = j // k
             order = np.argsort(owner, kind="stable")  # per candidate, still by (i, j)
             for c, si in zip(owner[order], i[order]):
                 out[c].append((int(so[si]), base, sp[si], sa[si]))
         else:
-            i, j = _pairs_within(pos, axis, kp, ka, MATCH_LDU)  # candidate stud i, structure socket j
+            i, j = _pairs_within(pos, axis, kp, ka, MATCH_LDU, tree_b=structure.tree("sockets"))  # candidate stud i, structure socket j
             for ci, kj in zip(i, j):  # sorted by i, so by candidate, then stud, then socket
                 out[ci // k].append((base, int(ko[kj]), pos[ci], axis[ci]))
     return out
@@ -121,6 +124,7 @@ class Structure:
         self._sock_owner = np.zeros(0, np.int64)
         self._stud_busy = np.zeros(0, bool)
         self._sock_busy = np.zeros(0, bool)
+        self._trees: dict[str, cKDTree] = {}
         for p in parts:
             self.add(p)
 
@@ -141,6 +145,7 @@ class Structure:
             self.connections.append((idx, int(self._sock_owner[j]), sp[i], sa[i]))
             stud_busy[len(self._stud_pos) + i] = sock_busy[j] = True
         self._stud_busy, self._sock_busy = stud_busy, sock_busy
+        self._trees = {}
         self.links.extend(links)
         self._stud_pos = np.concatenate([self._stud_pos, sp])
         self._stud_axis = np.concatenate([self._stud_axis, sa])
@@ -159,6 +164,13 @@ class Structure:
     @property
     def sockets(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return self._sock_pos, self._sock_axis, self._sock_owner
+
+    def tree(self, which: str) -> cKDTree:
+        """The k-d tree of the 'studs' or 'sockets' positions, built once per part added (every
+        candidate of a step asks which of them it meets: `connections_at`)."""
+        if which not in self._trees:
+            self._trees[which] = cKDTree(self._stud_pos if which == "studs" else self._sock_pos)
+        return self._trees[which]
 
     def occupied(self) -> tuple[np.ndarray, np.ndarray]:
         """Boolean masks over studs and sockets: connected to another part of the structure (kept
