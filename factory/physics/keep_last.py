@@ -21,9 +21,10 @@ class KeepLast:
 
     def __init__(self, capacity: int = 1, widens: bool = True) -> None:
         self.capacity = capacity
+        # Whether `widened` widens it: caches of one structure or unit each do; a cache of a
+        # round's launches does not (its entries are large, and their count does not grow with
+        # the batch).
         self.widens = widens
-        """Whether `widened` widens it (caches of one structure or unit each; not a cache of a
-        round's launches, whose entries are large and whose count does not grow with the batch)."""
         self._entries: OrderedDict[Any, tuple[Any, Any]] = OrderedDict()
         _ALL.append(self)
 

@@ -90,13 +90,15 @@ def connections_at(structure: "Structure", part: Part, rotations: np.ndarray, tr
         pos = (np.einsum("bij,kj->bki", rotations, local_p) + translations[:, None, :]).reshape(-1, 3)
         axis = np.einsum("bij,kj->bki", rotations, local_a).reshape(-1, 3)
         if which == "sockets":
-            i, j = _pairs_within(sp, sa, pos, axis, MATCH_LDU, tree_a=structure.tree("studs"))  # structure stud i, candidate socket j
+            # Structure stud i, candidate socket j.
+            i, j = _pairs_within(sp, sa, pos, axis, MATCH_LDU, tree_a=structure.tree("studs"))
             owner = j // k
             order = np.argsort(owner, kind="stable")  # per candidate, still by (i, j)
             for c, si in zip(owner[order], i[order]):
                 out[c].append((int(so[si]), base, sp[si], sa[si]))
         else:
-            i, j = _pairs_within(pos, axis, kp, ka, MATCH_LDU, tree_b=structure.tree("sockets"))  # candidate stud i, structure socket j
+            # Candidate stud i, structure socket j.
+            i, j = _pairs_within(pos, axis, kp, ka, MATCH_LDU, tree_b=structure.tree("sockets"))
             for ci, kj in zip(i, j):  # sorted by i, so by candidate, then stud, then socket
                 out[ci // k].append((base, int(ko[kj]), pos[ci], axis[ci]))
     return out

@@ -499,7 +499,8 @@ def _intervals_many(jobs, kind: str = "sweep") -> list[np.ndarray]:
             continue
         for side, sh in (("u", us), ("s", ss)):
             if (side, sh) not in stacked:
-                stacked[(side, sh)] = _stacked(tables[(side, sh)], _grown((side, sh), sum(len(p[0]) for p in tables[(side, sh)])))
+                parts = tables[(side, sh)]
+                stacked[(side, sh)] = _stacked(parts, _grown((side, sh), sum(len(p[0]) for p in parts)))
         gu, gs, gk, gthr, gthc = (np.concatenate([pj[i][x] for pj, x in zip(per_job, sel)]) for i in (1, 2, 3, 4, 5))
         res = _launch(not al, stacked[("u", us)], stacked[("s", ss)], Rp, tp, dp, gu, gs, gk, gthr, gthc, kind)
         at = 0
