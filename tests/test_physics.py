@@ -106,8 +106,8 @@ def _occupied_from_scratch(structure):
 def test_occupied_masks_kept_as_parts_come_match_the_definition():
     """A structure of bricks, plates and a slope grown at random attachments (overlaps allowed:
     parts covering several others' studs, studs under sockets of two parts): after every part,
-    the occupied masks kept by `add` equal `match` of all studs and sockets, and the list of
-    attachments does not change when the masks are changed by the caller."""
+    the occupied masks kept by `add` equal `match` of all studs and sockets; a caller changing the
+    masks it got does not change the structure's."""
     rng = np.random.default_rng(3)
     names = ("3001", "3020", "3022", "3039", "3003")
     s = Structure([at("3001", 0, 0, 0)])

@@ -11,6 +11,8 @@ included)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from factory.parts import Part, box_corners
@@ -57,7 +59,7 @@ def _packed(keys: np.ndarray) -> np.ndarray | None:
         return None
     lo, hi = keys.min(axis=0), keys.max(axis=0)
     spans = [int(h) - int(l) + 1 for l, h in zip(lo.tolist(), hi.tolist())]
-    if np.prod([float(x) for x in spans]) >= 2.0**62:
+    if math.prod(spans) >= 1 << 62:
         return None
     packed = np.zeros(len(keys), np.int64)
     for j, span in enumerate(spans):

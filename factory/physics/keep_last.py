@@ -2,8 +2,9 @@
 
 One object grown at a time asks about one structure in a row (batches, redraws of one part), so
 one entry is enough. Objects grown in lockstep (`factory.sampler.lockstep`) ask about each of
-theirs in turn, so the grower widens every cache to its batch for as long as it runs
-(`widened`)."""
+theirs in turn, so the grower widens these caches to its batch for as long as it runs
+(`widened`). A cache of a round's device arrays (`sweep_jax._STACKS`) keeps its own size: its
+entries are large, and a round makes as many whatever the batch."""
 
 from __future__ import annotations
 

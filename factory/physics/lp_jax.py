@@ -804,7 +804,8 @@ def solve_on_bases(groups: Sequence[tuple], cfg: LoadConfig | None = None, *, to
             for row, e in enumerate(chunk):
                 rows_of.setdefault(members[e][0], []).append(row)
             widest = max(info[gi][3] for gi in rows_of)
-            new = _load_arrays([info[members[e][0]][0][members[e][1]] for e in chunk], cfg, len(chunk), widest, m, 12, 2)
+            own_models = [info[gi][0][i] for gi, i in (members[e] for e in chunk)]
+            new = _load_arrays(own_models, cfg, len(chunk), widest, m, 12, 2)
             for gi, rows in rows_of.items():
                 _, _, n_block, width, block = info[gi]
                 rows = np.array(rows)

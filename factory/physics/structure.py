@@ -171,7 +171,7 @@ class Structure:
         """The k-d tree of the 'studs' or 'sockets' positions, built once per part added (every
         candidate of a step asks which of them it meets: `connections_at`)."""
         if which not in self._trees:
-            self._trees[which] = cKDTree(self._stud_pos if which == "studs" else self._sock_pos)
+            self._trees[which] = cKDTree({"studs": self._stud_pos, "sockets": self._sock_pos}[which])
         return self._trees[which]
 
     def occupied(self) -> tuple[np.ndarray, np.ndarray]:
