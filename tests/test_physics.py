@@ -457,3 +457,38 @@ def test_an_unwritable_cache_is_worked_without(tmp_path, monkeypatch, capsys):
     shape = collision_shape(clone, DecompositionConfig(inset_ldu=0.32))
     assert len(shape.body) >= 1
     assert "cache" in capsys.readouterr().err
+
+
+def test_a_scene_built_from_kept_bodies_is_the_scene_built_afresh():
+    """Structure parts' MJCF bodies and piece faces are kept as a structure grows
+    (`collide._BODIES`); a scene built from them has the same model, geom owners, piece faces
+    and answers as one built with nothing kept."""
+    import mujoco
+
+    from factory.physics import collide
+    from factory.physics.collide import CollisionScene
+
+    turn = rotation_about([0, 1, 0], np.pi / 2)
+    placed = [at("3001", 0, 0, 0), at("3001", 10, -24, 20, R=turn), at("3020", 0, -48, 0), at("3039", 20, -56, 0)]
+    unit = [(part("3003"), Pose.identity())]
+    poses = [Pose(I3, np.array([x, -56.0, z])) for x in (-20, 0, 10) for z in (-10, 0, 20)]
+    poses.append(Pose(I3, np.array([200.0, -24.0, 200.0])))  # clear of everything
+    collide._BODIES.clear()
+    for n in range(1, len(placed) + 1):  # one scene a step, as the sampler builds them
+        kept = CollisionScene(Structure(placed[:n]), unit, floor_y=0.0)
+    assert len(collide._BODIES) == len(placed)
+    collide._BODIES.clear()
+    fresh = CollisionScene(Structure(placed), unit, floor_y=0.0)
+    for name in ("geom_pos", "geom_quat", "geom_dataid", "body_pos", "body_quat", "mesh_vert", "geom_size"):
+        assert np.array_equal(getattr(kept.model, name), getattr(fresh.model, name)), name
+    for name in ("owner", "is_stud", "inset", "_s_planes", "_s_piece", "_s_owner", "_s_centre"):
+        assert np.array_equal(getattr(kept, name), getattr(fresh, name)), name
+    assert kept.info == fresh.info
+    assert len(np.unique(fresh._s_piece)) == len(fresh._s_centre)
+    answers = [(kept.penetration(p, set()), fresh.penetration(p, set())) for p in poses]
+    assert all(a == b for a, b in answers)
+    assert any(a[0] > 0 for a, _ in answers) and any(a[0] == 0 for a, _ in answers)
+    # A part at another index (another structure that holds it elsewhere) is written anew.
+    other = CollisionScene(Structure([placed[1]]), unit, floor_y=0.0)
+    assert set(other.owner[other.owner >= 0].tolist()) == {0}
+    mujoco.mj_forward(other.model, other.data)

@@ -241,11 +241,18 @@ def probe_frame(stud_at, stud_pose: Pose, body_part: Part, body_pose: Pose) -> t
     body part's own frame (its surface read once per part, `part_surface`); a scaled or sheared
     placement (rare in LDraw) has its surface moved into the world instead."""
     pos, axis = (np.asarray(v, float) for v in stud_at)
-    if (np.abs(body_pose.R @ body_pose.R.T - _I3) <= 1e-9 + 1e-5 * _I3).all():  # np.allclose(.., atol=1e-9), cheaper
-        rel, surface = body_pose.inverse() @ stud_pose, part_surface(body_part)
+    rb = body_pose.R
+    if (np.abs(rb @ rb.T - _I3) <= 1e-9 + 1e-5 * _I3).all():  # np.allclose(.., atol=1e-9), cheaper
+        # body_pose.inverse() @ stud_pose, written out: the same operations on the same array
+        # layouts as `Pose` does them (so the same bits), without two `Pose`s' checks and copies.
+        inv_r = np.array(rb.T)
+        inv_t = -rb.T @ body_pose.t
+        r, t = inv_r @ stud_pose.R, inv_r @ stud_pose.t + inv_t
+        surface = part_surface(body_part)
     else:
-        rel, surface = stud_pose, Surface.of(body_pose.apply(body_part.flat.triangles.reshape(-1, 3)))
-    return rel.apply(pos[None])[0], rel.R @ axis, surface
+        r, t = stud_pose.R, stud_pose.t
+        surface = Surface.of(body_pose.apply(body_part.flat.triangles.reshape(-1, 3)))
+    return (pos[None] @ r.T + t)[0], r @ axis, surface
 
 
 @dataclass(frozen=True)
@@ -268,6 +275,44 @@ filled hollow under a part reaches that far into whatever its sockets hold (a wh
 raised stud base, a plate's recessed top), and stud mating already fixes their relative place."""
 
 
+_BODIES: dict[int, tuple] = {}
+"""Per placed structure part (by id; the `Placed` is kept so that its id is not reused): its index,
+its MJCF body, the meshes its geoms name, their `_GeomInfo`s and its body pieces' faces (`_pieces`).
+A growing structure keeps its parts, so each step's scene writes and hulls only the new part's;
+before, every scene did it for every part again (a fifth of the reference's check time on 20-90
+part objects)."""
+
+BODIES_KEPT = 8192
+"""Placed parts kept before `_BODIES` is emptied (a few kB each)."""
+
+
+def _structure_body(placed, idx: int) -> tuple:
+    """(body MJCF, ((mesh name, vertices text), ...), geom infos, pieces) of structure part `idx`."""
+    hit = _BODIES.get(id(placed))
+    if hit is None or hit[0] is not placed or hit[1] != idx:
+        shape = collision_shape(placed.part)
+        meshes: dict[str, str] = {}
+        info: list[_GeomInfo] = []
+        pos, quat = placed.pose.to_mujoco_quat()
+        geoms = CollisionScene._geoms(shape, meshes, idx, info)
+        body = f'<body name="s{idx}" pos="{_fmt(pos)}" quat="{_fmt(quat)}">{geoms}</body>'
+        if len(_BODIES) >= BODIES_KEPT:
+            _BODIES.clear()
+        hit = _BODIES[id(placed)] = (placed, idx, body, tuple(meshes.items()), tuple(info),
+                                     _pieces([(placed.pose, shape, idx)]))
+    return hit[2:]
+
+
+def _joined_pieces(parts: list[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`_pieces` of several items from each one's own `_pieces` (piece indices renumbered)."""
+    parts = [p for p in parts if len(p[3])]
+    if not parts:
+        return np.zeros((0, 4)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+    offsets = np.cumsum([0] + [len(p[3]) for p in parts[:-1]])
+    return (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] + o for p, o in zip(parts, offsets)]),
+            np.concatenate([p[2] for p in parts]), np.concatenate([p[3] for p in parts]))
+
+
 class CollisionScene:
     """A compiled scene for checking one candidate (a part, or a rigid unit of parts given with
     their poses in the unit's frame) against one structure."""
@@ -275,18 +320,20 @@ class CollisionScene:
     def __init__(self, structure: Structure, unit: list[tuple[Part, Pose]], floor_y: float):
         self.structure = structure
         self.unit = unit
-        shapes = [collision_shape(p.part) for p in structure.placed]
-        meshes: dict[str, np.ndarray] = {}
+        meshes: dict[str, str] = {}
         bodies = []
         info: list[_GeomInfo] = []
-        for idx, (placed, shape) in enumerate(zip(structure.placed, shapes)):
-            pos, quat = placed.pose.to_mujoco_quat()
-            geoms = self._geoms(shape, meshes, idx, info)
-            bodies.append(f'<body name="s{idx}" pos="{_fmt(pos)}" quat="{_fmt(quat)}">{geoms}</body>')
+        pieces = []
+        for idx, placed in enumerate(structure.placed):
+            body, body_meshes, body_info, body_pieces = _structure_body(placed, idx)
+            bodies.append(body)
+            for name, verts in body_meshes:
+                meshes.setdefault(name, verts)
+            info.extend(body_info)
+            pieces.append(body_pieces)
         # Piece centres and faces for the coincidence test (MuJoCo's convex collision misses a
         # piece sitting exactly on an identical one: no direction separates their centres).
-        self._s_planes, self._s_piece, self._s_owner, self._s_centre = _pieces(
-            [(p.pose, collision_shape(p.part), i) for i, p in enumerate(structure.placed)])
+        self._s_planes, self._s_piece, self._s_owner, self._s_centre = _joined_pieces(pieces)
         self._c_planes, self._c_piece, _, self._c_centre = _pieces(
             [(rel, collision_shape(part), -1) for part, rel in unit])
         cand_geoms = ""
