@@ -9,7 +9,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull, QhullError
 
-from factory.connections import Connector, sockets_facing, studs_from_flat
+from factory.connections import Connector, sockets_cached, studs_from_flat
 from factory.ldraw.reader import Flat, Reader
 from factory.symmetry import Symmetry, find_symmetry
 
@@ -90,7 +90,7 @@ class Part:
 
     @cached_property
     def sockets(self) -> tuple[Connector, ...]:
-        return sockets_facing(self.flat.triangles, self.studs, self.file or self.name)
+        return sockets_cached(self.flat.triangles, self.studs, self.file or self.name)
 
     @cached_property
     def symmetry(self) -> Symmetry:
