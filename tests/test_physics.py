@@ -461,8 +461,9 @@ def test_an_unwritable_cache_is_worked_without(tmp_path, monkeypatch, capsys):
 
 def test_a_scene_built_from_kept_bodies_is_the_scene_built_afresh():
     """Structure parts' MJCF bodies and piece faces are kept as a structure grows
-    (`collide._BODIES`); a scene built from them has the same model, geom owners, piece faces
-    and answers as one built with nothing kept."""
+    (`collide._BODIES`), and a candidate unit's pieces (`collide._UNIT_PIECES`); a scene built
+    from them has the same model, geom owners, piece faces and answers as one built with nothing
+    kept."""
     import mujoco
 
     from factory.physics import collide
@@ -478,10 +479,12 @@ def test_a_scene_built_from_kept_bodies_is_the_scene_built_afresh():
         kept = CollisionScene(Structure(placed[:n]), unit, floor_y=0.0)
     assert len(collide._BODIES) == len(placed)
     collide._BODIES.clear()
+    collide._UNIT_PIECES.clear()
     fresh = CollisionScene(Structure(placed), unit, floor_y=0.0)
     for name in ("geom_pos", "geom_quat", "geom_dataid", "body_pos", "body_quat", "mesh_vert", "geom_size"):
         assert np.array_equal(getattr(kept.model, name), getattr(fresh.model, name)), name
-    for name in ("owner", "is_stud", "inset", "_s_planes", "_s_piece", "_s_owner", "_s_centre"):
+    for name in ("owner", "is_stud", "inset", "_s_planes", "_s_piece", "_s_owner", "_s_centre", "_c_planes",
+                 "_c_piece", "_c_centre"):
         assert np.array_equal(getattr(kept, name), getattr(fresh, name)), name
     assert kept.info == fresh.info
     assert len(np.unique(fresh._s_piece)) == len(fresh._s_centre)

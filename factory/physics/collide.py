@@ -303,6 +303,23 @@ def _structure_body(placed, idx: int) -> tuple:
     return hit[2:]
 
 
+_UNIT_PIECES: dict[tuple, tuple] = {}
+"""`_pieces` of a candidate unit by its shapes and their poses in the unit (the shapes are kept so
+that their ids are not reused): the sampler builds a scene per structure and part type, and the
+part's pieces, in the unit's frame, are the same in every one."""
+
+
+def _unit_pieces(unit) -> tuple:
+    shapes = [collision_shape(part) for part, _ in unit]
+    key = tuple((id(shape), rel.R.tobytes(), rel.t.tobytes()) for shape, (_, rel) in zip(shapes, unit))
+    hit = _UNIT_PIECES.get(key)
+    if hit is None or any(a is not b for a, b in zip(hit[0], shapes)):
+        if len(_UNIT_PIECES) >= BODIES_KEPT:
+            _UNIT_PIECES.clear()
+        hit = _UNIT_PIECES[key] = (shapes, _pieces([(rel, shape, -1) for shape, (_, rel) in zip(shapes, unit)]))
+    return hit[1]
+
+
 def _joined_pieces(parts: list[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`_pieces` of several items from each one's own `_pieces` (piece indices renumbered)."""
     parts = [p for p in parts if len(p[3])]
@@ -334,8 +351,7 @@ class CollisionScene:
         # Piece centres and faces for the coincidence test (MuJoCo's convex collision misses a
         # piece sitting exactly on an identical one: no direction separates their centres).
         self._s_planes, self._s_piece, self._s_owner, self._s_centre = _joined_pieces(pieces)
-        self._c_planes, self._c_piece, _, self._c_centre = _pieces(
-            [(rel, collision_shape(part), -1) for part, rel in unit])
+        self._c_planes, self._c_piece, _, self._c_centre = _unit_pieces(unit)
         cand_geoms = ""
         for member, (part, rel) in enumerate(unit):
             pos, quat = rel.to_mujoco_quat()
