@@ -12,15 +12,11 @@ from __future__ import annotations
 
 import hashlib
 import json
-import sys
 from dataclasses import dataclass
-from functools import cache
-from pathlib import Path
 
 import numpy as np
 
-from factory.atomic import write_atomic
-from factory.cache import cache_root
+from factory.cache import kept, source_digest
 from factory.errors import LDrawLimitError
 
 STUD_RADIUS = 6.0
@@ -244,28 +240,12 @@ def sockets_facing(tris: np.ndarray, studs, where: str | None = None) -> tuple[C
 
 def sockets_cached(tris: np.ndarray, studs, where: str | None = None) -> tuple[Connector, ...]:
     """`sockets_facing`, kept on disk by the part's triangles and studs and this file's digest
-    (`sockets/` in the factory's cache folder). Finding them is most of a part's first use: 0.23 s
-    a part of the embedded library on the 2-core machine, so about 9 s for its 40 parts in every
-    worker process of a build. A damaged or unreadable entry is found again; a cache folder that
-    cannot be written is worked without (said once)."""
-    path = cache_root() / "sockets" / f"{_sockets_key(tris, studs)}.json"
-    try:
-        kept = _read_sockets(path.read_bytes())
-    except OSError:  # missing or unreadable
-        kept = None
-    if kept is not None:
-        return kept
-    found = sockets_facing(tris, studs, where)
-    data = json.dumps([[list(c.pos), list(c.axis), c.kind] for c in found]).encode()
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(path, data)
-    except OSError as exc:
-        if str(path.parent) not in _UNWRITABLE:
-            _UNWRITABLE.add(str(path.parent))
-            print(f"warning: cannot write the socket cache {path.parent} ({exc.strerror or exc}); working "
-                  "without it (set BRICK_FACTORY_CACHE to a writable folder)", file=sys.stderr)
-    return found
+    (`sockets/` in the factory's cache folder, `factory.cache.kept`). Finding them is most of a
+    part's first use: 0.23 s a part of the embedded library on the 2-core machine, so about 9 s
+    for its 40 parts in every worker process of a build. A damaged entry is found again."""
+    return kept("sockets", f"{_sockets_key(tris, studs)}.json", _read_sockets,
+                lambda: sockets_facing(tris, studs, where),
+                lambda found: json.dumps([[list(c.pos), list(c.axis), c.kind] for c in found]).encode())
 
 
 def _read_sockets(data: bytes) -> tuple[Connector, ...] | None:
@@ -288,18 +268,12 @@ def _read_sockets(data: bytes) -> tuple[Connector, ...] | None:
     return tuple(out)
 
 
-_UNWRITABLE: set[str] = set()
-"""Socket cache folders this process could not write to (said once each)."""
-
-
-@cache
-def _source_digest() -> str:
-    """This file's digest: any change to how sockets are found makes new cache keys."""
-    return hashlib.sha256(Path(__file__).read_bytes()).hexdigest()
+_SOURCE = source_digest(__file__)
+"""This file's digest: any change to how sockets are found makes new cache keys."""
 
 
 def _sockets_key(tris: np.ndarray, studs) -> str:
-    h = hashlib.sha256(_source_digest().encode())
+    h = hashlib.sha256(_SOURCE.encode())
     h.update(np.ascontiguousarray(tris, dtype=np.float64).tobytes())
     h.update(json.dumps([[list(c.pos), list(c.axis), c.kind] for c in studs]).encode())
     return h.hexdigest()[:32]

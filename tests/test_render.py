@@ -561,3 +561,27 @@ def test_a_renderer_frees_what_it_drops_and_everything_on_exit(reader):
     assert not second.has_contexts()
     with pytest.raises(RuntimeError, match="closed"):
         r.scene_for([plate], 1.0)
+
+
+def test_outline_segments_are_kept_on_disk_and_read_back_the_same(reader, tmp_path, monkeypatch):
+    """`geometry.simplified_edges` keeps each part's simplified outline per tolerance in the
+    cache folder: read back, it is the computed array exactly; a damaged entry is made again."""
+    from factory.parts import load_part
+    from factory.render import geometry
+
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path))
+    edges = geometry.part_geometry(load_part(reader, "3001")).edges
+    calls = []
+    inner = geometry.simplify_edges
+    monkeypatch.setattr(geometry, "simplify_edges", lambda s, t: calls.append(t) or inner(s, t))
+    first = [geometry.simplified_edges(edges, t) for t in (0.6, 2.0)]
+    assert len(calls) == 2 and len(list((tmp_path / "outlines").glob("*.npy"))) == 2
+    again = [geometry.simplified_edges(edges, t) for t in (0.6, 2.0)]
+    assert len(calls) == 2
+    for a, b, t in zip(first, again, (0.6, 2.0)):
+        assert a.dtype == b.dtype == np.float64 and np.array_equal(a, b) and np.array_equal(a, inner(edges, t))
+    assert len(first[1]) < len(first[0]) < len(edges)  # a coarser tolerance keeps fewer segments
+    for entry in (tmp_path / "outlines").glob("*.npy"):
+        entry.write_bytes(entry.read_bytes()[:40])
+    assert all(np.array_equal(a, geometry.simplified_edges(edges, t)) for a, t in zip(first, (0.6, 2.0)))
+    assert len(calls) == 4

@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 
 import factory.connections as connections
+from factory import cache
 from factory.ldraw import get_reader
 from factory.ldraw.reader import Reader
 from factory.parts import load_part
@@ -68,7 +69,7 @@ def test_another_part_or_another_finder_makes_another_key(monkeypatch):
     assert key == connections._sockets_key(_fresh("3001").flat.triangles, a.studs)
     assert key != connections._sockets_key(b.flat.triangles, b.studs)
     assert key != connections._sockets_key(a.flat.triangles, a.studs[:-1])
-    monkeypatch.setattr(connections, "_source_digest", lambda: "another way of finding sockets")
+    monkeypatch.setattr(connections, "_SOURCE", "another way of finding sockets")
     assert key != connections._sockets_key(a.flat.triangles, a.studs)
 
 
@@ -76,7 +77,7 @@ def test_an_unwritable_cache_is_worked_without(tmp_path, monkeypatch, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
     monkeypatch.setenv("BRICK_FACTORY_CACHE", str(blocker))
-    connections._UNWRITABLE.clear()
+    cache._UNWRITABLE.clear()
     assert _fresh("3001").sockets == _fresh("3001").sockets
     err = capsys.readouterr().err
-    assert err.count("cannot write the socket cache") == 1
+    assert err.count("cannot write the cache folder") == 1 and "sockets" in err
