@@ -278,9 +278,10 @@ raised stud base, a plate's recessed top), and stud mating already fixes their r
 _BODIES: dict[int, tuple] = {}
 """Per placed structure part (by id; the `Placed` is kept so that its id is not reused): its index,
 its MJCF body, the meshes its geoms name, their `_GeomInfo`s and its body pieces' faces (`_pieces`).
-A growing structure keeps its parts, so each step's scene writes and hulls only the new part's;
-before, every scene did it for every part again (a fifth of the reference's check time on 20-90
-part objects)."""
+A growing structure keeps its parts, so each step's scene writes and hulls only the new part's.
+Before, every scene did it for every part again: 8.8 s of 44 s of checks in a 3-object build (20-90
+parts, 226 steps, one process, cProfile) on the 2-core machine; 5.2 s after, of which MuJoCo's
+compile 2.4 s and the candidate's pieces 2.0 s (kept since: `_UNIT_PIECES`)."""
 
 BODIES_KEPT = 8192
 """Placed parts kept before `_BODIES` is emptied (a few kB each)."""
