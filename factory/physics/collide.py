@@ -331,6 +331,21 @@ def _joined_pieces(parts: list[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarr
             np.concatenate([p[2] for p in parts]), np.concatenate([p[3] for p in parts]))
 
 
+def _deepest(overlap: np.ndarray, plain: np.ndarray, studs: np.ndarray, crosses) -> float:
+    """The deepest overlap (0.0 when none) of the `plain` contacts and of the stud-on-body contacts
+    `studs` (indices) whose stud `crosses(i)` a wall or face of the body. A stud standing in the
+    body's hollow only lowers its contact to 0, so the studs are asked deepest first and only while
+    an answer could raise the result: the same number as asking every one (the stud probes were 17 %
+    of the checks' time in a build on a lent H200, and most contacts asked lay under a deeper one)."""
+    deepest = float(overlap[plain].max()) if plain.any() else 0.0
+    for i in studs[np.argsort(-overlap[studs], kind="stable")]:
+        if overlap[i] <= deepest:
+            break
+        if crosses(int(i)):
+            return float(overlap[i])
+    return deepest
+
+
 class CollisionScene:
     """A compiled scene for checking one candidate (a part, or a rigid unit of parts given with
     their poses in the unit's frame) against one structure."""
@@ -450,13 +465,13 @@ class CollisionScene:
             overlap = np.where(conn, overlap - CONNECTED_SLACK_LDU, overlap)
             hollow = keep & (overlap > 0) & (other >= 0) & (self.is_stud[g1] != self.is_stud[g2])
             memo: dict = {}
-            for i in np.flatnonzero(hollow):
+
+            def crosses(i: int) -> bool:
                 stud_g, body_g = (int(g1[i]), int(g2[i])) if self.is_stud[g1[i]] else (int(g2[i]), int(g1[i]))
-                if self._stud_in_hollow(stud_g, body_g, pose, memo):
-                    overlap[i] = min(overlap[i], 0.0)  # touching, not overlapping
-            over = keep & (overlap > 0)
-            if over.any():
-                deepest = float(overlap[over].max())
+                return not self._stud_in_hollow(stud_g, body_g, pose, memo)
+
+            deepest = _deepest(overlap, keep & (overlap > 0) & ~hollow, np.flatnonzero(hollow), crosses)
+            # A stud in a hollow touches the part (its overlap counts as 0 > -NEAR_LDU): near either way.
             near = {int(o) for o in np.unique(other[keep & (other >= 0) & (overlap > -NEAR_LDU)])}
         depth, owners = self._coincident(pose, joints)
         near |= owners
