@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import os
 import sys
+from functools import cache
 from pathlib import Path
 from typing import Callable, TypeVar
 
@@ -21,10 +22,15 @@ def cache_root() -> Path:
     return Path(root)
 
 
-def source_digest(path: str | os.PathLike) -> str:
-    """A source file's sha256: part of the keys of what that file computes, so that a change to
-    the code never reuses an older answer."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+@cache
+def source_digest(path: str) -> str:
+    """A source file's sha256 (read once per process; "no-source" where it cannot be read): part
+    of the keys of what that file computes, so that a change to the code never reuses an older
+    answer."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return "no-source"
 
 
 _UNWRITABLE: set[str] = set()
@@ -35,8 +41,7 @@ def kept(folder: str, name: str, read: Callable[[bytes], T | None], make: Callab
          write: Callable[[T], bytes]) -> T:
     """The entry `name` of `folder` in the cache folder, `read` from its bytes; when it is missing
     or `read` refuses it (None: damaged, truncated or foreign), `make()`, kept as `write(value)`
-    (atomically: two processes writing one entry leave one whole file). A folder that cannot be
-    written is worked without, said once on stderr."""
+    (`keep`)."""
     path = cache_root() / folder / name
     try:
         value = read(path.read_bytes())
@@ -45,12 +50,18 @@ def kept(folder: str, name: str, read: Callable[[bytes], T | None], make: Callab
     if value is not None:
         return value
     value = make()
+    keep(path, write(value))
+    return value
+
+
+def keep(path: Path, data: bytes) -> None:
+    """Write a cache entry atomically (two processes writing one entry leave one whole file); a
+    folder that cannot be written is worked without, said once on stderr."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(path, write(value))
+        write_atomic(path, data)
     except OSError as exc:
         if str(path.parent) not in _UNWRITABLE:
             _UNWRITABLE.add(str(path.parent))
             print(f"warning: cannot write the cache folder {path.parent} ({exc.strerror or exc}); working "
                   "without it (set BRICK_FACTORY_CACHE to a writable folder)", file=sys.stderr)
-    return value

@@ -244,8 +244,7 @@ def sockets_cached(tris: np.ndarray, studs, where: str | None = None) -> tuple[C
     part's first use: 0.23 s a part of the embedded library on the 2-core machine, so about 9 s
     for its 40 parts in every worker process of a build. A damaged entry is found again."""
     return kept("sockets", f"{_sockets_key(tris, studs)}.json", _read_sockets,
-                lambda: sockets_facing(tris, studs, where),
-                lambda found: json.dumps([[list(c.pos), list(c.axis), c.kind] for c in found]).encode())
+                lambda: sockets_facing(tris, studs, where), _rows)
 
 
 def _read_sockets(data: bytes) -> tuple[Connector, ...] | None:
@@ -268,15 +267,17 @@ def _read_sockets(data: bytes) -> tuple[Connector, ...] | None:
     return tuple(out)
 
 
-_SOURCE = source_digest(__file__)
-"""This file's digest: any change to how sockets are found makes new cache keys."""
-
-
 def _sockets_key(tris: np.ndarray, studs) -> str:
-    h = hashlib.sha256(_SOURCE.encode())
+    # This file's digest: any change to how sockets are found makes new keys.
+    h = hashlib.sha256(source_digest(__file__).encode())
     h.update(np.ascontiguousarray(tris, dtype=np.float64).tobytes())
-    h.update(json.dumps([[list(c.pos), list(c.axis), c.kind] for c in studs]).encode())
+    h.update(_rows(studs))
     return h.hexdigest()[:32]
+
+
+def _rows(connectors) -> bytes:
+    """Connectors as the JSON rows a cache entry holds: [pos, axis, kind] each."""
+    return json.dumps([[list(c.pos), list(c.axis), c.kind] for c in connectors]).encode()
 
 
 def _probe(tris, centres, reach, rim, c, under_stud: bool = False, work: _Work | None = None,

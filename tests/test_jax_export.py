@@ -10,6 +10,7 @@ import pytest
 pytest.importorskip("jax")
 pytest.importorskip("flatbuffers")
 
+from factory.cache import source_digest  # noqa: E402
 from factory.physics import jax_export, lp_jax  # noqa: E402
 from test_lp_jax import random_lp  # noqa: E402
 
@@ -80,7 +81,7 @@ def test_changed_source_or_shape_names_another_export(exports, tmp_path):
     assert jax_export._digest(key, str(src)) == one
     assert jax_export._digest((*key[:2], ((("16", "256"), "float64"),), True), str(src)) != one
     src.write_text("x = 2\n")
-    jax_export._source_digest.cache_clear()
+    source_digest.cache_clear()  # a file is read once per process; a new process reads it anew
     assert jax_export._digest(key, str(src)) != one
 
 

@@ -464,8 +464,6 @@ def test_a_scene_built_from_kept_bodies_is_the_scene_built_afresh():
     (`collide._BODIES`), and a candidate unit's pieces (`collide._UNIT_PIECES`); a scene built
     from them has the same model, geom owners, piece faces and answers as one built with nothing
     kept."""
-    import mujoco
-
     from factory.physics import collide
     from factory.physics.collide import CollisionScene
 
@@ -494,7 +492,6 @@ def test_a_scene_built_from_kept_bodies_is_the_scene_built_afresh():
     # A part at another index (another structure that holds it elsewhere) is written anew.
     other = CollisionScene(Structure([placed[1]]), unit, floor_y=0.0)
     assert set(other.owner[other.owner >= 0].tolist()) == {0}
-    mujoco.mj_forward(other.model, other.data)
 
 
 def test_the_deepest_overlap_asks_only_the_studs_that_could_raise_it():

@@ -69,7 +69,7 @@ def test_another_part_or_another_finder_makes_another_key(monkeypatch):
     assert key == connections._sockets_key(_fresh("3001").flat.triangles, a.studs)
     assert key != connections._sockets_key(b.flat.triangles, b.studs)
     assert key != connections._sockets_key(a.flat.triangles, a.studs[:-1])
-    monkeypatch.setattr(connections, "_SOURCE", "another way of finding sockets")
+    monkeypatch.setattr(connections, "source_digest", lambda path: "another way of finding sockets")
     assert key != connections._sockets_key(a.flat.triangles, a.studs)
 
 

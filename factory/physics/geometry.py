@@ -23,6 +23,7 @@ penetrating and a penetration measured between inset pieces is a real overlap of
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import subprocess
@@ -37,7 +38,7 @@ from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
 from factory.connections import STUD_HEIGHT, STUD_RADIUS
-from factory.cache import cache_root
+from factory.cache import cache_root, keep
 from factory.errors import LDrawLimitError
 from factory.parts import Part
 
@@ -527,30 +528,12 @@ def _load(path: Path) -> tuple[list[np.ndarray], float] | None:
         return None
 
 
-_UNWRITABLE: set[str] = set()
-"""Cache folders this process could not write to (said once each)."""
-
-
 def _save(path: Path, body: list[np.ndarray], inset: float) -> None:
-    """Keep an entry (a temporary file, fsynced, then renamed); a cache that cannot be written is
-    worked without, said once on stderr."""
-    tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with open(tmp, "wb") as f:
-            np.savez(f, n=len(body), inset=inset, **{f"p{i}": p for i, p in enumerate(body)})
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except OSError as exc:
-        try:
-            tmp.unlink(missing_ok=True)
-        except OSError:  # no folder to hold it
-            pass
-        if str(path.parent) not in _UNWRITABLE:
-            _UNWRITABLE.add(str(path.parent))
-            print(f"warning: cannot write the decomposition cache {path.parent} ({exc.strerror or exc}); "
-                  "working without it (set BRICK_FACTORY_CACHE to a writable folder)", file=sys.stderr)
+    """Keep an entry (`factory.cache.keep`: atomic; a cache that cannot be written is worked
+    without, said once on stderr)."""
+    buf = io.BytesIO()
+    np.savez(buf, n=len(body), inset=inset, **{f"p{i}": p for i, p in enumerate(body)})
+    keep(path, buf.getvalue())
 
 
 def _decomposed(part: Part, verts: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig) -> list[np.ndarray]:

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from factory.atomic import write_atomic
-from factory.cache import cache_root
+from factory.cache import cache_root, source_digest
 
 FOLDER = "jax-export"
 """Sub-folder of the factory's cache folder (`factory.cache`) holding the exports."""
@@ -121,18 +121,8 @@ def _digest(key: tuple, source: str) -> str:
     import jax
     import jaxlib
 
-    text = repr((key, jax.__version__, jaxlib.__version__, jax.default_backend(), _source_digest(source)))
+    text = repr((key, jax.__version__, jaxlib.__version__, jax.default_backend(), source_digest(source)))
     return hashlib.sha256(text.encode()).hexdigest()[:24]
-
-
-@cache
-def _source_digest(path: str) -> str:
-    """A digest of the kernel's source file. Only that file counts: the kernels exported here call
-    nothing of the factory's outside their own file, only JAX."""
-    try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    except OSError:
-        return "no-source"
 
 
 @cache

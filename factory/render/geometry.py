@@ -224,10 +224,6 @@ def outline_mesh(part: Part, radius: float) -> np.ndarray:
     return prisms(simplified_edges(part_geometry(part).edges, SIMPLIFY * radius), radius)
 
 
-_SOURCE = source_digest(__file__)
-"""This file's digest: any change to the simplification makes new cache keys."""
-
-
 def simplified_edges(segments: np.ndarray, tolerance: float) -> np.ndarray:
     """`simplify_edges`, kept on disk by the segments, the tolerance and this file's digest
     (`outlines/` in the factory's cache folder, `factory.cache.kept`). Its polyline walk and
@@ -235,7 +231,7 @@ def simplified_edges(segments: np.ndarray, tolerance: float) -> np.ndarray:
     stage in one process, once per part and edge radius met, and every worker process of a build
     met them anew."""
     segments = np.ascontiguousarray(segments, dtype=np.float64)
-    h = hashlib.sha256(_SOURCE.encode())
+    h = hashlib.sha256(source_digest(__file__).encode())  # a change to the simplification: new keys
     h.update(repr(float(tolerance)).encode())
     h.update(np.asarray(segments.shape, np.int64).tobytes())
     h.update(segments.tobytes())
