@@ -32,8 +32,8 @@ from factory.physics.collide import CollisionScene, Penetration
 from factory.physics.collide_jax import penetrations  # numpy at import; JAX at the first launch
 from factory.physics.keep_last import KeepLast
 from factory.physics.mass import part_mass_properties
-from factory.physics.statics import (Failure, Link, LoadBase, LoadConfig, holds_alone_many, judge_many, judge_on_bases,
-                                     support_points)
+from factory.physics.statics import (Failure, Link, LoadBase, LoadConfig, LoadModel, holds_alone_many, judge_many,
+                                     judge_on_bases, solve_from, support_points)
 from factory.physics.sweep import seating_from_connections, sweep
 from factory.physics.sweep_jax import sweep_groups
 from factory.physics.structure import Placed, Structure, connections_at, lowest_point
@@ -427,7 +427,7 @@ def _judge_loads(calls: Sequence[_Call], lp_jax) -> None:
         return
     if lp_jax is None:
         for c, models in general:
-            c.loaded(judge_many(models, c.config.loads, None, explain=c.explain))
+            c.loaded(judge_many(models, c.config.loads, _started_solver(c, models), explain=c.explain))
         return
     # The batched solver takes programs of any structures together; calls share one constant set
     # and one `explain` when they come from one `check_many` (else each goes alone).
@@ -440,6 +440,39 @@ def _judge_loads(calls: Sequence[_Call], lp_jax) -> None:
         for c, models in members:
             c.loaded(results[at:at + len(models)])
             at += len(models)
+
+
+def _unit_key(unit: Sequence[Placed]) -> tuple:
+    return tuple((p.part.name, p.pose.R.tobytes(), p.pose.t.tobytes()) for p in unit)
+
+
+def _started_solver(call: "_Call", models: Sequence[LoadModel]):
+    """HiGHS for the reference's pending candidates of `call`, each program started from the one
+    the structure's last part ended at when it was a candidate on the structure before it
+    (`statics.solve_from`); each candidate's own final basis is kept on the structure for the
+    structure after it. What starts a program depends only on the structure's own parts, in
+    their order, so a candidate's answer does not depend on what else was asked before it."""
+    structure, floor_y, cfg = call.structure, call.floor_y, call.config.loads
+    kept = structure.solved_loads
+    n = len(structure)
+    if kept.get("length") != n:
+        last = _unit_key(structure.placed[-1:]) if n else None
+        previous = kept.get("candidates", {}) if kept.get("length") == n - 1 else {}
+        kept.clear()
+        kept.update(length=n, start={key[1:]: s for key, s in previous.items() if key[0] == last}, candidates={})
+    start = kept["start"].get((floor_y, cfg))
+    units = {id(m): _unit_key(unit) for m, (_, unit, _) in zip(models, call.pending)}
+
+    def solve(todo: Sequence[LoadModel], cfg_: LoadConfig) -> list:
+        out = []
+        for m in todo:
+            result, solved = solve_from(m, cfg_, start)
+            if solved is not None:
+                kept["candidates"][(units[id(m)], floor_y, cfg_)] = solved
+            out.append(result)
+        return out
+
+    return solve
 
 
 def _lp_jax(backend: str):
