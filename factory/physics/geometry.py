@@ -163,10 +163,28 @@ triangles, more than 300 s and 7.5 GB at 240,000, and was killed for memory at 2
 million (in this process, before coacd). Renders and `factory.ldraw` take larger parts."""
 
 COACD_SECONDS = 300
-"""Wall time one part's coacd decomposition may take. Real parts take 0.1-15 s here; a soup of
-12,000 random triangles ran past 200 s at 2.4 GB, and one of 1.2 million was killed for memory at
-24 GB after 96 s. coacd is native code that cannot be stopped from Python, so it runs in a child
-process under this limit and `COACD_MEMORY_BYTES`."""
+"""Wall time one part's coacd decomposition may take, unless `COACD_SECONDS_ENV` says otherwise.
+Most real parts take 0.1-15 s here, but 11208.dat (a 2,288-triangle part of 40448) took more than
+300 s on this project's 2-core machine; a soup of 12,000 random triangles ran past 200 s at
+2.4 GB, and one of 1.2 million was killed for memory at 24 GB after 96 s. coacd is native code
+that cannot be stopped from Python, so it runs in a child process under this limit and
+`COACD_MEMORY_BYTES`."""
+COACD_SECONDS_ENV = "BRICK_FACTORY_COACD_SECONDS"
+"""Environment variable: seconds one decomposition may take (a slow machine meeting a slow part)."""
+
+
+def coacd_seconds() -> float:
+    """The decomposition's time limit: `COACD_SECONDS_ENV` when set, else `COACD_SECONDS`."""
+    raw = os.environ.get(COACD_SECONDS_ENV, "").strip()
+    if not raw:
+        return COACD_SECONDS
+    try:
+        seconds = float(raw)
+    except ValueError:
+        seconds = float("nan")
+    if not seconds > 0 or seconds == float("inf"):
+        raise ValueError(f"{COACD_SECONDS_ENV} must be a number of seconds > 0, got {raw!r}")
+    return seconds
 COACD_MEMORY_BYTES = 8 << 30
 """Address space of that child process (the 1.2-million-triangle soup reached 24 GB)."""
 
@@ -188,7 +206,7 @@ np.savez(sys.argv[2], *[np.asarray(v, dtype=np.float64) for v, _ in pieces])
 
 
 def _decompose(vertices: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig, name: str = "") -> list[np.ndarray]:
-    """coacd's convex pieces of the mesh, computed in a child process bounded by `COACD_SECONDS`
+    """coacd's convex pieces of the mesh, computed in a child process bounded by `coacd_seconds()`
     and `COACD_MEMORY_BYTES`; past either, an `LDrawLimitError` naming the part."""
     with tempfile.TemporaryDirectory(prefix="bf-coacd-") as tmp:
         src, out = os.path.join(tmp, "mesh.npz"), os.path.join(tmp, "pieces.npz")
@@ -197,11 +215,13 @@ def _decompose(vertices: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig
                  preprocess_resolution=cfg.preprocess_resolution, mcts_iterations=cfg.mcts_iterations,
                  mcts_nodes=cfg.mcts_nodes, mcts_max_depth=cfg.mcts_max_depth, seed=cfg.seed)
         what = f"decomposing {name or 'a part'} ({len(faces):,} triangles) into convex pieces"
+        limit = coacd_seconds()
         try:
             done = subprocess.run([sys.executable, "-c", _COACD_CHILD, src, out, str(int(COACD_MEMORY_BYTES))],
-                                  capture_output=True, text=True, timeout=COACD_SECONDS)
+                                  capture_output=True, text=True, timeout=limit)
         except subprocess.TimeoutExpired:
-            raise LDrawLimitError(f"{what} took more than {COACD_SECONDS} s; refusing the part", name or None) from None
+            raise LDrawLimitError(f"{what} took more than {limit:g} s; refusing the part (on a slow machine, "
+                                  f"{COACD_SECONDS_ENV}=SECONDS allows longer)", name or None) from None
         if done.returncode != 0 or not os.path.exists(out):
             tail = (done.stderr.strip().splitlines() or ["no message"])[-1]
             raise LDrawLimitError(f"{what} failed within {COACD_MEMORY_BYTES >> 20:,} MB of memory ({tail}); "

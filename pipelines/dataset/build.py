@@ -43,7 +43,8 @@ from pipelines.workers import pool as workers_pool
 
 BACKENDS = ("local", "ray")
 PACKAGES = ("brick-factory", "numpy", "scipy", "trimesh", "mujoco", "pillow", "pyarrow")
-ENV_FOR_WORKERS = ("PYTHONPATH", "MUJOCO_GL", "BRICK_FACTORY_CACHE", "LDRAWDIR", "BRICK_RENDER_SAMPLES")
+ENV_FOR_WORKERS = ("PYTHONPATH", "MUJOCO_GL", "BRICK_FACTORY_CACHE", "LDRAWDIR", "BRICK_RENDER_SAMPLES",
+                   "BRICK_FACTORY_COACD_SECONDS")
 
 
 class ShardFailedError(RuntimeError):
