@@ -150,3 +150,15 @@ def test_a_structure_starts_only_from_the_program_of_the_part_it_placed_last():
     nxt = at("3001", 20, -72, 0)
     assert check(s, nxt.part, [nxt.pose], floor_y=floor)[0].ok
     assert (statics.WARM_COUNTS["started"], statics.WARM_COUNTS["cold"]) == (1, 2)
+
+
+def test_a_structure_keeps_the_bases_of_its_first_candidates_only(monkeypatch):
+    """Judging many candidates against one structure keeps at most `KEPT_BASES` of their bases."""
+    from factory.physics import check as check_mod
+
+    monkeypatch.setattr(check_mod, "KEPT_BASES", 3)
+    s = Structure([at("3001", 0, 0, 0)])
+    poses = [at("3001", x, -24, z).pose for x in (-20, 0, 20) for z in (-20, 0, 20)]
+    verdicts = check(s, at("3001", 0, 0, 0).part, poses, floor_y=s.floor_y())
+    assert sum(v.stable is not None for v in verdicts) >= 5
+    assert len(s.solved_loads["candidates"]) == 3

@@ -442,6 +442,13 @@ def _judge_loads(calls: Sequence[_Call], lp_jax) -> None:
             at += len(models)
 
 
+KEPT_BASES = 16
+"""Candidates' final bases kept per structure and length (the first solved; about 0.5 MB each at 90
+parts). The sampler's reference solves one or two programs a step; a caller judging thousands of
+candidates against one structure (`bench_physics`) keeps no more than these. Which are kept
+depends only on the order the structure's candidates were solved in, so it is deterministic too."""
+
+
 def _unit_key(unit: Sequence[Placed]) -> tuple:
     return tuple((p.part.name, p.pose.R.tobytes(), p.pose.t.tobytes()) for p in unit)
 
@@ -467,7 +474,7 @@ def _started_solver(call: "_Call", models: Sequence[LoadModel]):
         out = []
         for m in todo:
             result, solved = solve_from(m, cfg_, start)
-            if solved is not None:
+            if solved is not None and len(kept["candidates"]) < KEPT_BASES:
                 kept["candidates"][(units[id(m)], floor_y, cfg_)] = solved
             out.append(result)
         return out
