@@ -20,6 +20,11 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.optimize import OptimizeWarning, linprog
 
+try:  # scipy's private HiGHS binding: a scipy laid out otherwise solves through `linprog` only
+    import scipy.optimize._highspy._core as _CORE
+except ImportError:
+    _CORE = None
+
 STATUSES = ("optimal", "infeasible", "unbounded", "error")
 
 
@@ -89,11 +94,7 @@ as a failure)."""
 
 def _highs_core():
     """scipy's own HiGHS binding (the one `linprog` runs), or None where this scipy lacks it."""
-    try:
-        import scipy.optimize._highspy._core as core
-    except ImportError:  # a scipy whose private layout differs: the reference path only
-        return None
-    return core if hasattr(core, "_Highs") and hasattr(core, "HighsBasis") else None
+    return _CORE if hasattr(_CORE, "_Highs") and hasattr(_CORE, "HighsBasis") else None
 
 
 BASIS_STATUS = getattr(_highs_core(), "HighsBasisStatus", None)
