@@ -161,4 +161,4 @@ def test_a_structure_keeps_the_bases_of_its_first_candidates_only(monkeypatch):
     poses = [at("3001", x, -24, z).pose for x in (-20, 0, 20) for z in (-20, 0, 20)]
     verdicts = check(s, at("3001", 0, 0, 0).part, poses, floor_y=s.floor_y())
     assert sum(v.stable is not None for v in verdicts) >= 5
-    assert len(s.solved_loads["candidates"]) == 3
+    assert len(s.solved_loads.candidates) == 3

@@ -25,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import math
 import os
 import subprocess
 import sys
@@ -171,6 +172,8 @@ that cannot be stopped from Python, so it runs in a child process under this lim
 `COACD_MEMORY_BYTES`."""
 COACD_SECONDS_ENV = "BRICK_FACTORY_COACD_SECONDS"
 """Environment variable: seconds one decomposition may take (a slow machine meeting a slow part)."""
+COACD_MEMORY_BYTES = 8 << 30
+"""Address space of that child process (the 1.2-million-triangle soup reached 24 GB)."""
 
 
 def coacd_seconds() -> float:
@@ -181,12 +184,11 @@ def coacd_seconds() -> float:
     try:
         seconds = float(raw)
     except ValueError:
-        seconds = float("nan")
-    if not seconds > 0 or seconds == float("inf"):
+        seconds = math.nan
+    if not (math.isfinite(seconds) and seconds > 0):
         raise ValueError(f"{COACD_SECONDS_ENV} must be a number of seconds > 0, got {raw!r}")
     return seconds
-COACD_MEMORY_BYTES = 8 << 30
-"""Address space of that child process (the 1.2-million-triangle soup reached 24 GB)."""
+
 
 _COACD_CHILD = """
 import sys

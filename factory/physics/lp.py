@@ -92,53 +92,52 @@ off is solved again by `solve_highs` (scipy checks its answers alike, and report
 as a failure)."""
 
 
-def _highs_core():
-    """scipy's own HiGHS binding (the one `linprog` runs), or None where this scipy lacks it."""
-    return _CORE if hasattr(_CORE, "_Highs") and hasattr(_CORE, "HighsBasis") else None
+HIGHS = _CORE if hasattr(_CORE, "_Highs") and hasattr(_CORE, "HighsBasis") else None
+"""scipy's own HiGHS binding (the one `linprog` runs), None where this scipy lacks it."""
 
-
-BASIS_STATUS = getattr(_highs_core(), "HighsBasisStatus", None)
+BASIS_STATUS = getattr(HIGHS, "HighsBasisStatus", None)
 """HiGHS's basis statuses (kBasic, kLower, kUpper, kZero, kNonbasic); None without the binding."""
 
 
 def solve_highs_from(lp: LinearProgram, start: Basis | None = None) -> tuple[LPResult, Basis | None, int]:
     """`solve_highs`, started from `start` (a basis of this program's columns and rows) when given,
     and returning the final basis and the simplex iterations. The same HiGHS and options as
-    `solve_highs`: without a start its solution is that of `solve_highs`, bit for bit. A start
-    HiGHS refuses, a non-optimal status or a solution off its constraints by more than
-    `RESIDUAL_TOL` gives `solve_highs`'s answer with no basis (-1 iterations)."""
-    core = _highs_core()
-    if core is None:
-        return solve_highs(lp), None, -1
+    `solve_highs`: without a start its solution is that of `solve_highs`, bit for bit. Without the
+    binding, a start HiGHS refuses, a non-optimal status or a solution off its constraints by more
+    than `RESIDUAL_TOL`, it is `solve_highs`'s answer with no basis (-1 iterations)."""
+    solved = _run_highs(lp, start) if HIGHS is not None else None
+    return solved if solved is not None else (solve_highs(lp), None, -1)
+
+
+def _run_highs(lp: LinearProgram, start: Basis | None) -> tuple[LPResult, Basis, int] | None:
     a = (sp.vstack([lp.a_ub, lp.a_eq]) if lp.a_ub.shape[0] else lp.a_eq).tocsc()
     m, n = a.shape
-    highs = core._Highs()
+    highs = HIGHS._Highs()
     highs.setOptionValue("output_flag", False)
     for key, value in HIGHS_OPTIONS.items():
         highs.setOptionValue(key, value)
-    error = core.HighsStatus.kError  # (a warning, such as infinite bounds noted, is not one: as in scipy)
+    error = HIGHS.HighsStatus.kError  # (a warning, such as infinite bounds noted, is not one: as in scipy)
     # The model as arrays (every column continuous): HiGHS reads them in place, where a `HighsLp`'s
     # fields are filled element by element (3.7 of 9.6 ms of a 2,105-column program's solve).
-    if highs.passModel(n, m, a.nnz, int(core.MatrixFormat.kColwise), int(core.ObjSense.kMinimize), 0.0,
+    if highs.passModel(n, m, a.nnz, int(HIGHS.MatrixFormat.kColwise), int(HIGHS.ObjSense.kMinimize), 0.0,
                        lp.c, lp.lower, lp.upper, np.concatenate([np.full(lp.a_ub.shape[0], -np.inf), lp.b_eq]),
                        np.concatenate([lp.b_ub, lp.b_eq]), a.indptr[:-1].astype(np.int32),
                        a.indices.astype(np.int32), a.data, np.zeros(n, np.int32)) == error:
-        return solve_highs(lp), None, -1
+        return None
     if start is not None:
-        basis = core.HighsBasis()
+        basis = HIGHS.HighsBasis()
         basis.col_status, basis.row_status, basis.valid = start.cols, start.rows, True
         if highs.setBasis(basis) == error:
-            return solve_highs(lp), None, -1
+            return None
     highs.run()
-    if highs.getModelStatus() != core.HighsModelStatus.kOptimal:
-        return solve_highs(lp), None, -1
+    if highs.getModelStatus() != HIGHS.HighsModelStatus.kOptimal:
+        return None
     x = np.array(highs.getSolution().col_value)
     if max(lp.residuals(x)) > RESIDUAL_TOL:
-        return solve_highs(lp), None, -1
-    info = highs.getInfo()
+        return None
     final = highs.getBasis()
-    return (LPResult("optimal", x, float(info.objective_function_value)), Basis(final.col_status, final.row_status),
-            int(info.simplex_iteration_count))
+    return (LPResult("optimal", x, float(highs.getInfo().objective_function_value)),
+            Basis(final.col_status, final.row_status), int(highs.getInfo().simplex_iteration_count))
 
 
 def _linprog(lp: LinearProgram):

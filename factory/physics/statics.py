@@ -34,6 +34,7 @@ did not change when it was added.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Callable, Sequence
 
 import numpy as np
@@ -601,72 +602,82 @@ def _point_keys(parts: np.ndarray, *rest) -> list[tuple]:
 
 
 @dataclass(frozen=True, eq=False)
+class ProgramKeys:
+    """What names the columns and rows of a model's program (`to_lp`), by the caller's part
+    numbers: each connection (its two parts and stud base), support point (its part and position)
+    and link (its two parts and point), and each body's part."""
+
+    conn: list
+    ground: list
+    link: list
+    parts: list
+
+    @classmethod
+    def of(cls, model: LoadModel) -> "ProgramKeys":
+        p = model.parts
+        return cls(_point_keys(p[model.conn_a], p[model.conn_b], model.conn_pos),
+                   _point_keys(p[model.ground_body], model.ground_pos),
+                   _point_keys(p[model.link_a], p[model.link_b], model.link_pos), p.tolist())
+
+    @cached_property
+    def distinct(self) -> bool:
+        """Whether no two connections, support points or links share a key (else no start maps)."""
+        return all(len(set(k)) == len(k) for k in (self.conn, self.ground, self.link))
+
+    @cached_property
+    def index(self) -> tuple[dict, dict, dict, dict]:
+        """Each connection's, support point's, link's and body's position by its key."""
+        return tuple({k: i for i, k in enumerate(ks)} for ks in (self.conn, self.ground, self.link, self.parts))
+
+
+@dataclass(frozen=True, eq=False)
 class Solved:
-    """A load program's final basis, with the keys of its connections, support points, links and
-    bodies (by the caller's part numbers), so that a larger program can start from it."""
+    """A load program's final basis, with what names its columns and rows, so that a larger
+    program can start from it (`start_basis`)."""
 
     basis: Basis
-    conn: dict
-    ground: dict
-    link: dict
-    body: dict
-    distinct: bool
-    """Whether no two connections, support points or links share a key (else nothing starts from it)."""
+    keys: ProgramKeys
 
     @classmethod
     def of(cls, model: LoadModel, basis: Basis) -> "Solved":
-        p = model.parts
-        keys = (_point_keys(p[model.conn_a], p[model.conn_b], model.conn_pos),
-                _point_keys(p[model.ground_body], model.ground_pos),
-                _point_keys(p[model.link_a], p[model.link_b], model.link_pos))
-        return cls(basis, *({k: i for i, k in enumerate(ks)} for ks in keys), {int(v): i for i, v in enumerate(p)},
-                   all(len(set(ks)) == len(ks) for ks in keys))
+        return cls(basis, ProgramKeys.of(model))
 
 
-def start_basis(solved: Solved, model: LoadModel, cfg: LoadConfig = LoadConfig()) -> Basis | None:
-    """A basis of `model`'s program (`to_lp`) from a solved smaller one whose every body,
-    connection, support point and link `model` holds too: those keep their statuses, a new force
-    is nonbasic (free ones at zero, the ground's at its bound 0) and a new row's slack basic, so
-    the basic columns and slacks stay as many as the rows. None where `model` lacks one of
-    `solved`'s things or two of its things share a key."""
-    if BASIS_STATUS is None or not solved.distinct:
+def start_basis(solved: Solved, model: LoadModel, cfg: LoadConfig = LoadConfig(),
+                keys: ProgramKeys | None = None) -> Basis | None:
+    """A basis of `model`'s program (`to_lp`; `keys` its `ProgramKeys` when known) from a solved
+    smaller one whose every body, connection, support point and link `model` holds too: those
+    keep their statuses, a new force is nonbasic (free ones at zero, the ground's at its bound 0)
+    and a new row's slack basic, so the basic columns and slacks stay as many as the rows. None
+    where `model` lacks one of `solved`'s things or two things of either share a key."""
+    keys = keys or ProgramKeys.of(model)
+    if BASIS_STATUS is None or not solved.keys.distinct or not keys.distinct:
         return None
     basic, zero, lower = BASIS_STATUS.kBasic, BASIS_STATUS.kZero, BASIS_STATUS.kLower
-    p = model.parts
-    found = 0
+    conn, ground, link, body = solved.keys.index
     old_cols, old_rows = solved.basis.cols, solved.basis.rows
-    onc, ong = len(solved.conn), len(solved.ground)
-    cols = [old_cols[0]]
-    conn_keys = _point_keys(p[model.conn_a], p[model.conn_b], model.conn_pos)
-    conn_src = [solved.conn.get(k) for k in conn_keys]
-    for o in conn_src:
-        cols += [zero] * PER_CONNECTION if o is None else old_cols[1 + PER_CONNECTION * o:1 + PER_CONNECTION * (o + 1)]
-    g0 = 1 + PER_CONNECTION * onc
-    ground_keys = _point_keys(p[model.ground_body], model.ground_pos)
-    for k in ground_keys:
-        o = solved.ground.get(k)
-        cols += [lower] * PER_SUPPORT if o is None else old_cols[g0 + PER_SUPPORT * o:g0 + PER_SUPPORT * (o + 1)]
-        found += o is not None
-    l0 = g0 + PER_SUPPORT * ong
-    link_keys = _point_keys(p[model.link_a], p[model.link_b], model.link_pos)
-    for k in link_keys:
-        o = solved.link.get(k)
-        cols += [zero] * PER_LINK if o is None else old_cols[l0 + PER_LINK * o:l0 + PER_LINK * (o + 1)]
-        found += o is not None
-    kinds = len(capacity_rows(cfg))
-    rows = []
-    for j in range(kinds):
-        rows += [basic if o is None else old_rows[j * onc + o] for o in conn_src]
-    e0 = kinds * onc
-    for part in p.tolist():
-        o = solved.body.get(part)
-        rows += [basic] * 6 if o is None else old_rows[e0 + 6 * o:e0 + 6 * (o + 1)]
-        found += o is not None
-    found += sum(o is not None for o in conn_src)
-    distinct = (len(set(conn_keys)) == len(conn_keys) and len(set(ground_keys)) == len(ground_keys)
-                and len(set(link_keys)) == len(link_keys))
-    if not distinct or found != onc + ong + len(solved.link) + len(solved.body):
+    conn_src = [conn.get(k) for k in keys.conn]
+    ground_src = [ground.get(k) for k in keys.ground]
+    link_src = [link.get(k) for k in keys.link]
+    body_src = [body.get(k) for k in keys.parts]
+    found = sum(o is not None for src in (conn_src, ground_src, link_src, body_src) for o in src)
+    if found != len(conn) + len(ground) + len(link) + len(body):
         return None
+
+    def columns(src, first: int, width: int, new) -> list:
+        out = []
+        for o in src:
+            out += [new] * width if o is None else old_cols[first + width * o:first + width * (o + 1)]
+        return out
+
+    g0 = 1 + PER_CONNECTION * len(conn)
+    cols = [old_cols[0], *columns(conn_src, 1, PER_CONNECTION, zero), *columns(ground_src, g0, PER_SUPPORT, lower),
+            *columns(link_src, g0 + PER_SUPPORT * len(ground), PER_LINK, zero)]
+    kinds = len(capacity_rows(cfg))
+    rows = [basic if o is None else old_rows[j * len(conn) + o] for j in range(kinds) for o in conn_src]
+    e0 = kinds * len(conn)
+    for o in body_src:
+        rows += [basic] * 6 if o is None else old_rows[e0 + 6 * o:e0 + 6 * (o + 1)]
     return Basis(cols, rows)
 
 
@@ -675,12 +686,12 @@ def solve_from(model: LoadModel, cfg: LoadConfig = LoadConfig(),
     """The model's load program with HiGHS, started from `start` (`start_basis`) where one maps,
     with its own final basis for the programs after it. The objective is HiGHS's optimum either
     way; a started solve may end at another optimal vertex of a degenerate program."""
-    lp = to_lp(model, cfg)
-    basis = start_basis(start, model, cfg) if start is not None and WARM_START else None
-    result, final, iterations = solve_highs_from(lp, basis)
+    keys = ProgramKeys.of(model)
+    basis = start_basis(start, model, cfg, keys) if start is not None and WARM_START else None
+    result, final, iterations = solve_highs_from(to_lp(model, cfg), basis)
     WARM_COUNTS["started" if basis is not None else "cold"] += 1
     WARM_COUNTS["iterations"] += max(iterations, 0)
-    return result, None if final is None else Solved.of(model, final)
+    return result, None if final is None else Solved(final, keys)
 
 
 def judge_many(models: Sequence[LoadModel], cfg: LoadConfig = LoadConfig(),

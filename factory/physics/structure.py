@@ -127,10 +127,10 @@ class Structure:
         self._stud_busy = np.zeros(0, bool)
         self._sock_busy = np.zeros(0, bool)
         self._trees: dict[str, cKDTree] = {}
-        self.solved_loads: dict = {}
-        """Load programs solved on this structure, kept by `physics.check`: the basis its last
-        part's program ended at, when that part was a candidate, starts the candidates' programs
-        after it (`statics.solve_from`)."""
+        self.solved_loads = None
+        """Load programs solved on this structure, kept by `physics.check` (`_LoadStarts`): the
+        basis its last part's program ended at, when that part was a candidate, starts the
+        candidates' programs after it (`statics.solve_from`)."""
         for p in parts:
             self.add(p)
 
