@@ -41,13 +41,13 @@ def test_objects_are_the_same_whatever_judge_first(alone):
 
 
 def _rounds(s: Sampler, index: int) -> int:
-    """How many check requests object `index` makes (each answered by `check`, alone)."""
+    """How many check requests object `index` makes (each answered by `check_many` alone, so
+    `judge_first` holds)."""
     gen, n = s.growth(index), 0
     req = next(gen)
     while True:
         n += 1
-        verdicts = check(req.structure, req.part, list(req.poses), s.config.backend, s.config.check,
-                         colour=req.colour, floor_y=req.floor_y, explain=False)
+        (verdicts,) = check_many([req], s.config.backend, s.config.check, explain=False)
         try:
             req = gen.send(verdicts)
         except StopIteration:
@@ -146,25 +146,32 @@ def test_jax_processes_share_the_gpu_memory(given, expected):
 @pytest.mark.parametrize("backend", ["mujoco", "mjx"])
 def test_judge_first_leaves_only_later_survivors_unjudged(backend):
     """With `judge_first=2` the sweep and the loads judge the first two candidates of each request
-    that pass the clutch rule; every later one comes back None, and every other verdict is `check`'s."""
+    that pass the clutch rule; every later one comes back None, and so does one of those two that
+    reached the loads after the first that stands (the asker takes the first survivor). Every
+    other verdict is `check`'s."""
     if backend == "mjx":
         pytest.importorskip("jax")
     from dataclasses import replace
 
     requests = _requests()
     many = check_many([replace(r, judge_first=2) for r in requests], backend, explain=False)
-    unjudged = 0
+    unjudged = stopped = 0
     for r, got in zip(requests, many):
         want = check(r.structure, r.part, list(r.poses), "mujoco", colour=r.colour, floor_y=r.floor_y,
                      explain=False)
         past_clutch = [i for i, v in enumerate(want) if v.clutch]
-        assert [i for i, v in enumerate(got) if v is None] == past_clutch[2:]
+        judged = past_clutch[:2]
+        standing = [i for i in judged if want[i].ok]
+        after = [i for i in judged if standing and i > standing[0] and want[i].buildable is not False]
+        assert [i for i, v in enumerate(got) if v is None] == sorted(after + past_clutch[2:])
+        stopped += len(after)
         for v, w in zip(got, want):
             if v is not None:
                 assert (v.reason, v.buildable, v.clutch) == (w.reason, w.buildable, w.clutch)
                 assert v.load == pytest.approx(w.load, abs=1e-6)
         unjudged += len(past_clutch[2:])
     assert unjudged >= 10  # requests with more survivors than two: the limit was exercised
+    assert stopped >= 3  # requests whose loads stopped at a standing candidate before the second
     with pytest.raises(ValueError, match="judge_first must be None or >= 1"):
         check_many([replace(requests[0], judge_first=0)], backend)
 

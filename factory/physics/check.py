@@ -149,7 +149,10 @@ class CheckRequest:
     """Of the candidates that pass connection, collision and clutch, only the first this many (in
     `poses`' order) go on to the sweep and the loads, the two dearest checks; the others' verdicts
     are None (not judged). For an asker that takes the first survivor of an order, as the sampler
-    does: a later request judges them if it needs to. None judges every candidate."""
+    does: their load programs are solved one at a time in that order, each started from the
+    structure's own, and stop at the first candidate that stands, so those after it come back
+    None too. A later request judges them if it needs to. None judges every candidate (with
+    'mjx', their load programs together on the device)."""
 
 
 def check_many(requests: Sequence[CheckRequest], backend: str = "mujoco", config: CheckConfig = CheckConfig(),
@@ -394,10 +397,14 @@ class _Call:
             self.verdicts[k] = Verdict(**base, clutch=True if outer else None, stable=True)
 
     def loaded(self, results) -> None:
+        """The verdicts after the loads (`results`: one per pending candidate, in order); pending
+        candidates past the end of `results` are left unjudged (None: `_until_standing`)."""
         for (k, *_), lv in zip(self.pending, results):
             v = self.verdicts[k]
             self.verdicts[k] = replace(v, stable=lv.stands, load=None if lv.load is None else round(lv.load, 6),
                                        failing=lv.failing, reason=lv.reason)
+        for k, *_ in self.pending[len(results):]:
+            self.verdicts[k] = None
         self.pending = []
 
 
@@ -413,6 +420,11 @@ def _judge_loads(calls: Sequence[_Call], lp_jax) -> None:
         cfg = c.config.loads
         loads = _load_base(c.structure, c.floor_y, cfg)
         links = [Link(l.a + c.base_n, l.b + c.base_n, l.point) for l in c.unit_links]
+        if c.judge_first is not None:
+            # The asker takes the first survivor in the request's order (the sampler): the programs
+            # one at a time, each started from the structure's own, up to the first that stands.
+            c.loaded(_until_standing(c, loads, links))
+            continue
         if lp_jax is not None and not links and loads.shared() and all(len(u) == 1 for _, u, _ in c.pending):
             # One part on a connected structure: its columns written once per structure, the
             # programs of every such call in shared launches (`solve_on_bases`).
@@ -427,7 +439,8 @@ def _judge_loads(calls: Sequence[_Call], lp_jax) -> None:
         return
     if lp_jax is None:
         for c, models in general:
-            c.loaded(judge_many(models, c.config.loads, _started_solver(c, models), explain=c.explain))
+            units = [unit for _, unit, _ in c.pending]
+            c.loaded(judge_many(models, c.config.loads, _started_solver(c, models, units), explain=c.explain))
         return
     # The batched solver takes programs of any structures together; calls share one constant set
     # and one `explain` when they come from one `check_many` (else each goes alone).
@@ -476,15 +489,32 @@ def _load_starts(structure: Structure) -> _LoadStarts:
     return kept
 
 
-def _started_solver(call: "_Call", models: Sequence[LoadModel]):
-    """HiGHS for the reference's pending candidates of `call`, each program started from the one
-    the structure's last part ended at when it was a candidate on the structure before it
+def _until_standing(call: "_Call", loads: LoadBase, links: Sequence[Link]) -> list:
+    """The load verdicts of `call`'s pending candidates in order, up to the first that stands (the
+    rest are left unjudged: `_Call.loaded`), each program solved by `_started_solver`. For an
+    asker that takes the first survivor (`CheckRequest.judge_first`): a candidate's program,
+    started from the structure's, takes a few simplex iterations, so solving them one by one and
+    stopping there costs less than any batch of the programs after it (docs/physics.md)."""
+    out = []
+    for _, unit, conns in call.pending:
+        model = loads.model(unit, conns, links)
+        (verdict,) = judge_many([model], call.config.loads, _started_solver(call, [model], [unit]),
+                                explain=call.explain)
+        out.append(verdict)
+        if verdict.stands:
+            break
+    return out
+
+
+def _started_solver(call: "_Call", models: Sequence[LoadModel], units: Sequence[Sequence[Placed]]):
+    """HiGHS for pending candidates of `call` (`models`, of `units`), each program started from
+    the one the structure's last part ended at when it was a candidate on the structure before it
     (`statics.solve_from`); each candidate's own final basis is kept on the structure for the
     structure after it. What starts a program depends only on the structure's own parts, in
     their order, so a candidate's answer does not depend on what else was asked before it."""
     kept = _load_starts(call.structure)
     start = kept.start.get((call.floor_y, call.config.loads))
-    units = {id(m): _unit_key(unit) for m, (_, unit, _) in zip(models, call.pending)}
+    units = {id(m): _unit_key(unit) for m, unit in zip(models, units)}
 
     def solve(todo: Sequence[LoadModel], cfg: LoadConfig) -> list:
         out = []
