@@ -162,3 +162,23 @@ def test_a_structure_keeps_the_bases_of_its_first_candidates_only(monkeypatch):
     verdicts = check(s, at("3001", 0, 0, 0).part, poses, floor_y=s.floor_y())
     assert sum(v.stable is not None for v in verdicts) >= 5
     assert len(s.solved_loads.candidates) == 3
+
+
+def test_the_batched_path_solves_the_samplers_load_programs_one_by_one_started_too(monkeypatch):
+    """With 'mjx' the sampler's candidates (it takes the first survivor: `judge_first`) get their
+    load programs one at a time, each started from the structure's own, up to the first that
+    stands, as the reference does: none goes to the device solver, and the objects and their loads
+    are the reference's."""
+    pytest.importorskip("jax")
+    from factory.physics import lp_jax
+
+    sent = []
+    for name in ("solve_on_bases", "solve_loads"):
+        real = getattr(lp_jax, name)
+        monkeypatch.setattr(lp_jax, name, lambda *a, real=real, name=name, **k: sent.append(name) or real(*a, **k))
+    statics.WARM_COUNTS.update(started=0, cold=0, iterations=0)
+    sampler = Sampler(SamplerConfig(seed=3, min_steps=20, max_steps=20, backend="mjx"), None)
+    batched = _digest(sorted(sampler.grow(range(2), batch=2), key=lambda a: a.index))
+    assert sent == []
+    assert statics.WARM_COUNTS["started"] >= 30, statics.WARM_COUNTS
+    assert batched == _digest(_grown(2, 20)[2])
