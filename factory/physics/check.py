@@ -160,8 +160,10 @@ def check_many(requests: Sequence[CheckRequest], backend: str = "mujoco", config
     """`check` of every request, each against its own structure (objects grown in lockstep:
     `factory.sampler.lockstep`). The verdicts are those `check` gives each request alone, except
     None for the candidates a request's `judge_first` leaves unjudged; with 'mjx' the collision
-    rule, the sweeps and the load programs of all requests go to the device together
-    (`collide_jax`, `sweep_jax`, `lp_jax.solve_on_bases`)."""
+    rule, the clutch rule's programs and the sweeps of all requests go to the device together
+    (`collide_jax`, `sweep_jax`), and so do the load programs of requests that judge every
+    candidate (`lp_jax.solve_on_bases`); those of a request with `judge_first` are solved on
+    the host up to its first candidate that stands (`_until_standing`)."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
     calls = [_Call(r.structure, [[Placed(r.part, r.colour, p)] for p in r.poses], backend, config,
@@ -409,9 +411,11 @@ class _Call:
 
 
 def _judge_loads(calls: Sequence[_Call], lp_jax) -> None:
-    """The load programs of every call's pending candidates: HiGHS one at a time for the reference;
-    with the batched solver, one-part candidates on a connected structure by its shared columns
-    (`judge_on_bases`: the programs of every call in shared launches), the rest in one `judge_many`."""
+    """The load programs of every call's pending candidates: a call with `judge_first` (the
+    sampler's) up to its first candidate that stands (`_until_standing`); otherwise HiGHS one at a
+    time for the reference, and with the batched solver one-part candidates on a connected
+    structure by its shared columns (`judge_on_bases`: the programs of every call in shared
+    launches), the rest in one `judge_many`."""
     general: list[tuple[_Call, list]] = []
     on_base: dict = {}
     for c in calls:
