@@ -518,14 +518,14 @@ def _started_solver(call: "_Call", models: Sequence[LoadModel], units: Sequence[
     their order, so a candidate's answer does not depend on what else was asked before it."""
     kept = _load_starts(call.structure)
     start = kept.start.get((call.floor_y, call.config.loads))
-    units = {id(m): _unit_key(unit) for m, unit in zip(models, units)}
+    keys = {id(m): _unit_key(unit) for m, unit in zip(models, units)}
 
     def solve(todo: Sequence[LoadModel], cfg: LoadConfig) -> list:
         out = []
         for m in todo:
             result, solved = solve_from(m, cfg, start)
             if solved is not None and len(kept.candidates) < KEPT_BASES:
-                kept.candidates[(units[id(m)], call.floor_y, cfg)] = solved
+                kept.candidates[(keys[id(m)], call.floor_y, cfg)] = solved
             out.append(result)
         return out
 
