@@ -32,6 +32,7 @@ from factory.atomic import write_atomic
 from factory.dataset.info import Counts, DatasetInfo, json_bytes, write_info
 from factory.dataset.tasks import FEEDBACK_IMAGES, SPLITS
 from factory.errors import LDrawError
+from factory.physics.geometry import COACD_SECONDS_ENV
 from factory.sampler.sampler import target_steps
 from pipelines.dataset.config import ConfigMismatchError, DatasetConfig, diff_configs
 from pipelines.dataset import spool
@@ -44,7 +45,7 @@ from pipelines.workers import pool as workers_pool
 BACKENDS = ("local", "ray")
 PACKAGES = ("brick-factory", "numpy", "scipy", "trimesh", "mujoco", "pillow", "pyarrow")
 ENV_FOR_WORKERS = ("PYTHONPATH", "MUJOCO_GL", "BRICK_FACTORY_CACHE", "LDRAWDIR", "BRICK_RENDER_SAMPLES",
-                   "BRICK_FACTORY_COACD_SECONDS")
+                   COACD_SECONDS_ENV)
 
 
 class ShardFailedError(RuntimeError):
