@@ -43,10 +43,6 @@ def config_from_args(args) -> DatasetConfig:
     return config_of(DatasetConfig, args, source="synthetic", sampler=sampler, ldraw=_ldraw(args.ldraw))
 
 
-DEFAULT_GPU_BATCH = 16
-"""Objects grown together per grower with the batched checks (`--batch`'s default with mjx)."""
-
-
 def add_run_args(ap: argparse.ArgumentParser) -> None:
     """How a build runs (not part of the config: the data do not depend on these)."""
     ap.add_argument("--out", required=True, help="output folder")
@@ -55,10 +51,10 @@ def add_run_args(ap: argparse.ArgumentParser) -> None:
                          "else a local Ray)")
     renamed_flag(ap, "--backend", "--runner", "runner", choices=("local", "ray"))
     ap.add_argument("--workers", type=int, default=1, help="parallel shards (default 1: this process)")
-    ap.add_argument("--batch", type=int, default=None,
+    ap.add_argument("--batch", type=int, default=1,
                     help="synthetic objects grown together in lockstep per grower while the other workers "
-                         "render (default: 16 with the mjx checks, else 1: each shard grows its own; the data "
-                         "is the same whatever it is)")
+                         "render (default 1: each shard grows its own objects, with the mjx checks all of "
+                         "them together; the data is the same whatever it is)")
     ap.add_argument("--growers", type=int, default=None,
                     help="with --batch > 1: workers that grow objects (default two thirds of --workers)")
     add_mps_flag(ap)
@@ -67,14 +63,15 @@ def add_run_args(ap: argparse.ArgumentParser) -> None:
 
 def run(config, args) -> int:
     synthetic = config.source == "synthetic"
-    if args.batch is None:
-        args.batch = DEFAULT_GPU_BATCH if synthetic and config.sampler.backend == "mjx" else 1
     if args.workers < 1 or args.batch < 1 or (args.growers is not None and args.growers < 1):
         print("error: --workers, --batch and --growers must be >= 1", file=sys.stderr)
         return 2
     if args.batch > 1 and synthetic:
         print(f"growth: {args.batch} objects at a time in each of {growers_of(args.workers, args.growers)} "
               f"growers; {args.workers} workers", file=sys.stderr, flush=True)
+    elif synthetic and config.sampler.backend == "mjx":
+        print(f"growth: each shard's objects (up to {config.objects_per_shard}) together in the worker that "
+              f"renders them; {args.workers} worker{'s' if args.workers != 1 else ''}", file=sys.stderr, flush=True)
     if synthetic:
         print(f"physics: {config.sampler.backend} (--check-backend mujoco|mjx); renders: {gpus.render_path()}",
               file=sys.stderr, flush=True)

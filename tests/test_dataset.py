@@ -660,3 +660,28 @@ def test_start_reads_only_the_markers_there(tmp_path, monkeypatch):
     assert build_mod.finished_shards(config, tmp_path / "none") == set()
     with pytest.raises(ValueError, match="at most 10,000,000"):
         _config(n_objects=MAX_OBJECTS + 1)
+
+
+def test_a_shard_with_batched_checks_grows_its_objects_together(tmp_path, monkeypatch):
+    """With the batched checks ('mjx') and no growers (`--batch 1`), a shard grows its objects in
+    lockstep, so each round of device calls serves all of them (one at a time it made a round per
+    object), and writes the same data files as the reference's checks."""
+    pytest.importorskip("jax")
+    from factory.sampler import SamplerConfig, lockstep
+    from pipelines.dataset.shards import build_shard
+
+    def config(backend):
+        sampler = SamplerConfig(min_steps=2, max_steps=3, candidates_per_step=16, backend=backend)
+        return DatasetConfig.synthetic(3, seed=0, sampler=sampler, size=128, tile=64, objects_per_shard=3)
+
+    asked = []
+    real = lockstep.check_many
+    monkeypatch.setattr(lockstep, "check_many", lambda requests, *a, **k: asked.append(len(requests)) or
+                        real(requests, *a, **k))
+    build_shard(config("mjx"), 0, tmp_path / "mjx")
+    assert max(asked) == 3  # the shard's three objects in one call
+    build_shard(config("mujoco"), 0, tmp_path / "ref")
+    data = sorted(p.name for p in (tmp_path / "ref" / "data").glob("*.parquet"))
+    assert data and data == sorted(p.name for p in (tmp_path / "mjx" / "data").glob("*.parquet"))
+    for name in data:
+        assert filecmp.cmp(tmp_path / "ref" / "data" / name, tmp_path / "mjx" / "data" / name, shallow=False), name

@@ -141,6 +141,20 @@ WAIT_POLL_S = 0.2
 """How often a waiting shard (`build_shard(..., wait=True)`) looks for newly grown objects."""
 
 
+def _grown_together(out: Path, config: DatasetConfig, sampler, indices: list[int]):
+    """(index, (assembly, seconds)) for each object of a shard whose checks are batched ('mjx'):
+    those grown ahead (`spool`) first, then the rest grown here in lockstep, each as it ends. One
+    round of device calls serves every object of the shard, where growing them one at a time made
+    a round per object; the objects are the same (`Sampler.grow`). An object's seconds are the
+    growth between it and the one before it (not the rendering of that one)."""
+    ahead = {i: spool.get(out, i, config.seed) for i in indices}
+    yield from ((i, g) for i, g in ahead.items() if g is not None)
+    t0 = time.perf_counter()
+    for a in sampler.grow([i for i in indices if ahead[i] is None], batch=len(indices)):
+        yield a.index, (a, time.perf_counter() - t0)
+        t0 = time.perf_counter()
+
+
 def _arrivals(out: Path, config: DatasetConfig, indices: list[int], wait: bool):
     """(index, grown) for each object of a shard, `grown` from `spool` or None (the shard makes the
     object itself). In index order; with `wait`, a synthetic object grown ahead is taken as soon as
@@ -213,7 +227,12 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
         indices = config.shard_objects(shard)
         made: dict[int, tuple] = {}  # objects made out of index order, until those before them are written
         at = 0
-        for index, grown in _arrivals(out, config, indices, wait):
+        sampler = getattr(source, "sampler", None)
+        if not wait and sampler is not None and sampler.config.backend == "mjx":
+            arrivals = _grown_together(out, config, sampler, indices)
+        else:
+            arrivals = _arrivals(out, config, indices, wait)
+        for index, grown in arrivals:
             oid = config.object_id(index)
             obj = source.object(index, oid, grown) if grown is not None else source.object(index, oid)
             for k, v in obj.timings.items():
