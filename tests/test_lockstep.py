@@ -176,6 +176,46 @@ def test_judge_first_leaves_only_later_survivors_unjudged(backend):
         check_many([replace(requests[0], judge_first=0)], backend)
 
 
+@pytest.mark.parametrize("backend", ["mujoco", "mjx"])
+def test_loads_after_the_first_candidate_go_in_the_askers_order(backend):
+    """With `CheckRequest.order`, when a request's first candidate does not stand, the load programs
+    of the others go in the asker's order up to the first that stands: those it does not reach come
+    back None. Here the asker's order is the reverse of the request's."""
+    if backend == "mjx":
+        pytest.importorskip("jax")
+    from dataclasses import replace
+
+    def solved(want, reach, rest):
+        seq = [i for i in reach if i == 0]
+        if not (seq and want[0].ok):
+            seq += rest
+        out = []
+        for i in seq:
+            out.append(i)
+            if want[i].ok:
+                break
+        return out
+
+    requests = _requests()
+    reverse = lambda positions: sorted(positions, reverse=True)  # noqa: E731
+    many = check_many([replace(r, judge_first=4, order=reverse) for r in requests], backend, explain=False)
+    differs = 0
+    for r, got in zip(requests, many):
+        want = check(r.structure, r.part, list(r.poses), "mujoco", colour=r.colour, floor_y=r.floor_y,
+                     explain=False)
+        past_clutch = [i for i, v in enumerate(want) if v.clutch]
+        reach = [i for i in past_clutch[:4] if want[i].buildable is not False]
+        rest = [i for i in reach if i != 0]
+        judged = solved(want, reach, rest[::-1])
+        assert [i for i, v in enumerate(got) if v is None] == sorted(set(reach) - set(judged) | set(past_clutch[4:]))
+        for i in judged:
+            assert (got[i].reason, got[i].load) == (want[i].reason, pytest.approx(want[i].load, abs=1e-6))
+        differs += set(judged) != set(solved(want, reach, rest))
+    assert differs >= 2  # requests whose answer the order changed
+    with pytest.raises(ValueError, match="CheckRequest.order gave"):
+        check_many([replace(r, judge_first=4, order=lambda p: p[:1]) for r in requests], backend)
+
+
 def _asked(s: Sampler, index: int) -> tuple[list[int], bytes]:
     """The sizes of object `index`'s check requests (each answered by `check_many` alone, so
     `judge_first` holds) and the object's LDraw bytes."""

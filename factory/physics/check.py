@@ -23,7 +23,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from dataclasses import dataclass, field, replace
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -153,6 +153,12 @@ class CheckRequest:
     structure's own, and stop at the first candidate that stands, so those after it come back
     None too. A later request judges them if it needs to. None judges every candidate (with
     'mjx', their load programs together on the device)."""
+    order: Callable[[list[int]], list[int]] | None = field(default=None, compare=False)
+    """With `judge_first`: the asker's own order of candidates, given their positions in `poses`
+    (a list) and giving the same positions back, first the one it would take first. When the
+    first candidate of `poses` does not stand, the load programs of the others go in this order,
+    up to the first that stands, so that is the one the asker takes (the sampler orders them by
+    their exact keys, where `poses` holds them by their keys' upper bounds). None: `poses`' order."""
 
 
 def check_many(requests: Sequence[CheckRequest], backend: str = "mujoco", config: CheckConfig = CheckConfig(),
@@ -167,7 +173,8 @@ def check_many(requests: Sequence[CheckRequest], backend: str = "mujoco", config
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
     calls = [_Call(r.structure, [[Placed(r.part, r.colour, p)] for p in r.poses], backend, config,
-                   floor_y=r.floor_y, explain=explain, judge_first=r.judge_first) for r in requests if r.poses]
+                   floor_y=r.floor_y, explain=explain, judge_first=r.judge_first, order=r.order)
+             for r in requests if r.poses]
     done = iter(_run_calls(calls, backend))
     return [next(done) if r.poses else [] for r in requests]
 
@@ -219,11 +226,12 @@ class _Call:
 
     def __init__(self, structure: Structure, units: Sequence[Sequence[Placed]], backend: str, config: CheckConfig,
                  require_connection: bool = True, floor_y: float | None = None, standing: bool = True,
-                 unit_links: Sequence[Link] = (), explain: bool = True, judge_first: int | None = None):
+                 unit_links: Sequence[Link] = (), explain: bool = True, judge_first: int | None = None,
+                 order: Callable[[list[int]], list[int]] | None = None):
         t0 = time.perf_counter()
         if judge_first is not None and judge_first < 1:
             raise ValueError(f"judge_first must be None or >= 1, got {judge_first}")
-        self.judge_first = judge_first
+        self.judge_first, self.order = judge_first, order
         self.structure, self.config, self.floor_y, self.backend = structure, config, floor_y, backend
         self.standing, self.unit_links, self.explain = standing, unit_links, explain
         self.require_connection = require_connection
@@ -494,20 +502,43 @@ def _load_starts(structure: Structure) -> _LoadStarts:
 
 
 def _until_standing(call: "_Call", loads: LoadBase, links: Sequence[Link]) -> list:
-    """The load verdicts of `call`'s pending candidates in order, up to the first that stands (the
-    rest are left unjudged: `_Call.loaded`), each program solved by `_started_solver`. For an
-    asker that takes the first survivor (`CheckRequest.judge_first`): a candidate's program,
-    started from the structure's, takes a few simplex iterations, so solving them one by one and
-    stopping there costs less than any batch of the programs after it (docs/physics.md)."""
-    out = []
-    for _, unit, conns in call.pending:
+    """The load verdicts of `call`'s pending candidates, up to the first that stands (the rest are
+    left unjudged: `_Call.loaded`), each program solved by `_started_solver`: the request's first
+    candidate first, then the others in the asker's order (`CheckRequest.order`, asked only
+    when the first does not stand; else the request's). `call.pending` is left in the order
+    solved. For an asker that takes the first survivor (`CheckRequest.judge_first`): a
+    candidate's program, started from the structure's, takes a few simplex iterations, so solving
+    them one by one and stopping there costs less than any batch of the programs after it
+    (docs/physics.md)."""
+    first = [e for e in call.pending if e[0] == 0]
+    rest = [e for e in call.pending if e[0] != 0]
+    done: list[tuple] = []
+
+    def stands(entry) -> bool:
+        _, unit, conns = entry
         model = loads.model(unit, conns, links)
         (verdict,) = judge_many([model], call.config.loads, _started_solver(call, [model], [unit]),
                                 explain=call.explain)
-        out.append(verdict)
-        if verdict.stands:
-            break
-    return out
+        done.append((entry, verdict))
+        return verdict.stands
+
+    if not any(stands(e) for e in first):
+        if call.order is not None and len(rest) > 1:
+            rest = _in_order(call.order, rest)
+        any(stands(e) for e in rest)
+    solved = {id(e) for e, _ in done}
+    call.pending = [e for e, _ in done] + [e for e in call.pending if id(e) not in solved]
+    return [v for _, v in done]
+
+
+def _in_order(order: Callable[[list[int]], list[int]], entries: list) -> list:
+    """`entries` (pending candidates, each led by its position) in the asker's `order`."""
+    by_position = {e[0]: e for e in entries}
+    positions = list(order(list(by_position)))
+    if sorted(positions) != sorted(by_position):
+        raise ValueError(f"CheckRequest.order gave {positions} for the positions {list(by_position)}; "
+                         "expected the same positions, reordered")
+    return [by_position[k] for k in positions]
 
 
 def _started_solver(call: "_Call", models: Sequence[LoadModel], units: Sequence[Sequence[Placed]]):

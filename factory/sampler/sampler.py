@@ -165,7 +165,7 @@ class Sampler:
                         # Only the first `judge_first` candidates past the clutch rule are swept
                         # and load-judged (the dearest checks); the rest come back None.
                         verdicts = yield CheckRequest(structure, part, tuple(poses[j] for j in ask), colour, ground,
-                                                      judge_first=cfg.judge_first)
+                                                      judge_first=cfg.judge_first, order=order.positions_by_key(ask))
                         for j, w in zip(ask, verdicts):
                             if w is None:
                                 unjudged.add(j)
@@ -249,6 +249,17 @@ class KeyOrder:
                 self.given[best] = True
                 return best
             self._settle([int(np.argmax(bound))])
+
+    def positions_by_key(self, ask: list[int]):
+        """For a request of candidates `ask`: a function from positions in `ask` to the same
+        positions in decreasing exact key (ties by index), the order the walk takes them in
+        (`CheckRequest.order`), computing those of their densities not known yet."""
+        def by_key(positions: list[int]) -> list[int]:
+            self._settle([ask[p] for p in positions if not self.exact[ask[p]]])
+            keys = self._keys()
+            return sorted(positions, key=lambda p: (-keys[ask[p]], ask[p]))
+
+        return by_key
 
     def rest(self) -> list[int]:
         """The candidates not given yet, by their keys' bounds (the order of a request; the key
