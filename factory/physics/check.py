@@ -512,23 +512,24 @@ def _until_standing(call: "_Call", loads: LoadBase, links: Sequence[Link]) -> li
     (docs/physics.md)."""
     first = [e for e in call.pending if e[0] == 0]
     rest = [e for e in call.pending if e[0] != 0]
-    done: list[tuple] = []
+    solved: list[tuple] = []  # (pending entry, its load verdict), in the order solved
 
-    def stands(entry) -> bool:
-        _, unit, conns = entry
-        model = loads.model(unit, conns, links)
-        (verdict,) = judge_many([model], call.config.loads, _started_solver(call, [model], [unit]),
-                                explain=call.explain)
-        done.append((entry, verdict))
-        return verdict.stands
+    def one_stands(entries) -> bool:
+        for entry in entries:
+            _, unit, conns = entry
+            model = loads.model(unit, conns, links)
+            (verdict,) = judge_many([model], call.config.loads, _started_solver(call, [model], [unit]),
+                                    explain=call.explain)
+            solved.append((entry, verdict))
+            if verdict.stands:
+                return True
+        return False
 
-    if not any(stands(e) for e in first):
-        if call.order is not None and len(rest) > 1:
-            rest = _in_order(call.order, rest)
-        any(stands(e) for e in rest)
-    solved = {id(e) for e, _ in done}
-    call.pending = [e for e, _ in done] + [e for e in call.pending if id(e) not in solved]
-    return [v for _, v in done]
+    if not one_stands(first):
+        one_stands(_in_order(call.order, rest) if call.order is not None and len(rest) > 1 else rest)
+    judged = {id(e) for e, _ in solved}
+    call.pending = [e for e, _ in solved] + [e for e in call.pending if id(e) not in judged]
+    return [v for _, v in solved]
 
 
 def _in_order(order: Callable[[list[int]], list[int]], entries: list) -> list:
