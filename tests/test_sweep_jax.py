@@ -271,26 +271,54 @@ def test_a_stud_reaching_into_the_path_is_referred_to_the_reference():
     assert got == ref
 
 
-def test_a_rounds_stacked_tables_go_to_the_device_once_and_are_not_widened_with_the_batch():
-    """The same sets' tables at the same padded row count give the same device stack (kept, not
-    sent again); other rows or sets give a new one, padded by repeating the first row; a lockstep
-    grower's widening of the per-structure caches leaves this cache at its own size."""
-    from factory.physics.keep_last import widened
-
+def test_a_launch_takes_only_the_rows_its_pairs_name_packed_in_one_table():
+    """`_gathered`: the named rows of one bucket's tables of several sets (counted one after the
+    other), each row its vertices, normals, edges and centre side by side, padded by repeating the
+    first row."""
     brick = load_part(get_reader(None), "3001")
     sets = [sweep_jax._structure_set(Structure([Placed(brick, 4, Pose(np.eye(3), np.array([x, 0.0, 0.0])))]))[0]
             for x in (0.0, 40.0)]
-    parts = [sets[0].tables[0], sets[1].tables[0]]  # one bucket of two structures
-    n = [len(p[0]) for p in parts]
-    rows = 2 * sum(n)
-    first = sweep_jax._stacked(parts, rows)
-    assert sweep_jax._stacked(list(parts), rows) is first
-    assert sweep_jax._stacked(parts, 2 * rows) is not first
-    assert sweep_jax._stacked(parts[::-1], rows) is not first
-    assert all(x.shape[0] == rows for x in first) and str(first[0].dtype) == "float64"
-    verts = np.asarray(first[0])
-    np.testing.assert_array_equal(verts[:n[0]], parts[0][0])
-    np.testing.assert_array_equal(verts[n[0]:sum(n)], parts[1][0])
-    assert (verts[sum(n):] == parts[0][0][0]).all()  # padding repeats the first row
-    with widened(1000):
-        assert sweep_jax._STACKS.capacity == 32 and sweep_jax._STRUCTURE.capacity == 1000
+    tables = [sets[0].tables[0], sets[1].tables[0]]  # one bucket of two structures
+    n0 = len(tables[0][0])
+    rows = np.array([1, n0, n0 + 2])
+    got = sweep_jax._gathered(tables, rows, 8)
+    v, nn, e = (tables[0][i].shape[1] for i in range(3))
+    assert got.shape == (8, v + nn + e + 1, 3) and got.dtype == np.float64
+    for at, (which, row) in enumerate([(0, 1), (1, 0), (1, 2)]):
+        t = tables[which]
+        np.testing.assert_array_equal(got[at], np.concatenate([t[0][row], t[1][row], t[2][row], t[3][row][None]]))
+    assert (got[3:] == got[0]).all()  # padding repeats the first row
+
+
+def _job(rng, count):
+    """A job of `exact_intervals`' form: `count` random convex pairs, each its own candidate."""
+    pairs = [_random_pair(rng) for _ in range(count)]
+    ua = sweep_jax._Set.of_pieces([sweep_jax._piece(a, False, 0.0) for a, _, _ in pairs],
+                                  np.array([a.mean(0) for a, _, _ in pairs]), np.arange(count), count)
+    sb = sweep_jax._Set.of_pieces([sweep_jax._piece(b, False, 0.0) for _, b, _ in pairs],
+                                  np.array([b.mean(0) for _, b, _ in pairs]), np.arange(count), count)
+    idx = np.arange(count)
+    return (ua, sb, np.repeat(np.eye(3)[None], count, 0), np.zeros((count, 3)), np.array([d for *_, d in pairs]), idx,
+            idx, idx, rng.choice([0.0, 0.3, 1.5], size=count), np.full(count, np.inf))
+
+
+def test_a_rounds_jobs_go_to_the_device_in_one_call_and_come_back_in_one_copy(monkeypatch):
+    """Several jobs in one `_intervals_many` (a lockstep round): their tables and poses go to the
+    device in one call and every launch's results come back in one copy, and each job's intervals
+    are those it gets alone."""
+    rng = np.random.default_rng(11)
+    jobs = [_job(rng, 7), _job(rng, 12), _job(rng, 5)]
+    alone = [sweep_jax._intervals_many([j])[0] for j in jobs]
+    calls = {"_on_device": 0, "_results": 0}
+    for name in calls:
+        real = getattr(sweep_jax, name)
+
+        def counted(*a, _real=real, _name=name, **k):
+            calls[_name] += 1
+            return _real(*a, **k)
+
+        monkeypatch.setattr(sweep_jax, name, counted)
+    together = sweep_jax._intervals_many(jobs)
+    assert calls == {"_on_device": 1, "_results": 1}
+    for a, b in zip(alone, together):
+        np.testing.assert_array_equal(a, b)

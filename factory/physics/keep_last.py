@@ -3,8 +3,7 @@
 One object grown at a time asks about one structure in a row (batches, redraws of one part), so
 one entry is enough. Objects grown in lockstep (`factory.sampler.lockstep`) ask about each of
 theirs in turn, so the grower widens these caches to its batch for as long as it runs
-(`widened`). A cache of a round's device arrays (`sweep_jax._STACKS`) keeps its own size: its
-entries are large, and a round makes as many whatever the batch."""
+(`widened`)."""
 
 from __future__ import annotations
 
@@ -20,12 +19,8 @@ class KeepLast:
     objects by `id`, so the objects themselves are held (`held`) as long as the entry is: no id in
     the key can be reused meanwhile."""
 
-    def __init__(self, capacity: int = 1, widens: bool = True) -> None:
+    def __init__(self, capacity: int = 1) -> None:
         self.capacity = capacity
-        # Whether `widened` widens it: caches of one structure or unit each do; a cache of a
-        # round's launches does not (its entries are large, and their count does not grow with
-        # the batch).
-        self.widens = widens
         self._entries: OrderedDict[Any, tuple[Any, Any]] = OrderedDict()
         _ALL.append(self)
 
@@ -45,7 +40,7 @@ class KeepLast:
 def widened(capacity: int):
     """Every cache keeps at least `capacity` entries inside the block; back to its own size (and
     its newest entries) after."""
-    old = [(c, c.capacity) for c in _ALL if c.widens]
+    old = [(c, c.capacity) for c in _ALL]
     for c, cap in old:
         c.capacity = max(cap, capacity)
     try:

@@ -57,7 +57,7 @@ from collections import Counter
 from concurrent.futures import ThreadPoolExecutor
 from functools import cache, partial
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from scipy.spatial import ConvexHull
@@ -384,12 +384,22 @@ def _kernel():
             return jnp.stack([depth(av, sv, axes, valid), depth(ac[None], sv, sn, ones_s),
                               depth(av, sc[None], an, ones_u)])
 
-        def run(fn, crosses, ut, st, R, t, d, u, s, k, thr, thr_c):
+        def split(table, v, n, e):
+            """A packed table's (vertices, normals, edges, centres) (`_gathered`)."""
+            return table[:, :v], table[:, v:v + n], table[:, v + n:v + n + e], table[:, v + n + e]
+
+        def run(fn, crosses, sizes, ut, st, poses, pairs):
+            # Packed arguments (`_launch`): the tables and the candidates' poses, already on the
+            # device, and one host array of the pairs (their indices exact in float64).
+            ut, st = split(ut, *sizes[:3]), split(st, *sizes[3:])
+            R, t, d = poses[:, :9].reshape(-1, 3, 3), poses[:, 9:12], poses[:, 12:15]
+            u, s, k = (pairs[:, i].astype(jnp.int64) for i in range(3))
+            thr, thr_c = pairs[:, 3], pairs[:, 4]
             return jax.vmap(partial(fn, crosses), in_axes=(None, None, None, None, None, 0, 0, 0, 0, 0))(
                 ut, st, R, t, d, u, s, k, thr, thr_c)
 
-        _KERNEL = {"sweep": jax.jit(partial(run, pair), static_argnums=0),
-                   "still": jax.jit(partial(run, still), static_argnums=0)}
+        _KERNEL = {"sweep": jax.jit(partial(run, pair), static_argnums=(0, 1)),
+                   "still": jax.jit(partial(run, still), static_argnums=(0, 1))}
     return _KERNEL
 
 
@@ -397,69 +407,97 @@ WIDTH = {"sweep": 6, "still": 3}
 """Values per pair of each kernel kind."""
 
 
-def _launch(crosses: bool, ut, st, R, t, d, u, s, k, thr, thr_c, kind: str = "sweep") -> np.ndarray:
-    """(n, 6) intervals of the pairs (lo, hi of the overlap, then of the two centre tests), or for
-    kind 'still' (n, 3) depths (of the pieces, of each centre in the other); edge-edge axes only
-    with `crosses`."""
+def _launch(crosses: bool, ut, us: tuple, st, ss: tuple, poses, u, s, k, thr, thr_c, kind: str = "sweep") -> list:
+    """Starts the launches of pairs (u, s, k, thr, thr_c) and returns them, each (first pair,
+    pairs, device result) (`_results`): (n, 6) intervals of the pairs (lo, hi of the overlap, then
+    of the two centre tests), or for kind 'still' (n, 3) depths (of the pieces, of each centre in
+    the other); edge-edge axes only with `crosses`. `ut`, `st`: `_gathered` tables of buckets
+    `us`, `ss`; `poses`: the candidates' packed poses on the device (`_on_device`). A caller
+    starts all its launches before it waits for any: the device runs them back to back, and the
+    host waits once."""
     import jax  # optional: the [mjx] extra
 
     n = len(u)
-    nv = ut[0].shape[1] + st[0].shape[1]
-    axes = ut[1].shape[1] + st[1].shape[1] + crosses * ut[2].shape[1] * st[2].shape[1]
+    nv = us[0] + ss[0]
+    axes = us[1] + ss[1] + crosses * us[2] * ss[2]
     chunk = max(256, 1 << int(math.log2(max(1, MAX_WORK // (nv * axes)))))
-    out = np.empty((n, WIDTH[kind]))
+    pairs = np.stack([u, s, k, thr, thr_c], axis=1).astype(np.float64)  # indices < 2**53: exact
+    sizes = (*us, *ss)
+    started = []
     with jax.enable_x64(True):
         for a in range(0, n, chunk):
             m = min(chunk, n - a)
-            dims = (kind, crosses, *ut[0].shape[1:], *st[0].shape[1:], ut[1].shape[1], st[1].shape[1])
+            dims = (kind, crosses, *sizes)
             # On a GPU a launch of a few pairs costs about what one of thousands does: pairs are
             # padded to the most met, so the pair counts of a run compile once per piece shape.
             rows = min(chunk, _grown(("pairs", *dims), m)) if _on_gpu() else _pow2(m, MIN_ROWS)
-            pad = lambda x: np.concatenate([x[a:a + m], np.repeat(x[a:a + 1], rows - m, 0)])
-            shape = (kind, int(crosses), rows, ut[0].shape[0], st[0].shape[0], len(R), *ut[0].shape[1:2], ut[1].shape[1],
-                     ut[2].shape[1], st[0].shape[1], st[1].shape[1], st[2].shape[1])
+            shape = (kind, int(crosses), rows, ut.shape[0], st.shape[0], poses.shape[0], *sizes)
             if shape not in COMPILES:
                 COMPILES.append(shape)
             # Through its export: a shape this process has not met is not traced again (`jax_export`).
-            res = jax_export.call(f"{kind}-{int(crosses)}", partial(_kernel()[kind], crosses), ut, st, R, t, d, pad(u),
-                                  pad(s), pad(k), pad(thr), pad(thr_c), source=__file__)
-            out[a:a + m] = np.asarray(res)[:m]
+            # The bucket sizes name it: they split the packed tables.
+            res = jax_export.call(f"{kind}-{int(crosses)}-{'.'.join(map(str, sizes))}",
+                                  partial(_kernel()[kind], crosses, sizes), ut, st, poses,
+                                  np.concatenate([pairs[a:a + m], np.repeat(pairs[a:a + 1], rows - m, 0)]),
+                                  source=__file__)
+            started.append((a, m, res))
+    return started
+
+
+def _results(launches: list, counts: list[int], kind: str) -> list[np.ndarray]:
+    """The (pairs, `WIDTH[kind]`) results of `_launch`es of `counts` pairs, copied to the host
+    together (one wait, not one per launch)."""
+    import jax  # optional: the [mjx] extra
+
+    host = iter(jax.device_get([res for started in launches for _, _, res in started]))
+    out = []
+    for started, n in zip(launches, counts):
+        got = np.empty((n, WIDTH[kind]))
+        for a, m, _ in started:
+            got[a:a + m] = np.asarray(next(host))[:m]
+        out.append(got)
     return out
 
 
-_STACKS = KeepLast(32, widens=False)
-"""Stacked tables on the device by the sets' tables in them and the padded row count: a round's
-collision and sweep launches, and the rounds in which no object of the batch placed a part, stack
-the same sets, so a stack goes to the device once (a round's tables were 14.5 MB a launch on
-average, and a launch from host arrays 600-910 us against 65-195 us from the device on an H100,
-docs/sampler.md). A round makes one stack per piece bucket and side, whatever the batch, so the
-cache is not widened with it (`keep_last.widened`): its entries are megabytes each."""
-
-
-def _stacked(parts: list[tuple], rows: int) -> tuple:
-    """The tables of `parts` (one bucket's (vertices, normals, edges, centres) of several sets)
-    one after the other, padded to `rows` by repeating the first row, as device arrays."""
+def _on_device(arrays: list[np.ndarray]) -> list:
+    """Host arrays on the device, float64 as on the host, in one call."""
     import jax  # optional: the [mjx] extra
 
-    def build():
-        cat = [np.concatenate([p[i] for p in parts]) for i in range(4)]
-        with jax.enable_x64(True):  # float64 on the device, as the host arrays
-            return tuple(jax.device_put(np.concatenate([x, np.repeat(x[:1], rows - len(x), 0)])) for x in cat)
+    with jax.enable_x64(True):
+        return jax.device_put(arrays)
 
-    return _STACKS.get((rows, *map(id, parts)), list(parts), build)
+
+def _gathered(tables: list[tuple], rows: np.ndarray, size: int) -> np.ndarray:
+    """The rows `rows` (ascending) of `tables` (one bucket's (vertices, normals, edges, centres) of
+    several sets, counted one after the other) packed in one (size, vertices + normals + edges + 1,
+    3) array, padded to `size` by repeating its first row. A launch takes only the pieces its
+    pairs name: a round's whole tables were 14.5 MB a launch on average (docs/sampler.md), and
+    every host array is copied again on its way to the device."""
+    chunks, start = [], 0
+    for table in tables:
+        end = start + len(table[0])
+        local = rows[np.searchsorted(rows, start):np.searchsorted(rows, end)] - start
+        if len(local):
+            chunks.append(np.concatenate([table[0][local], table[1][local], table[2][local],
+                                          table[3][local][:, None]], axis=1))
+        start = end
+    packed = np.concatenate(chunks)
+    return np.concatenate([packed, np.repeat(packed[:1], size - len(packed), 0)])
 
 
 def _intervals_many(jobs, kind: str = "sweep") -> list[np.ndarray]:
     """For each job (unit set, structure set, R, t, d, k, u, s, thr, thr_c): the (pairs, 6)
     intervals of unit piece u[i] of candidate k[i] (pose R, t; direction d) against structure piece
-    s[i] (`_launch`; with kind 'still' their depths at the pose). One launch per group of pairs with the same piece buckets (and alignment)
-    whatever job they come from: the sets' tables of one bucket are stacked, each job's rows and
-    candidates offset into them."""
+    s[i] (`_launch`; with kind 'still' their depths at the pose). One launch per group of pairs
+    with the same piece buckets (and alignment) whatever job they come from: per side and bucket,
+    the rows the pairs name, of every job's sets, in one table (`_gathered`); the tables and all
+    candidates' poses go to the device in one call, every launch starts before the first result
+    is waited for, and the results come back in one copy (`_results`)."""
     out = [np.empty((len(j[5]), WIDTH[kind])) for j in jobs]
     if not jobs:
         return out
     # Bucket shapes (vertices, normals, edges) of every set, and where each set's table of a bucket
-    # starts in the stacked table of that shape.
+    # starts when the tables of that shape are counted one after the other.
     tables: dict[tuple, list] = {}
     offset: dict[tuple[int, tuple], int] = {}
 
@@ -492,19 +530,32 @@ def _intervals_many(jobs, kind: str = "sweep") -> list[np.ndarray]:
         uoff = np.array([offset[(id(uset), "u", sh)] for sh in ushape], np.int64)[uset.bucket_of[u]]
         soff = np.array([offset[(id(sset), "s", sh)] for sh in sshape], np.int64)[sset.bucket_of[s]]
         per_job.append((group, uset.local[u] + uoff, sset.local[s] + soff, k + k_start[n], thr, thr_c))
-    stacked: dict[tuple, tuple] = {}
+    groups = []
     for (us, ss, al), code in shapes.items():
         sel = [np.flatnonzero(g[0] == code) for g in per_job]
-        if not sum(len(x) for x in sel):
-            continue
-        for side, sh in (("u", us), ("s", ss)):
-            if (side, sh) not in stacked:
-                parts = tables[(side, sh)]
-                stacked[(side, sh)] = _stacked(parts, _grown((side, sh), sum(len(p[0]) for p in parts)))
-        gu, gs, gk, gthr, gthc = (np.concatenate([pj[i][x] for pj, x in zip(per_job, sel)]) for i in (1, 2, 3, 4, 5))
-        res = _launch(not al, stacked[("u", us)], stacked[("s", ss)], Rp, tp, dp, gu, gs, gk, gthr, gthc, kind)
+        if sum(len(x) for x in sel):
+            groups.append((us, ss, al, sel, *(np.concatenate([pj[i][x] for pj, x in zip(per_job, sel)])
+                                              for i in (1, 2, 3, 4, 5))))
+    # Per side and bucket, the rows some pair names, in one table on the device.
+    named: dict[tuple, list] = {}
+    for us, ss, al, sel, gu, gs, *_ in groups:
+        named.setdefault(("u", us), []).append(gu)
+        named.setdefault(("s", ss), []).append(gs)
+    rows = {key: np.unique(np.concatenate(x)) for key, x in named.items()}
+    keys = list(rows)
+    # The tables and the candidates' poses go to the device in one call.
+    *tables_on, poses = _on_device([_gathered(tables[key], rows[key], _grown(("rows", *key), len(rows[key])))
+                                    for key in keys] + [np.concatenate([Rp.reshape(kp, 9), tp, dp], axis=1)])
+    packed = dict(zip(keys, tables_on))
+    launches = []
+    for us, ss, al, sel, gu, gs, gk, gthr, gthc in groups:
+        u_at, s_at = np.searchsorted(rows[("u", us)], gu), np.searchsorted(rows[("s", ss)], gs)
+        launches.append(_launch(not al, packed[("u", us)], us, packed[("s", ss)], ss, poses, u_at, s_at, gk, gthr, gthc,
+                                kind))
+    # Every group is started before the first is waited for.
+    for group, res in zip(groups, _results(launches, [len(g[4]) for g in groups], kind)):
         at = 0
-        for n, x in enumerate(sel):
+        for n, x in enumerate(group[3]):
             out[n][x] = res[at:at + len(x)]
             at += len(x)
     return out
