@@ -278,8 +278,10 @@ def test_a_launch_takes_only_the_rows_its_pairs_name_packed_in_one_table():
     brick = load_part(get_reader(None), "3001")
     sets = [sweep_jax._structure_set(Structure([Placed(brick, 4, Pose(np.eye(3), np.array([x, 0.0, 0.0])))]))[0]
             for x in (0.0, 40.0)]
-    tables = [sets[0].tables[0], sets[1].tables[0]]  # one bucket of two structures
+    b = int(np.argmax([len(t[0]) for t in sets[0].tables]))  # the studs' bucket: 8 pieces
+    tables = [sets[0].tables[b], sets[1].tables[b]]  # one bucket of two structures
     n0 = len(tables[0][0])
+    assert n0 >= 3
     rows = np.array([1, n0, n0 + 2])
     got = sweep_jax._gathered(tables, rows, 8)
     v, nn, e = (tables[0][i].shape[1] for i in range(3))
@@ -322,3 +324,25 @@ def test_a_rounds_jobs_go_to_the_device_in_one_call_and_come_back_in_one_copy(mo
     assert calls == {"_on_device": 1, "_results": 1}
     for a, b in zip(alone, together):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_structure_grown_part_by_part_has_the_pieces_of_one_built_at_once():
+    """`_structure_set` turns and moves only the parts it has not met (kept by part placed): after
+    every part added, its pieces, boxes and tables equal those of `_set_of` over all the parts."""
+    reader = get_reader(None)
+    brick, plate, slope = (load_part(reader, name) for name in ("3001", "3020", "3039"))
+    rng = np.random.default_rng(5)
+    structure = Structure([])
+    for i in range(12):
+        part = (brick, plate, slope)[i % 3]
+        R = rotation_about(np.array([0.0, 1.0, 0.0]), 90.0 * float(rng.integers(4)))
+        structure.add(Placed(part, 4, Pose(R, rng.integers(-5, 6, 3) * np.array([20.0, 8.0, 20.0]))))
+        got, boxes = sweep_jax._structure_set(structure)
+        want = sweep_jax._set_of([(p.part, p.pose) for p in structure.placed])
+        for name in ("stud", "inset", "prism", "centres", "owner", "box", "owner_box", "bucket_of", "local"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+        assert got.buckets == want.buckets
+        for a, b in zip(got.tables, want.tables):
+            for x, y in zip(a, b):
+                np.testing.assert_array_equal(x, y)
+        assert len(boxes) == len(structure)
