@@ -7,7 +7,7 @@ N ?= 8
 SEED ?= 0
 OUT ?= out/synth
 RUNNER ?= local
-CHECK_BACKEND ?= mujoco
+CHECK_BACKEND ?= auto
 WORKERS ?= $(shell nproc 2>/dev/null || echo 2)
 DATA ?= $(OUT)
 OUTDIR ?= checkpoints/run
@@ -36,7 +36,7 @@ $(STAMP): pyproject.toml constraints.txt
 
 # The main job: sample N physics-verified objects, render every step, write sharded Parquet to OUT
 # (embedded part library unless LDRAWDIR is set). RUNNER=local|ray says where shards run,
-# CHECK_BACKEND=mujoco|mjx how the physics checks run. Re-running resumes; a changed config is refused.
+# CHECK_BACKEND=auto|mujoco|mjx how the physics checks run (auto: mjx where a CUDA GPU and the gpu extra are). Re-running resumes; a changed config is refused.
 synth: setup
 	$(PY) -m pipelines.synth --n $(N) --out $(OUT) --seed $(SEED) --runner $(RUNNER) --check-backend $(CHECK_BACKEND) --workers $(WORKERS)
 

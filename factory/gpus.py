@@ -1,4 +1,5 @@
-"""Which GPU a worker process uses: the factory's worker processes spread over every GPU.
+"""Which GPU a worker process uses (the factory's worker processes spread over every GPU), and
+whether the batched checks run on one (`checks_backend`).
 
 A build's pool numbers its workers (`SLOT_ENV`, set by `pipelines.dataset.build`). On a machine
 with several NVIDIA GPUs, worker k renders on EGL device k mod G (`MUJOCO_EGL_DEVICE_ID`, read by
@@ -61,3 +62,30 @@ def render_path() -> str:
     if n and os.environ.get("MUJOCO_GL", "egl").lower() == "egl":
         return f"EGL on {n} NVIDIA GPU(s), worker k on GPU k mod {n}"
     return f"on the CPU ({os.environ.get('MUJOCO_GL') or 'EGL or OSMesa, whichever is installed'})"
+
+
+def cuda_jax() -> str | None:
+    """The installed distribution of JAX's CUDA build (what the `gpu` extra brings), or None. Read
+    from the installed packages' metadata: importing JAX here would start CUDA in the process that
+    then starts the workers."""
+    from importlib import metadata
+
+    for dist in metadata.distributions():
+        name = (dist.metadata["Name"] or "").lower().replace("_", "-")
+        if name.startswith("jax-cuda") and name.endswith("-plugin"):
+            return name
+    return None
+
+
+def checks_backend() -> tuple[str, str]:
+    """The physics checks' backend for `--check-backend auto` on this machine, and why: 'mjx' (the
+    batched checks, on the GPU) where an NVIDIA GPU and JAX's CUDA build are, else 'mujoco' (the
+    reference, on the CPU). On a lent H200, 96-object builds took 94.3 and 98.9 s with 'mjx'
+    and 94.3 and 102.6 s with 'mujoco', alternating, the same files (docs/dataset.md)."""
+    n = count()
+    if not n:
+        return "mujoco", "no NVIDIA GPU here"
+    cuda = cuda_jax()
+    if cuda is None:
+        return "mujoco", f"{n} NVIDIA GPU(s) but no CUDA build of JAX (pip install -e '.[gpu]')"
+    return "mjx", f"{n} NVIDIA GPU(s) and JAX's CUDA build ({cuda})"

@@ -37,9 +37,30 @@ def add_config_flags(ap: argparse.ArgumentParser, skip=NOT_FLAGS) -> None:
     add_config_args(ap, DatasetConfig, skip=skip)
 
 
+AUTO = "auto"
+"""`--check-backend auto` (the default): the batched checks where a CUDA GPU and JAX's CUDA build
+are, else the reference (`gpus.checks_backend`)."""
+
+
+def add_auto_backend(ap: argparse.ArgumentParser) -> None:
+    """`--check-backend` takes `auto` too, and defaults to it."""
+    (action,) = [a for a in ap._actions if "--check-backend" in a.option_strings]
+    action.choices, action.default = (*action.choices, AUTO), AUTO
+    action.help = action.help.replace(" (default:", " Or 'auto': 'mjx' where an NVIDIA GPU and JAX's CUDA build (the "
+                                      "gpu extra) are, else 'mujoco' (default:")
+
+
+def checks_backend(args) -> tuple[str, str]:
+    """The checks' backend of parsed arguments, and why (`auto` resolved for this machine)."""
+    chosen = getattr(args, "sampler.backend", AUTO)
+    return gpus.checks_backend() if chosen == AUTO else (chosen, "--check-backend " + chosen)
+
+
 def config_from_args(args) -> DatasetConfig:
-    """The synthetic `DatasetConfig` of parsed arguments (`--ldraw` defaults to $LDRAWDIR)."""
-    sampler = config_of(SamplerConfig, args, "sampler.", seed=args.seed)
+    """The synthetic `DatasetConfig` of parsed arguments (`--ldraw` defaults to $LDRAWDIR;
+    `--check-backend auto` resolved for this machine)."""
+    backend = {"backend": checks_backend(args)[0]} if getattr(args, "sampler.backend", None) == AUTO else {}
+    sampler = config_of(SamplerConfig, args, "sampler.", seed=args.seed, **backend)
     return config_of(DatasetConfig, args, source="synthetic", sampler=sampler, ldraw=_ldraw(args.ldraw))
 
 
@@ -73,8 +94,9 @@ def run(config, args) -> int:
         print(f"growth: each shard's objects (up to {config.objects_per_shard}) together in the worker that "
               f"renders them; {args.workers} worker{'s' if args.workers != 1 else ''}", file=sys.stderr, flush=True)
     if synthetic:
-        print(f"physics: {config.sampler.backend} (--check-backend mujoco|mjx); renders: {gpus.render_path()}",
-              file=sys.stderr, flush=True)
+        why = checks_backend(args)[1] if getattr(args, "sampler.backend", None) == AUTO else "--check-backend"
+        print(f"physics: {config.sampler.backend} ({why}; --check-backend mujoco|mjx|auto); renders: "
+              f"{gpus.render_path()}", file=sys.stderr, flush=True)
     summary = build(config, args.out, backend=args.runner, workers=args.workers,
                     progress=not args.no_progress, batch=args.batch, growers=args.growers, mps_mode=args.mps)
     print(summary_line(summary), flush=True)
@@ -90,6 +112,7 @@ def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m pipelines.synth", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     add_config_flags(ap)
+    add_auto_backend(ap)
     add_run_args(ap)
     return ap
 

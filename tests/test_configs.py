@@ -165,12 +165,13 @@ def _flag_actions(ap: argparse.ArgumentParser) -> dict[str, argparse.Action]:
     return {a.dest: a for a in ap._actions if a.help != argparse.SUPPRESS and a.option_strings}
 
 
-@pytest.mark.parametrize("cls, prefix, ap, skip", [
-    (DatasetConfig, "", synth_parser(), synth.NOT_FLAGS),
-    (SamplerConfig, "sampler.", synth_parser(), ("seed", "check")),
-    (TrainConfig, "", train_parser(), ("lora",)),
+@pytest.mark.parametrize("cls, prefix, ap, skip, own", [
+    (DatasetConfig, "", synth_parser(), synth.NOT_FLAGS, {}),
+    # The main job's checks take the GPU where there is one (`synth.AUTO`), the library's the reference.
+    (SamplerConfig, "sampler.", synth_parser(), ("seed", "check"), {"backend": synth.AUTO}),
+    (TrainConfig, "", train_parser(), ("lora",), {}),
 ], ids=["synth-dataset", "synth-sampler", "train"])
-def test_the_command_line_has_a_flag_per_field_with_its_default_and_help(cls, prefix, ap, skip):
+def test_the_command_line_has_a_flag_per_field_with_its_default_and_help(cls, prefix, ap, skip, own):
     actions = _flag_actions(ap)
     docs = field_docs(cls)
     for f in dataclasses.fields(cls):
@@ -180,7 +181,7 @@ def test_the_command_line_has_a_flag_per_field_with_its_default_and_help(cls, pr
         action = actions[prefix + f.name]
         assert docs[f.name].replace("%", "%%") in action.help
         if f.default is not dataclasses.MISSING:
-            assert action.default == f.default, f.name
+            assert action.default == own.get(f.name, f.default), f.name
             rendered = ap._get_formatter()._expand_help(action)
             assert "(default: " in rendered, rendered
         else:
@@ -230,6 +231,31 @@ def test_old_flag_spellings_still_work_with_a_warning(capsys):
     assert sample_config(["--backend", "mjx"]).backend == "mjx"
     assert "--backend is deprecated, use --check-backend" in capsys.readouterr().err
     assert synth_parser().parse_args(["--n", "1", "--out", "o", "--png-level", "3"]).png_compress_level == 3
+
+
+def test_auto_checks_take_the_gpu_only_with_an_nvidia_gpu_and_cudas_jax(tmp_path, monkeypatch):
+    """`--check-backend auto` (synth's default) resolves per machine: the reference without an
+    NVIDIA GPU or without JAX's CUDA build, the batched checks with both; the config records
+    the backend taken. The GPU is the driver's listing (`gpus._NVIDIA_GPUS`), here a folder."""
+    from factory import gpus
+
+    monkeypatch.delenv("LDRAWDIR", raising=False)
+    args = synth_parser().parse_args(["--n", "2", "--out", "unused"])
+    assert getattr(args, "sampler.backend") == synth.AUTO
+    monkeypatch.setattr(gpus, "_NVIDIA_GPUS", str(tmp_path / "none"))
+    assert synth.checks_backend(args) == ("mujoco", "no NVIDIA GPU here")
+    assert synth.config_from_args(args).sampler.backend == "mujoco"
+    (tmp_path / "gpus" / "0000:01:00.0").mkdir(parents=True)
+    monkeypatch.setattr(gpus, "_NVIDIA_GPUS", str(tmp_path / "gpus"))
+    monkeypatch.setattr(gpus, "cuda_jax", lambda: None)
+    backend, why = synth.checks_backend(args)
+    assert backend == "mujoco" and "no CUDA build of JAX" in why
+    monkeypatch.setattr(gpus, "cuda_jax", lambda: "jax-cuda13-plugin")
+    assert synth.checks_backend(args) == ("mjx", "1 NVIDIA GPU(s) and JAX's CUDA build (jax-cuda13-plugin)")
+    cfg = synth.config_from_args(args)
+    assert cfg.sampler.backend == "mjx" and cfg.sampler.check_batch == 16  # the batched path's own default
+    chosen = synth_parser().parse_args(["--n", "2", "--out", "unused", "--check-backend", "mujoco"])
+    assert synth.config_from_args(chosen).sampler.backend == "mujoco"  # a chosen backend is kept
 
 
 def test_a_bad_choice_lists_the_valid_ones(capsys):

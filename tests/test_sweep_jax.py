@@ -286,9 +286,9 @@ def test_a_launch_takes_only_the_rows_its_pairs_name_packed_in_one_table():
     got = sweep_jax._gathered(tables, rows, 8)
     v, nn, e = (tables[0][i].shape[1] for i in range(3))
     assert got.shape == (8, v + nn + e + 1, 3) and got.dtype == np.float64
-    for at, (which, row) in enumerate([(0, 1), (1, 0), (1, 2)]):
+    for i, (which, row) in enumerate([(0, 1), (1, 0), (1, 2)]):
         t = tables[which]
-        np.testing.assert_array_equal(got[at], np.concatenate([t[0][row], t[1][row], t[2][row], t[3][row][None]]))
+        np.testing.assert_array_equal(got[i], np.concatenate([t[0][row], t[1][row], t[2][row], t[3][row][None]]))
     assert (got[3:] == got[0]).all()  # padding repeats the first row
 
 

@@ -58,7 +58,7 @@ from collections import Counter
 from concurrent.futures import ThreadPoolExecutor
 from functools import cache, partial
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 from scipy.spatial import ConvexHull
