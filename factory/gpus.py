@@ -12,6 +12,7 @@ by it (google-deepmind/mujoco#3245), so setting it for JAX could move the render
 from __future__ import annotations
 
 import os
+from importlib import metadata
 
 SLOT_ENV = "BRICK_FACTORY_WORKER"
 """The worker's number in its pool (0, 1, ...), set by the pool's initializer."""
@@ -68,8 +69,6 @@ def cuda_jax() -> str | None:
     """The installed distribution of JAX's CUDA build (what the `gpu` extra brings), or None. Read
     from the installed packages' metadata: importing JAX here would start CUDA in the process that
     then starts the workers."""
-    from importlib import metadata
-
     for dist in metadata.distributions():
         name = (dist.metadata["Name"] or "").lower().replace("_", "-")
         if name.startswith("jax-cuda") and name.endswith("-plugin"):
