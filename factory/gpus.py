@@ -12,6 +12,7 @@ by it (google-deepmind/mujoco#3245), so setting it for JAX could move the render
 from __future__ import annotations
 
 import os
+from functools import cache
 from importlib import metadata
 
 SLOT_ENV = "BRICK_FACTORY_WORKER"
@@ -65,10 +66,11 @@ def render_path() -> str:
     return f"on the CPU ({os.environ.get('MUJOCO_GL') or 'EGL or OSMesa, whichever is installed'})"
 
 
+@cache
 def cuda_jax() -> str | None:
     """The installed distribution of JAX's CUDA build (what the `gpu` extra brings), or None. Read
     from the installed packages' metadata: importing JAX here would start CUDA in the process that
-    then starts the workers."""
+    then starts the workers. Read once a process: it walks every installed package."""
     for dist in metadata.distributions():
         name = (dist.metadata["Name"] or "").lower().replace("_", "-")
         if name.startswith("jax-cuda") and name.endswith("-plugin"):

@@ -59,8 +59,7 @@ def checks_backend(args) -> tuple[str, str]:
 def config_from_args(args) -> DatasetConfig:
     """The synthetic `DatasetConfig` of parsed arguments (`--ldraw` defaults to $LDRAWDIR;
     `--check-backend auto` resolved for this machine)."""
-    backend = {"backend": checks_backend(args)[0]} if getattr(args, "sampler.backend", None) == AUTO else {}
-    sampler = config_of(SamplerConfig, args, "sampler.", seed=args.seed, **backend)
+    sampler = config_of(SamplerConfig, args, "sampler.", seed=args.seed, backend=checks_backend(args)[0])
     return config_of(DatasetConfig, args, source="synthetic", sampler=sampler, ldraw=_ldraw(args.ldraw))
 
 
@@ -94,8 +93,7 @@ def run(config, args) -> int:
         print(f"growth: each shard's objects (up to {config.objects_per_shard}) together in the worker that "
               f"renders them; {args.workers} worker{'s' if args.workers != 1 else ''}", file=sys.stderr, flush=True)
     if synthetic:
-        why = checks_backend(args)[1] if getattr(args, "sampler.backend", None) == AUTO else "--check-backend"
-        print(f"physics: {config.sampler.backend} ({why}; --check-backend mujoco|mjx|auto); renders: "
+        print(f"physics: {config.sampler.backend} ({checks_backend(args)[1]}; --check-backend mujoco|mjx|auto); renders: "
               f"{gpus.render_path()}", file=sys.stderr, flush=True)
     summary = build(config, args.out, backend=args.runner, workers=args.workers,
                     progress=not args.no_progress, batch=args.batch, growers=args.growers, mps_mode=args.mps)

@@ -232,7 +232,8 @@ def _template(part: Part) -> _Template:
 class _Set:
     """Placed pieces (world or unit frame) with their owner, grouped into padded bucket tables.
 
-    `rows`: {bucket: (piece indices, ascending; vertices, normals, edges padded to the bucket)}."""
+    `rows`: {bucket: (piece indices, ascending; vertices, normals, edges padded to the bucket)};
+    `tables`: per bucket (vertices, normals, edges, centres), the rows `_gathered` picks from."""
 
     def __init__(self, stud: np.ndarray, inset: np.ndarray, prism: np.ndarray, centres: np.ndarray,
                  owner: np.ndarray, owners: int, rows: dict, box: np.ndarray | None = None):
@@ -453,11 +454,11 @@ def _launch(crosses: bool, ut, us: tuple, st, ss: tuple, poses, u, s, k, thr, th
     chunk = max(256, 1 << int(math.log2(max(1, MAX_WORK // (nv * axes)))))
     pairs = np.stack([u, s, k, thr, thr_c], axis=1).astype(np.float64)  # indices < 2**53: exact
     sizes = (*us, *ss)
+    dims = (kind, crosses, *sizes)
     started = []
     with jax.enable_x64(True):
         for a in range(0, n, chunk):
             m = min(chunk, n - a)
-            dims = (kind, crosses, *sizes)
             # On a GPU a launch of a few pairs costs about what one of thousands does: pairs are
             # padded to the most met, so the pair counts of a run compile once per piece shape.
             rows = min(chunk, _grown(("pairs", *dims), m)) if _on_gpu() else _pow2(m, MIN_ROWS)
@@ -474,15 +475,15 @@ def _launch(crosses: bool, ut, us: tuple, st, ss: tuple, poses, u, s, k, thr, th
     return started
 
 
-def _results(launches: list, counts: list[int], kind: str) -> list[np.ndarray]:
-    """The (pairs, `WIDTH[kind]`) results of `_launch`es of `counts` pairs, copied to the host
-    together (one wait, not one per launch)."""
+def _results(launches: list, kind: str) -> list[np.ndarray]:
+    """The (pairs, `WIDTH[kind]`) results of `_launch`es, copied to the host together (one wait,
+    not one per launch)."""
     import jax  # optional: the [mjx] extra
 
     host = iter(jax.device_get([res for started in launches for _, _, res in started]))
     out = []
-    for started, n in zip(launches, counts):
-        got = np.empty((n, WIDTH[kind]))
+    for started in launches:
+        got = np.empty((sum(m for _, m, _ in started), WIDTH[kind]))
         for a, m, _ in started:
             got[a:a + m] = np.asarray(next(host))[:m]
         out.append(got)
@@ -583,7 +584,7 @@ def _intervals_many(jobs, kind: str = "sweep") -> list[np.ndarray]:
         launches.append(_launch(not al, packed[("u", us)], us, packed[("s", ss)], ss, poses, u_at, s_at, gk, gthr, gthc,
                                 kind))
     # Every group is started before the first is waited for.
-    for group, res in zip(groups, _results(launches, [len(g[4]) for g in groups], kind)):
+    for group, res in zip(groups, _results(launches, kind)):
         at = 0
         for n, x in enumerate(group[3]):
             out[n][x] = res[at:at + len(x)]
