@@ -179,16 +179,17 @@ def test_judge_first_leaves_only_later_survivors_unjudged(backend):
 @pytest.mark.parametrize("backend", ["mujoco", "mjx"])
 def test_loads_after_the_first_candidate_go_in_the_askers_order(backend):
     """With `CheckRequest.order`, when a request's first candidate does not stand, the load programs
-    of the others go in the asker's order up to the first that stands: those it does not reach come
-    back None. Here the asker's order is the reverse of the request's."""
+    of the others go in the asker's order up to the first that stands, and stop before the first
+    candidate left unjudged (`judge_first`) or where the order ends: those it does not reach come
+    back None. Here the asker's order is the reverse of the request's, then one that ends at once."""
     if backend == "mjx":
         pytest.importorskip("jax")
     from dataclasses import replace
 
-    def solved(want, reach, rest):
+    def solved(want, reach, walk):
         seq = [i for i in reach if i == 0]
         if not (seq and want[0].ok):
-            seq += rest
+            seq += walk
         out = []
         for i in seq:
             out.append(i)
@@ -196,24 +197,40 @@ def test_loads_after_the_first_candidate_go_in_the_askers_order(backend):
                 break
         return out
 
+    def until(walk, stops):
+        """`walk` up to its first position in `stops`."""
+        cut = next((j for j, i in enumerate(walk) if i in stops), len(walk))
+        return walk[:cut]
+
     requests = _requests()
     reverse = lambda positions: sorted(positions, reverse=True)  # noqa: E731
-    many = check_many([replace(r, judge_first=4, order=reverse) for r in requests], backend, explain=False)
-    differs = 0
-    for r, got in zip(requests, many):
-        want = check(r.structure, r.part, list(r.poses), "mujoco", colour=r.colour, floor_y=r.floor_y,
-                     explain=False)
-        past_clutch = [i for i, v in enumerate(want) if v.clutch]
-        reach = [i for i in past_clutch[:4] if want[i].buildable is not False]
-        rest = [i for i in reach if i != 0]
-        judged = solved(want, reach, rest[::-1])
-        assert [i for i, v in enumerate(got) if v is None] == sorted(set(reach) - set(judged) | set(past_clutch[4:]))
-        for i in judged:
-            assert (got[i].reason, got[i].load) == (want[i].reason, pytest.approx(want[i].load, abs=1e-6))
-        differs += set(judged) != set(solved(want, reach, rest))
+    ends_at_once = lambda positions: []  # noqa: E731
+    differs = stopped = ended = 0
+    for order in (reverse, ends_at_once):
+        many = check_many([replace(r, judge_first=4, order=order) for r in requests], backend, explain=False)
+        for r, got in zip(requests, many):
+            want = check(r.structure, r.part, list(r.poses), "mujoco", colour=r.colour, floor_y=r.floor_y,
+                         explain=False)
+            past_clutch = [i for i, v in enumerate(want) if v.clutch]
+            reach = [i for i in past_clutch[:4] if want[i].buildable is not False]
+            rest = [i for i in reach if i != 0]
+            unjudged = set(past_clutch[4:])
+            walk = until(order(rest + sorted(unjudged)), unjudged)
+            judged = solved(want, reach, walk)
+            assert [i for i, v in enumerate(got) if v is None] == sorted(set(reach) - set(judged) | unjudged)
+            for i in judged:
+                assert (got[i].reason, got[i].load) == (want[i].reason, pytest.approx(want[i].load, abs=1e-6))
+            alone = solved(want, reach, rest)
+            differs += set(judged) != set(alone)
+            stopped += order is reverse and bool(unjudged) and len(alone) > len(judged)
+            ended += order is ends_at_once and len(alone) > len(judged)
     assert differs >= 2  # requests whose answer the order changed
+    assert stopped >= 1  # programs the request's order would solve, not solved before an unjudged one
+    assert ended >= 1  # nor those after the end of the asker's order
     with pytest.raises(ValueError, match="CheckRequest.order gave"):
-        check_many([replace(r, judge_first=4, order=lambda p: p[:1]) for r in requests], backend)
+        check_many([replace(r, judge_first=4, order=lambda p: [max(p) + 1]) for r in requests], backend)
+    with pytest.raises(ValueError, match="CheckRequest.order gave"):
+        check_many([replace(r, judge_first=4, order=lambda p: p + p) for r in requests], backend)
 
 
 def _asked(s: Sampler, index: int) -> tuple[list[int], bytes]:
@@ -243,3 +260,32 @@ def test_check_batch_bounds_each_request_and_smaller_requests_ask_fewer_candidat
     assert [ldr for _, ldr in asked[3]] == [ldr for _, ldr in asked[16]]
     assert sum(map(sum, (sizes for sizes, _ in asked[3]))) < sum(map(sum, (sizes for sizes, _ in asked[16])))
     assert max(n for sizes, _ in asked[16] for n in sizes) > 3  # the larger bound was used
+
+
+def test_the_batched_walk_solves_only_the_load_programs_the_reference_solves(monkeypatch):
+    """Objects of the default config grown two at a time with the batched checks (requests of
+    `check_batch` candidates, `judge_first` of them judged) solve exactly the load programs the
+    reference solves asking one candidate at a time: none for a candidate the walk would not reach
+    (one after a candidate left unjudged, or after one outside the request whose key bound is
+    higher). The same objects."""
+    pytest.importorskip("jax")
+    import factory.physics.check as chk
+
+    solved = []
+    real = chk.solve_from
+
+    def counted(*args, **kwargs):
+        solved.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(chk, "solve_from", counted)
+    programs, objects = {}, {}
+    for backend, batch in (("mujoco", 1), ("mjx", 2)):
+        solved.clear()
+        s = Sampler(SamplerConfig(seed=0, backend=backend))
+        grown = sorted(s.grow(range(2), batch=batch), key=lambda a: a.index)
+        objects[backend] = [a.ldr_text(f"object_{a.index:05d}.ldr") for a in grown]
+        programs[backend] = len(solved)
+    assert s.config.check_batch > 1 and s.config.judge_first > 1  # the batched walk's requests
+    assert objects["mjx"] == objects["mujoco"]
+    assert programs["mjx"] == programs["mujoco"] > 0

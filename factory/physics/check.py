@@ -155,10 +155,13 @@ class CheckRequest:
     'mjx', their load programs together on the device)."""
     order: Callable[[list[int]], list[int]] | None = field(default=None, compare=False)
     """With `judge_first`: the asker's own order of candidates, given their positions in `poses`
-    (a list) and giving the same positions back, first the one it would take first. When the
-    first candidate of `poses` does not stand, the load programs of the others go in this order,
-    up to the first that stands, so that is the one the asker takes (the sampler orders them by
-    their exact keys, where `poses` holds them by their keys' upper bounds). None: `poses`' order."""
+    (a list) and giving them back in the order it would take them, first the one it would take
+    first; it may end early, before a candidate that one outside the request might precede. When
+    the first candidate of `poses` does not stand, the load programs of the others go in this
+    order, up to the first that stands, so that is the one the asker takes (the sampler orders
+    them by their exact keys, where `poses` holds them by their keys' upper bounds). The
+    positions given include the candidates left unjudged: the programs stop at the first of
+    them, whose verdict the asker needs first. None: `poses`' order."""
 
 
 def check_many(requests: Sequence[CheckRequest], backend: str = "mujoco", config: CheckConfig = CheckConfig(),
@@ -505,7 +508,10 @@ def _until_standing(call: "_Call", loads: LoadBase, links: Sequence[Link]) -> li
     """The load verdicts of `call`'s pending candidates, up to the first that stands (the rest are
     left unjudged: `_Call.loaded`), each program solved by `_started_solver`: the request's first
     candidate first, then the others in the asker's order (`CheckRequest.order`, asked only
-    when the first does not stand; else the request's). `call.pending` is left in the order
+    when the first does not stand; else the request's). With an order, the programs also stop
+    before the first candidate in it whose verdict the asker cannot know yet (one `judge_first`
+    left unjudged, or one that needs no program), and where the order ends: the asker takes that
+    one, or asks again, before it would take any after it. `call.pending` is left in the order
     solved. For an asker that takes the first survivor (`CheckRequest.judge_first`): a
     candidate's program, started from the structure's, takes a few simplex iterations, so solving
     them one by one and stopping there costs less than any batch of the programs after it
@@ -525,21 +531,35 @@ def _until_standing(call: "_Call", loads: LoadBase, links: Sequence[Link]) -> li
                 return True
         return False
 
-    if not one_stands(first):
-        one_stands(_in_order(call.order, rest) if call.order is not None and len(rest) > 1 else rest)
+    if not one_stands(first) and rest:
+        if call.order is None:
+            one_stands(rest)
+        else:
+            # Candidates not rejected and not pending: left unjudged, or judged without a program.
+            # The walk stops at them (their programs would be solved for nothing if it took one).
+            pending = {e[0] for e in call.pending}
+            stops = [k for k, v in enumerate(call.verdicts) if k != 0 and k not in pending and (v is None or v.ok)]
+            one_stands(_in_order(call.order, rest, stops))
     judged = {id(e) for e, _ in solved}
     call.pending = [e for e, _ in solved] + [e for e in call.pending if id(e) not in judged]
     return [v for _, v in solved]
 
 
-def _in_order(order: Callable[[list[int]], list[int]], entries: list) -> list:
-    """`entries` (pending candidates, each led by its position) in the asker's `order`."""
+def _in_order(order: Callable[[list[int]], list[int]], entries: list, stops: Sequence[int] = ()) -> list:
+    """`entries` (pending candidates, each led by its position) in the asker's `order`, up to the
+    first of the positions `stops` in it or where it ends (`CheckRequest.order`)."""
     by_position = {e[0]: e for e in entries}
-    positions = list(order(list(by_position)))
-    if sorted(positions) != sorted(by_position):
-        raise ValueError(f"CheckRequest.order gave {positions} for the positions {list(by_position)}; "
-                         "expected the same positions, reordered")
-    return [by_position[k] for k in positions]
+    given = list(by_position) + list(stops)
+    positions = list(order(list(given)))
+    if len(set(positions)) != len(positions) or not set(positions) <= set(given):
+        raise ValueError(f"CheckRequest.order gave {positions} for the positions {given}; "
+                         "expected some of the same positions, each once, reordered")
+    out = []
+    for k in positions:
+        if k not in by_position:
+            break
+        out.append(by_position[k])
+    return out
 
 
 def _started_solver(call: "_Call", models: Sequence[LoadModel], units: Sequence[Sequence[Placed]]):

@@ -253,11 +253,19 @@ class KeyOrder:
     def positions_by_key(self, ask: list[int]):
         """For a request of candidates `ask`: a function from positions in `ask` to the same
         positions in decreasing exact key (ties by index), the order the walk takes them in
-        (`CheckRequest.order`), computing those of their densities not known yet."""
+        (`CheckRequest.order`), computing those of their densities not known yet. It ends before
+        the first whose key does not exceed every other open candidate's key bound: a candidate
+        outside the request could come first in the walk there."""
         def by_key(positions: list[int]) -> list[int]:
             self._settle([ask[p] for p in positions if not self.exact[ask[p]]])
             keys = self._keys()
-            return sorted(positions, key=lambda p: (-keys[ask[p]], ask[p]))
+            outside = np.ones(len(keys), dtype=bool)
+            outside[ask] = False
+            outside &= ~self.given
+            bound = keys[outside].max() if outside.any() else -np.inf
+            ordered = sorted(positions, key=lambda p: (-keys[ask[p]], ask[p]))
+            cut = next((i for i, p in enumerate(ordered) if not keys[ask[p]] > bound), len(ordered))
+            return ordered[:cut]
 
         return by_key
 
