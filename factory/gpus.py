@@ -81,8 +81,7 @@ def cuda_jax() -> str | None:
 def checks_backend() -> tuple[str, str]:
     """The physics checks' backend for `--check-backend auto` on this machine, and why: 'mjx' (the
     batched checks, on the GPU) where an NVIDIA GPU and JAX's CUDA build are, else 'mujoco' (the
-    reference, on the CPU). On a lent H200, 96-object builds took 94.3 and 98.9 s with 'mjx'
-    and 94.3 and 102.6 s with 'mujoco', alternating, the same files (docs/dataset.md)."""
+    reference, on the CPU). Both write the same files; their build times are in docs/dataset.md."""
     n = count()
     if not n:
         return "mujoco", "no NVIDIA GPU here"

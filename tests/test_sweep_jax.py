@@ -18,6 +18,7 @@ from factory.ldraw import Library, Reader  # noqa: E402
 from factory.physics import sweep_jax  # noqa: E402
 from factory.physics.attach import feasible_poses, lowest_y  # noqa: E402
 from factory.physics.check import CheckConfig, _unit_connections  # noqa: E402
+from factory.physics.geometry import collision_shape  # noqa: E402
 from factory.physics.collide import CollisionScene  # noqa: E402
 from factory.physics.geometry import stud_prism  # noqa: E402
 from factory.physics.structure import Placed, Structure  # noqa: E402
@@ -328,7 +329,8 @@ def test_a_rounds_jobs_go_to_the_device_in_one_call_and_come_back_in_one_copy(mo
 
 def test_a_structure_grown_part_by_part_has_the_pieces_of_one_built_at_once():
     """`_structure_set` turns and moves only the parts it has not met (kept by part placed): after
-    every part added, its pieces, boxes and tables equal those of `_set_of` over all the parts."""
+    every part added, its pieces, boxes and tables equal those of `_set_of` over all the parts, and
+    at the end each piece is its part's collision piece moved by the part's pose."""
     reader = get_reader(None)
     brick, plate, slope = (load_part(reader, name) for name in ("3001", "3020", "3039"))
     rng = np.random.default_rng(5)
@@ -346,3 +348,16 @@ def test_a_structure_grown_part_by_part_has_the_pieces_of_one_built_at_once():
             for x, y in zip(a, b):
                 np.testing.assert_array_equal(x, y)
         assert len(boxes) == len(structure)
+    # And against the parts' collision shapes moved by their poses, not through `_part_pieces`:
+    # each piece's hull vertices (its table row, before the padding), centre and box.
+    for i in range(got.n):
+        placed = structure.placed[got.owner[i]]
+        shape = collision_shape(placed.part)
+        local = (*shape.body, *shape.studs)[i - got.start[got.owner[i]]]
+        world = local @ placed.pose.R.T + placed.pose.t
+        hull = world[ConvexHull(local).vertices]
+        row = got.tables[got.bucket_of[i]][0][got.local[i]]
+        np.testing.assert_allclose(row[:len(hull)], hull, atol=1e-9)
+        assert (row[len(hull):] == row[0]).all()
+        np.testing.assert_allclose(got.centres[i], world.mean(axis=0), atol=1e-9)
+        np.testing.assert_allclose(got.box[i], [world.min(axis=0), world.max(axis=0)], atol=1e-9)

@@ -584,9 +584,9 @@ def _intervals_many(jobs, kind: str = "sweep") -> list[np.ndarray]:
         launches.append(_launch(not al, packed[("u", us)], us, packed[("s", ss)], ss, poses, u_at, s_at, gk, gthr, gthc,
                                 kind))
     # Every group is started before the first is waited for.
-    for group, res in zip(groups, _results(launches, kind)):
+    for (_, _, _, sel, *_), res in zip(groups, _results(launches, kind)):
         at = 0
-        for n, x in enumerate(group[3]):
+        for n, x in enumerate(sel):
             out[n][x] = res[at:at + len(x)]
             at += len(x)
     return out
