@@ -287,6 +287,25 @@ def test_a_scene_redraws_whatever_items_it_is_given(reader, renderer):
     assert np.allclose(scene.bounds(items), scene.bounds(items[:1]) + [[0, -24, 0], [0, 0, 0]])
 
 
+def test_one_segmentation_table_serves_every_view_of_the_same_items(reader, renderer):
+    """`Scene.segment_lut` is kept across views of one set of items: each view's segmentation
+    equals the one read with a table rebuilt for that view, and other items get a new table."""
+    size = 96
+    parts = [placed("3001", 4, (0, 0, 0)), placed("3003", 1, (10, -24, 0)), placed("3024", 14, (-30, 8, 20))]
+    f = Framing.from_bounds(bounds_of(parts, reader))
+    items = [Item(render.images.load_part(reader, p.part), p.colour, p.pose) for p in parts]
+    scene = renderer.scene_for([it.part for it in items], render.images.EDGE_PX * f.height / size)
+    for view in ALL_VIEWS:
+        kept = render_seg(scene, items, renderer.colours, view, f, size)
+        scene._lut_memo = None  # rebuilt from this view's scene
+        fresh = render_seg(scene, items, renderer.colours, view, f, size)
+        assert np.array_equal(kept, fresh), view
+        assert set(np.unique(fresh)) <= {-1, 0, 1, 2} and (fresh >= 0).any(), view
+    front = render_seg(scene, items, renderer.colours, "Front", f, size)
+    shuffled = render_seg(scene, items[::-1], renderer.colours, "Front", f, size)  # item indices reversed
+    assert np.array_equal(np.where(front >= 0, 2 - front, -1), shuffled)
+
+
 # -- catalog ---------------------------------------------------------------------------------------
 def test_catalog_cells_are_where_the_grid_says(reader, renderer):
     parts = [("3001", 71)] * 3 + [("3024", 71), ("3003", 71), ("3001", 4), ("3023", 71), ("3024", 71)]

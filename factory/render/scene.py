@@ -201,6 +201,7 @@ class Scene:
         self._edge_geoms = np.zeros(0, np.int64)
         self._edges_on = True
         self._bounds_memo: tuple | None = None
+        self._lut_memo: tuple | None = None
         self._vertices = {id(p): part_geometry(p).vertices for p in self.parts}
 
     @staticmethod
@@ -282,6 +283,30 @@ class Scene:
         out = np.stack([allp.min(0), allp.max(0)])
         self._bounds_memo = (key, list(items), out)
         return out.copy()
+
+    def segment_lut(self) -> np.ndarray:
+        """Item index (int32) by id colour of a segmentation render of the scene last built by
+        `mjv_updateScene`: entry k is for segid k - 1 (entry 0, the background, and anything not an
+        item's face: -1); the last entry stands for every colour past the others (-1 too).
+        Segids follow the order in which visible geoms enter the scene, which only the shown items
+        and outlines decide (not the camera), so one table serves every view of an image set
+        (reading it geom by geom took most of a segmentation render's host time)."""
+        scn = self.mjv_scene
+        key = (self._show_key, self._edges_on, scn.ngeom)
+        if self._lut_memo is not None and self._lut_memo[0] == key:
+            return self._lut_memo[1]
+        slot_to_item = np.full(len(self.parts), -1, np.int32)
+        slot_to_item[np.asarray(self.shown, int)] = np.arange(len(self.shown))
+        lut = np.full(scn.ngeom + 3, -1, np.int32)
+        geom = mujoco.mjtObj.mjOBJ_GEOM
+        for i in range(scn.ngeom):
+            g = scn.geoms[i]
+            if g.segid >= 0 and g.objtype == geom and 0 <= g.objid < len(self.geom_slot):
+                slot = self.geom_slot[g.objid]
+                if slot >= 0:
+                    lut[g.segid + 1] = slot_to_item[slot]
+        self._lut_memo = (key, lut)
+        return lut
 
     # -- GL ----------------------------------------------------------------------------------
     def context(self, kind: str, size: int) -> mujoco.MjrContext:

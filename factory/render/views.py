@@ -76,17 +76,9 @@ def render_seg(
         scn.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 0
     raw = np.empty((size, size, 3), np.uint8)
     mujoco.mjr_readPixels(raw, None, rect, con)
-    raw = raw[::-1]
-    # 0 = background, else segid + 1
-    segid = raw[..., 0].astype(np.int32) | (raw[..., 1].astype(np.int32) << 8) | (raw[..., 2].astype(np.int32) << 16)
-    slot_to_item = np.full(len(scene.parts), -1, np.int64)
-    slot_to_item[np.asarray(scene.shown, int)] = np.arange(len(scene.shown))
-    lut = np.full(scn.ngeom + 2, -1, np.int64)
-    for i in range(scn.ngeom):
-        g = scn.geoms[i]
-        if g.segid >= 0 and g.objtype == mujoco.mjtObj.mjOBJ_GEOM and 0 <= g.objid < len(scene.geom_slot):
-            slot = scene.geom_slot[g.objid]
-            if slot >= 0:
-                lut[g.segid + 1] = slot_to_item[slot]
-    segid = np.where(segid < len(lut), segid, 0)
-    return lut[segid].astype(np.int32)
+    # Id colour: segid + 1 in the low 24 bits (red lowest), 0 on the background. Widened to 32 bits
+    # through a zeroed fourth byte: half the time of or-ing three widened channels.
+    rgba = np.zeros((size, size, 4), np.uint8)
+    rgba[..., :3] = raw[::-1]
+    lut = scene.segment_lut()
+    return lut[np.minimum(rgba.view("<u4")[..., 0], len(lut) - 1)]
