@@ -114,6 +114,19 @@ def test_projection_round_trips_through_the_tick_mapping(view, center, height, p
     assert project(view, f.center, f, 256) == pytest.approx((128, 128))
 
 
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 40), st.integers(1, 40), st.lists(st.tuples(st.integers(0, 39), st.integers(0, 39)), max_size=12),
+       st.integers(0, 5))
+def test_a_box_from_a_mask_is_its_true_pixels_bounds_padded_and_clamped(h, w, pixels, pad):
+    mask = np.zeros((h, w), bool)
+    for y, x in pixels:
+        mask[y % h, x % w] = True
+    ys, xs = np.nonzero(mask)
+    want = None if not len(xs) else (max(0, xs.min() - pad), max(0, ys.min() - pad),
+                                      min(w - 1, xs.max() + pad), min(h - 1, ys.max() + pad))
+    assert compose.box_from_mask(mask, pad) == want
+
+
 # -- pixel mapping: a marker lands where project() says --------------------------------------------
 def test_marker_lands_at_the_projected_pixels_in_every_view(reader, renderer):
     size = 128

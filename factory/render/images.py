@@ -208,12 +208,12 @@ def _axes_composite(scene: Scene, items: Sequence[Item], colours, framing: Frami
             # segmentation, drawn without outlines or multisampling, sees nothing) keep their pixels.
             mask = (given[1][v] < 0) & compose.colour_mask(arr, BACKGROUND)
         if v == ISOMETRIC:
-            tile = compose.tick_tile(Image.fromarray(arr), v, {}, None, ml, mb, mask)
+            tile = compose.tick_tile(arr, v, {}, None, ml, mb, mask)
             _triad(tile, framing, size, ml)
         else:
             (hi, _), (vi, _) = VIEWS[v].axes()  # type: ignore[misc]
             ticks = framing.ticks(v, size)
-            tile = compose.tick_tile(Image.fromarray(arr), v, ticks, (AXIS_NAMES[hi], AXIS_NAMES[vi]), ml, mb, mask)
+            tile = compose.tick_tile(arr, v, ticks, (AXIS_NAMES[hi], AXIS_NAMES[vi]), ml, mb, mask)
         tiles.append(tile)
     legend = [
         "LDraw frame, units LDU",
