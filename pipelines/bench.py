@@ -42,7 +42,7 @@ from factory.atomic import write_atomic, write_figure
 from factory.cli import run_guarded
 from factory.sampler import SamplerConfig, SamplerConfigError
 from pipelines.bench_physics import in_own_process, measure, measure_growth, measure_lp, measure_sweep, measure_whole
-from pipelines.dataset import ConfigMismatchError, DatasetConfig, build
+from pipelines.dataset import ConfigMismatchError, DatasetConfig, build, usage
 from pipelines.designs import design_config
 from pipelines.render import view_rates
 
@@ -83,6 +83,7 @@ def gpu_name() -> str | None:
 def machine() -> dict:
     return {
         "node": platform.node(), "processor": platform.processor() or platform.machine(),
+        "cpu_model": usage.cpu_model(),
         "cpus": os.cpu_count(), "python": platform.python_version(), "gpu": gpu_name(),
         "mujoco_gl": os.environ.get("MUJOCO_GL") or "unset (renders pick EGL, else OSMesa)",
         "packages": {p: _version(p) for p in PACKAGES},
@@ -225,6 +226,7 @@ def synth_section(work: Path, quick: bool) -> dict:
         "steps_per_s": round(steps / summary["wall_seconds"], 3) if built == summary["total"]["objects"] else None,
         "resumed": built < summary["total"]["objects"],
         "config": "objects of 6-10 bricks, 256 px views, 128 px catalog tiles, seed 0",
+        "usage": summary["usage"],
     }
 
 
@@ -343,7 +345,7 @@ def plots(report: dict, out: Path) -> list[str]:
 def markdown(report: dict) -> str:
     m = report["machine"]
     lines = ["# Brick Factory benchmark", "",
-             f"Machine: {m['cpus']} CPUs ({m['processor']}), GPU: {m['gpu'] or 'none'}, "
+             f"Machine: {m['cpus']} CPUs ({m.get('cpu_model') or m['processor']}), GPU: {m['gpu'] or 'none'}, "
              f"Python {m['python']}, MUJOCO_GL={m['mujoco_gl']}. Total {report['wall_s']:.0f} s"
              + (f" in this run; kept from an earlier run on this machine: {', '.join(report['kept'])}."
                 if report.get("kept") else "."), ""]
@@ -394,7 +396,7 @@ def markdown(report: dict) -> str:
                   f"{s['objects']} objects ({s['config']}): {s['steps']} steps "
                   f"({s['counts']['train']['steps']} train, {s['counts']['test']['steps']} test), "
                   f"{s['bytes'] / 1e6:.1f} MB, wall {s['wall_s']} s, {rate}. Stage seconds summed over "
-                  f"workers: {stages}.", ""]
+                  f"workers: {stages}." + (f" Used: {usage.describe(s['usage'])}." if s.get("usage") else ""), ""]
     if "designs" in report:
         d = report["designs"]
         lines += [f"Human designs: {d['objects']} models, {d['steps']} steps, built in {d['wall_s']} s "

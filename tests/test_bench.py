@@ -29,6 +29,8 @@ def test_quick_bench_writes_report_and_plots(tmp_path):
     assert report["render"]["rows"][0]["rgb_views_per_s"] > 0
     synth = report["synth"]
     assert synth["objects"] == 5 and synth["steps"] >= 30 and synth["steps_per_s"] > 0
+    assert synth["usage"]["host"]["cpu_model"] == report["machine"]["cpu_model"]
+    assert f"on {report['machine']['cpus']} x {report['machine']['cpu_model']}" in (out / "report.md").read_text()
     ev = report["evaluation"]["synthetic"]["baselines"]
     oracle, rnd = ev["oracle"]["scores"], ev["random"]["scores"]
     for mode in ("strict", "paper", "bc"):

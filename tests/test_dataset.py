@@ -32,6 +32,7 @@ from pipelines.dataset import (
     build,
     feedback_prompt,
     split_of,
+    summary_line,
 )
 from factory.dataset.schema import IMAGE_COLUMNS, SCHEMA, features_json
 from conftest import assert_workers_end_with_killed_parent, tiny_dataset_config
@@ -330,6 +331,14 @@ def test_local_worker_processes_give_the_same_bytes(built, tmp_path):
     pids = {json.loads((out / "meta" / "shards" / f"{k:05d}.json").read_text())["pid"] for k in range(3)}
     assert os.getpid() not in pids
     _assert_identical(built, out)
+    # What the run used: the pool's workers' CPU seconds are counted (they ended with the pool),
+    # the host is named, and both are in meta/timings.json and the summary line.
+    used = s["usage"]
+    cpu = used["cpu_seconds"]["user"] + used["cpu_seconds"]["system"]
+    assert cpu >= 0.5 * sum(s["stage_seconds"].values()) > 0
+    assert used["host"]["logical_cpus"] == os.cpu_count() and used["host"]["cpu_model"]
+    assert json.loads((out / "meta" / "timings.json").read_text())["usage_last_run"] == json.loads(json.dumps(used))
+    assert f"on {os.cpu_count()} x {used['host']['cpu_model']}" in summary_line(s)
 
 
 def test_lockstep_build_gives_the_same_bytes_and_keeps_grown_objects(built, tmp_path):

@@ -35,7 +35,7 @@ from factory.errors import LDrawError
 from factory.physics.geometry import COACD_SECONDS_ENV
 from factory.sampler.sampler import target_steps
 from pipelines.dataset.config import ConfigMismatchError, DatasetConfig, diff_configs
-from pipelines.dataset import spool
+from pipelines.dataset import spool, usage
 from pipelines.dataset.card import dataset_card
 from pipelines.dataset.gallery import write_gallery
 from pipelines.dataset.shards import build_shard, marker_path, object_source, read_marker, remove_stranded
@@ -364,8 +364,26 @@ def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, 
     _check_source(config, source)
     _started_with(config, Path(out))
     mps.mode_of(mps_mode)  # a bad value is refused before any work
+    cpu0 = usage.cpu_seconds()
     with holding(out), _gpu_sharing(config, backend, workers, batch, growers, mps_mode):
-        return _build(config, out, backend, workers, progress, desc, batch, growers, t0, source)
+        with usage.GpuWatch() as watch:
+            summary = _build(config, out, backend, workers, progress, desc, batch, growers, t0, source)
+        cpu1 = usage.cpu_seconds()
+        summary["usage"] = {
+            "host": usage.host(),
+            "cpu_seconds": {k: round(cpu1[k] - cpu0[k], 1) for k in cpu0},
+            "gpus": watch.report(),
+            "gpus_not_sampled": watch.why_not,
+        }
+        write_atomic(Path(summary["out"]) / "meta" / "timings.json", json_bytes({
+            "wall_seconds_last_run": summary["wall_seconds"],
+            "shards_built_last_run": summary["shards_built"],
+            "peak_rss_mb_last_run": summary["peak_rss_mb"],
+            "usage_last_run": summary["usage"],
+            "stage_seconds_all_shards": summary["stage_seconds"],
+            "note": "seconds are summed over worker processes; not part of the reproducible output",
+        }))
+        return summary
 
 
 def _gpu_sharing(config: DatasetConfig, backend: str, workers: int, batch: int, growers: int | None, mode):
@@ -402,14 +420,7 @@ def _build(config, out, backend, workers, progress, desc, batch, growers, t0, so
     summary["shards_built"] = len(todo)
     summary["shards_skipped"] = config.num_shards - len(todo)
     summary["peak_rss_mb"] = _peak_rss_mb()
-    write_atomic(out / "meta" / "timings.json", json_bytes({
-        "wall_seconds_last_run": summary["wall_seconds"],
-        "shards_built_last_run": len(todo),
-        "peak_rss_mb_last_run": summary["peak_rss_mb"],
-        "stage_seconds_all_shards": summary["stage_seconds"],
-        "note": "seconds are summed over worker processes; not part of the reproducible output",
-    }))
-    return summary
+    return summary  # `build` adds what the run used and writes meta/timings.json
 
 
 def _peak_rss_mb() -> dict:
@@ -525,4 +536,5 @@ def summary_line(summary: dict) -> str:
             f"{c['test']['steps']} test); {label}: {why}; wall {summary['wall_seconds']:.1f} s"
             f"{resumed}; stage s (summed over workers): {stages}; {t['bytes'] / 1e6:.1f} MB in {summary['out']}"
             + (f"; peak RSS {summary['peak_rss_mb']['main']:.0f} MB main, "
-               f"{summary['peak_rss_mb']['largest_worker']:.0f} MB largest worker" if "peak_rss_mb" in summary else ""))
+               f"{summary['peak_rss_mb']['largest_worker']:.0f} MB largest worker" if "peak_rss_mb" in summary else "")
+            + (f"; {usage.describe(summary['usage'])}" if "usage" in summary else ""))
