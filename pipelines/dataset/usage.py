@@ -14,6 +14,7 @@ or a GPU nothing is sampled and the report says so.
 from __future__ import annotations
 
 import os
+import platform
 import resource
 import shutil
 import subprocess
@@ -36,8 +37,6 @@ def cpu_model(cpuinfo: str = "/proc/cpuinfo") -> str:
                 return value.strip()
     except OSError:
         pass
-    import platform
-
     return platform.processor() or platform.machine() or "unknown"
 
 
