@@ -5,9 +5,11 @@ the same CSV lines; on a GPU machine every build runs the real one (docs/dataset
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 import textwrap
 
+from conftest import assert_workers_end_with_killed_parent
 from pipelines.dataset import usage
 
 
@@ -47,18 +49,32 @@ def test_nothing_is_sampled_without_a_gpu_or_a_sampler():
     assert watch.report() is None and watch.why_not.startswith("nvidia-smi did not start")
 
 
-def test_the_watch_keeps_each_gpus_mean_use_and_peak_memory(tmp_path):
+def _stand_in(tmp_path, rows):
+    """An executable that prints `rows` as `nvidia-smi --query-gpu=QUERY` would, then samples on."""
     fake = tmp_path / "nvidia-smi"
     fake.write_text(textwrap.dedent(f"""\
         #!{sys.executable}
         import sys, time
         assert "--query-gpu={usage.QUERY}" in sys.argv and "--format=csv,noheader,nounits" in sys.argv
-        rows = [("0", "10", "100"), ("1", "[N/A]", "7"), ("0", "30", "300"), ("1", "50", "5")]
-        for r in rows:
+        for r in {rows!r}:
             print(", ".join(r), flush=True)
         time.sleep(60)  # sampling goes on until the watch ends it
         """))
     fake.chmod(0o755)
+    return fake
+
+
+def test_a_killed_build_leaves_no_sampler_running(tmp_path):
+    fake = _stand_in(tmp_path, [("0", "1", "2")])
+    code = (f"from pipelines.dataset import usage\nimport time\n"
+            f"with usage.GpuWatch(command={str(fake)!r}, gpus=['A']):\n    time.sleep(120)\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], cwd=str(tmp_path),
+                            env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    assert_workers_end_with_killed_parent(proc, str(fake).encode(), workers=1)
+
+
+def test_the_watch_keeps_each_gpus_mean_use_and_peak_memory(tmp_path):
+    fake = _stand_in(tmp_path, [("0", "10", "100"), ("1", "[N/A]", "7"), ("0", "30", "300"), ("1", "50", "5")])
     with usage.GpuWatch(command=str(fake), gpus=["A", "B"]) as watch:
         import time
 

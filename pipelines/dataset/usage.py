@@ -21,6 +21,8 @@ import subprocess
 import threading
 from pathlib import Path
 
+from factory.parent_death import sigterm_on_parent_death
+
 GPU_INFO = "/proc/driver/nvidia/gpus"
 """The NVIDIA driver's folder of GPUs: one sub-folder per GPU, each with a file `information`."""
 
@@ -111,7 +113,8 @@ class GpuWatch:
             try:
                 self._proc = subprocess.Popen(
                     [self.command, f"--query-gpu={QUERY}", "--format=csv,noheader,nounits", f"-lms={self.interval_ms}"],
-                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, text=True)
+                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, text=True,
+                    preexec_fn=sigterm_on_parent_death())  # a killed build leaves no sampler running
             except OSError as exc:
                 self.why_not = f"nvidia-smi did not start ({exc})"
             else:
