@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 
 from conftest import assert_workers_end_with_killed_parent
 from pipelines.dataset import usage
@@ -76,8 +77,6 @@ def test_a_killed_build_leaves_no_sampler_running(tmp_path):
 def test_the_watch_keeps_each_gpus_mean_use_and_peak_memory(tmp_path):
     fake = _stand_in(tmp_path, [("0", "10", "100"), ("1", "[N/A]", "7"), ("0", "30", "300"), ("1", "50", "5")])
     with usage.GpuWatch(command=str(fake), gpus=["A", "B"]) as watch:
-        import time
-
         deadline = time.monotonic() + 20
         while sum(len(v) for v in watch._samples.values()) < 3 and time.monotonic() < deadline:
             time.sleep(0.05)
