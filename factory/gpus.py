@@ -29,6 +29,25 @@ def count() -> int:
         return 0
 
 
+def models(folder: str = _NVIDIA_GPUS) -> list[str]:
+    """The NVIDIA GPUs' model names, in the driver's order (empty without the driver): the `Model`
+    line of each GPU's `information` file."""
+    try:
+        entries = sorted(os.listdir(folder))
+    except OSError:
+        return []
+    out = []
+    for entry in entries:
+        try:
+            text = open(os.path.join(folder, entry, "information"), errors="replace").read()
+        except OSError:
+            continue
+        model = next((v.strip() for k, _, v in (line.partition(":") for line in text.splitlines())
+                      if k.strip() == "Model"), "")
+        out.append(model or "NVIDIA GPU")
+    return out
+
+
 def slot() -> int | None:
     """This process's worker number, or None outside a numbered pool."""
     value = os.environ.get(SLOT_ENV, "")

@@ -16,7 +16,6 @@ import contextlib
 import fcntl
 import json
 import os
-import resource
 import socket
 import sys
 import time
@@ -366,11 +365,12 @@ def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, 
     mps.mode_of(mps_mode)  # a bad value is refused before any work
     cpu0 = usage.cpu_seconds()
     with holding(out), _gpu_sharing(config, backend, workers, batch, growers, mps_mode):
-        with usage.GpuWatch() as watch:
+        host = usage.host()
+        with usage.GpuWatch(gpus=host["gpus"]) as watch:
             summary = _build(config, out, backend, workers, progress, desc, batch, growers, t0, source)
         cpu1 = usage.cpu_seconds()
         summary["usage"] = {
-            "host": usage.host(),
+            "host": host,
             "cpu_seconds": {k: round(cpu1[k] - cpu0[k], 1) for k in cpu0},
             "gpus": watch.report(),
             "gpus_not_sampled": watch.why_not,
@@ -419,16 +419,8 @@ def _build(config, out, backend, workers, progress, desc, batch, growers, t0, so
     summary["wall_seconds"] = round(time.perf_counter() - t0, 3)
     summary["shards_built"] = len(todo)
     summary["shards_skipped"] = config.num_shards - len(todo)
-    summary["peak_rss_mb"] = _peak_rss_mb()
+    summary["peak_rss_mb"] = usage.peak_rss_mb()
     return summary  # `build` adds what the run used and writes meta/timings.json
-
-
-def _peak_rss_mb() -> dict:
-    """Peak resident memory of this process and of its largest finished worker process (MB; Linux
-    reports KB). Ray workers are not children of this process and are not counted."""
-    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    child = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
-    return {"main": round(own, 1), "largest_worker": round(child, 1)}
 
 
 # -- metadata ----------------------------------------------------------------------------------------

@@ -21,10 +21,8 @@ import subprocess
 import threading
 from pathlib import Path
 
+from factory.gpus import models as gpu_models
 from factory.parent_death import sigterm_on_parent_death
-
-GPU_INFO = "/proc/driver/nvidia/gpus"
-"""The NVIDIA driver's folder of GPUs: one sub-folder per GPU, each with a file `information`."""
 
 QUERY = "index,utilization.gpu,memory.used"
 """The `nvidia-smi --query-gpu` fields sampled, in this order."""
@@ -42,24 +40,6 @@ def cpu_model(cpuinfo: str = "/proc/cpuinfo") -> str:
     return platform.processor() or platform.machine() or "unknown"
 
 
-def gpu_models(folder: str = GPU_INFO) -> list[str]:
-    """The NVIDIA GPUs' model names, in the driver's order (empty without the driver)."""
-    try:
-        entries = sorted(os.listdir(folder))
-    except OSError:
-        return []
-    out = []
-    for entry in entries:
-        try:
-            text = (Path(folder) / entry / "information").read_text(errors="replace")
-        except OSError:
-            continue
-        model = next((v.strip() for k, _, v in (line.partition(":") for line in text.splitlines())
-                      if k.strip() == "Model"), "")
-        out.append(model or "NVIDIA GPU")
-    return out
-
-
 def host() -> dict:
     """{"cpu_model", "logical_cpus", "gpus": [model, ...]} of this machine."""
     return {"cpu_model": cpu_model(), "logical_cpus": os.cpu_count() or 1, "gpus": gpu_models()}
@@ -70,6 +50,14 @@ def cpu_seconds() -> dict:
     pool workers end with the pool; Ray's workers are not its children and are not counted)."""
     own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     return {"user": own.ru_utime + kids.ru_utime, "system": own.ru_stime + kids.ru_stime}
+
+
+def peak_rss_mb() -> dict:
+    """Peak resident memory of this process and of its largest ended child (MB; Linux reports KB):
+    a build's main process and its largest worker. Ray workers are not its children."""
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    child = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    return {"main": round(own, 1), "largest_worker": round(child, 1)}
 
 
 def parse_sample(line: str) -> tuple[int, float, float] | None:
@@ -92,7 +80,7 @@ class GpuWatch:
         watch.report()  # [{"index", "busy_mean_pct", "memory_max_mib", "samples"}, ...] or None
 
     `command`: the sampler to run (default `nvidia-smi`, found on PATH); nothing is started where
-    it is missing or the driver lists no GPU (`gpus`, default `gpu_models()`)."""
+    it is missing or the driver lists no GPU (`gpus`, default `factory.gpus.models()`)."""
 
     def __init__(self, interval_ms: int = 1000, command: str | None = None, gpus: list[str] | None = None):
         self.interval_ms = int(interval_ms)
