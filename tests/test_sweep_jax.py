@@ -361,3 +361,30 @@ def test_a_structure_grown_part_by_part_has_the_pieces_of_one_built_at_once():
         assert (row[len(hull):] == row[0]).all()
         np.testing.assert_allclose(got.centres[i], world.mean(axis=0), atol=1e-9)
         np.testing.assert_allclose(got.box[i], [world.min(axis=0), world.max(axis=0)], atol=1e-9)
+
+
+def test_on_a_gpu_a_round_starts_at_the_working_sizes_with_the_same_intervals(monkeypatch):
+    """On a GPU (`_on_gpu`, forced here: the kernels still run on the CPU) a launch's pairs and the
+    structure-side tables are padded to at least `GPU_MIN_PAIRS` and `GPU_MIN_STRUCTURE_ROWS` from
+    the first round, so a process meets fewer kernel shapes; the padding changes no interval."""
+    rng = np.random.default_rng(3)
+    jobs = [_job(rng, 9), _job(rng, 30)]
+    monkeypatch.setattr(sweep_jax, "_HIGH", {})
+    monkeypatch.setattr(sweep_jax, "COMPILES", [])
+    on_cpu = sweep_jax._intervals_many(jobs)
+    cpu_shapes = list(sweep_jax.COMPILES)
+    monkeypatch.setattr(sweep_jax, "_on_gpu", lambda: True)
+    monkeypatch.setattr(sweep_jax, "_HIGH", {})
+    monkeypatch.setattr(sweep_jax, "COMPILES", [])
+    on_gpu = sweep_jax._intervals_many(jobs)
+    for a, b in zip(on_cpu, on_gpu):
+        np.testing.assert_array_equal(a, b)
+    # COMPILES rows: (kind, crosses, pairs, unit rows, structure rows, candidates, sizes...)
+    assert cpu_shapes and all(s[2] == sweep_jax.MIN_ROWS and s[4] == sweep_jax.MIN_ROWS for s in cpu_shapes)
+    assert sweep_jax.COMPILES and all(s[4] == sweep_jax.GPU_MIN_STRUCTURE_ROWS and s[3] == sweep_jax.MIN_ROWS
+                                      for s in sweep_jax.COMPILES)
+    for s in sweep_jax.COMPILES:
+        nv = s[6] + s[9]
+        axes = s[7] + s[10] + s[1] * s[8] * s[11]
+        chunk = max(256, 1 << int(np.log2(max(1, sweep_jax.MAX_WORK // (nv * axes)))))
+        assert s[2] == min(chunk, sweep_jax.GPU_MIN_PAIRS)

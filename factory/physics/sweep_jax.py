@@ -87,6 +87,20 @@ LEVELS = ((8, 4, 4), (32, 16, 32), (64, 32, 64), (128, 64, 128))
 cut pieces; larger cut pieces; coacd's."""
 MIN_ROWS = 256
 """Smallest padded count of pairs, candidates and table rows per launch: fewer shapes to compile."""
+GPU_MIN_PAIRS = 1024
+"""Smallest padded count of a launch's pairs on a GPU (at most the launch's `MAX_WORK` chunk)."""
+GPU_MIN_STRUCTURE_ROWS = 1024
+"""Smallest padded row count of a round's structure-side piece tables on a GPU.
+
+Both are the sizes a default build's worker reaches within its first shard anyway (a padded size
+only grows, `_grown`): starting there, a process meets each kernel at its working size at once
+instead of compiling it at two or three sizes on the way. Measured on a lent H100 machine, one
+process growing four shards of four objects (the default config) from an empty cache: 35 kernel
+shapes, 30.5 s of the first shard's 97.5 s spent compiling 32 of them (2.2 s with the cache
+warm). On a lent H200 machine a 16-worker `N=700` build from an empty cache finished its first
+shards about 30 s after the reference's, every worker waiting for each shape's one compile
+(`jax_export`). A GPU runs a launch of a few pairs in about the time of one of thousands, so the
+padding costs little there; on the CPU it would cost compute, so the CPU keeps `MIN_ROWS`."""
 MAX_WORK = 1 << 25
 """Vertex-axis projections per launch (memory: a few times this many floats)."""
 
@@ -461,7 +475,7 @@ def _launch(crosses: bool, ut, us: tuple, st, ss: tuple, poses, u, s, k, thr, th
             m = min(chunk, n - a)
             # On a GPU a launch of a few pairs costs about what one of thousands does: pairs are
             # padded to the most met, so the pair counts of a run compile once per piece shape.
-            rows = min(chunk, _grown(("pairs", *dims), m)) if _on_gpu() else _pow2(m, MIN_ROWS)
+            rows = min(chunk, _grown(("pairs", *dims), m, GPU_MIN_PAIRS)) if _on_gpu() else _pow2(m, MIN_ROWS)
             shape = (kind, int(crosses), rows, ut.shape[0], st.shape[0], poses.shape[0], *sizes)
             if shape not in COMPILES:
                 COMPILES.append(shape)
@@ -575,7 +589,9 @@ def _intervals_many(jobs, kind: str = "sweep") -> list[np.ndarray]:
     rows = {key: np.unique(np.concatenate(x)) for key, x in named.items()}
     keys = list(rows)
     # The tables and the candidates' poses go to the device in one call.
-    *tables_on, poses = _on_device([_gathered(tables[key], rows[key], _grown(("rows", *key), len(rows[key])))
+    floor = {"s": GPU_MIN_STRUCTURE_ROWS if _on_gpu() else MIN_ROWS, "u": MIN_ROWS}
+    *tables_on, poses = _on_device([_gathered(tables[key], rows[key], _grown(("rows", *key), len(rows[key]),
+                                                                              floor[key[0]]))
                                     for key in keys] + [np.concatenate([Rp.reshape(kp, 9), tp, dp], axis=1)])
     packed = dict(zip(keys, tables_on))
     launches = []
