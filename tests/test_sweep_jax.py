@@ -388,3 +388,43 @@ def test_on_a_gpu_a_round_starts_at_the_working_sizes_with_the_same_intervals(mo
         axes = s[7] + s[10] + s[1] * s[8] * s[11]
         chunk = max(256, 1 << int(np.log2(max(1, sweep_jax.MAX_WORK // (nv * axes)))))
         assert s[2] == min(chunk, sweep_jax.GPU_MIN_PAIRS)
+
+
+def test_a_gpu_process_readies_its_first_rounds_kernels_starting_at_its_worker_number(monkeypatch):
+    """`warm_up` (a GPU forced here; the kernels compile for the CPU) readies every kernel of
+    `warm_shapes` once per process, the first at this worker's number, and real rounds on grown
+    structures of bricks, plates and a turned brick then meet no kernel shape it did not ready,
+    with the same verdicts as without it."""
+    from factory.physics import jax_export
+
+    cases = [(TOWER + [DIAMOND], [HANGING]), (TOWER + [at("3020", 40, 24, 0)], [HANGING]),
+             (COLUMN + [TOPS["plate"]], [at("3003", 0, -24, 0)]), (SLOT, [at("3068b", 20, -8, 0)])]
+    want = [exact(parts, unit) for parts, unit in cases]
+    monkeypatch.setattr(sweep_jax, "_on_gpu", lambda: True)
+    monkeypatch.setattr(sweep_jax, "_HIGH", {})
+    monkeypatch.setattr(sweep_jax, "_WARMED", [False])
+    monkeypatch.setattr(jax_export, "_LOADED", {})
+    monkeypatch.setenv("BRICK_FACTORY_WORKER", "21")
+    order = []
+    real = jax_export.call
+
+    def spy(name, *a, **k):
+        order.append(name)
+        return real(name, *a, **k)
+
+    monkeypatch.setattr(jax_export, "call", spy)
+    shapes = sweep_jax.warm_shapes()
+    assert len(shapes) == 16
+    assert sweep_jax.warm_up() == len(shapes)
+    first = shapes[21 % len(shapes)]
+    assert order[0] == f"{first[0]}-{int(first[1])}-{'.'.join(map(str, (*first[2], *first[3])))}"
+    assert len(set(order)) == len(shapes)
+    readied = set(jax_export._LOADED)
+    assert len(readied) == len(shapes)
+    assert sweep_jax.warm_up() == 0  # once per process
+    warm_calls = len(order)
+    got = [exact(parts, unit) for parts, unit in cases]
+    assert len(order) > warm_calls + len(cases)  # the rounds launched kernels ...
+    assert set(jax_export._LOADED) == readied  # ... all of them readied
+    for a, b in zip(want, got):
+        assert (a.buildable, a.reason, a.blocked_by) == (b.buildable, b.reason, b.blocked_by)

@@ -63,6 +63,7 @@ from typing import Sequence
 import numpy as np
 from scipy.spatial import ConvexHull
 
+from factory import gpus
 from factory.parts import Part
 from factory.physics.collide import CONNECTED_SLACK_LDU, CollisionScene
 from factory.physics.geometry import INSET_LDU, collision_shape
@@ -512,6 +513,44 @@ def _on_device(arrays: list[np.ndarray]) -> list:
         return jax.device_put(arrays)
 
 
+WARM_LEVELS = LEVELS[:2]
+"""Piece sizes whose kernels a GPU process has ready before its first round (`warm_up`): boxes and
+studs, which nearly every part has."""
+_WARMED: list[bool] = [False]
+
+
+def warm_shapes() -> list[tuple]:
+    """(kind, crosses, unit piece size, structure piece size) of every kernel `warm_up` readies."""
+    return [(kind, crosses, us, ss) for kind in ("still", "sweep") for crosses in (False, True)
+            for us in WARM_LEVELS for ss in WARM_LEVELS]
+
+
+def warm_up() -> int:
+    """Once per process on a GPU, before its first round: every kernel of `warm_shapes` at the sizes
+    a first round uses (`MIN_ROWS` unit rows and candidates, `GPU_MIN_STRUCTURE_ROWS`,
+    `GPU_MIN_PAIRS`), compiled or loaded (`jax_export`), starting at this worker's number
+    (`gpus.slot`) and going round. The workers of a fresh machine then compile different shapes at
+    once, each under its shape's lock, and load the others' from the cache; meeting each shape in
+    a round, together, they waited in turn for its one compile (about 1 s a shape on a lent H100).
+    Returns the kernels readied here (0 when not on a GPU, or done before)."""
+    if _WARMED[0] or not _on_gpu():
+        return 0
+    _WARMED[0] = True
+    import jax  # optional: the [mjx] extra
+
+    shapes = warm_shapes()
+    start = (gpus.slot() or 0) % len(shapes)
+    one = np.zeros(1, np.int64)
+    launches = []
+    for kind, crosses, us, ss in shapes[start:] + shapes[:start]:
+        ut, st, poses = _on_device([np.zeros((_grown(("rows", "u", us), 1), sum(us) + 1, 3)),
+                                    np.zeros((_grown(("rows", "s", ss), 1, GPU_MIN_STRUCTURE_ROWS), sum(ss) + 1, 3)),
+                                    np.zeros((_grown(("candidates",), 1), 15))])
+        launches.append(_launch(crosses, ut, us, st, ss, poses, one, one, one, np.zeros(1), np.zeros(1), kind))
+    jax.block_until_ready([res for started in launches for _, _, res in started])
+    return len(shapes)
+
+
 def _gathered(tables: list[tuple], rows: np.ndarray, size: int) -> np.ndarray:
     """The rows `rows` (ascending) of `tables` (one bucket's (vertices, normals, edges, centres) of
     several sets, counted one after the other) packed in one (size, vertices + normals + edges + 1,
@@ -541,6 +580,7 @@ def _intervals_many(jobs, kind: str = "sweep") -> list[np.ndarray]:
     out = [np.empty((len(j[5]), WIDTH[kind])) for j in jobs]
     if not jobs:
         return out
+    warm_up()
     # Bucket shapes (vertices, normals, edges) of every set, and where each set's table of a bucket
     # starts when the tables of that shape are counted one after the other.
     tables: dict[tuple, list] = {}
