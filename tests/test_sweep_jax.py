@@ -428,3 +428,25 @@ def test_a_gpu_process_readies_its_first_rounds_kernels_starting_at_its_worker_n
     assert set(jax_export._LOADED) == readied  # ... all of them readied
     for a, b in zip(want, got):
         assert (a.buildable, a.reason, a.blocked_by) == (b.buildable, b.reason, b.blocked_by)
+
+
+def test_a_process_without_a_worker_number_starts_its_warm_up_at_its_pid(monkeypatch):
+    """Outside a numbered pool (a Ray task, a lone process) `warm_up` starts at the process's pid,
+    so such processes on one machine do not all compile the same shape first."""
+    import os
+
+    monkeypatch.setattr(sweep_jax, "_on_gpu", lambda: True)
+    monkeypatch.setattr(sweep_jax, "_HIGH", {})
+    monkeypatch.setattr(sweep_jax, "_WARMED", [False])
+    monkeypatch.delenv("BRICK_FACTORY_WORKER", raising=False)
+    seen = []
+
+    def launch(crosses, ut, us, st, ss, *rest):
+        seen.append((rest[-1], crosses, us, ss))  # the last argument is the kind
+        return []
+
+    monkeypatch.setattr(sweep_jax, "_launch", launch)
+    shapes = sweep_jax.warm_shapes()
+    assert sweep_jax.warm_up() == len(shapes)
+    start = os.getpid() % len(shapes)
+    assert seen == shapes[start:] + shapes[:start]

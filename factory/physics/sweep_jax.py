@@ -529,9 +529,10 @@ def warm_up() -> int:
     """Once per process on a GPU, before its first round: every kernel of `warm_shapes` at the sizes
     a first round uses (`MIN_ROWS` unit rows and candidates, `GPU_MIN_STRUCTURE_ROWS`,
     `GPU_MIN_PAIRS`), compiled or loaded (`jax_export`), starting at this worker's number
-    (`gpus.slot`) and going round. The workers of a fresh machine then compile different shapes at
-    once, each under its shape's lock, and load the others' from the cache; meeting each shape in
-    a round, together, they waited in turn for its one compile (about 1 s a shape on a lent H100).
+    (`gpus.slot`; else at its pid) and going round. The workers of a fresh machine then compile
+    different shapes at once, each under its shape's lock, and load the others' from the cache;
+    meeting each shape in a round, together, they waited in turn for its one compile (about 1 s a
+    shape on a lent H100).
     Returns the kernels readied here (0 when not on a GPU, or done before)."""
     if _WARMED[0] or not _on_gpu():
         return 0
@@ -539,7 +540,9 @@ def warm_up() -> int:
     import jax  # optional: the [mjx] extra
 
     shapes = warm_shapes()
-    start = (gpus.slot() or 0) % len(shapes)
+    # A build's workers are numbered; other processes (Ray tasks, say) start by their pid instead.
+    slot = gpus.slot()
+    start = (os.getpid() if slot is None else slot) % len(shapes)
     one = np.zeros(1, np.int64)
     launches = []
     for kind, crosses, us, ss in shapes[start:] + shapes[:start]:
