@@ -402,7 +402,7 @@ def test_a_gpu_process_readies_its_first_rounds_kernels_starting_at_its_worker_n
     want = [exact(parts, unit) for parts, unit in cases]
     monkeypatch.setattr(sweep_jax, "_on_gpu", lambda: True)
     monkeypatch.setattr(sweep_jax, "_HIGH", {})
-    monkeypatch.setattr(sweep_jax, "_WARMED", [False])
+    monkeypatch.setattr(sweep_jax, "_WARMED", False)
     monkeypatch.setattr(jax_export, "_LOADED", {})
     monkeypatch.setenv("BRICK_FACTORY_WORKER", "21")
     order = []
@@ -437,7 +437,7 @@ def test_a_process_without_a_worker_number_starts_its_warm_up_at_its_pid(monkeyp
 
     monkeypatch.setattr(sweep_jax, "_on_gpu", lambda: True)
     monkeypatch.setattr(sweep_jax, "_HIGH", {})
-    monkeypatch.setattr(sweep_jax, "_WARMED", [False])
+    monkeypatch.setattr(sweep_jax, "_WARMED", False)
     monkeypatch.delenv("BRICK_FACTORY_WORKER", raising=False)
     seen = []
 

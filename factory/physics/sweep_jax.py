@@ -97,8 +97,8 @@ Both are the sizes a default build's worker reaches within its first shard anywa
 only grows, `_grown`): starting there, a process meets each kernel at its working size at once
 instead of compiling it at two or three sizes on the way. Measured on a lent H100 machine, one
 process growing four shards of four objects (the default config) from an empty cache: 35 kernel
-shapes, 30.5 s of the first shard's 97.5 s spent compiling 32 of them (2.2 s with the cache
-warm). On a lent H200 machine a 16-worker `N=700` build from an empty cache finished its first
+shapes, 30.5 s of the first shard's 97.5 s in the first launches of 32 of them (2.2 s with the
+cache warm). On a lent H200 machine a 16-worker `N=700` build from an empty cache finished its first
 shards about 30 s after the reference's, every worker waiting for each shape's one compile
 (`jax_export`). A GPU runs a launch of a few pairs in about the time of one of thousands, so the
 padding costs little there; on the CPU it would cost compute, so the CPU keeps `MIN_ROWS`."""
@@ -475,7 +475,7 @@ def _launch(crosses: bool, ut, us: tuple, st, ss: tuple, poses, u, s, k, thr, th
         for a in range(0, n, chunk):
             m = min(chunk, n - a)
             # On a GPU a launch of a few pairs costs about what one of thousands does: pairs are
-            # padded to the most met, so the pair counts of a run compile once per piece shape.
+            # padded to the most met (at least `GPU_MIN_PAIRS`), so a run compiles few pair counts.
             rows = min(chunk, _grown(("pairs", *dims), m, GPU_MIN_PAIRS)) if _on_gpu() else _pow2(m, MIN_ROWS)
             shape = (kind, int(crosses), rows, ut.shape[0], st.shape[0], poses.shape[0], *sizes)
             if shape not in COMPILES:
@@ -516,7 +516,7 @@ def _on_device(arrays: list[np.ndarray]) -> list:
 WARM_LEVELS = LEVELS[:2]
 """Piece sizes whose kernels a GPU process has ready before its first round (`warm_up`): boxes and
 studs, which nearly every part has."""
-_WARMED: list[bool] = [False]
+_WARMED = False
 
 
 def warm_shapes() -> list[tuple]:
@@ -534,9 +534,10 @@ def warm_up() -> int:
     meeting each shape in a round, together, they waited in turn for its one compile (about 1 s a
     shape on a lent H100).
     Returns the kernels readied here (0 when not on a GPU, or done before)."""
-    if _WARMED[0] or not _on_gpu():
+    global _WARMED
+    if _WARMED or not _on_gpu():
         return 0
-    _WARMED[0] = True
+    _WARMED = True
     import jax  # optional: the [mjx] extra
 
     shapes = warm_shapes()
