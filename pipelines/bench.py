@@ -38,6 +38,7 @@ from pathlib import Path
 from eval.data import DatasetError
 from eval.predict import predict_file
 from eval.score import score_file
+from factory import gpus
 from factory.atomic import write_atomic, write_figure
 from factory.cli import run_guarded
 from factory.sampler import SamplerConfig, SamplerConfigError
@@ -61,13 +62,17 @@ def _version(name: str) -> str | None:
 
 
 def gpu_name() -> str | None:
-    """The first GPU JAX or torch can see, else None (never initialises CUDA when neither is installed)."""
+    """The first GPU the NVIDIA driver lists (`factory.gpus.models`, no CUDA started), else the first
+    JAX or torch can see, else None (never initialises CUDA when neither is installed)."""
+    listed = gpus.models()
+    if listed:
+        return listed[0]
     try:
         import jax  # optional: the [mjx] extra
 
-        gpus = [d for d in jax.devices() if d.platform == "gpu"]
-        if gpus:
-            return str(getattr(gpus[0], "device_kind", gpus[0]))
+        devices = [d for d in jax.devices() if d.platform == "gpu"]
+        if devices:
+            return str(getattr(devices[0], "device_kind", devices[0]))
     except Exception:  # no JAX, or JAX without a GPU backend
         pass
     try:

@@ -4,6 +4,7 @@ writes a report whose numbers come from real runs (the oracle scores 1, chance s
 from __future__ import annotations
 
 import json
+import sys
 import time
 
 import numpy as np
@@ -210,3 +211,16 @@ def test_a_call_out_of_device_memory_is_listed_and_the_part_goes_on():
     md = bench.markdown({"machine": {"cpus": 2, "processor": "x", "gpu": "g", "python": "3", "mujoco_gl": "egl"},
                          "wall_s": 1.0, "section_s": {}, "physics": {"note": "n", "rows": [], "failed": failed}})
     assert "Not measured, out of the device's memory (loads): `_too_big_for_memory(10000000000000)`" in md
+
+
+def test_the_gpu_is_named_from_the_driver_list_before_any_cuda_library(monkeypatch):
+    """`gpu_name` takes the NVIDIA driver's first GPU (`factory.gpus.models`) without starting JAX
+    or torch; without one listed it falls back to them (None on this CPU machine)."""
+    from factory import gpus
+
+    monkeypatch.setattr(gpus, "models", lambda: ["NVIDIA H200", "NVIDIA H200"])
+    assert bench.gpu_name() == "NVIDIA H200"
+    monkeypatch.setattr(gpus, "models", lambda: [])
+    monkeypatch.setitem(sys.modules, "torch", None)  # importing it fails: no CUDA library asked
+    monkeypatch.setitem(sys.modules, "jax", None)
+    assert bench.gpu_name() is None

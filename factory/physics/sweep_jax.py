@@ -156,6 +156,13 @@ def _grown(key: tuple, n: int, minimum: int = MIN_ROWS) -> int:
     return size
 
 
+def _table_rows(key: tuple, n: int) -> int:
+    """The padded rows of a round's piece table for `key` = (side 'u' or 's', piece bucket) holding
+    `n` rows (`_grown`; on a GPU the structure side from `GPU_MIN_STRUCTURE_ROWS`)."""
+    floor = GPU_MIN_STRUCTURE_ROWS if key[0] == "s" and _on_gpu() else MIN_ROWS
+    return _grown(("rows", *key), n, floor)
+
+
 def _directions(v: np.ndarray) -> np.ndarray:
     """Unit vectors, one per direction up to sign (near-duplicates may both stay: harmless)."""
     v = v / np.linalg.norm(v, axis=1, keepdims=True)
@@ -547,8 +554,8 @@ def warm_up() -> int:
     one = np.zeros(1, np.int64)
     launches = []
     for kind, crosses, us, ss in shapes[start:] + shapes[:start]:
-        ut, st, poses = _on_device([np.zeros((_grown(("rows", "u", us), 1), sum(us) + 1, 3)),
-                                    np.zeros((_grown(("rows", "s", ss), 1, GPU_MIN_STRUCTURE_ROWS), sum(ss) + 1, 3)),
+        ut, st, poses = _on_device([np.zeros((_table_rows(("u", us), 1), sum(us) + 1, 3)),
+                                    np.zeros((_table_rows(("s", ss), 1), sum(ss) + 1, 3)),
                                     np.zeros((_grown(("candidates",), 1), 15))])
         launches.append(_launch(crosses, ut, us, st, ss, poses, one, one, one, np.zeros(1), np.zeros(1), kind))
     jax.block_until_ready([res for started in launches for _, _, res in started])
@@ -633,9 +640,7 @@ def _intervals_many(jobs, kind: str = "sweep") -> list[np.ndarray]:
     rows = {key: np.unique(np.concatenate(x)) for key, x in named.items()}
     keys = list(rows)
     # The tables and the candidates' poses go to the device in one call.
-    floor = {"s": GPU_MIN_STRUCTURE_ROWS if _on_gpu() else MIN_ROWS, "u": MIN_ROWS}
-    *tables_on, poses = _on_device([_gathered(tables[key], rows[key], _grown(("rows", *key), len(rows[key]),
-                                                                              floor[key[0]]))
+    *tables_on, poses = _on_device([_gathered(tables[key], rows[key], _table_rows(key, len(rows[key])))
                                     for key in keys] + [np.concatenate([Rp.reshape(kp, 9), tp, dp], axis=1)])
     packed = dict(zip(keys, tables_on))
     launches = []
