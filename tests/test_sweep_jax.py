@@ -384,10 +384,7 @@ def test_on_a_gpu_a_round_starts_at_the_working_sizes_with_the_same_intervals(mo
     assert sweep_jax.COMPILES and all(s[4] == sweep_jax.GPU_MIN_STRUCTURE_ROWS and s[3] == sweep_jax.MIN_ROWS
                                       for s in sweep_jax.COMPILES)
     for s in sweep_jax.COMPILES:
-        nv = s[6] + s[9]
-        axes = s[7] + s[10] + s[1] * s[8] * s[11]
-        chunk = max(256, 1 << int(np.log2(max(1, sweep_jax.MAX_WORK // (nv * axes)))))
-        assert s[2] == min(chunk, sweep_jax.GPU_MIN_PAIRS)
+        assert s[2] == min(sweep_jax._chunk(bool(s[1]), s[6:9], s[9:12]), sweep_jax.GPU_MIN_PAIRS)
 
 
 def test_a_gpu_process_readies_its_first_rounds_kernels_starting_at_its_worker_number(monkeypatch):

@@ -460,6 +460,14 @@ WIDTH = {"sweep": 6, "still": 3}
 """Values per pair of each kernel kind."""
 
 
+def _chunk(crosses: bool, us: tuple, ss: tuple) -> int:
+    """Pairs per launch of the kernel of buckets `us`, `ss` (a power of two, at least 256): as many
+    as keep its vertex-axis projections within `MAX_WORK`; edge-edge axes only with `crosses`."""
+    nv = us[0] + ss[0]
+    axes = us[1] + ss[1] + crosses * us[2] * ss[2]
+    return max(256, 1 << int(math.log2(max(1, MAX_WORK // (nv * axes)))))
+
+
 def _launch(crosses: bool, ut, us: tuple, st, ss: tuple, poses, u, s, k, thr, thr_c, kind: str = "sweep") -> list:
     """Starts the launches of pairs (u, s, k, thr, thr_c) and returns them, each (first pair,
     pairs, device result) (`_results`): (n, 6) intervals of the pairs (lo, hi of the overlap, then
@@ -471,9 +479,7 @@ def _launch(crosses: bool, ut, us: tuple, st, ss: tuple, poses, u, s, k, thr, th
     import jax  # optional: the [mjx] extra
 
     n = len(u)
-    nv = us[0] + ss[0]
-    axes = us[1] + ss[1] + crosses * us[2] * ss[2]
-    chunk = max(256, 1 << int(math.log2(max(1, MAX_WORK // (nv * axes)))))
+    chunk = _chunk(crosses, us, ss)
     pairs = np.stack([u, s, k, thr, thr_c], axis=1).astype(np.float64)  # indices < 2**53: exact
     sizes = (*us, *ss)
     dims = (kind, crosses, *sizes)
