@@ -351,7 +351,7 @@ def test_bf16_weights_train_and_resume_in_bf16(tiny_dataset, tmp_path):
     train(cfg, progress=False)
     weights, log_before = run_weights(run), train_log(run)
     assert {v.dtype for v in weights.values()} == {torch.bfloat16}
-    state = torch.load(run / "checkpoint-000004" / "trainer_state.pt", weights_only=False)
+    state = torch.load(run / "checkpoint-000004" / "trainer_state.pt", weights_only=True)
     moments = [s["exp_avg"] for s in state["optimizer"]["state"].values()]
     assert moments and {m.dtype for m in moments} == {torch.bfloat16}
     assert all(abs(r["loss"]) < float("inf") for r in log_before)

@@ -4,7 +4,8 @@
 each takes the objects of every G-th shard and grows them B at a time, `Sampler.grow`: their
 checks of a step in one call, on the device with the 'mjx' backend) while the other workers render
 and encode the shards whose objects are all grown. Each grown object is
-written here at once, atomically (`OUT/meta/spool/NNNNNNN.pkl`: the `Assembly` and its seconds),
+written here at once, atomically (`OUT/meta/spool/NNNNNNN.json`: the `Assembly` and its seconds,
+as data only: `factory.sampler.record`; a file here is never run as code, whoever wrote it),
 so a killed build loses no grown object: the resumed one takes them from here. A shard's files
 are removed once its completion marker is written. The shard function reads an object from here
 when it is present and samples it itself when not; both give the same object, so the data files
@@ -14,17 +15,20 @@ are the same either way.
 from __future__ import annotations
 
 import os
-import pickle
+import json
 import time
 from contextlib import contextmanager
 from pathlib import Path
 
 from factory.atomic import write_atomic
-from factory.sampler import Sampler
+from factory.sampler import Sampler, record
 from pipelines.dataset.config import DatasetConfig
 
-SPOOL_VERSION = 1
-"""Bumped when what is written here changes; an entry of another version is grown again."""
+SPOOL_VERSION = 2
+"""Bumped when what is written here changes; an entry of another version is grown again (1: pickles,
+no longer read)."""
+
+SUFFIX = ".json"
 
 
 def folder(out) -> Path:
@@ -33,23 +37,28 @@ def folder(out) -> Path:
 
 
 def spool_path(out, index: int) -> Path:
-    return folder(out) / f"{index:07d}.pkl"
+    return folder(out) / f"{index:07d}{SUFFIX}"
 
 
 def put(out, index: int, assembly, seconds: float) -> None:
     """Keep object `index` (an `Assembly`) and the seconds its growth took."""
-    write_atomic(spool_path(out, index), pickle.dumps((SPOOL_VERSION, assembly, float(seconds)),
-                                                       protocol=pickle.HIGHEST_PROTOCOL))
+    entry = {"version": SPOOL_VERSION, "seconds": float(seconds),
+             "assembly": record.to_json(assembly)}
+    write_atomic(spool_path(out, index), json.dumps(entry, separators=(",", ":")).encode("utf-8"))
 
 
 def get(out, index: int, seed: int):
     """(assembly, seconds) of object `index` when spooled for this seed, else None (an unreadable
     or foreign entry counts as absent: the object is grown again)."""
     try:
-        version, assembly, seconds = pickle.loads(spool_path(out, index).read_bytes())
-    except (OSError, ValueError, EOFError, pickle.UnpicklingError, AttributeError, TypeError):
+        entry = json.loads(spool_path(out, index).read_bytes())
+        if not isinstance(entry, dict) or entry.get("version") != SPOOL_VERSION:
+            return None
+        seconds = entry["seconds"]
+        assembly = record.from_json(entry["assembly"])
+    except (OSError, ValueError, KeyError, RecursionError):  # record.RecordError is a ValueError
         return None
-    if version != SPOOL_VERSION or assembly.index != index or assembly.seed != seed:
+    if not isinstance(seconds, float) or assembly.index != index or assembly.seed != seed:
         return None
     return assembly, seconds
 
@@ -64,7 +73,8 @@ def present(out) -> set[int]:
         names = os.listdir(folder(out))
     except FileNotFoundError:
         return set()
-    return {int(n[:-4]) for n in names if n.endswith(".pkl") and n[:-4].isdigit()}
+    k = len(SUFFIX)
+    return {int(n[:-k]) for n in names if n.endswith(SUFFIX) and n[:-k].isdigit()}
 
 
 GROWING = ".growing"
@@ -104,12 +114,13 @@ def growers_active(out) -> bool:
 
 
 def drop(out, indices) -> None:
-    """Forget the objects of a finished shard."""
+    """Forget the objects of a finished shard (also an entry of version 1, never read)."""
     for i in indices:
-        try:
-            os.unlink(spool_path(out, i))
-        except FileNotFoundError:
-            pass
+        for path in (spool_path(out, i), folder(out) / f"{i:07d}.pkl"):
+            try:
+                os.unlink(path)
+            except FileNotFoundError:
+                pass
 
 
 def grow(config_json: dict, indices: list[int], out, batch: int) -> int:
