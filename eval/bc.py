@@ -81,11 +81,14 @@ Bugs and quirks found in the released scripts, and the choice for each (R: repro
 6. F. The rotation error is computed on the matrix as written, with the cosine clamped to
    [-1, 1], never checked to be a rotation: ``2 R_gt`` scores 0 degrees, and so can a
    reflection (``diag(1.5, 1.5, -0.5)`` against the identity scores 41.4 degrees and passes).
-   Deliberate fix: a matrix with det < 0 is a mirrored answer (`eval.metrics.is_mirrored`),
-   wrong whatever its angle, with rotation error 180 degrees (counted in ``mirrored_rotations``
-   and ``failures.mirrored``), the rule of `strict` and `paper`. Other non-rotations are
-   replaced by the nearest rotation (`eval.metrics.project_to_rotation`) and counted in
-   ``projected_rotations``.
+   Deliberate fix, the rule of `strict` and `paper` (`eval.metrics.judge_rotation`): a matrix
+   with det < 0 is a mirrored answer, and one whose columns are not orthonormal within
+   `eval.metrics.DEGENERATE_TOL` (singular, scaled, sheared, non-finite) a degenerate one; both
+   are wrong whatever their angle, with rotation error 180 degrees (counted in
+   ``mirrored_rotations``/``degenerate_rotations`` and ``failures``). Slightly-off rotations
+   (printed with few decimals) are replaced by the nearest rotation and counted in
+   ``projected_rotations``. Translation errors are capped at `eval.metrics.TRANSLATION_CAP_LDU`
+   (``capped_translations``), as in `strict` and `paper`.
 7. F. Symmetry groups are rebuilt from text metadata: a continuous symmetry becomes 360 turns of
    1 degree (the error overstated by up to 0.5 degrees), and then drops the part's other
    symmetries (e.g. a round part's flip); two or more "about" clauses add all three 180-degree
@@ -120,15 +123,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from eval.metrics import (
-    MIRRORED_ERROR_DEG,
     BrickTarget,
     StepTarget,
     answer_text,
     count_bricks,
-    is_mirrored,
+    judge_rotation,
     new_counts,
-    project_to_rotation,
-    rotation_error_deg,
+    translation_capped,
     translation_error,
 )
 from eval.parse import PoseAnswer, normalise_part, parse_pose, parse_selection
@@ -214,6 +215,8 @@ class BcBrick:
     rotation_ok: bool
     projected: bool
     mirrored: bool
+    degenerate: bool = False
+    capped: bool = False
 
     @property
     def ok(self) -> bool:
@@ -229,16 +232,14 @@ def evaluate_brick_bc(target: BrickTarget, answer: PoseAnswer) -> BcBrick:
     """Errors and correctness of one predicted pose in the ``bc`` mode."""
     t_pred = np.asarray(answer.t, dtype=np.float64).reshape(3)
     offsets = rounded_offsets(target.t, t_pred)
-    t_ok = all(abs(o) <= T_LDU for o in offsets)  # rounding already absorbs float noise
-    mirrored = is_mirrored(answer.R)
-    if mirrored:
-        # The released script would score the raw matrix and may pass it (bug 6): never right.
-        r_err, projected = MIRRORED_ERROR_DEG, False
-    else:
-        r_pred, projected = project_to_rotation(answer.R)
-        r_err = rotation_error_deg(target.R, r_pred, target.symmetry)
-    r_ok = not mirrored and r_err < R_DEG - _EPS
-    return BcBrick(offsets, translation_error(target.t, t_pred), r_err, bool(t_ok), bool(r_ok), projected, mirrored)
+    capped = translation_capped(target.t, t_pred)
+    t_ok = not capped and all(abs(o) <= T_LDU for o in offsets)  # rounding already absorbs float noise
+    # The released script would score the raw matrix and may pass a mirrored or degenerate one
+    # (bug 6): never right.
+    r_err, kind = judge_rotation(target.R, answer.R, target.symmetry)
+    r_ok = kind not in ("mirrored", "degenerate") and r_err < R_DEG - _EPS
+    return BcBrick(offsets, translation_error(target.t, t_pred), r_err, bool(t_ok), bool(r_ok), kind == "projected",
+                   kind == "mirrored", kind == "degenerate", capped)
 
 
 @dataclass(frozen=True)

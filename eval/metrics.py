@@ -32,6 +32,16 @@ Scoring rules of `score` (each chosen so that nothing a model emits is dropped):
   leaves three rotations equally near, so an SVD would pick one arbitrarily and could score it 0
   degrees). Its rotation error is 180 degrees, the largest there is, and it is counted in
   ``failures.mirrored`` (not in the other failure kinds) and ``mirrored_rotations``.
+- A matrix that is no rotation at all is *degenerate*, and wrong in every mode: non-finite, or
+  with columns not orthonormal within `DEGENERATE_TOL` (some entry of ``M^T M - I`` beyond 0.05:
+  a column's length off by about 2.5 %, or two columns off square by about 3 degrees; a singular,
+  scaled or sheared matrix). Its nearest rotation would be a guess (a singular matrix has many),
+  so, like a mirrored one, its rotation error is 180 degrees and it is counted in
+  ``failures.degenerate`` and ``degenerate_rotations``. Between `PROJECTION_TOL` and
+  `DEGENERATE_TOL` (a rotation printed with 1-2 decimals) the nearest rotation is scored.
+- A translation error is capped at `TRANSLATION_CAP_LDU` (10,000 LDU, 4 m; far beyond every
+  threshold, so a capped answer is wrong) and such answers are counted in
+  ``capped_translations``: one answer of 1e308 cannot make a split's mean infinite or undefined.
 - Translation and rotation error means use only the bricks whose pose parsed (an unparseable pose
   has no error to average, and any stand-in value would be arbitrary and swamp the mean); such
   bricks fail their step and are counted in ``unparseable_pose`` and ``failures.unparseable``.
@@ -41,7 +51,8 @@ Scoring rules of `score` (each chosen so that nothing a model emits is dropped):
   selection does not fail the step, as the paper's step success is on pose estimation (the brick's
   identity is given by the target); it still scores 0 in selection accuracy.
 - ``failures`` counts target bricks whose pose is wrong: ``mirrored`` (a reflection given as its
-  rotation, whatever its translation), ``translation_only``, ``rotation_only``, ``both``, or
+  rotation, whatever its translation), ``degenerate`` (a matrix that is no rotation, whatever its
+  translation), ``translation_only``, ``rotation_only``, ``both``, or
   ``unparseable`` (missing or unparseable pose for that brick).
 - ``overall`` is the mean over objects of per-object means (per-object: mean over its steps; for
   errors, over its steps that have a value). A metric with no value anywhere is None.
@@ -66,6 +77,12 @@ from factory.symmetry import Symmetry
 MODES = ("strict", "paper")
 PROJECTION_TOL = 1e-3
 """Max entry difference between a parsed matrix and its nearest rotation before it counts as projected."""
+DEGENERATE_TOL = 0.05
+"""Max entry of ``|M^T M - I|`` of a matrix still scored as a (projected) rotation; beyond it the
+matrix is degenerate: wrong, 180 degrees."""
+TRANSLATION_CAP_LDU = 10_000.0
+"""The largest translation error a brick contributes to the means (LDU); larger or non-finite ones
+are capped here and counted in ``capped_translations``."""
 _EPS = 1e-9
 
 
@@ -111,7 +128,8 @@ def project_to_rotation(M) -> tuple[np.ndarray, bool]:
 
     SVD ``M = U S V^T``; the nearest rotation is ``U diag(1, 1, det(U V^T)) V^T``. Rounded printed
     rotations (0.7071) are not flagged; scaled, sheared, reflected or non-finite ones are (a
-    non-finite matrix maps to the identity).
+    non-finite matrix maps to the identity). Scoring first asks `rotation_kind`: a degenerate or
+    mirrored matrix is never projected.
     """
     m = np.asarray(M, dtype=np.float64).reshape(3, 3)
     if not np.all(np.isfinite(m)):
@@ -120,19 +138,51 @@ def project_to_rotation(M) -> tuple[np.ndarray, bool]:
     return r, bool(np.max(np.abs(m - r)) > PROJECTION_TOL)
 
 
-def is_mirrored(M) -> bool:
-    """Whether a predicted matrix is a reflection (finite, determinant < 0): wrong in every mode."""
+def is_degenerate(M) -> bool:
+    """Whether a predicted matrix is no rotation at all: non-finite, or its columns not orthonormal
+    within `DEGENERATE_TOL` (singular, scaled, sheared). Wrong in every mode."""
     m = np.asarray(M, dtype=np.float64).reshape(3, 3)
-    return bool(np.all(np.isfinite(m)) and np.linalg.det(m) < 0.0)
+    if not np.all(np.isfinite(m)) or np.max(np.abs(m)) > 1e6:  # larger entries: far off, and m.T @ m overflows
+        return True
+    return bool(np.max(np.abs(m.T @ m - np.eye(3))) > DEGENERATE_TOL)
+
+
+def is_mirrored(M) -> bool:
+    """Whether a predicted matrix is a reflection (finite, determinant < 0, not degenerate): wrong
+    in every mode."""
+    m = np.asarray(M, dtype=np.float64).reshape(3, 3)
+    return bool(not is_degenerate(m) and np.linalg.det(m) < 0.0)
+
+
+def rotation_kind(M) -> str:
+    """'degenerate', 'mirrored', 'projected' (scored as its nearest rotation) or 'rotation'."""
+    if is_degenerate(M):
+        return "degenerate"
+    if is_mirrored(M):
+        return "mirrored"
+    return "projected" if project_to_rotation(M)[1] else "rotation"
 
 
 MIRRORED_ERROR_DEG = 180.0
-"""The rotation error of a mirrored answer: the largest angle, so it never passes a threshold."""
+"""The rotation error of a mirrored or degenerate answer: the largest angle, so it never passes a
+threshold."""
 
 
 def translation_error(t_gt, t_pred) -> float:
-    """Euclidean distance in LDU."""
-    return float(np.linalg.norm(np.asarray(t_pred, dtype=np.float64) - np.asarray(t_gt, dtype=np.float64)))
+    """Euclidean distance in LDU, capped at `TRANSLATION_CAP_LDU` (also for non-finite answers,
+    without overflow warnings)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        d = np.asarray(t_pred, dtype=np.float64) - np.asarray(t_gt, dtype=np.float64)
+        if not np.all(np.isfinite(d)) or np.max(np.abs(d)) > TRANSLATION_CAP_LDU:
+            return TRANSLATION_CAP_LDU
+        return float(min(np.linalg.norm(d), TRANSLATION_CAP_LDU))
+
+
+def translation_capped(t_gt, t_pred) -> bool:
+    """Whether a translation's error is beyond `TRANSLATION_CAP_LDU` (or not finite)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        d = np.asarray(t_pred, dtype=np.float64) - np.asarray(t_gt, dtype=np.float64)
+        return bool(not np.all(np.isfinite(d)) or np.linalg.norm(d) > TRANSLATION_CAP_LDU)
 
 
 def _angle_deg(e: np.ndarray) -> float:
@@ -156,9 +206,9 @@ def rotation_error_deg(R_gt, R_pred, symmetry=None) -> float:
     a^T D a + cos p (tr D - a^T D a) + sin p tr(K_a D)``, maximal at ``p = atan2(tr(K_a D),
     tr D - a^T D a)``; the error is the angle of the residual ``Rot(a, p) D``. R_pred is first
     replaced by its nearest rotation (`project_to_rotation`); a mirrored R_pred (`is_mirrored`)
-    has error `MIRRORED_ERROR_DEG`.
+    or degenerate R_pred (`rotation_kind`) has error `MIRRORED_ERROR_DEG`.
     """
-    if is_mirrored(R_pred):
+    if rotation_kind(R_pred) in ("mirrored", "degenerate"):
         return MIRRORED_ERROR_DEG
     r_gt = np.asarray(R_gt, dtype=np.float64).reshape(3, 3)
     r_pred, _ = project_to_rotation(R_pred)
@@ -190,28 +240,41 @@ class BrickResult:
     projected: bool
     mirrored: bool = False
     """The answer's matrix was a reflection (`is_mirrored`): wrong, rotation error 180 degrees."""
+    degenerate: bool = False
+    """The answer's matrix was no rotation (`is_degenerate`): wrong, rotation error 180 degrees."""
+    capped: bool = False
+    """The translation error was beyond `TRANSLATION_CAP_LDU` and is given as that."""
 
     @property
     def ok(self) -> bool:
         return self.translation_ok and self.rotation_ok
 
 
+def judge_rotation(R_gt, R_pred, symmetry=None) -> tuple[float, str]:
+    """(rotation error in degrees, `rotation_kind` of R_pred): the one place where a predicted
+    matrix is classified before it is scored."""
+    kind = rotation_kind(R_pred)
+    if kind in ("mirrored", "degenerate"):
+        return MIRRORED_ERROR_DEG, kind
+    return rotation_error_deg(R_gt, R_pred, symmetry), kind
+
+
 def evaluate_brick(target: BrickTarget, answer: PoseAnswer, mode: str = "paper") -> BrickResult:
     """Errors and correctness of one predicted pose (the brick's identity is the target's)."""
     _check_mode(mode)
-    mirrored = is_mirrored(answer.R)
-    r_pred, projected = project_to_rotation(answer.R)
-    projected = projected and not mirrored
     t_pred = np.asarray(answer.t, dtype=np.float64).reshape(3)
-    t_err = translation_error(target.t, t_pred)
-    r_err = rotation_error_deg(target.R, answer.R if mirrored else r_pred, target.symmetry)
+    t_err, capped = translation_error(target.t, t_pred), translation_capped(target.t, t_pred)
+    r_err, kind = judge_rotation(target.R, answer.R, target.symmetry)
+    wrong_matrix = kind in ("mirrored", "degenerate")
     if mode == "strict":
         t_ok = t_err <= 0.5 + _EPS
         r_ok = r_err <= 1.0 + _EPS
     else:
-        t_ok = bool(np.all(np.abs(t_pred - target.t) <= 10.0 + _EPS))
+        with np.errstate(over="ignore", invalid="ignore"):
+            t_ok = bool(np.all(np.abs(t_pred - target.t) <= 10.0 + _EPS))
         r_ok = r_err < 45.0 - _EPS
-    return BrickResult(t_err, r_err, bool(t_ok), bool(r_ok and not mirrored), projected, mirrored)
+    return BrickResult(t_err, r_err, bool(t_ok and not capped), bool(r_ok and not wrong_matrix), kind == "projected",
+                       kind == "mirrored", kind == "degenerate", capped)
 
 
 def _check_mode(mode: str) -> None:
@@ -336,14 +399,18 @@ def new_counts(steps: list) -> dict:
         "unparseable_pose": 0,
         "projected_rotations": 0,
         "mirrored_rotations": 0,
+        "degenerate_rotations": 0,
+        "capped_translations": 0,
         "missing_predictions": 0,
-        "failures": {"mirrored": 0, "translation_only": 0, "rotation_only": 0, "both": 0, "unparseable": 0},
+        "failures": {"mirrored": 0, "degenerate": 0, "translation_only": 0, "rotation_only": 0, "both": 0,
+                     "unparseable": 0},
     }
 
 
 def count_bricks(counts: dict, bricks) -> None:
-    """Add one step's bricks (results with `projected`, `mirrored`, `translation_ok`,
-    `rotation_ok`; None for no pose) to `counts`: projections, mirrors and the failure kinds."""
+    """Add one step's bricks (results with `projected`, `mirrored`, `degenerate`, `capped`,
+    `translation_ok`, `rotation_ok`; None for no pose) to `counts`: projections, mirrors,
+    degenerate matrices, capped translations and the failure kinds."""
     fails = counts["failures"]
     for b in bricks:
         if b is None:
@@ -351,8 +418,12 @@ def count_bricks(counts: dict, bricks) -> None:
             continue
         counts["projected_rotations"] += b.projected
         counts["mirrored_rotations"] += b.mirrored
+        counts["degenerate_rotations"] += b.degenerate
+        counts["capped_translations"] += b.capped
         if b.mirrored:
             fails["mirrored"] += 1
+        elif b.degenerate:
+            fails["degenerate"] += 1
         elif not b.translation_ok and not b.rotation_ok:
             fails["both"] += 1
         elif not b.translation_ok:

@@ -190,22 +190,27 @@ def test_rotation_error_is_minimised_over_symmetries():
 
 def test_mirrored_rotation_fails():
     # diag(1.5, 1.5, -0.5), det -1.125: the released script takes acos((tr - 1) / 2) of the raw
-    # matrix, (2.5 - 1) / 2 = 0.75 -> 41.4 degrees < 45, and passes it. Fixed here: mirrored,
-    # wrong, 180 degrees. A pure reflection diag(1, 1, -1) is wrong too (the script: 90 degrees).
-    for m in (np.diag([1.5, 1.5, -0.5]), np.diag([1.0, 1.0, -1.0])):
+    # matrix, (2.5 - 1) / 2 = 0.75 -> 41.4 degrees < 45, and passes it. Fixed here: wrong, 180
+    # degrees (degenerate: its columns are not unit). A pure reflection diag(1, 1, -1) is mirrored
+    # and wrong too (the script: 90 degrees).
+    for m, kind in ((np.diag([1.5, 1.5, -0.5]), "degenerate"), (np.diag([1.0, 1.0, -1.0]), "mirrored")):
         res = evaluate_brick_bc(brick(), PoseAnswer(np.array(T0), m))
-        assert res.mirrored and not res.rotation_ok and res.rotation_error == 180.0 and res.translation_ok
-    out = score_bc([step()], {("s", "pose"): pose_text((T0, np.diag([1.5, 1.5, -0.5])))})
+        assert getattr(res, kind) and not res.rotation_ok and res.rotation_error == 180.0 and res.translation_ok
+    out = score_bc([step()], {("s", "pose"): pose_text((T0, np.diag([1.0, 1.0, -1.0])))})
     assert out["overall"]["step_success"] == 0.0 and out["overall"]["rotation_error_deg"] == 180.0
     c = out["counts"]
     assert c["mirrored_rotations"] == 1 and c["projected_rotations"] == 0
-    assert c["failures"] == {"mirrored": 1, "translation_only": 0, "rotation_only": 0, "both": 0, "unparseable": 0}
+    assert c["failures"] == {"mirrored": 1, "degenerate": 0, "translation_only": 0, "rotation_only": 0, "both": 0,
+                             "unparseable": 0}
     assert out["success_rate"]["failure_rot_only"] == 1  # the script's breakdown: rotation only
 
 
-def test_a_scaled_rotation_is_projected():
-    # 2 * I is no rotation: projected to I (0 degrees), right, counted in projected_rotations
+def test_a_scaled_rotation_is_degenerate_and_a_rounded_one_projected():
+    # 2 * I is no rotation (the released script scores it 0 degrees): wrong, counted degenerate
     out = score_bc([step()], {("s", "pose"): pose_text((T0, 2.0 * np.eye(3)))})
+    assert out["overall"]["step_success"] == 0.0 and out["counts"]["degenerate_rotations"] == 1
+    # 0.99 * I, a rotation printed a little off: projected to I (0 degrees), right
+    out = score_bc([step()], {("s", "pose"): pose_text((T0, 0.99 * np.eye(3)))})
     assert out["overall"]["step_success"] == 1.0 and out["counts"]["projected_rotations"] == 1
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -368,14 +369,47 @@ def test_hf_bad_checkpoint_is_a_clean_error(tiny_dataset, tmp_path, capsys):
 
 
 def test_score_json_is_valid_json_for_a_huge_translation(tiny_dataset, tmp_path):
-    """An error too large for a float is written null: JSON has no Infinity."""
+    """A translation of 1e300 or 1e308 is wrong, its error capped (`TRANSLATION_CAP_LDU`) and
+    counted: the split's mean stays a finite number (it was null, after a RuntimeWarning on
+    stderr), and nothing but the JSON is printed."""
+    from eval.metrics import TRANSLATION_CAP_LDU
+
     lines = _lines(_predict(tiny_dataset, "baseline:oracle", tmp_path / "o.jsonl"))
-    for ln in lines:
-        if ln["task"] == "pose":
-            ln["text"] = ln["text"].replace("x=", "x=1e300", 1).replace("y=", "y=1e300", 1)
+    for k, ln in enumerate(ln for ln in lines if ln["task"] == "pose"):
+        huge = "1e300" if k % 2 else "1e308"
+        ln["text"] = re.sub(r"y=[-0-9.e]+", f"y=-{huge}", re.sub(r"x=[-0-9.e]+", f"x={huge}", ln["text"]))
     pred = tmp_path / "huge.jsonl"
     pred.write_text("".join(json.dumps(ln) + "\n" for ln in lines))
-    r = _cli("eval.score", "--data", tiny_dataset, "--pred", pred, "--json")
-    assert r.returncode == 0, r.stderr
+    r = _cli("eval.score", "--data", tiny_dataset, "--pred", pred, "--mode", "all", "--json")
+    assert r.returncode == 0 and not r.stderr.strip(), r.stderr
     result = json.loads(r.stdout, parse_constant=lambda c: pytest.fail(f"{c} in the JSON"))
-    assert result["paper"]["overall"]["translation_error_ldu"] is None
+    bricks = sum(len(s.bricks) for s in load_targets(tiny_dataset, "test"))
+    for mode in ("strict", "paper", "bc"):
+        assert result[mode]["overall"]["translation_error_ldu"] == TRANSLATION_CAP_LDU, mode
+        assert result[mode]["overall"]["step_success"] == 0.0
+        assert result[mode]["counts"]["capped_translations"] == bricks
+
+
+@pytest.mark.parametrize("rows", [[[0, 0, 0]] * 3, [[1, 1, 1]] * 3, [[2, 0, 0], [0, 2, 0], [0, 0, 2]]])
+def test_a_matrix_that_is_no_rotation_scores_wrong_in_every_mode(tiny_dataset, tmp_path, rows):
+    """The oracle's translation with rotation rows [0,0,0] x3 (or [1,1,1] x3) scored step success 1
+    and 0 degrees in strict, paper and bc (0.857 over a test split where the oracle scores 1.0): a
+    singular or scaled matrix has no rotation to score. Now every step fails, 180 degrees, and the
+    bricks are counted as degenerate."""
+    lines = _lines(_predict(tiny_dataset, "baseline:oracle", tmp_path / "o.jsonl"))
+    rotation = "Rotation:\n" + "\n".join("[" + ", ".join(map(str, row)) + "]" for row in rows)
+    for ln in lines:
+        if ln["task"] == "pose":
+            blocks = ln["text"].split("\n\n")
+            ln["text"] = "\n\n".join(b[:b.index("Rotation:")] + rotation for b in blocks)
+    pred = tmp_path / "singular.jsonl"
+    pred.write_text("".join(json.dumps(ln) + "\n" for ln in lines))
+    r = _cli("eval.score", "--data", tiny_dataset, "--pred", pred, "--mode", "all", "--json")
+    assert r.returncode == 0, r.stderr
+    result = json.loads(r.stdout)
+    bricks = sum(len(s.bricks) for s in load_targets(tiny_dataset, "test"))
+    for mode in ("strict", "paper", "bc"):
+        c = result[mode]["counts"]
+        assert result[mode]["overall"]["step_success"] == 0.0, mode
+        assert result[mode]["overall"]["rotation_error_deg"] == 180.0
+        assert c["degenerate_rotations"] == c["failures"]["degenerate"] == bricks and c["projected_rotations"] == 0

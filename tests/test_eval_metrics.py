@@ -238,7 +238,7 @@ def test_oracle_is_perfect(mode, sym_3001):
     c = out["counts"]
     assert c["steps"] == len(steps) and c["objects"] == 5
     assert c["unparseable"] == c["missing_predictions"] == c["projected_rotations"] == c["mirrored_rotations"] == 0
-    assert c["failures"] == {"mirrored": 0, "translation_only": 0, "rotation_only": 0, "both": 0, "unparseable": 0}
+    assert c["failures"] == {"mirrored": 0, "degenerate": 0, "translation_only": 0, "rotation_only": 0, "both": 0, "unparseable": 0}
 
 
 def test_random_baseline_is_near_chance():
@@ -294,21 +294,22 @@ def test_step_success_rule():
 
 
 def test_failure_kinds_and_projection():
-    steps = [StepTarget(f"s{i}", "o", (brick(t=(0, 0, 0)),)) for i in range(5)]
+    steps = [StepTarget(f"s{i}", "o", (brick(t=(0, 0, 0)),)) for i in range(6)]
     tilt = rot((1, 0, 0), 90)
     preds = {
         ("s0", "pose"): format_pose([((50, 0, 0), np.eye(3))]),
         ("s1", "pose"): format_pose([((0, 0, 0), tilt)]),
         ("s2", "pose"): format_pose([((50, 0, 0), tilt)]),
         ("s3", "pose"): "garbage",
-        ("s4", "pose"): format_pose([((0, 0, 0), 3.0 * np.eye(3))]),  # scaled: projected, then right
+        ("s4", "pose"): format_pose([((0, 0, 0), 0.99 * np.eye(3))]),  # a little off: projected, then right
+        ("s5", "pose"): format_pose([((0, 0, 0), 3.0 * np.eye(3))]),  # scaled: degenerate, wrong
     }
     out = score(steps, preds, "strict")
-    assert out["counts"]["failures"] == {"mirrored": 0, "translation_only": 1, "rotation_only": 1, "both": 1,
-                                         "unparseable": 1}
-    assert out["counts"]["projected_rotations"] == 1
-    assert out["counts"]["missing_predictions"] == 5  # no selection predictions at all
-    assert out["overall"]["step_success"] == pytest.approx(1 / 5)
+    assert out["counts"]["failures"] == {"mirrored": 0, "degenerate": 1, "translation_only": 1, "rotation_only": 1,
+                                         "both": 1, "unparseable": 1}
+    assert out["counts"]["projected_rotations"] == 1 and out["counts"]["degenerate_rotations"] == 1
+    assert out["counts"]["missing_predictions"] == 6  # no selection predictions at all
+    assert out["overall"]["step_success"] == pytest.approx(1 / 6)
 
 
 def test_overall_is_mean_of_object_means_and_best_object():
@@ -404,6 +405,6 @@ def test_mirrored_rotation_is_wrong_in_every_mode(mode, part, sym_3001):
         assert out["overall"]["rotation_error_deg"] == 180.0 and out["overall"]["translation_error_ldu"] == 0.0
         c = out["counts"]
         assert c["mirrored_rotations"] == 1 and c["projected_rotations"] == 0
-        assert c["failures"] == {"mirrored": 1, "translation_only": 0, "rotation_only": 0, "both": 0, "unparseable": 0}
+        assert c["failures"] == {"mirrored": 1, "degenerate": 0, "translation_only": 0, "rotation_only": 0, "both": 0, "unparseable": 0}
     assert rotation_error_deg(r, -r, sym) == 180.0  # every column negated: det -1 as well
     assert score(steps, {("s", "pose"): good["pose"]}, mode)["overall"]["step_success"] == 1.0
