@@ -10,6 +10,9 @@
   one `<image>` per image, in the order of the images list;
 - `dataset_info.json` registering each file (formatting `sharegpt`, role/content tags), so
   LLaMA-Factory takes `dataset_dir: DEST` and `dataset: {dataset_id}_selection_train,...`.
+  DEST may be a LLaMA-Factory data folder already in use: an existing `dataset_info.json` is
+  merged into, every entry of its own kept; an entry of the same name that registers something
+  else is refused before anything is written (export under another dataset id or folder).
 Files are streamed (one object's rows at a time), so memory stays small on 40K steps.
 
 `bcbench` writes BC-Bench's released layout (pose ShareGPT JSON, step folders with brick_pose.json,
@@ -64,9 +67,10 @@ def export_llamafactory(out, dest, splits=("train", "test"), tasks=TASKS) -> dic
     out, dest = Path(out), Path(dest)
     meta = read_info(out)
     did = check_name(meta.dataset_id, "dataset_id", f"{out / 'meta' / 'info.json'}: ")
+    ours = {f"{did}_{t}_{split}": _entry(f"{did}_{t}_{split}") for split in splits for t in tasks}
+    _merged_registry(dest / "dataset_info.json", ours)  # refuse a clash before writing anything
     dest.mkdir(parents=True, exist_ok=True)
     counts: dict[str, int] = {}
-    registry = {}
     for split in splits:
         files = shard_files(out, split) if split in meta.splits_present else []  # no rows: empty files
         names = {t: f"{did}_{t}_{split}" for t in tasks}
@@ -118,15 +122,43 @@ def export_llamafactory(out, dest, splits=("train", "test"), tasks=TASKS) -> dic
             os.replace(tmps[t], finals[t])
         for t in tasks:
             counts.setdefault(names[t], 0)
-            registry[names[t]] = {
-                "file_name": f"{names[t]}.json",
-                "formatting": "sharegpt",
-                "columns": {"messages": "messages", "system": "system", "images": "images"},
-                "tags": {"role_tag": "role", "content_tag": "content", "user_tag": "user",
-                         "assistant_tag": "assistant"},
-            }
+    registry = _merged_registry(dest / "dataset_info.json", ours)
     write_atomic(dest / "dataset_info.json", (json.dumps(registry, indent=2, sort_keys=True) + "\n").encode())
     return counts
+
+
+def _entry(name: str) -> dict:
+    """The `dataset_info.json` entry of one exported file."""
+    return {
+        "file_name": f"{name}.json",
+        "formatting": "sharegpt",
+        "columns": {"messages": "messages", "system": "system", "images": "images"},
+        "tags": {"role_tag": "role", "content_tag": "content", "user_tag": "user", "assistant_tag": "assistant"},
+    }
+
+
+def _merged_registry(path: Path, ours: dict) -> dict:
+    """`path`'s registry (empty when absent) with `ours` added; every other entry is kept. A file
+    that is not a JSON object, or an entry of one of our names registering something else, is a
+    `ValueError` naming the file (nothing of the user's is overwritten)."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return dict(ours)
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not UTF-8 text; expected LLaMA-Factory's dataset_info.json (a JSON object)") from None
+    try:
+        registry = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}:{e.lineno}: {e.msg}; expected LLaMA-Factory's dataset_info.json "
+                         "(a JSON object); fix or move it") from None
+    if not isinstance(registry, dict):
+        raise ValueError(f"{path}:1: expected a JSON object of dataset entries, got {type(registry).__name__}")
+    clash = sorted(n for n in ours if n in registry and registry[n] != ours[n])
+    if clash:
+        raise ValueError(f"{path}: already registers {clash[0]!r} as something else; export to another "
+                         "folder or under another dataset id (nothing was written)")
+    return {**registry, **ours}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -157,8 +189,14 @@ def main(argv: list[str] | None = None) -> int:
         if bad:
             print(f"error: unknown task {bad[0]!r}; valid: {', '.join(TASKS)}", file=sys.stderr)
             return 2
+        registry = Path(args.dest) / "dataset_info.json"
+        kept = _merged_registry(registry, {}) if registry.is_file() else {}
         counts = export_llamafactory(args.data, args.dest, splits, tasks)
         print(", ".join(f"{k}: {v}" for k, v in counts.items()) + f" -> {args.dest}")
+        others = sorted(set(kept) - set(counts))
+        if others:
+            print(f"merged into {registry}: kept its {len(others)} other entr{'y' if len(others) == 1 else 'ies'} "
+                  f"({', '.join(others[:5])}{', ...' if len(others) > 5 else ''})")
         return 0
 
     return run_guarded(body, {OSError: 2, ValueError: 2})

@@ -324,6 +324,34 @@ def test_export_llamafactory(built, tmp_path):
     assert first["messages"][1]["content"] == row["selection_answer"]
 
 
+def test_export_llamafactory_merges_into_a_users_registry(built, tmp_path):
+    """`dataset_info.json` of a LLaMA-Factory data folder in use was replaced, losing the user's
+    entries. Now they are kept and the export says so; a clash of names and a broken registry are
+    refused in one line before anything is written; a second export is the same as the first."""
+    def export(dest):
+        return subprocess.run([sys.executable, "-m", "pipelines.export", str(built), "--format", "llamafactory",
+                               str(dest)], cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=120)
+
+    dest = tmp_path / "data"
+    dest.mkdir()
+    (dest / "dataset_info.json").write_text('{"mine": {"file_name": "mine.json"}}')
+    r = export(dest)
+    assert r.returncode == 0, r.stderr
+    assert "kept its 1 other entry (mine)" in r.stdout
+    registry = json.loads((dest / "dataset_info.json").read_text())
+    assert registry["mine"] == {"file_name": "mine.json"} and len(registry) == 5
+    assert export(dest).returncode == 0 and json.loads((dest / "dataset_info.json").read_text()) == registry
+    clash = tmp_path / "clash"
+    clash.mkdir()
+    (clash / "dataset_info.json").write_text('{"brick-factory-synth_pose_test": {"file_name": "theirs.json"}}')
+    r = export(clash)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "already registers 'brick-factory-synth_pose_test'" in r.stderr
+    assert sorted(p.name for p in clash.iterdir()) == ["dataset_info.json"]
+    (clash / "dataset_info.json").write_text('{\n  "a": 1,\n  oops\n}')
+    r = export(clash)
+    assert r.returncode == 2 and "dataset_info.json:3:" in r.stderr and r.stderr.count("\n") == 1
+
+
 def test_local_worker_processes_give_the_same_bytes(built, tmp_path):
     out = tmp_path / "pool"
     s = build(_config(), out, backend="local", workers=2, progress=False)
