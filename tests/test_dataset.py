@@ -611,7 +611,8 @@ def test_ctrl_c_ends_a_build_with_one_line_and_no_worker_left(tmp_path):
 @pytest.mark.parametrize("damage", ["deleted", "truncated"])
 def test_a_damaged_shard_under_its_marker_is_built_again(built, tmp_path, damage, capsys):
     """The marker records its files' sizes: a shard file deleted or cut short is built again (its
-    name said), and temporary files a kill stranded in meta/shards/ and gallery/ are removed, so
+    name said), and temporary files a kill stranded anywhere under meta/ and gallery/ (its images
+too: `gallery/img/` was not covered) are removed, so
     the folder ends as an uninterrupted build's."""
     out = tmp_path / "copy"
     shutil.copytree(built, out)
@@ -623,6 +624,8 @@ def test_a_damaged_shard_under_its_marker_is_built_again(built, tmp_path, damage
     (out / "meta" / "shards" / ".00002.json.abc123.tmp").write_bytes(b"{")
     (out / "gallery").mkdir(exist_ok=True)
     (out / "gallery" / ".index.md.xyz.tmp").write_bytes(b"half")
+    (out / "gallery" / "img").mkdir(exist_ok=True)
+    (out / "gallery" / "img" / ".00000_iso.png.k9.tmp").write_bytes(b"half")  # a SIGKILL in the gallery
     s = build(_config(), out, progress=False)
     assert s["shards_built"] == 1 and s["shards_skipped"] == 2
     assert victim.name in capsys.readouterr().err

@@ -100,18 +100,19 @@ def _fsync(path: Path) -> None:
 
 def remove_stranded(out) -> None:
     """Temporary files a killed run left (`.NAME.*.tmp` of `write_atomic` and the shard writers)
-    in the folder's data, meta, shard-marker, spool and gallery folders. Only for the run holding
-    the folder (`build.holding`): no other run can be writing them."""
+    anywhere under the folder's data, meta and gallery folders (the gallery's images included).
+    Only for the run holding the folder (`build.holding`): no other run can be writing them.
+    Symbolic links are not followed."""
     out = Path(out)
-    for folder in (out / "data", out / "meta", out / "meta" / "shards", out / "meta" / "spool", out / "gallery"):
-        if not folder.is_dir():
-            continue
-        for f in folder.iterdir():
-            if f.name.startswith(".") and f.name.endswith(".tmp") and f.is_file():
-                try:
-                    f.unlink()
-                except OSError:
-                    pass
+    for top in (out / "data", out / "meta", out / "gallery"):
+        for folder, _, files in os.walk(top):
+            for name in files:
+                f = Path(folder) / name
+                if name.startswith(".") and name.endswith(".tmp") and not f.is_symlink():
+                    try:
+                        f.unlink()
+                    except OSError:
+                        pass
 
 
 def _remove_stale(out: Path, names: list[str]) -> None:
