@@ -61,7 +61,7 @@ from eval.feedback import Feedback, assembly_rows, before_rows, feedback_columns
 from eval.hf import CheckpointError, HFPredictor
 from eval.metrics import StepTarget
 from factory.atomic import umask
-from factory.cli import add_progress_flag, run_guarded
+from factory.cli import ArgumentParser, add_progress_flag, run_guarded
 from factory.dataset.tasks import TASKS
 from factory.ldraw import get_reader
 
@@ -274,7 +274,7 @@ def run(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m eval.predict", description=__doc__,
+    ap = ArgumentParser(prog="python -m eval.predict", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", required=True, help="dataset folder (make synth / pipelines.designs output)")
     ap.add_argument("--model", required=True, help=f"one of: {', '.join(MODEL_CHOICES)}")

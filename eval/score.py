@@ -39,7 +39,7 @@ from eval.bc import MODE as BC_MODE
 from eval.bc import score_bc, score_pose
 from eval.data import SPLITS, DatasetError, info, load_targets
 from eval.metrics import MODES, score, score_step
-from factory.cli import run_guarded
+from factory.cli import ArgumentParser, run_guarded
 from factory.dataset.tasks import TASKS
 
 SCORE_MODES = (*MODES, BC_MODE)
@@ -226,7 +226,7 @@ def run(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m eval.score", description=__doc__,
+    ap = ArgumentParser(prog="python -m eval.score", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", required=True, help="dataset folder")
     ap.add_argument("--pred", required=True, help="predictions file (JSONL, eval.predict's output)")

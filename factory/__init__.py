@@ -3,6 +3,7 @@
 The public API is the names below; modules not listed here are internal.
 """
 
+from factory import _startup  # noqa: F401  (first, before anything heavy: Ctrl-C while a command starts)
 from factory.connections import Connector
 from factory.errors import (
     LDrawCycleError,

@@ -10,6 +10,7 @@ import sys
 import typing
 from typing import Callable
 
+from factory import _startup
 from factory.config import field_docs, field_types, nested_config, optional_of
 from factory.errors import LDrawError
 from factory.mps import MODES
@@ -23,20 +24,34 @@ def run_guarded(body: Callable[[], int | None], extra: dict[type[BaseException],
     """
     handled: dict[type[BaseException], int] = {LDrawError: 2, **(extra or {})}
     try:
-        return body() or 0
-    except BrokenPipeError:
-        return 0
-    except KeyboardInterrupt:
-        print("error: interrupted; what was finished is kept (re-run the same command to resume where it can)",
-              file=sys.stderr)
-        return 130
-    except RecursionError:
-        print("error: input nests too deeply to read", file=sys.stderr)
-        return 2
-    except tuple(handled) as exc:
-        status = next(code for kind, code in handled.items() if isinstance(exc, kind))
-        print(f"error: {exc}", file=sys.stderr)
-        return status
+        _startup.started()  # from here Ctrl-C raises KeyboardInterrupt, caught below
+        try:
+            return body() or 0
+        except BrokenPipeError:
+            return 0
+        except KeyboardInterrupt:
+            _startup.finishing()
+            print("error: interrupted; what was finished is kept (re-run the same command to resume where it can)",
+                  file=sys.stderr)
+            return 130
+        except RecursionError:
+            print("error: input nests too deeply to read", file=sys.stderr)
+            return 2
+        except tuple(handled) as exc:
+            status = next(code for kind, code in handled.items() if isinstance(exc, kind))
+            print(f"error: {exc}", file=sys.stderr)
+            return status
+    finally:
+        _startup.finishing()  # a command's status is known: a late Ctrl-C does not change it
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """The parser of every command line: a bad flag or value ends in one line, `error: ...` and
+    exit 2, like every other input error (argparse prints its whole usage first: 15 lines for
+    `pipelines.sample`); `--help` still shows the usage."""
+
+    def error(self, message: str):
+        self.exit(2, f"error: {message} (`{self.prog} --help` lists the flags)\n")
 
 
 # -- flags generated from config dataclasses -------------------------------------------------------
@@ -121,7 +136,7 @@ def _pair(text: str, key) -> tuple:
     try:
         return key(name), float(weight) if weight else 1.0
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected NAME or NAME:WEIGHT, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected NAME or NAME:WEIGHT (a number), got {text!r}") from None
 
 
 class _ListAction(argparse.Action):
@@ -139,6 +154,8 @@ class _ListAction(argparse.Action):
                 continue
             try:
                 value = self.item(text)
+            except argparse.ArgumentTypeError as e:
+                parser.error(f"{option_string}: {e}")
             except (TypeError, ValueError):
                 parser.error(f"{option_string}: invalid value {text!r}")
             if self.valid and value not in self.valid:

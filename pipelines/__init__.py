@@ -1,1 +1,3 @@
 """Command lines and the dataset builder."""
+
+import factory._startup  # noqa: F401  (first: Ctrl-C while a command starts is one line)

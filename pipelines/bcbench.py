@@ -51,7 +51,7 @@ import pyarrow.parquet as pq
 from PIL import Image, ImageDraw, ImageFont
 
 from factory.atomic import umask
-from factory.cli import run_guarded
+from factory.cli import ArgumentParser, run_guarded
 from factory.dataset import prompts
 from factory.dataset.answers import format_pose, format_selection, normalise_part
 from factory.dataset.info import Counts, DatasetInfo, read_info, write_info
@@ -1020,7 +1020,7 @@ def summary_line(summary: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     """`python -m pipelines.bcbench import SRC OUT [--ldraw DIR|embedded] [--dataset-id ID]
     [--default-split test|train]`."""
-    ap = argparse.ArgumentParser(prog="python -m pipelines.bcbench", description=__doc__,
+    ap = ArgumentParser(prog="python -m pipelines.bcbench", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="command", required=True)
     imp = sub.add_parser("import", help="BC-Bench's layout -> our dataset format")

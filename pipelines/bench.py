@@ -40,7 +40,7 @@ from eval.predict import predict_file
 from eval.score import score_file
 from factory import gpus
 from factory.atomic import write_atomic, write_figure
-from factory.cli import run_guarded
+from factory.cli import ArgumentParser, run_guarded
 from factory.sampler import SamplerConfig, SamplerConfigError
 from pipelines.bench_physics import in_own_process, measure, measure_growth, measure_lp, measure_sweep, measure_whole
 from pipelines.dataset import ConfigMismatchError, DatasetConfig, build, usage
@@ -528,7 +528,7 @@ def run(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pipelines.bench", description=__doc__,
+    ap = ArgumentParser(prog="python -m pipelines.bench", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="bench", help="report folder (default bench)")
     ap.add_argument("--ldraw", help="LDraw library for the human designs (default ../shared/ldraw when present)")

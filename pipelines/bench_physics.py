@@ -39,7 +39,7 @@ import numpy as np
 
 from factory import Pose, get_reader, load_part, mps
 from factory.atomic import write_atomic
-from factory.cli import add_mps_flag
+from factory.cli import ArgumentParser, add_mps_flag
 from factory.physics import check as check_mod
 from factory.physics import sweep_jax
 from factory.physics.check import STAGE_SECONDS, CheckConfig, check
@@ -735,7 +735,7 @@ def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, floa
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pipelines.bench_physics")
+    ap = ArgumentParser(prog="python -m pipelines.bench_physics")
     ap.add_argument("--backends", default="mujoco")
     ap.add_argument("--sizes", default="10,30,60")
     ap.add_argument("--batches", default="256")

@@ -16,7 +16,7 @@ import re
 import sys
 
 from factory import read_steps
-from factory.cli import config_from_args as config_of
+from factory.cli import ArgumentParser, config_from_args as config_of
 from pipelines.dataset.config import DatasetConfig
 from pipelines.dataset.sources import file_sha256
 from pipelines.synth import _ldraw, add_config_flags, add_run_args, guarded, run
@@ -57,7 +57,7 @@ def config_from_args(args) -> DatasetConfig:
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m pipelines.designs", description=__doc__,
+    ap = ArgumentParser(prog="python -m pipelines.designs", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("models", nargs="+", help="LDraw model files")
     add_config_flags(ap, skip=("source", "n_objects", "models", "sampler"))

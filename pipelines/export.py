@@ -29,7 +29,7 @@ from pathlib import Path
 
 from eval.data import iter_file, shard_files
 from factory.atomic import write_atomic
-from factory.cli import run_guarded
+from factory.cli import ArgumentParser, run_guarded
 from factory.dataset.info import read_info
 from factory.dataset.tasks import TASKS
 from pipelines.bcbench import write_bcbench
@@ -162,7 +162,7 @@ def _merged_registry(path: Path, ours: dict) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pipelines.export", description=__doc__,
+    ap = ArgumentParser(prog="python -m pipelines.export", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("data", help="the dataset folder to export (written by pipelines.synth or pipelines.designs)")
     ap.add_argument("--format", choices=FORMATS, required=True)

@@ -39,7 +39,7 @@ from eval.data import DatasetError, info, library, shard_files
 from eval.feedback import assembly_rows, before_rows, feedback_example, revision_messages
 from eval.parse import parse_pose
 from eval.score import PredictionsError, read_predictions
-from factory.cli import add_progress_flag
+from factory.cli import ArgumentParser, add_progress_flag
 from factory.dataset.info import read_info
 from factory.dataset.prompts import text_part
 from factory.dataset.schema import arrow_schema
@@ -187,7 +187,7 @@ def summary_text(out, meta: dict) -> str:
 
 
 def parser(prog: str = "python -m pipelines.feedback") -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", required=True, help="dataset folder the predictions answer")
     ap.add_argument("--pred", required=True, help="predictions file (eval.predict output)")
     ap.add_argument("--out", required=True, help="folder for the correction dataset")

@@ -22,21 +22,49 @@ from pathlib import Path
 
 import numpy as np
 
+from eval.metrics import rotation_kind
 from factory.atomic import write_atomic
-from factory.cli import run_guarded
+from factory.cli import ArgumentParser, run_guarded
 from factory.errors import LDrawError
 from factory.ldraw import PlacedPart, get_reader, read_steps
 from factory.parts import load_part
 from factory.pose import Pose
 
 
+PREDICT_REACH_LDU = 10_000.0
+"""The farthest a `--predict` translation may be from the model's origin (LDU, 4 m): a feedback
+image frames the model and the prediction together, and farther the model is a speck."""
+
+
+class PredictError(ValueError):
+    """A `--predict` value that is not a pose the feedback image can show."""
+
+
+def parse_predict(text: str) -> Pose:
+    """The pose of `--predict 'x y z a b c d e f g h i'`: 12 finite numbers, the translation
+    within `PREDICT_REACH_LDU` and the matrix a rotation within `eval.metrics.DEGENERATE_TOL`
+    (det > 0); `PredictError` naming what is wrong otherwise."""
+    expected = "expected 12 numbers 'x y z a b c d e f g h i'"
+    try:
+        values = [float(v) for v in text.replace(",", " ").split()]
+    except ValueError:
+        raise PredictError(f"--predict: {expected}, got {text[:60]!r}") from None
+    if len(values) != 12:
+        raise PredictError(f"--predict: {expected}, got {len(values)}")
+    if not all(np.isfinite(values)):
+        raise PredictError(f"--predict: {expected}, all finite; got {text[:60]!r}")
+    if max(abs(v) for v in values[:3]) > PREDICT_REACH_LDU:
+        raise PredictError(f"--predict: x, y and z must be within +-{PREDICT_REACH_LDU:g} LDU of the model's origin")
+    kind = rotation_kind(np.reshape(values[3:], (3, 3)))
+    if kind in ("degenerate", "mirrored"):
+        raise PredictError(f"--predict: the matrix 'a b c d e f g h i' must be a rotation (orthonormal rows, "
+                           f"determinant 1); this one is {kind}")
+    return Pose.from_ldraw(values)
+
+
 def _predicted(args, part):
     if args.predict:
-        try:
-            values = [float(v) for v in args.predict.replace(",", " ").split()]
-            pose = Pose.from_ldraw(values)
-        except ValueError:
-            raise SystemExit("error: --predict needs 12 numbers: x y z a b c d e f g h i") from None
+        pose = parse_predict(args.predict)
     else:
         # A typical wrong answer: one stud off along X and turned 90 degrees about the part's Y axis.
         turn = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
@@ -123,7 +151,7 @@ def _bench(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipelines.render", description=__doc__,
+    parser = ArgumentParser(prog="python -m pipelines.render", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("model", help="an .ldr, .mpd or .dat model file")
     parser.add_argument("--step", type=int, help="0-based build step index")
@@ -144,6 +172,12 @@ def main(argv: list[str] | None = None) -> int:
     if not 32 <= args.size <= 2048 or not 32 <= args.tile <= 1024:
         print("error: --size must be in 32..2048 and --tile in 32..1024", file=sys.stderr)
         return 2
+    if args.predict is not None:
+        try:
+            parse_predict(args.predict)  # before anything is read or rendered
+        except PredictError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
 
     try:
         # lazy: factory.render picks the GL backend at import; without one, a line, not a traceback

@@ -29,7 +29,8 @@ import numpy as np
 from tqdm import tqdm
 
 from factory import mps
-from factory.cli import add_config_args, add_mps_flag, add_progress_flag, config_from_args, renamed_flag, run_guarded
+from factory.cli import (ArgumentParser, add_config_args, add_mps_flag, add_progress_flag, config_from_args,
+                         renamed_flag, run_guarded)
 from factory.physics import sweep_jax
 from factory.physics.check import BACKENDS, STAGE_SECONDS
 from factory.sampler import Sampler, SamplerConfig, SamplerConfigError
@@ -113,7 +114,7 @@ def summarize(records: list[dict], wall: float, config: SamplerConfig, library: 
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m pipelines.sample", description=__doc__.split("\n\n")[0])
+    ap = ArgumentParser(prog="python -m pipelines.sample", description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, required=True, help="number of objects")
     ap.add_argument("--out", required=True, help="output folder")
     ap.add_argument("--ldraw", help="LDraw library folder (default: $LDRAWDIR, else the embedded library)")

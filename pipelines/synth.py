@@ -13,8 +13,8 @@ import os
 import sys
 
 from factory import gpus
-from factory.cli import (add_config_args, add_mps_flag, add_progress_flag, config_from_args as config_of, renamed_flag,
-                         run_guarded)
+from factory.cli import (ArgumentParser, add_config_args, add_mps_flag, add_progress_flag,
+                         config_from_args as config_of, renamed_flag, run_guarded)
 from factory.sampler import SamplerConfig, SamplerConfigError
 from pipelines.dataset import (ConfigMismatchError, FolderBusyError, ShardFailedError, ShardInputError, build,
                                summary_line)
@@ -107,7 +107,7 @@ def guarded(body) -> int:
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m pipelines.synth", description=__doc__,
+    ap = ArgumentParser(prog="python -m pipelines.synth", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     add_config_flags(ap)
     add_auto_backend(ap)

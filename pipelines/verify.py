@@ -13,13 +13,13 @@ import argparse
 import json
 import sys
 
-from factory.cli import renamed_flag, run_guarded
+from factory.cli import ArgumentParser, renamed_flag, run_guarded
 from factory.physics.check import BACKENDS
 from factory.replay import summarize, verify_model
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pipelines.verify", description=__doc__.split("\n\n")[0])
+    ap = ArgumentParser(prog="python -m pipelines.verify", description=__doc__.split("\n\n")[0])
     ap.add_argument("model")
     ap.add_argument("--ldraw", help="LDraw library folder (default: $LDRAWDIR, else the embedded library)")
     ap.add_argument("--check-backend", dest="backend", choices=BACKENDS, default="mujoco",

@@ -52,3 +52,48 @@ def test_designs_exits_2_on_a_bad_part_found_inside_a_shard(tmp_path):
     (result,) = run.run_all(tmp_path, cases=["cycle"], commands=["designs"], timeout=60, mem_mb=2048)
     assert result.status == 2 and not result.problem, (result.status, result.first_line)
     assert "reference cycle" in result.stderr and "fix the input" in result.stderr and result.stderr.count("\n") == 1
+
+
+def test_unknown_colours_are_input_errors_in_every_command(tmp_path):
+    """A colour code of 10^40 went through steps, verify and render (exit 0) and ended designs in
+    an OverflowError ("re-run the same command"); a code no LDConfig.ldr has and no rule allows
+    (600) was drawn grey. Both are input errors naming the file and line, in every command."""
+    run = _load("run")
+    results = run.run_all(tmp_path, cases=["huge_colour", "unknown_colour"], timeout=60, mem_mb=2048)
+    assert len(results) == 2 * len(run.COMMANDS)
+    for r in results:
+        assert r.status == 2 and not r.problem, (r.case, r.command, r.first_line)
+        assert f"{r.case}.ldr:3: " in r.first_line
+        assert ("up to 0x7FFFFFF" if r.case == "huge_colour" else "unknown colour code 600") in r.first_line
+
+
+def test_a_million_triangle_part_is_refused_by_the_renders_in_one_line(tmp_path):
+    """A part of 1,000,000 triangles took 67.6 s and 4.2 GB to render (and, under a 4 GB limit,
+    a 28-line traceback); the render path now has a triangle budget like the collision path's.
+    Reading its steps, which needs no mesh on a GPU, still works."""
+    run = _load("run")
+    results = run.run_all(tmp_path, cases=["million_triangles"], commands=["steps", "render"], timeout=60,
+                          mem_mb=2048)
+    by = {r.command: r for r in results}
+    assert by["steps"].status == 0 and not by["steps"].problem, by["steps"].first_line
+    assert by["render"].status == 2 and not by["render"].problem, by["render"].first_line
+    assert "1,000,000 triangles; renders take parts of at most 250,000" in by["render"].stderr
+
+
+def test_bad_flag_values_a_zip_library_and_bad_predictions_end_in_one_line(tmp_path):
+    """Each ended in a traceback (a weight that is no number, weights whose sum overflows, a
+    --predict of nan, 1e308 or a word: also exit 1, not 2) or a wrong sentence (a zip "does not
+    exist or is not a folder")."""
+    run = _load("run")
+    cases = ["zip_library", "flag_weight_word", "flag_weight_huge", "predict_nan", "predict_huge", "predict_word",
+             "predict_singular"]
+    results = run.run_extra(tmp_path, cases, timeout=60, mem_mb=2048)
+    assert [r.case for r in results] == cases
+    for r in results:
+        assert r.status == 2 and not r.problem and len(r.stderr_lines) == 1, (r.case, r.stderr)
+    said = {r.case: r.first_line for r in results}
+    assert "is a zip archive" in said["zip_library"]
+    assert "expected NAME or NAME:WEIGHT (a number), got '3001:abc'" in said["flag_weight_word"]
+    assert "sum to more than a float holds" in said["flag_weight_huge"]
+    assert "all finite" in said["predict_nan"] and "within +-10000 LDU" in said["predict_huge"]
+    assert "got 'hello'" in said["predict_word"] and "degenerate" in said["predict_singular"]

@@ -6,3 +6,5 @@ and answer-only labels), `model` (base, LoRA, merge), `checkpoint` (atomic check
 (the training loop), `report` (loss plot and summary), `evaluate` (before/after scores) and
 `feedback` (correction examples from wrong pose answers, `python -m train.feedback`).
 """
+
+import factory._startup  # noqa: F401  (first: Ctrl-C while a command starts is one line)

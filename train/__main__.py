@@ -27,7 +27,7 @@ import sys
 from pathlib import Path
 
 from eval.data import DatasetError
-from factory.cli import add_config_args, add_progress_flag, config_from_args as config_of, run_guarded
+from factory.cli import ArgumentParser, add_config_args, add_progress_flag, config_from_args as config_of, run_guarded
 from factory.config import field_docs
 from train.config import ConfigError, TrainConfig, lora_value
 from train.distributed import launched_rank
@@ -38,7 +38,7 @@ from train.model import ModelError
 
 def parser() -> argparse.ArgumentParser:
     """A flag per `TrainConfig` field (`factory.cli.add_config_args`); `--lora` also takes auto."""
-    ap = argparse.ArgumentParser(prog="python -m train", description=__doc__,
+    ap = ArgumentParser(prog="python -m train", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     add_config_args(ap, TrainConfig, skip=("lora",))
     ap.add_argument("--lora", type=lora_value, default="auto", metavar="1|0|auto",

@@ -44,7 +44,7 @@ from eval.data import DatasetError, library, shard_files
 from eval.predict import write_predictions
 from eval.score import PredictionsError, score_file
 from factory.atomic import write_atomic
-from factory.cli import add_config_args, add_progress_flag, run_guarded
+from factory.cli import ArgumentParser, add_config_args, add_progress_flag, run_guarded
 from factory.config import config_from_dict, config_to_dict, field_docs
 from pipelines.feedback import build_feedback
 from train.config import ConfigError, TrainConfig, lora_value, resume_conflicts
@@ -406,7 +406,7 @@ def markdown(report: dict) -> str:
 def parser() -> argparse.ArgumentParser:
     """A flag per `RecipeConfig` field and per `TrainConfig` field the stages share
     (`factory.cli.add_config_args`), `--lora 1|0|auto`."""
-    ap = argparse.ArgumentParser(prog="python -m train.recipe", description=__doc__,
+    ap = ArgumentParser(prog="python -m train.recipe", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     add_config_args(ap, RecipeConfig, skip=PER_STAGE)
     ap.add_argument("--lora", dest="train.lora", type=lora_value, default="auto", metavar="1|0|auto",

@@ -68,6 +68,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from factory.cli import ArgumentParser
 from eval.processor import pad_token_id, save_processor
 from factory.atomic import write_atomic
 from train.config import DEVICES, SHARD_MODES, ConfigError, TrainConfig
@@ -402,7 +403,7 @@ def append_row(path, row: dict) -> None:
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m train.speed", description=__doc__,
+    ap = ArgumentParser(prog="python -m train.speed", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--family", required=True, help=f"one of: {', '.join(CHOICES)} (the last ones: tiny test models)")
     ap.add_argument("--size", default="tiny", help=f"size of a tiny family's model: {', '.join(SIZES)}")

@@ -29,6 +29,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from factory.cli import ArgumentParser
 from eval.data import iter_rows, shard_files
 from eval.processor import make_processor as processor_of
 from train import templates
@@ -364,7 +365,7 @@ def dataset_texts(folders, split: str = "train") -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m train.tiny",
+    ap = ArgumentParser(prog="python -m train.tiny",
                                  description="Build a tiny checkpoint folder of a model family.")
     ap.add_argument("--family", required=True, help=f"one of: {', '.join(FAMILIES)}")
     ap.add_argument("--data", action="append", required=True, help="dataset folder whose texts train the tokenizer")

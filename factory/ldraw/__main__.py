@@ -6,14 +6,14 @@ import argparse
 import json
 import sys
 
-from factory.cli import run_guarded
+from factory.cli import ArgumentParser, run_guarded
 from factory.errors import LDrawError
 from factory.ldraw import NO_PARTS, get_reader, read_steps
 from factory.parts import load_part
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m factory.ldraw", description=__doc__)
+    parser = ArgumentParser(prog="python -m factory.ldraw", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     steps = sub.add_parser("steps", help="print a model's build steps, one JSON object per step")
     steps.add_argument("model", help="an .ldr, .mpd or .dat model file")

@@ -23,6 +23,14 @@ class Colour:
 
 _FALLBACK = Colour(-1, "Unknown", (0.6, 0.6, 0.6, 1.0), (0.2, 0.2, 0.2, 1.0))
 
+MAX_CODE = 0x7FFFFFF
+"""The largest code an LDraw file may write: direct colours are 0x2RRGGBB and 0x3RRGGBB, and the
+spec's older dithered direct colours run up to 0x7FFFFFF. A larger code is a syntax error."""
+
+RULE = ("a colour of the library's LDConfig.ldr, 16 or 24, a dithered code 256-511, or a direct "
+        "colour 0x2RRGGBB/0x3RRGGBB")
+"""What `ColourTable.allows` accepts, as error messages say it."""
+
 
 def _hex(value: str, file: str, line: int) -> tuple[float, float, float]:
     m = re.fullmatch(r"(?:#|0x)([0-9a-fA-F]{6})", value)
@@ -79,6 +87,17 @@ class ColourTable:
             edge = tuple(c * 0.5 for c in rgb)
             return Colour(code, f"Direct_0x{code:07X}", (*rgb, alpha), (*edge, 1.0))  # type: ignore[arg-type]
         return _FALLBACK
+
+    def allows(self, code: int) -> bool:
+        """Whether a model may place a part in colour `code` (`RULE`): a code of this table, the
+        inherited colours 16 and 24, the spec's dithered codes 256-511 and direct colours. A table
+        read from no LDConfig.ldr (empty) has nothing to check against and allows every code up to
+        `MAX_CODE`."""
+        if not 0 <= code <= MAX_CODE:
+            return False
+        if not self.colours or code in self.colours or code in (MAIN, EDGE):
+            return True
+        return 256 <= code < 512 or 2 <= code >> 24 <= 7
 
     def rgba(self, code: int) -> tuple[float, float, float, float]:
         return self.get(code).rgba

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import difflib
 import os
+import zipfile
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -167,8 +168,13 @@ class Library:
     @classmethod
     def from_dir(cls, path: str | os.PathLike) -> "Library":
         root = Path(path).expanduser()
+        if not root.exists():
+            raise LDrawError(f"LDraw library folder {root} does not exist")
         if not root.is_dir():
-            raise LDrawError(f"LDraw library folder {root} does not exist or is not a folder")
+            if zipfile.is_zipfile(root):
+                raise LDrawError(f"{root} is a zip archive; LDraw libraries are read from folders: unzip it "
+                                 "and give the folder that holds 'parts' and 'p' (in LDraw's complete.zip, 'ldraw')")
+            raise LDrawError(f"{root} is a file, not a folder; expected an LDraw library folder holding 'parts' and 'p'")
         listing = {p.name.lower() for p in root.iterdir()}
         if "parts" not in listing or "p" not in listing:
             raise LDrawError(

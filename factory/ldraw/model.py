@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factory.errors import LDrawLimitError, LDrawPlacementError
+from factory.errors import LDrawLimitError, LDrawPlacementError, LDrawSyntaxError
+from factory.ldraw.colours import RULE as COLOUR_RULE
 from factory.ldraw.parse import LDrawFile, Ref, Step
 from factory.ldraw.reader import MAX_DEPTH, Model, Reader, Resolved
 from factory.pose import Pose, nearest_rotation_matrix
@@ -152,6 +153,9 @@ def _expand(
             continue
         if not isinstance(item, Ref):
             continue
+        if not reader.colours.allows(item.colour):
+            raise LDrawSyntaxError(f"unknown colour code {item.colour}; expected {COLOUR_RULE}", res.file.path,
+                                   item.line)
         child = reader.resolve(item, res.file, res.model)
         child_pose = pose @ Pose(_placement_rotation(item, res.file.path), item.pos)
         child_colour = colour if item.colour == 16 else item.colour

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from factory.errors import LDrawReadError, LDrawSyntaxError
+from factory.ldraw.colours import MAX_CODE
 
 MAX_FILE_BYTES = 32 * 1024 * 1024
 """Largest file accepted. The biggest official LDraw files are a few MB; larger input is hostile."""
@@ -119,6 +120,9 @@ def parse_colour(token: str, path: str, line: int) -> int:
         ) from None
     if value < 0:
         raise LDrawSyntaxError(f"expected a non-negative colour code, got {token!r}", path, line)
+    if value > MAX_CODE:
+        raise LDrawSyntaxError(f"expected a colour code up to 0x{MAX_CODE:X} (LDraw's codes and direct colours), "
+                               f"got {token[:40]!r}", path, line)
     return value
 
 

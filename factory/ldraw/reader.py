@@ -19,6 +19,7 @@ from factory.errors import (
     LDrawMissingFileError,
     LDrawReadError,
 )
+from factory.ldraw.colours import ColourTable
 from factory.ldraw.library import LIBRARY_SEARCH, DirSource, Library, Located, _read_file, check_reference
 from factory.ldraw.other_connectors import (axis_segment, bar_cylinder, facing_out, is_other_connector,
                                              place_connectors)
@@ -125,6 +126,16 @@ class Reader:
     stands in for the library's part of the same name in another model."""
     models: dict[str, Model] = field(default_factory=dict)
     """The models opened last (`open_model`, the `KEEP_MODELS` latest), by path, for `model()`."""
+    _colours: ColourTable | None = None
+
+    @property
+    def colours(self) -> ColourTable:
+        """The library's `LDConfig.ldr` colours (read once; an empty table where it has none)."""
+        if self._colours is None:
+            cfg = self.library.config()
+            self._colours = ColourTable({}) if cfg is None else ColourTable.parse(
+                cfg.read().decode("utf-8", errors="replace"), cfg.display)
+        return self._colours
 
     # -- reading -----------------------------------------------------------------------------
     def parse_located(self, loc: Located) -> LDrawFile:

@@ -21,7 +21,16 @@ from functools import lru_cache
 import numpy as np
 
 from factory.cache import kept, source_digest
+from factory.errors import LDrawLimitError
 from factory.parts import Part
+
+MAX_RENDER_TRIANGLES = 250_000
+"""Triangles of one part the renders take (twice that for a part that is not BFC-certified, which
+gets both windings). Scenes hold every triangle on the GPU or in OSMesa's memory, and a part of a
+million triangles took 67.6 s and 4.2 GB to render one step (and ended in MuJoCo's "unknown
+exception" under a 4 GB address-space limit); the largest of the 4,564 official parts of
+`shared/ldraw_library.zip` has 120,084 (782.dat, by `Reader.triangle_count`). A larger part is
+refused in one line, naming it."""
 
 FEATURE_ANGLE_DEG = 30.0
 """Dihedral angle above which a mesh edge counts as an outline (studs have 22.5 degree facets)."""
@@ -72,8 +81,12 @@ def feature_edges(part: Part, angle_deg: float = FEATURE_ANGLE_DEG) -> np.ndarra
 
 @lru_cache(maxsize=4096)
 def part_geometry(part: Part) -> PartGeometry:
-    """The part's visual geometry (computed once per Part object; parts hash by identity)."""
+    """The part's visual geometry (computed once per Part object; parts hash by identity); a part
+    over `MAX_RENDER_TRIANGLES` is an `LDrawLimitError`."""
     flat = part.flat
+    if len(flat.triangles) > MAX_RENDER_TRIANGLES:
+        raise LDrawLimitError(f"part {part.name} has {len(flat.triangles):,} triangles; renders take parts of at "
+                              f"most {MAX_RENDER_TRIANGLES:,}", getattr(part, "file", None))
     tris = np.asarray(flat.triangles, dtype=np.float64)
     codes = np.asarray(flat.colours)
     ok = ~_degenerate(tris) if len(tris) else np.zeros(0, bool)

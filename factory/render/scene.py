@@ -52,9 +52,7 @@ class Item:
 def colour_table(reader: Reader) -> ColourTable:
     """The library's LDConfig colours (codes it lacks render neutral grey); a `Renderer` keeps its
     reader's table as `Renderer.colours`."""
-    cfg = reader.library.config()
-    return ColourTable({}) if cfg is None else ColourTable.parse(cfg.read().decode("utf-8", errors="replace"),
-                                                                 cfg.display)
+    return reader.colours
 
 
 def luminance(rgb) -> float:

@@ -61,6 +61,9 @@ def _weights(name: str, value: WeightsLike, key) -> tuple[tuple, ...]:
             raise SamplerConfigError(f"{name}: {k!r} is listed twice")
         seen.add(k)
         out.append((k, w))
+    if not math.isfinite(sum(w for _, w in out)):  # draws divide by the sum
+        raise SamplerConfigError(f"{name}: the weights sum to more than a float holds; give smaller weights "
+                                 "(only their ratios matter)")
     return tuple(out)
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from factory.cli import ArgumentParser
 from factory.atomic import write_atomic
 
 COLOURS = [(200, 60, 50), (40, 100, 190), (60, 150, 70), (150, 90, 170)]
@@ -80,7 +81,7 @@ def draw_histogram(series: dict[str, list[float]], title: str, xlabel: str = "de
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m factory.sampler.histogram")
+    ap = ArgumentParser(prog="python -m factory.sampler.histogram")
     ap.add_argument("series", nargs="+", help="LABEL=path/to/summary.json")
     ap.add_argument("--out", required=True)
     ap.add_argument("--title", default="Object density (summed part volume / convex hull volume)")

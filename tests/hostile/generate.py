@@ -8,7 +8,8 @@ Layout written under OUT:
   outside/      a file outside the library, for the `..` and symbolic link cases
 
 Every file is small except the ones a case is about (the 50 MB line, the 200,000-triangle part,
-the 20,000-part model), and those are generated here, never committed. The bombs are written as
+the 20,000-part model), and those are generated here, never committed; the million-triangle part
+is a few nested lines. The bombs are written as
 a few lines that nest, sized just past the product's caps (`MAX_MODEL_PARTS`, `MAX_EDGES`,
 `MAX_TRIANGLES`, `MAX_DEPTH`) so that a product that counts before expanding refuses them at once.
 
@@ -61,11 +62,14 @@ CASES: dict[str, str] = {
     "mpd_part_inside": "an MPD that defines a part in its own blocks and places it",
     "missing_part": "a model placing a part missing from the library",
     "syntax_garbage": "truncated and unknown line types",
+    "huge_colour": "a part placed in colour 10^40",
+    "unknown_colour": "a part placed in colour 600 (in no LDConfig.ldr, not a direct colour)",
     "many_triangles": "two stacked copies of a part of about 200,000 triangles",
+    "million_triangles": "a part of 1,000,000 triangles (50 nested grids of 20,000; a small file)",
     "many_parts": "a model of 20,000 bricks (50 layers of 20 x 20, one STEP per layer)",
 }
 
-QUICK = ("cycle", "mpd_bomb", "edge_bomb", "binary_model", "mirrored", "missing_part")
+QUICK = ("cycle", "mpd_bomb", "edge_bomb", "binary_model", "mirrored", "missing_part", "huge_colour")
 """The subset `run.py --quick` (and tests/test_hostile.py) runs: each refused before expanding."""
 
 
@@ -233,6 +237,14 @@ def generate(out: str | os.PathLike, big: bool = True) -> dict[str, Path]:
                               "4 16 40 24 20 40 24 -20 40 0 -20 40 0 20"], "mpd")
     model("missing_part", [brick, _line(16, (0, -24, 0), ID, "no_such_part_xyz.dat")])
     model("syntax_garbage", [brick, "1 16 0 -24", "9 what is this", "3 16 0 0", "1 16 a b c d e f g h i j k l 3001.dat"])
+    # 50 layers of a 100 x 100 grid (20,000 triangles each) through a 40 x 24 x 20 box: under the
+    # reader's 2,000,000 and the file size caps, over the render and collision budgets; 0.6 MB.
+    _write(lib / "p" / "hostile_grid100.dat", _part("hostile_grid100.dat", _grid_primitive(100), "Primitive"))
+    layers = [_line(16, (-20, 24 * k / 49, -10), "40 0 0 0 1 0 0 0 20", "hostile_grid100.dat") for k in range(50)]
+    _write(lib / "parts" / "million_triangles.dat", _part("million_triangles.dat", layers))
+    model("million_triangles", [_line(16, (0, 0, 0), ID, "million_triangles.dat")])
+    model("huge_colour", [brick, "0 STEP", _line(10 ** 40, (0, -24, 0), ID, "3001.dat")])
+    model("unknown_colour", [brick, "0 STEP", _line(600, (0, -24, 0), ID, "3001.dat")])
 
     # -- large but legal: the budgets for socket finding and the checker ------------------------
     if big:
@@ -247,6 +259,7 @@ def generate(out: str | os.PathLike, big: bool = True) -> dict[str, Path]:
         _write(lib / "parts" / "many_triangles.dat", _part("many_triangles.dat", body))
         model("many_triangles", [_line(16, (0, 0, 0), ID, "many_triangles.dat"), "0 STEP",
                                  _line(4, (0, -24, 0), ID, "many_triangles.dat")])
+
         lines = []
         for layer in range(50):
             for i in range(20):
