@@ -456,6 +456,21 @@ def test_feedback_accepts_a_matrix_that_is_not_a_rotation(reader, renderer):
     assert img.size[0] == 4 * 64 + 3 * GAP
 
 
+def test_feedback_draws_an_answer_of_1e308_at_its_reach(reader, renderer):
+    """A model's pose answer of x = 1e308 (scored wrong and capped) made the world-feedback render
+    fail (MuJoCo: "vertex coordinate 0 is not finite"); it is drawn 10,000 LDU away in its
+    direction instead, and the same answer within reach is drawn where it says."""
+    from factory.render.images import FEEDBACK_REACH_LDU, within_reach
+
+    centre = np.zeros(3)
+    far = within_reach(placed("3003", 14, (1e308, -1e308, 0)).pose, centre)
+    assert np.allclose(far.t, FEEDBACK_REACH_LDU * np.array([1.0, -1.0, 0.0]) / np.sqrt(2))
+    near = placed("3003", 14, (40, -24, 0)).pose
+    assert within_reach(near, centre) is near
+    img = render_feedback(renderer, [placed("3001", 1, (0, 0, 0))], [placed("3003", 14, (1e308, 0, 0))], 64)
+    assert img.size[0] == 4 * 64 + 3 * GAP
+
+
 @pytest.mark.skipif(
     __import__("ctypes.util").util.find_library("OSMesa") is None,
     reason="libOSMesa is not installed (apt-get install libosmesa6); EGL is the default backend",

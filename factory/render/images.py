@@ -325,6 +325,28 @@ def render_catalog(renderer: Renderer, parts: Sequence[tuple[str, int] | tuple[s
     return compose.grid(tiles, cols=cols), cells
 
 
+FEEDBACK_REACH_LDU = 10_000.0
+"""How far from the assembly a predicted part is drawn (LDU, 4 m; the scoring's translation cap):
+an answer farther away (x = 1e308 happens) is drawn at this distance in its direction, and the
+image says so; MuJoCo refuses non-finite coordinates, and a farther part shrinks the assembly to
+nothing."""
+
+
+def within_reach(pose: Pose, centre) -> Pose:
+    """`pose`, or, when its translation is more than `FEEDBACK_REACH_LDU` from `centre` (or not
+    finite), the same rotation at that distance in its direction (+x where it has none)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        d = np.asarray(pose.t, float) - np.asarray(centre, float)
+        scale = np.max(np.abs(np.nan_to_num(d, nan=0.0, posinf=1.0, neginf=-1.0)))
+        unit = np.nan_to_num(d, nan=0.0, posinf=1.0, neginf=-1.0) / scale if scale > 0 else np.zeros(3)
+        n = np.linalg.norm(d) if np.all(np.isfinite(d)) else np.inf
+    if n <= FEEDBACK_REACH_LDU:
+        return pose
+    norm = np.linalg.norm(unit)
+    direction = unit / norm if norm > 0 else np.array([1.0, 0.0, 0.0])
+    return Pose(pose.R, np.asarray(centre, float) + FEEDBACK_REACH_LDU * direction)
+
+
 def nearest_rotation(pose: Pose) -> Pose:
     """The pose with its matrix replaced by the nearest rotation (a model's answer may not be one)."""
     if pose.is_rotation(1e-6):
@@ -353,6 +375,10 @@ def render_feedback(renderer: Renderer, before: Sequence[PlacedPart], predicted:
     reader, colours = renderer.reader, renderer.colours
     b_items = [Item(it.part, _muted(colours, it.colour), it.pose) for it in _items(before, reader)]
     predicted = [replace(p, pose=nearest_rotation(p.pose)) for p in predicted]
+    centre = np.zeros(3) if not before else bounds_of(before, reader).mean(axis=0)
+    reached = [within_reach(p.pose, centre) for p in predicted]
+    far = any(r is not p.pose for r, p in zip(reached, predicted))
+    predicted = [replace(p, pose=r) for p, r in zip(predicted, reached)]
     p_items = [Item(load_part(reader, p), FEEDBACK_RGBA, p.pose, FEEDBACK_EDGE) for p in predicted]
     bb = bounds_of([*before, *predicted], reader)
     if bounds is not None:
@@ -363,6 +389,8 @@ def render_feedback(renderer: Renderer, before: Sequence[PlacedPart], predicted:
     arrs = _views(scene, b_items + p_items, colours, framing, size, ALL_VIEWS)
     tiles = [compose.labelled(Image.fromarray(a), v) for a, v in zip(arrs, ALL_VIEWS)]
     fs = max(9, compose.font_size(size) - 3)
-    tiles.append(compose.text_tile(["Predicted placement: bright red", "Assembly: muted colours"],
-                                   tiles[0].size, bg=compose.WHITE, fs=fs))
+    lines = ["Predicted placement: bright red", "Assembly: muted colours"]
+    if far:
+        lines.append(f"(beyond {FEEDBACK_REACH_LDU:,.0f} LDU: drawn there)")
+    tiles.append(compose.text_tile(lines, tiles[0].size, bg=compose.WHITE, fs=fs))
     return compose.grid(tiles, cols=4)
