@@ -59,7 +59,6 @@ from factory.dataset.schema import SCHEMA
 from factory.dataset.tasks import POSE_IMAGES, SELECTION_IMAGES, SPLITS
 from factory.errors import LDrawError
 from factory.ldraw import Library, Reader, get_reader
-from factory.ldraw.colours import ColourTable
 from factory.parts import LDU_CM, load_part
 from pipelines.dataset.config import check_name
 from pipelines.dataset.png import SIGNATURE, png_bytes
@@ -824,14 +823,14 @@ class _Geometry:
             self.label = "from the geometry of the embedded part library"
         else:
             path = Path(ldraw).expanduser()
-            if not (path / "parts").is_dir():
-                raise BCBenchError(f"{ldraw}: not an LDraw library (no parts/ folder); give its root, or 'embedded'")
-            self.reader = get_reader(path)
+            try:
+                self.reader = get_reader(path)
+            except LDrawError as exc:
+                raise BCBenchError(f"{ldraw}: {exc}; give an LDraw library's root (a folder or its zip), or "
+                                   "'embedded'") from None
             self.ldraw_path = os.path.realpath(path)
             self.label = f"from the geometry of the LDraw library {self.ldraw_path}"
-        cfg = self.reader.library.config()
-        self.colours = ColourTable({}) if cfg is None else ColourTable.parse(
-            cfg.read().decode("utf-8", errors="replace"), cfg.display)
+        self.colours = self.reader.colours
 
     def part(self, name: str):
         """(symmetry or None, size_cm or None) of a part."""

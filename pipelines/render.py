@@ -156,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("model", help="an .ldr, .mpd or .dat model file")
     parser.add_argument("--step", type=int, help="0-based build step index")
     parser.add_argument("--out", help="output folder (created)")
-    parser.add_argument("--ldraw", help="LDraw library folder (default: $LDRAWDIR, else the embedded library)")
+    parser.add_argument("--ldraw", help="LDraw library: a folder or LDraw's complete.zip (default: "
+                        "$LDRAWDIR, else the embedded library)")
     parser.add_argument("--size", type=int, default=256, help="pixels per view (default 256)")
     parser.add_argument("--tile", type=int, default=128, help="pixels per catalog tile (default 128)")
     parser.add_argument("--predict", help="predicted pose of the step's first part for feedback.png: "

@@ -117,7 +117,8 @@ def parser() -> argparse.ArgumentParser:
     ap = ArgumentParser(prog="python -m pipelines.sample", description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, required=True, help="number of objects")
     ap.add_argument("--out", required=True, help="output folder")
-    ap.add_argument("--ldraw", help="LDraw library folder (default: $LDRAWDIR, else the embedded library)")
+    ap.add_argument("--ldraw", help="LDraw library: a folder or LDraw's complete.zip (default: "
+                    "$LDRAWDIR, else the embedded library)")
     ap.add_argument("--start", type=int, default=0, help="index of the first object (default 0)")
     ap.add_argument("--workers", type=int, default=1, help="processes (objects do not depend on it)")
     ap.add_argument("--batch", type=int, default=1,

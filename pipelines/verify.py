@@ -21,7 +21,8 @@ from factory.replay import summarize, verify_model
 def main(argv: list[str] | None = None) -> int:
     ap = ArgumentParser(prog="python -m pipelines.verify", description=__doc__.split("\n\n")[0])
     ap.add_argument("model")
-    ap.add_argument("--ldraw", help="LDraw library folder (default: $LDRAWDIR, else the embedded library)")
+    ap.add_argument("--ldraw", help="LDraw library: a folder or LDraw's complete.zip (default: "
+                    "$LDRAWDIR, else the embedded library)")
     ap.add_argument("--check-backend", dest="backend", choices=BACKENDS, default="mujoco",
                     help="physics checks on the CPU (mujoco, default) or batched in JAX (mjx)")
     renamed_flag(ap, "--backend", "--check-backend", "backend", choices=BACKENDS)

@@ -82,17 +82,19 @@ def test_a_million_triangle_part_is_refused_by_the_renders_in_one_line(tmp_path)
 
 def test_bad_flag_values_a_zip_library_and_bad_predictions_end_in_one_line(tmp_path):
     """Each ended in a traceback (a weight that is no number, weights whose sum overflows, a
-    --predict of nan, 1e308 or a word: also exit 1, not 2) or a wrong sentence (a zip "does not
-    exist or is not a folder")."""
+    --predict of nan, 1e308 or a word: also exit 1, not 2); a zip library, now read in place, is
+    refused in one line when a member would escape it, is a link, or inflates past the file cap."""
     run = _load("run")
-    cases = ["zip_library", "flag_weight_word", "flag_weight_huge", "predict_nan", "predict_huge", "predict_word",
+    cases = ["zip_escape", "zip_link", "zip_bomb", "flag_weight_word", "flag_weight_huge", "predict_nan", "predict_huge", "predict_word",
              "predict_singular"]
     results = run.run_extra(tmp_path, cases, timeout=60, mem_mb=2048)
     assert [r.case for r in results] == cases
     for r in results:
         assert r.status == 2 and not r.problem and len(r.stderr_lines) == 1, (r.case, r.stderr)
-    said = {r.case: r.first_line for r in results}
-    assert "is a zip archive" in said["zip_library"]
+    said = {r.case: r.stderr for r in results}
+    assert "'ldraw/../escape.dat' names a path outside the archive" in said["zip_escape"]
+    assert "'ldraw/parts/link.dat' is a symbolic link" in said["zip_link"]
+    assert "library.zip!/ldraw/parts/3001.dat" in said["zip_bomb"] and "over 33,554,432 bytes" in said["zip_bomb"]
     assert "expected NAME or NAME:WEIGHT (a number), got '3001:abc'" in said["flag_weight_word"]
     assert "sum to more than a float holds" in said["flag_weight_huge"]
     assert "all finite" in said["predict_nan"] and "within +-10000 LDU" in said["predict_huge"]

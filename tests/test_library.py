@@ -131,3 +131,54 @@ def test_colours_from_ldconfig_including_direct_colours():
     direct = table.get(0x2FF8000)
     assert direct.rgba == pytest.approx((1.0, 128 / 255, 0.0, 1.0))
     assert 0x2FF8000 in table and 12345 not in table
+
+
+def _zip_of(folder, path, top="ldraw/"):
+    """The library `folder` zipped as LDraw's complete.zip lays it out (every file under `top`)."""
+    import zipfile
+
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        for p in sorted(folder.rglob("*")):
+            if p.is_file():
+                z.write(p, top + p.relative_to(folder).as_posix())
+    return path
+
+
+@needs_ldraw
+@pytest.mark.parametrize("top", ["ldraw/", ""])
+def test_a_zip_library_is_read_in_place_like_its_folder(tmp_path, top):
+    """`--ldraw` takes LDraw's complete.zip (files under ldraw/) or a zip of a library's contents,
+    read in place: a model's steps and a part's geometry are the same as from the folder."""
+    import numpy as np
+
+    from factory.ldraw import read_steps
+    from factory.parts import load_part
+    from conftest import MODELS
+
+    zipped = Reader(Library.from_path(_zip_of(LDRAW, tmp_path / "complete.zip", top)))
+    folder = Reader(Library.from_path(LDRAW))
+    assert zipped.library.description.startswith("LDraw library in ")
+    car = MODELS / "car.ldr"
+    steps_zip = [s.to_json() for s in read_steps(car, tmp_path / "complete.zip")]
+    assert steps_zip == [s.to_json() for s in read_steps(car, LDRAW)] and steps_zip
+    for name in ("3001", "3039", "6141"):
+        a, b = load_part(zipped, name).flat, load_part(folder, name).flat
+        assert np.array_equal(a.triangles, b.triangles) and np.array_equal(a.colours, b.colours)
+    assert zipped.colours.colours.keys() == folder.colours.colours.keys()  # LDConfig.ldr read from the zip
+    with pytest.raises(LDrawMissingFileError, match="complete.zip"):
+        zipped.part("no_such_part.dat")
+
+
+def test_a_zip_that_is_no_library_or_a_file_that_is_no_zip_is_refused(tmp_path, mini_library):
+    import zipfile
+
+    with zipfile.ZipFile(tmp_path / "other.zip", "w") as z:
+        z.writestr("docs/readme.txt", "hello")
+    with pytest.raises(LDrawError, match="not an LDraw library: expected folders 'parts' and 'p'"):
+        Library.from_path(tmp_path / "other.zip")
+    (tmp_path / "notes.txt").write_text("hello")
+    with pytest.raises(LDrawError, match="is a file but not a zip archive"):
+        Library.from_path(tmp_path / "notes.txt")
+    with pytest.raises(LDrawError, match="does not exist"):
+        Library.from_path(tmp_path / "missing")
+    assert Reader(Library.from_path(_zip_of(mini_library, tmp_path / "mini.zip", ""))).part("cube.dat")

@@ -20,7 +20,8 @@ def main(argv: list[str] | None = None) -> int:
     part = sub.add_parser("part", help="print a part's geometry, connection points and symmetry")
     part.add_argument("name", help="a part name such as 3001 or 3001.dat")
     for p in (steps, part):
-        p.add_argument("--ldraw", help="LDraw library folder (default: $LDRAWDIR, else the embedded library)")
+        p.add_argument("--ldraw", help="LDraw library: a folder or LDraw's complete.zip (default: "
+                       "$LDRAWDIR, else the embedded library)")
         p.add_argument("--json", action="store_true", help="print JSON (the only format)")
     args = parser.parse_args(argv)
 

@@ -1,4 +1,5 @@
-"""Where LDraw files come from: a library folder, the embedded default library, a model's folder.
+"""Where LDraw files come from: a library folder or zip archive, the embedded default library, a
+model's folder.
 
 Lookups are case-insensitive and accept `\\` or `/`. A reference can never leave the place it is
 looked up in: `..` components, absolute paths and symbolic links that point outside are refused.
@@ -15,7 +16,7 @@ from pathlib import Path
 from typing import Callable, Protocol
 
 from factory.embedded import generate_library
-from factory.errors import LDrawError, LDrawReadError, LDrawUnsafePathError
+from factory.errors import LDrawError, LDrawLimitError, LDrawReadError, LDrawUnsafePathError
 from factory.ldraw import parse
 from factory.ldraw.parse import normalize_name
 
@@ -136,6 +137,83 @@ def _read_file(path: str) -> bytes:
         raise LDrawReadError(f"cannot read file: {exc.strerror or exc}", path) from None
 
 
+class ZipSource:
+    """Files inside a zip archive, read in place (LDraw's `complete.zip`, whose files sit under one
+    `ldraw/` folder, or a zip of a library folder's contents): looked up case-insensitively, never
+    extracted. The archive is checked when opened: a member named with `..`, an absolute path or a
+    drive, or stored as a symbolic link, refuses the whole library (`LDrawUnsafePathError`); a
+    member is read at most `parse.MAX_FILE_BYTES` uncompressed whatever its header says, so a
+    decompression bomb costs no more than a large file."""
+
+    MAX_MEMBERS = 500_000
+    """Members an archive may list (LDraw's complete.zip has about 20,000)."""
+
+    def __init__(self, path: Path, label: str, origin: str = "library"):
+        self.path = Path(path)
+        self.real_path = os.path.realpath(self.path)
+        self.label = label
+        self.origin = origin
+        try:
+            self._zip = zipfile.ZipFile(self.path)
+            infos = self._zip.infolist()
+        except (OSError, zipfile.BadZipFile, zipfile.LargeZipFile) as exc:
+            raise LDrawReadError(f"cannot read the zip archive: {exc}", str(self.path)) from None
+        if len(infos) > self.MAX_MEMBERS:
+            raise LDrawLimitError(f"the archive lists {len(infos):,} members; libraries of at most "
+                                  f"{self.MAX_MEMBERS:,} are read", str(self.path))
+        members: dict[str, zipfile.ZipInfo] = {}
+        for info in infos:
+            name = info.filename.replace("\\", "/")
+            parts = name.rstrip("/").split("/")
+            if name.startswith("/") or (parts and len(parts[0]) == 2 and parts[0][1] == ":") or ".." in parts:
+                raise LDrawUnsafePathError(f"member {info.filename!r} names a path outside the archive; "
+                                           "refusing the library", str(self.path))
+            if (info.external_attr >> 16) & 0o170000 == 0o120000:
+                raise LDrawUnsafePathError(f"member {info.filename!r} is a symbolic link; refusing the library",
+                                           str(self.path))
+            if not info.is_dir():
+                members[name.lower()] = info
+        tops = {k.split("/", 1)[0] for k in members}
+        self.prefix = ""
+        if not any(k.startswith(("parts/", "p/")) for k in members) and len(tops) == 1:
+            self.prefix = tops.pop() + "/"  # complete.zip: everything under ldraw/
+        self._members = {k[len(self.prefix):]: v for k, v in members.items() if k.startswith(self.prefix)}
+
+    def has_library_layout(self) -> bool:
+        return any(k.startswith("parts/") for k in self._members) and any(k.startswith("p/") for k in self._members)
+
+    def lookup(self, relpath: str) -> Located | None:
+        info = self._members.get(relpath)
+        if info is None:
+            return None
+        display = f"{self.path}!/{info.filename}"
+        return Located(key=f"zip:{self.real_path}:{info.filename}", display=display,
+                       read=lambda i=info, d=display: self._read(i, d), origin=self.origin)
+
+    def _read(self, info: zipfile.ZipInfo, display: str) -> bytes:
+        limit = parse.MAX_FILE_BYTES
+        if info.file_size > limit:
+            raise LDrawReadError(f"file is {info.file_size:,} bytes; LDraw files over {limit:,} bytes are refused",
+                                 display)
+        try:
+            with self._zip.open(info) as fh:
+                data = fh.read(limit + 1)
+        except (OSError, zipfile.BadZipFile, EOFError, RuntimeError, NotImplementedError) as exc:
+            raise LDrawReadError(f"cannot read the archive member: {exc}", display) from None
+        if len(data) > limit:  # the header understated it
+            raise LDrawReadError(f"file is over {limit:,} bytes uncompressed; LDraw files that large are refused",
+                                 display)
+        return data
+
+    def names(self) -> list[str]:
+        out = []
+        for key in self._members:
+            folder, _, base = key.rpartition("/")
+            if folder == "" or folder + "/" in LIBRARY_SEARCH:
+                out.append(base)
+        return out
+
+
 class MemorySource:
     """Files held in memory (the embedded default library), keyed by normalised relative path."""
 
@@ -159,11 +237,32 @@ class MemorySource:
 
 
 class Library:
-    """An LDraw parts library: a folder on disk (`--ldraw`, `LDRAWDIR`) or the embedded default."""
+    """An LDraw parts library: a folder or a zip archive on disk (`--ldraw`, `LDRAWDIR`) or the embedded
+    default."""
 
     def __init__(self, source: Source, description: str):
         self.source = source
         self.description = description
+
+    @classmethod
+    def from_path(cls, path: str | os.PathLike) -> "Library":
+        """The library in a folder, or in a zip archive read in place (LDraw's `complete.zip`)."""
+        root = Path(path).expanduser()
+        if root.is_file():
+            return cls.from_zip(root)
+        return cls.from_dir(root)
+
+    @classmethod
+    def from_zip(cls, path: str | os.PathLike) -> "Library":
+        root = Path(path).expanduser()
+        if not zipfile.is_zipfile(root):
+            raise LDrawError(f"{root} is a file but not a zip archive; expected an LDraw library folder holding "
+                             "'parts' and 'p', or LDraw's complete.zip")
+        source = ZipSource(root, label=str(root))
+        if not source.has_library_layout():
+            raise LDrawError(f"{root} is not an LDraw library: expected folders 'parts' and 'p' in it (or under "
+                             "one top folder, as 'ldraw/' in LDraw's complete.zip)")
+        return cls(source, f"LDraw library in {root}")
 
     @classmethod
     def from_dir(cls, path: str | os.PathLike) -> "Library":
@@ -171,10 +270,7 @@ class Library:
         if not root.exists():
             raise LDrawError(f"LDraw library folder {root} does not exist")
         if not root.is_dir():
-            if zipfile.is_zipfile(root):
-                raise LDrawError(f"{root} is a zip archive; LDraw libraries are read from folders: unzip it "
-                                 "and give the folder that holds 'parts' and 'p' (in LDraw's complete.zip, 'ldraw')")
-            raise LDrawError(f"{root} is a file, not a folder; expected an LDraw library folder holding 'parts' and 'p'")
+            raise LDrawError(f"{root} is not a folder; expected an LDraw library folder holding 'parts' and 'p'")
         listing = {p.name.lower() for p in root.iterdir()}
         if "parts" not in listing or "p" not in listing:
             raise LDrawError(
@@ -191,10 +287,10 @@ class Library:
     def resolve(cls, ldraw: str | os.PathLike | None = None) -> "Library":
         """The library to use: `ldraw` if given, else `$LDRAWDIR`, else the embedded default."""
         if ldraw:
-            return cls.from_dir(ldraw)
+            return cls.from_path(ldraw)
         env = os.environ.get("LDRAWDIR")
         if env:
-            return cls.from_dir(env)
+            return cls.from_path(env)
         return cls.embedded()
 
     def lookup(self, name: str) -> Located | None:

@@ -88,7 +88,7 @@ class DatasetConfig:
     models: tuple[dict, ...] = ()
     """Design only: one dict per model, {"object_id", "path", "sha256"}, in object order."""
     ldraw: str | None = None
-    """LDraw library folder (absolute), or None for the embedded library (the command lines take
+    """LDraw library folder or zip archive (absolute), or None for the embedded library (the command lines take
     $LDRAWDIR when --ldraw is not given)."""
     physics: bool = True
     """Design only: replay each model through the physics checks (`pipelines.verify`) and store

@@ -46,11 +46,16 @@ SMALL_BUILD = ["--n", "2", "--min-steps", "3", "--max-steps", "4", "--size", "64
 """The build the cases below that need a dataset use (and the spool case plants its pickle into)."""
 
 PLAIN_MODEL = "mirrored"
-"""A corpus model the flag and library cases read (any model: the case is about the flag)."""
+"""A corpus model the flag and library cases read (any model refused after its library is read: the
+case is about the flag or the library)."""
 
 EXTRA: dict[str, tuple[str, list[str]]] = {
-    "zip_library": ("a zip archive given as --ldraw",
-                    ["-m", "factory.ldraw", "steps", "{model}", "--ldraw", "{zip}"]),
+    "zip_escape": ("a zip library with a member named ../escape.dat",
+                   ["-m", "factory.ldraw", "steps", "{model}", "--ldraw", "{zip}"]),
+    "zip_link": ("a zip library with a member stored as a symbolic link",
+                 ["-m", "factory.ldraw", "steps", "{model}", "--ldraw", "{zip}"]),
+    "zip_bomb": ("a zip library whose 3001.dat inflates to 64 MB of spaces (64 KB in the archive)",
+                 ["-m", "factory.ldraw", "steps", "{model}", "--ldraw", "{zip}"]),
     "flag_weight_word": ("--parts 3001:abc",
                          ["-m", "pipelines.sample", "--n", "1", "--out", "{work}/s", "--parts", "3001:abc"]),
     "flag_weight_huge": ("--parts 3001:1e308,3003:1e308 (their sum overflows)",
@@ -197,10 +202,22 @@ def _prepare_extra(case: str, work: Path, corpus: Path, dataset: Path | None) ->
     import zipfile
 
     work.mkdir(parents=True, exist_ok=True)
-    if case == "zip_library":
-        with zipfile.ZipFile(work / "library.zip", "w") as z:
-            for p in sorted((corpus / "ldraw").rglob("*.ldr"))[:1] + [corpus / "ldraw" / "parts" / "3001.dat"]:
-                z.write(p, "ldraw/" + p.relative_to(corpus / "ldraw").as_posix())
+    if case.startswith("zip_"):
+        # The corpus library as LDraw's complete.zip lays it out (under ldraw/), plus the case's member.
+        with zipfile.ZipFile(work / "library.zip", "w", zipfile.ZIP_DEFLATED) as z:
+            for p in sorted((corpus / "ldraw").rglob("*")):
+                if p.is_file() and not p.is_symlink() and p.name != "3001.dat" and p.stat().st_size < 1 << 20:
+                    z.write(p, "ldraw/" + p.relative_to(corpus / "ldraw").as_posix())
+            brick = (corpus / "ldraw" / "parts" / "3001.dat").read_bytes()
+            if case == "zip_bomb":
+                brick += b" " * (64 << 20)
+            z.writestr("ldraw/parts/3001.dat", brick)
+            if case == "zip_escape":
+                z.writestr("ldraw/../escape.dat", b"0 outside\n")
+            if case == "zip_link":
+                link = zipfile.ZipInfo("ldraw/parts/link.dat")
+                link.external_attr = (0o120777 << 16)
+                z.writestr(link, "/etc/passwd")
     elif case == "spool_pickle":
         spool = work / "build" / "meta" / "spool"
         spool.mkdir(parents=True, exist_ok=True)
