@@ -8,8 +8,8 @@ body runs, so until then SIGINT ends the process at once: this module is importe
 `factory/__init__.py` (stdlib only, before anything heavy) and, in a process that runs one of
 the project's command lines (`python -m pipelines.X`, `eval.X`, `train`, `factory.ldraw` or the
 `brick-factory` script) or in a worker process such a command spawned, sets that handler.
-`factory.cli.run_guarded` hands SIGINT back to Python's KeyboardInterrupt when the body starts
-(`started`), and ignores it once the body has ended (`finishing`: a Ctrl-C during the shutdown
+`factory.cli.run_guarded` hands SIGINT back to a KeyboardInterrupt when the body starts
+(`started`; raised outside imports only, `_interrupt`), and ignores it once the body has ended (`finishing`: a Ctrl-C during the shutdown
 killed a finished build silently by SIGINT). Elsewhere (a notebook, pytest, a user's script
 importing the library) nothing changes.
 """
@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import threading
 
 COMMAND_PACKAGES = ("pipelines", "eval", "train", "factory")
 CHILD_ENV = "BRICK_FACTORY_COMMAND"
@@ -68,12 +69,37 @@ def guard() -> None:
         pass
 
 
+RETRY_SECONDS = 0.05
+"""How soon a Ctrl-C that arrived during an import is raised again."""
+MAX_RETRIES = 100
+"""After this many (5 s of an import that does not end), KeyboardInterrupt is raised anyway."""
+_retries = 0
+
+
+def _interrupt(signum, frame) -> None:
+    """Ctrl-C while the command's body runs: KeyboardInterrupt, which `run_guarded` turns into its
+    one line; but never inside an import (a library may catch `BaseException` round a lazy
+    import, as trimesh does, or print it), where the signal is sent again a moment later, once the
+    import is done."""
+    global _retries
+    f = frame
+    while f is not None and _retries < MAX_RETRIES:
+        if f.f_code.co_filename.startswith("<frozen importlib"):
+            _retries += 1
+            timer = threading.Timer(RETRY_SECONDS, os.kill, (os.getpid(), signal.SIGINT))
+            timer.daemon = True
+            timer.start()
+            return
+        f = f.f_back
+    raise KeyboardInterrupt
+
+
 def started() -> None:
     """The command's body starts (it may write from now on): Ctrl-C raises KeyboardInterrupt
-    again, which `run_guarded` turns into its one line."""
+    again (outside imports: `_interrupt`), which `run_guarded` turns into its one line."""
     try:
         if signal.getsignal(signal.SIGINT) in (_quit_loudly, _quit_quietly):
-            signal.signal(signal.SIGINT, signal.default_int_handler)
+            signal.signal(signal.SIGINT, _interrupt)
     except ValueError:
         pass
 
