@@ -69,6 +69,10 @@ CASES: dict[str, str] = {
     "many_parts": "a model of 20,000 bricks (50 layers of 20 x 20, one STEP per layer)",
 }
 
+LAYER_COLOURS = (1, 2, 4, 5, 14, 15, 0, 7, 8, 10, 19, 25, 27, 28)
+"""The many_parts layers' colours: codes of the embedded library's LDConfig.ldr (a code it lacks is
+an input error, which is another case)."""
+
 QUICK = ("cycle", "mpd_bomb", "edge_bomb", "binary_model", "mirrored", "missing_part", "huge_colour")
 """The subset `run.py --quick` (and tests/test_hostile.py) runs: each refused before expanding."""
 
@@ -264,7 +268,8 @@ def generate(out: str | os.PathLike, big: bool = True) -> dict[str, Path]:
         for layer in range(50):
             for i in range(20):
                 for j in range(20):
-                    lines.append(_line(1 + layer % 14, (40 * i, -24 * layer, 20 * j), ID, "3001.dat"))
+                    lines.append(_line(LAYER_COLOURS[layer % len(LAYER_COLOURS)], (40 * i, -24 * layer, 20 * j), ID,
+                                       "3001.dat"))
             lines.append("0 STEP")
         model("many_parts", lines)
     return {case: cases[case] for case in CASES if case in cases}

@@ -5,7 +5,7 @@
 Each try starts `python -m pipelines.synth` (the issue's small build) in its own session with
 SIGINT at its default (as from a terminal), sends SIGINT to the whole process group (what Ctrl-C
 does) after a random delay (`--early` tries within the first 2 s, while the command starts;
-`--late` tries between 2 s and the reference build's wall time), then runs the same command again
+`--late` tries between 2 s and 0.9 of the reference build's wall time), then runs the same command again
 without interruption. A try passes when the interrupted run exits 130 (or 0 if it finished
 first), prints no traceback and exactly one `error: interrupted...` line (other stderr lines are
 the build's own notes), and the resumed folder has the reference's files byte for byte. Prints a
@@ -129,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     wall = reference(ref)
     rng = random.Random(args.seed)
     delays = sorted(rng.uniform(0.0, 2.0) for _ in range(args.early))
-    delays += sorted(rng.uniform(2.0, max(2.5, wall)) for _ in range(args.late))
+    delays += sorted(rng.uniform(2.0, max(2.5, 0.9 * wall)) for _ in range(args.late))  # while it builds
     print(f"reference build: {wall:.1f} s\n")
     print("| delay (s) | exit | resume | result |")
     print("|---:|---:|---:|---|")
