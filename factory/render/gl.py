@@ -97,7 +97,7 @@ class Context:
         self._owners: weakref.WeakSet = weakref.WeakSet()
         # Registered after the backend's own hooks (EGL registers eglTerminate on first use), so it
         # runs before them: free everything while the display is still alive.
-        atexit.register(self.close)
+        atexit.register(self._close_at_exit)
 
     @property
     def alive(self) -> bool:
@@ -110,11 +110,20 @@ class Context:
         """Track an object with a `free()` method that holds GL resources (freed before the context)."""
         self._owners.add(owner)
 
+    def _close_at_exit(self) -> None:
+        """`close` as the process ends: a render cut short (Ctrl-C in the middle of a GL call) can
+        leave the context unable to be made current, and the process frees it anyway, so a
+        failure here is not printed (it was a traceback after the interrupted build's one line)."""
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - the process is ending; the driver frees what is left
+            self._gl = None
+
     def close(self) -> None:
         """Free the adopted owners, then the context (idempotent)."""
         if self._gl is None:
             return
-        atexit.unregister(self.close)
+        atexit.unregister(self._close_at_exit)
         try:
             self._gl.make_current()
             for owner in list(self._owners):

@@ -96,8 +96,16 @@ class Renderer:
     def __enter__(self) -> Renderer:
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, kind, value, tb) -> None:
+        if kind is None:
+            self.close()
+            return
+        # Leaving on an error or a Ctrl-C: a GL call cut short can leave the context unusable, and
+        # an error from freeing it must not replace the one that is on its way out.
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - the first error is the one to report
+            self._gl, self._closed = None, True
 
     def gl_context(self) -> gl.Context:
         """The renderer's GL context, started on first use and made current."""
