@@ -11,7 +11,8 @@ the project's command lines (`python -m pipelines.X`, `eval.X`, `train`, `factor
 `factory.cli.run_guarded` hands SIGINT back to a KeyboardInterrupt when the body starts
 (`started`; raised outside imports only, `_interrupt`), and ignores it once the body has ended (`finishing`: a Ctrl-C during the shutdown
 killed a finished build silently by SIGINT). Elsewhere (a notebook, pytest, a user's script
-importing the library) nothing changes.
+importing the library) nothing changes. A command also pins MuJoCo's GL backend
+(`factory.gl_backend.pin`) before MuJoCo loads, for its workers too.
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ import os
 import signal
 import sys
 import threading
+
+from factory import gl_backend  # stdlib only
 
 COMMAND_PACKAGES = ("pipelines", "eval", "train", "factory")
 CHILD_ENV = "BRICK_FACTORY_COMMAND"
@@ -63,6 +66,7 @@ def guard() -> None:
             _COMMAND = True
             os.environ[CHILD_ENV] = "1"
             signal.signal(signal.SIGINT, _quit_loudly)
+            gl_backend.pin()  # before MuJoCo loads: never GLFW, whose import starts a Python child
         elif os.environ.get(CHILD_ENV) == "1":
             signal.signal(signal.SIGINT, _quit_quietly)
     except ValueError:  # not the main thread: leave signals alone

@@ -17,7 +17,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from factory import Pose
+from factory import Pose, gl_backend
 from factory.ldraw import PlacedPart
 
 try:
@@ -400,12 +400,29 @@ def test_same_input_gives_identical_png_bytes(reader, renderer):
 # -- backend errors and the command line ----------------------------------------------------------
 def test_no_gl_library_names_what_to_install(monkeypatch):
     monkeypatch.delenv("MUJOCO_GL", raising=False)
-    monkeypatch.setattr(gl.ctypes.util, "find_library", lambda name: None)
+    monkeypatch.setattr(gl_backend.ctypes.util, "find_library", lambda name: None)
     with pytest.raises(RenderUnavailableError, match="libosmesa6"):
         gl._choose_backend()
     monkeypatch.setenv("MUJOCO_GL", "osmesa")
     with pytest.raises(RenderUnavailableError, match="apt-get install libosmesa6"):
         gl._choose_backend()
+    monkeypatch.delenv("MUJOCO_GL")
+    gl_backend.pin()  # no library: a command starts anyway, and the renderer says what to install
+    assert "MUJOCO_GL" not in os.environ
+
+
+def test_a_command_pins_the_gl_backend_so_mujoco_never_loads_glfw():
+    """GLFW's import starts a Python child; a Ctrl-C during its start printed Python's fatal error."""
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
+    code = "import sys, os, mujoco; print(os.environ.get('MUJOCO_GL'), 'glfw' in sys.modules)"
+    plain = subprocess.run([sys.executable, "-c", "import factory; " + code], env=env, capture_output=True, text=True)
+    assert plain.stdout.split() == ["None", "True"], plain.stderr  # a user's script: untouched
+    as_command = "import sys; sys.orig_argv[:] = [sys.executable, '-m', 'pipelines.synth']; "  # what -m gives
+    probe = subprocess.run(
+        [sys.executable, "-c", as_command + "import factory; " + code],
+        env=env, capture_output=True, text=True,
+    )
+    assert probe.stdout.split() == [gl_backend.choose(), "False"], probe.stderr
 
 
 def _cli(*args, env=None):

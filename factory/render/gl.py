@@ -1,9 +1,8 @@
 """Headless OpenGL for MuJoCo's renderer: pick a backend; a `Context` that frees what lives in it.
 
-Backends, in order: `MUJOCO_GL` if it names `egl` or `osmesa` (the user's choice, no fallback); else EGL
-when `libEGL` is installed (Mesa llvmpipe on a CPU machine, the NVIDIA driver on a GPU); else OSMesa
-when `libOSMesa` is installed. `configure()` sets `MUJOCO_GL` and `PYOPENGL_PLATFORM` so that a later
-`import mujoco` picks the same backend; it runs when `factory.render` is imported.
+The backend is `factory.gl_backend.choose()`'s (MUJOCO_GL, else EGL, else OSMesa). `configure()`
+sets `MUJOCO_GL` and `PYOPENGL_PLATFORM` so that a later `import mujoco` picks the same backend; it
+runs when `factory.render` is imported.
 
 EGL on this project's CPU machine works with the stock environment (`MUJOCO_GL=egl`); the `EGLError`
 seen in quick tries comes from MuJoCo's `Renderer.__del__` at interpreter exit, after `eglTerminate`.
@@ -14,38 +13,15 @@ runs before MuJoCo's own `eglTerminate` hook.
 from __future__ import annotations
 
 import atexit
-import ctypes.util
 import os
 import sys
 import weakref
 
-from factory import gpus
+from factory import gl_backend, gpus
 
-_INSTALL_HINT = (
-    "install Mesa's EGL (Debian/Ubuntu: apt-get install libegl1 libgl1-mesa-dri) for MUJOCO_GL=egl, "
-    "or OSMesa (apt-get install libosmesa6) and set MUJOCO_GL=osmesa"
-)
-
-
-class RenderUnavailableError(RuntimeError):
-    """No headless OpenGL backend could be started; the message says what to install."""
-
-
-def _choose_backend() -> str:
-    env = os.environ.get("MUJOCO_GL", "").strip().lower()
-    if env == "osmesa" and not ctypes.util.find_library("OSMesa"):
-        raise RenderUnavailableError(
-            "MUJOCO_GL=osmesa but libOSMesa is not installed (apt-get install libosmesa6); or unset MUJOCO_GL to use EGL"
-        )
-    if env == "egl" and not ctypes.util.find_library("EGL"):
-        raise RenderUnavailableError(f"MUJOCO_GL=egl but libEGL is not installed; {_INSTALL_HINT}")
-    if env in ("egl", "osmesa"):
-        return env
-    if ctypes.util.find_library("EGL"):
-        return "egl"
-    if ctypes.util.find_library("OSMesa"):
-        return "osmesa"
-    raise RenderUnavailableError(f"no headless OpenGL library found (neither libEGL nor libOSMesa); {_INSTALL_HINT}")
+_INSTALL_HINT = gl_backend.INSTALL_HINT
+RenderUnavailableError = gl_backend.RenderUnavailableError
+_choose_backend = gl_backend.choose
 
 
 BACKEND: str | None = None
