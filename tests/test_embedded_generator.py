@@ -31,6 +31,7 @@ EXPECTED = {
     "3024", "3023", "3623", "3710", "3666", "3460", "3022", "3021", "3020", "3795", "3034", "3832",
     "3031", "3958", "3035", "3036", "3030", "3070b", "3069b", "63864", "2431", "3068b",
     "3040b", "3039", "3038", "3037", "3665", "3660",
+    "4073", "3062b", "2412b", "3794b", "54200", "4070", "99781", "44728", "3659", "2450",
 }
 NUMBERS = sorted(EXPECTED)
 
@@ -86,11 +87,12 @@ def ours(number: str) -> np.ndarray:
 # --- the generated library on its own ---------------------------------------------------------
 
 
-def test_exactly_the_40_parts():
+def test_exactly_the_50_parts():
     parts = {k[len("parts/") : -len(".dat")] for k in LIB if k.startswith("parts/") and k.count("/") == 1}
     assert parts == EXPECTED
-    assert {p.number for p in PARTS} == EXPECTED and len(PARTS) == 40
-    for name in ("p/stud.dat", "p/stud3.dat", "p/stud4.dat", "p/stud3a.dat", "p/stud4a.dat", "LDConfig.ldr"):
+    assert {p.number for p in PARTS} == EXPECTED and len(PARTS) == 50
+    for name in ("p/stud.dat", "p/stud2.dat", "p/stud3.dat", "p/stud4.dat", "p/stud3a.dat", "p/stud4a.dat",
+                 "LDConfig.ldr"):
         assert name in LIB
 
 
@@ -110,13 +112,18 @@ def test_deterministic_and_well_formed():
                 assert not line or line.split()[0] in ("0", "1", "3", "4"), line
 
 
+TO_FRONT = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
+"""A quarter turn about x: a side stud pointing -z (the headlight brick's, the brackets')."""
+
+
 def test_every_reference_resolves_and_studs_are_plain():
     for number in NUMBERS:
         refs = top_refs(number)
-        assert {b for b, _, _ in refs} <= {"stud.dat", "stud3.dat", "stud4.dat", "stud3a.dat", "stud4a.dat"}
+        assert {b for b, _, _ in refs} <= {"stud.dat", "stud2.dat", "stud3.dat", "stud4.dat", "stud3a.dat",
+                                           "stud4a.dat"}
         for base, m, _ in refs:
-            if base == "stud.dat":
-                assert np.array_equal(m, np.eye(3))
+            if base in ("stud.dat", "stud2.dat"):  # upright, or turned (a rotation) to face -z
+                assert np.array_equal(m, np.eye(3)) or (base == "stud.dat" and np.array_equal(m, TO_FRONT))
             else:  # tubes and bars: stretched in y only; the open-topped ones hang from their top
                 assert np.array_equal(m, np.diag([1.0, m[1, 1], 1.0]))
                 assert (m[1, 1] < 0) == base.endswith("a.dat")
@@ -138,7 +145,7 @@ def test_primitive_emitters_are_closed_and_outward():
         assert volume(tris) == pytest.approx(expected, rel=1e-4)
 
 
-@pytest.mark.parametrize("name", ["stud.dat", "stud3.dat", "stud4.dat"])
+@pytest.mark.parametrize("name", ["stud.dat", "stud2.dat", "stud3.dat", "stud4.dat"])
 def test_primitives_closed(name):
     tris = triangles(name)
     assert unbalanced_edges(tris) == 0

@@ -2,7 +2,8 @@
 
 Sizes are in studs. `nx` runs along x and `nz` along z, following the real library's orientation:
 rectangular parts are long in x; slopes are `nx` studs wide in x and 2 studs deep in z, sloping
-down toward -z.
+down toward -z; the cheese slope falls toward -z too, the headlight brick's side stud and a
+bracket's side plate face -z.
 """
 
 from __future__ import annotations
@@ -14,6 +15,21 @@ PLATE = "plate"
 TILE = "tile"
 SLOPE = "slope"
 INVERTED_SLOPE = "inverted_slope"
+ROUND_PLATE = "round_plate"
+ROUND_BRICK = "round_brick"
+GRILLE = "grille"
+"""A tile with slots through its top (no studs)."""
+JUMPER = "jumper"
+"""A 1 x 2 plate with one stud in the middle."""
+CHEESE = "cheese"
+"""A 30 degree slope 1 x 1 x 2/3, no stud."""
+HEADLIGHT = "headlight"
+"""A 1 x 1 brick with a stud on its front face too."""
+BRACKET = "bracket"
+"""A plate with a second plate hanging down from its front edge, studs facing -z."""
+ARCH = "arch"
+WEDGE = "wedge"
+"""A plate with a corner cut off at 45 degrees."""
 
 
 @dataclass(frozen=True)
@@ -25,6 +41,8 @@ class PartSpec:
     nz: int
     bars: bool = True
     """Whether a 1 x N part has bars under it (the real 1 x 2 tile has none)."""
+    rows: int = 0
+    """Brackets: rows of studs on the plate that hangs down (1 for 1 x 2 - 1 x 2, 2 for 2 x 2)."""
 
     @property
     def filename(self) -> str:
@@ -55,6 +73,17 @@ PARTS: tuple[PartSpec, ...] = (
     PartSpec("3037", "Slope Brick 45 2 x 4", SLOPE, 4, 2),
     PartSpec("3665", "Slope Brick 45 2 x 1 Inverted", INVERTED_SLOPE, 1, 2),
     PartSpec("3660", "Slope Brick 45 2 x 2 Inverted", INVERTED_SLOPE, 2, 2),
+    # 4073 is the number LDraw.org keeps as an alias of 6141; the part is the same.
+    PartSpec("4073", "Plate 1 x 1 Round", ROUND_PLATE, 1, 1),
+    PartSpec("3062b", "Brick 1 x 1 Round with Hollow Stud", ROUND_BRICK, 1, 1),
+    PartSpec("2412b", "Tile 1 x 2 Grille", GRILLE, 2, 1),
+    PartSpec("3794b", "Plate 1 x 2 with 1 Centre Stud", JUMPER, 2, 1),
+    PartSpec("54200", "Slope 30 1 x 1 x 2/3", CHEESE, 1, 1),
+    PartSpec("4070", "Brick 1 x 1 with Headlight", HEADLIGHT, 1, 1),
+    PartSpec("99781", "Bracket 1 x 2 - 1 x 2 Down", BRACKET, 2, 1, rows=1),
+    PartSpec("44728", "Bracket 1 x 2 - 2 x 2 Down", BRACKET, 2, 1, rows=2),
+    PartSpec("3659", "Arch 1 x 4", ARCH, 4, 1),
+    PartSpec("2450", "Plate 3 x 3 without Corner", WEDGE, 3, 3),
 )
 
 BY_NUMBER: dict[str, PartSpec] = {p.number: p for p in PARTS}

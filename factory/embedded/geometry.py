@@ -209,3 +209,37 @@ def cylinder(
             mesh.face([(x, h(x, z), z) for x, z in top_pts], (0.0, -1.0, 0.0))
         if caps[1]:
             mesh.face([(x, bottom, z) for x, z in top_pts], (0.0, 1.0, 0.0))
+
+
+def prism(
+    mesh: Mesh, polygon: Sequence[tuple[float, float]], axis: int, lo: float, hi: float
+) -> None:
+    """A convex polygon extruded along coordinate `axis` (0 x, 1 y, 2 z) from `lo` to `hi`.
+
+    The polygon's points are in the other two coordinates, in increasing order ((y, z) along x,
+    (x, z) along y, (x, y) along z), in either turning direction. A box is a rectangle; the slabs
+    of an arch's curved wall and the pieces of a part's outline that no box fits are others.
+    """
+
+    def point(u: float, v: float, w: float) -> Point:
+        p = [u, v]
+        p.insert(axis, w)
+        return (p[0], p[1], p[2])
+
+    def along(sign: float) -> Point:
+        return (sign if axis == 0 else 0.0, sign if axis == 1 else 0.0, sign if axis == 2 else 0.0)
+
+    cu = sum(u for u, _ in polygon) / len(polygon)
+    cv = sum(v for _, v in polygon) / len(polygon)
+    for i, (au, av) in enumerate(polygon):
+        bu, bv = polygon[(i + 1) % len(polygon)]
+        # The edge's normal in the polygon's plane, turned away from the centroid.
+        nu, nv = bv - av, au - bu
+        if nu * ((au + bu) / 2 - cu) + nv * ((av + bv) / 2 - cv) < 0:
+            nu, nv = -nu, -nv
+        mesh.face(
+            [point(au, av, lo), point(bu, bv, lo), point(bu, bv, hi), point(au, av, hi)],
+            point(nu, nv, 0.0),
+        )
+    mesh.face([point(u, v, lo) for u, v in polygon], along(-1.0))
+    mesh.face([point(u, v, hi) for u, v in polygon], along(1.0))
