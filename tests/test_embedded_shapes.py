@@ -23,7 +23,7 @@ from factory.parts import load_part
 REAL_ZIP = Path(__file__).resolve().parents[2] / "shared" / "ldraw_library.zip"
 
 REAL_NAME = {
-    "4073": "6141",  # LDraw.org keeps 4073 as an alias of 6141; the zip has only 6141
+    "6141": "6141",
     "3062b": "3062b",
     "2412b": "2412b",
     "3794b": "3794b",
@@ -106,7 +106,7 @@ def _wedge_volume() -> float:
 
 EXACT = {
     # round plate: disc 10 x 3, tube 8/6 x 5, stud
-    "4073": A16 * (100 * 3 + 28 * 5) + STUD,
+    "6141": A16 * (100 * 3 + 28 * 5) + STUD,
     # round brick: top 10/4 x 4, sleeve 10/8 x 15, tube 8/6 x 20, hollow stud
     "3062b": A16 * (84 * 4 + 36 * 15 + 28 * 20) + HOLLOW_STUD,
     # grille: three top bars, walls under them, rib 8 x 2 x 4

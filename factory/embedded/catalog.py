@@ -73,8 +73,7 @@ PARTS: tuple[PartSpec, ...] = (
     PartSpec("3037", "Slope Brick 45 2 x 4", SLOPE, 4, 2),
     PartSpec("3665", "Slope Brick 45 2 x 1 Inverted", INVERTED_SLOPE, 1, 2),
     PartSpec("3660", "Slope Brick 45 2 x 2 Inverted", INVERTED_SLOPE, 2, 2),
-    # 4073 is the number LDraw.org keeps as an alias of 6141; the part is the same.
-    PartSpec("4073", "Plate 1 x 1 Round", ROUND_PLATE, 1, 1),
+    PartSpec("6141", "Plate 1 x 1 Round", ROUND_PLATE, 1, 1),  # (4073 is the same part's older number)
     PartSpec("3062b", "Brick 1 x 1 Round with Hollow Stud", ROUND_BRICK, 1, 1),
     PartSpec("2412b", "Tile 1 x 2 Grille", GRILLE, 2, 1),
     PartSpec("3794b", "Plate 1 x 2 with 1 Centre Stud", JUMPER, 2, 1),
