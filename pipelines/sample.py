@@ -36,6 +36,8 @@ from factory.physics.check import BACKENDS, STAGE_SECONDS
 from factory.sampler import Sampler, SamplerConfig, SamplerConfigError
 from factory.atomic import write_atomic
 from pipelines import workers
+from factory.prior import PriorError
+from pipelines.prior_flag import add_prior_flag, apply_prior
 
 _SAMPLER: Sampler | None = None
 
@@ -128,6 +130,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--steps-json", action="store_true", help="also list every step in summary.json")
     add_mps_flag(ap)
     add_progress_flag(ap)
+    add_prior_flag(ap)
     # The sampler's settings: the same flags, defaults and check_batch rule as pipelines.synth's.
     add_config_args(ap, SamplerConfig, skip=("check",))
     renamed_flag(ap, "--backend", "--check-backend", "backend", choices=BACKENDS)
@@ -141,11 +144,11 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--n and --start must be >= 0, --workers and --batch >= 1")
 
     def body() -> int:
-        config = sampler_config(args)
+        config = apply_prior(args, sampler_config(args), args.ldraw, progress=not args.no_progress)
         _init(config, args.ldraw)  # validates against the library before any work
         return _run(args, config)
 
-    return run_guarded(body, {SamplerConfigError: 2})
+    return run_guarded(body, {SamplerConfigError: 2, PriorError: 2})
 
 
 def sampler_config(args) -> SamplerConfig:

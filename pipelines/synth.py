@@ -20,6 +20,7 @@ from pipelines.dataset import (ConfigMismatchError, FolderBusyError, ShardFailed
                                summary_line)
 from pipelines.dataset.build import growers_of
 from pipelines.dataset.config import DatasetConfig
+from pipelines.prior_flag import add_prior_flag, apply_prior
 
 
 def _ldraw(arg):
@@ -60,6 +61,7 @@ def config_from_args(args) -> DatasetConfig:
     """The synthetic `DatasetConfig` of parsed arguments (`--ldraw` defaults to $LDRAWDIR;
     `--check-backend auto` resolved for this machine)."""
     sampler = config_of(SamplerConfig, args, "sampler.", seed=args.seed, backend=checks_backend(args)[0])
+    sampler = apply_prior(args, sampler, _ldraw(args.ldraw), "sampler.", progress=not getattr(args, "no_progress", True))
     return config_of(DatasetConfig, args, source="synthetic", sampler=sampler, ldraw=_ldraw(args.ldraw))
 
 
@@ -112,6 +114,7 @@ def parser() -> argparse.ArgumentParser:
     add_config_flags(ap)
     add_auto_backend(ap)
     add_run_args(ap)
+    add_prior_flag(ap)
     return ap
 
 

@@ -123,13 +123,31 @@ def test_dataset_json_record_is_versioned_and_refuses_another_version():
     assert design.to_json()["sampler"] == {} and DatasetConfig.from_json(design.to_json()) == design
 
 
+OLD_DEFAULT_PARTS = (
+    "3005:1,3004:1,3622:1,3010:1,3009:1,3008:1,3003:1,3002:1,3001:1,2456:1,3007:1,3006:1,3024:1,3023:1,3623:1,"
+    "3710:1,3666:1,3460:1,3022:1,3021:1,3020:1,3795:1,3034:1,3832:1,3031:1,3958:1,3035:1,3036:1,3030:1,3070b:0.5,"
+    "63864:0.5,2431:0.5,3068b:0.5,3069b:0.5,3040b:0.5,3039:0.5,3038:0.5,3037:0.5,3665:0.5,3660:0.5"
+)
+OLD_DEFAULT_COLOURS = "0,1,2,4,14,15,19,25,70,71,72"
+"""The sampler's defaults before the usage prior: the 40 box parts, tiles and slopes at half weight,
+eleven colours alike."""
+
+
 def test_hash_of_a_build_made_before_the_sampler_was_typed_is_unchanged(monkeypatch):
     """`pipelines.synth --n 2 --seed 0` wrote meta/config.json with hash 7128f1ff5ea58dd7 before
     `DatasetConfig.sampler` became a `SamplerConfig` (the sampler a dict of ordered [name, weight]
-    lists, no `check`); the same command's config must keep it, or old folders would not resume."""
+    lists, no `check`, no prior); the same config must keep it, or old folders would not resume.
+    Its parts and colours were the defaults then; given as flags now (the defaults come from the
+    usage prior), they make the same config, and one read back without a `prior` key has none."""
     monkeypatch.delenv("LDRAWDIR", raising=False)
-    args = synth_parser().parse_args(["--n", "2", "--out", "unused", "--seed", "0"])
-    assert synth.config_from_args(args).hash == "7128f1ff5ea58dd7"
+    args = synth_parser().parse_args(["--n", "2", "--out", "unused", "--seed", "0", "--parts", OLD_DEFAULT_PARTS,
+                                      "--colours", OLD_DEFAULT_COLOURS])
+    config = synth.config_from_args(args)
+    assert config.sampler.prior == "" and config.hash == "7128f1ff5ea58dd7"
+    assert type(config).from_json(config.to_json()) == config  # no `prior` key in the record: none
+    # the default command now draws from the shipped prior: another config, which an old folder refuses
+    default = synth.config_from_args(synth_parser().parse_args(["--n", "2", "--out", "unused", "--seed", "0"]))
+    assert default.sampler.prior.startswith("default sha256:") and default.hash != "7128f1ff5ea58dd7"
 
 
 def test_check_thresholds_are_recorded_only_when_changed():
@@ -313,7 +331,9 @@ def _argv(settings_: dict, names: dict[str, str]) -> list[str]:
 @given(synth_settings())
 def test_any_synth_config_survives_the_command_line_and_json(s):
     dataset, sampler = s
-    expected = DatasetConfig.synthetic(sampler=SamplerConfig(**sampler), **dataset)
+    # Parts and colours given (else they come from the usage prior and the library, which /lib is not).
+    sampler = {"parts": (("3005", 1.0),), "colours": ((4, 1.0),), **sampler}
+    expected = DatasetConfig.synthetic(sampler=SamplerConfig(**sampler, prior=""), **dataset)
     argv = _argv(dataset, {"n_objects": "n"}) + _argv(sampler, {"backend": "check-backend"})
     args = synth_parser().parse_args([*argv, "--out", "unused", "--ldraw", "/lib"])
     got = synth.config_from_args(args)

@@ -44,6 +44,9 @@ class Source(Protocol):
 
     def names(self) -> list[str]: ...
 
+    def part_files(self) -> list[str]:
+        """Lower-case names of the `.dat` files directly in `parts/` (the library's parts)."""
+
 
 def check_reference(name: str, file: str | None = None, line: int | None = None) -> str:
     """Normalise a reference name and refuse ones that could leave the library or model folder."""
@@ -119,6 +122,14 @@ class DirSource:
                 if self._inside(os.path.join(folder, real)):
                     out.append(low)
         return out
+
+    def part_files(self) -> list[str]:
+        folder = self._listing(str(self.root)).get("parts")
+        if folder is None or not self._inside(os.path.join(self.root, folder)):
+            return []
+        path = os.path.join(self.root, folder)
+        return sorted(low for low, real in self._listing(path).items()
+                      if low.endswith(".dat") and self._inside(os.path.join(path, real)))
 
     def _inside(self, path: str) -> bool:
         return os.path.commonpath([os.path.realpath(path), self.real_root]) == self.real_root
@@ -205,6 +216,10 @@ class ZipSource:
                                  display)
         return data
 
+    def part_files(self) -> list[str]:
+        return sorted(k[6:] for k in self._members if k.startswith("parts/") and k.count("/") == 1
+                      and k.endswith(".dat"))
+
     def names(self) -> list[str]:
         out = []
         for key in self._members:
@@ -234,6 +249,9 @@ class MemorySource:
 
     def names(self) -> list[str]:
         return [k.rsplit("/", 1)[-1] for k in self.files]
+
+    def part_files(self) -> list[str]:
+        return sorted(k[6:] for k in self.files if k.startswith("parts/") and k.count("/") == 1 and k.endswith(".dat"))
 
 
 class Library:
@@ -302,6 +320,10 @@ class Library:
             if found is not None:
                 return found
         return None
+
+    def part_names(self) -> list[str]:
+        """The library's parts: names (lower case, no `.dat`) of the files directly in `parts/`."""
+        return [n[:-4] for n in self.source.part_files()]
 
     def config(self) -> Located | None:
         """The library's `LDConfig.ldr`, if it has one."""

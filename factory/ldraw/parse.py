@@ -70,10 +70,22 @@ class LDrawFile:
     """The name it is referenced by (lower-case, `/`-separated)."""
     description: str = ""
     ldraw_org: str = ""
+    category: str = ""
+    """The `0 !CATEGORY` meta's text ('' when absent: LDraw then takes the title's first word,
+    `part_category`)."""
     moved_to: str | None = None
     certified: bool = False
     items: list[Ref | Poly | Step] = field(default_factory=list)
     first_line: int = 1
+
+    @property
+    def part_category(self) -> str:
+        """LDraw's category of a part: `!CATEGORY`, else the title's first word (without the
+        `~`, `_`, `=` and `|` prefixes of moved, alias and sub-parts)."""
+        if self.category:
+            return self.category
+        words = self.description.lstrip("~_=| ").split()
+        return words[0] if words else ""
 
     @property
     def refs(self) -> list[Ref]:
@@ -192,6 +204,8 @@ def parse_lines(lines: list[str], path: str, name: str, first_line: int = 1) -> 
                 out.items.append(Step(lineno, rotstep=head == "ROTSTEP"))
             elif head == "!LDRAW_ORG":
                 out.ldraw_org = " ".join(body[1:])
+            elif head == "!CATEGORY":
+                out.category = " ".join(body[1:])
             elif head == "BFC":
                 words = [w.upper() for w in body[1:]]
                 known = {"CERTIFY", "NOCERTIFY", "CW", "CCW", "CLIP", "NOCLIP", "INVERTNEXT"}

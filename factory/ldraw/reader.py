@@ -183,8 +183,9 @@ class Reader:
         """The model at `path` as last opened by this reader (opened now if it was not)."""
         return self.models.get(str(path)) or self.open_model(path)
 
-    def resolve(self, ref: Ref, parent: LDrawFile, model: Model | None) -> Resolved:
-        """Find what `ref` names: MPD blocks, then the model's folder, then the library."""
+    def find(self, ref: Ref, parent: LDrawFile, model: Model | None) -> Resolved | None:
+        """What `ref` names (MPD blocks, then the model's folder, then the library), or None where
+        nothing holds it (an unsafe name still raises)."""
         name = check_reference(ref.name, parent.path, ref.line)
         if model is not None:
             block = model.blocks.get(name)
@@ -196,6 +197,15 @@ class Reader:
         loc = self.library.lookup(name)
         if loc is not None:
             return Resolved(self.parse_located(loc), loc.key, "library", None)
+        return None
+
+    def resolve(self, ref: Ref, parent: LDrawFile, model: Model | None) -> Resolved:
+        """Find what `ref` names: MPD blocks, then the model's folder, then the library; a missing
+        file raises `LDrawMissingFileError` with where it looked and close names."""
+        found = self.find(ref, parent, model)
+        if found is not None:
+            return found
+        name = check_reference(ref.name, parent.path, ref.line)
         looked = []
         if model is not None:
             looked += ["the model's MPD blocks", f"the model's folder {model.folder.root}"]

@@ -7,7 +7,8 @@ from dataclasses import dataclass, field
 from typing import Mapping, Sequence, Union
 
 from factory.config import ConfigError, config_from_dict, config_to_dict
-from factory.embedded.catalog import INVERTED_SLOPE, PARTS, SLOPE, TILE
+from factory.prior.choose import embedded_choice
+from factory.prior.prior import load_prior
 from factory.physics.check import BACKENDS, CheckConfig
 
 
@@ -23,17 +24,14 @@ class SamplerConfigError(ConfigError):
 WeightsLike = Union[Mapping, Sequence]
 """`{"3001": 2.0, ...}`, `[("3001", 2.0), ...]` or `["3001", ...]` (weight 1 each)."""
 
-DEFAULT_PARTS: tuple[tuple[str, float], ...] = tuple(
-    (p.number, 0.5 if p.kind in (TILE, SLOPE, INVERTED_SLOPE) else 1.0) for p in PARTS
-)
-"""Every part of the embedded library: bricks and plates weight 1, tiles and slopes 0.5 (they
-cap growth upward, so they are drawn less)."""
+_DEFAULT_PRIOR = load_prior()
+DEFAULT_PRIOR_LABEL = _DEFAULT_PRIOR.label()
+"""The shipped usage prior (`factory.prior.DEFAULT_PRIOR`) as a record names it."""
 
-DEFAULT_COLOURS: tuple[tuple[int, float], ...] = tuple(
-    (c, 1.0) for c in (0, 1, 2, 4, 14, 15, 19, 25, 70, 71, 72)
-)
-"""Eleven common LDraw colours, equally likely: black, blue, green, red, yellow, white, tan,
-orange, reddish brown, light and dark bluish grey."""
+DEFAULT_PARTS, DEFAULT_COLOURS = embedded_choice(_DEFAULT_PRIOR)
+"""The parts and colours of the shipped usage prior that the embedded library holds, with the
+prior's weights (`factory.prior.choose.embedded_choice`): what objects are grown from without a
+library. With a library, `factory.prior.configure` draws from the parts of the library instead."""
 
 
 def _weights(name: str, value: WeightsLike, key) -> tuple[tuple, ...]:
@@ -125,6 +123,9 @@ class SamplerConfig:
     """Rollout backend of the physics check: 'mujoco' (CPU) or 'mjx' (batched, GPU)."""
     seed: int = 0
     """Seed of the whole run: object i draws from `np.random.default_rng([seed, i])` only."""
+    prior: str = field(default=DEFAULT_PRIOR_LABEL, metadata={"flag": False})
+    """The usage prior `parts` and `colours` were drawn from, as `name sha256:...` ('' when the
+    user gave both): a record for the data card; the commands set it with `--prior FILE`."""
     check: CheckConfig = field(default_factory=CheckConfig)
     """Thresholds of the physics checks (written by `to_dict` only when they differ from the
     defaults, so the hashes of datasets built before they were recorded stay the same)."""
@@ -175,12 +176,15 @@ class SamplerConfig:
         # A cost setting added later: left out at its default, so earlier datasets' hashes stay.
         if self.judge_first == default_judge_first(self.check_batch):
             del out["judge_first"]
+        if not self.prior:  # parts and colours given by the user, as every config before priors
+            del out["prior"]
         return out
 
     @classmethod
     def from_dict(cls, data: dict) -> "SamplerConfig":
-        """The inverse of `to_dict`; unknown keys are refused, naming the valid ones."""
-        return config_from_dict(cls, data, SamplerConfigError)
+        """The inverse of `to_dict`; unknown keys are refused, naming the valid ones. A record
+        without `prior` has none (parts and colours given, as every record before priors)."""
+        return config_from_dict(cls, {"prior": "", **data} if isinstance(data, dict) else data, SamplerConfigError)
 
 
 MJX_CHECK_BATCH = 16

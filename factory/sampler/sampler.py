@@ -297,14 +297,7 @@ def _index(index) -> int:
 # -- validation against the library ----------------------------------------------------------------
 def library_parts(reader: Reader) -> list[str]:
     """Part names (no `.dat`) the library offers at its top level `parts/` folder."""
-    source = reader.library.source
-    files = getattr(source, "files", None)
-    if files is not None:
-        return sorted(k[6:-4] for k in files if k.startswith("parts/") and k.count("/") == 1 and k.endswith(".dat"))
-    root = getattr(source, "root", None)
-    if root is not None and os.path.isdir(os.path.join(root, "parts")):
-        return sorted(n[:-4].lower() for n in os.listdir(os.path.join(root, "parts")) if n.lower().endswith(".dat"))
-    return []
+    return reader.library.part_names()
 
 
 def library_colours(reader: Reader) -> list[int]:

@@ -1,0 +1,132 @@
+"""Which parts of a prior a library can give the sampler (`choose_parts`), and why each other one
+is left out.
+
+A prior part is looked up in the library by its name, then the other members the designs placed,
+then any unprinted member of its family the library holds (the embedded library has `3023` where
+designs place `3023b`). It is usable when it loads and has studs or sockets: the sampler connects
+parts by studs. A part left out keeps its weight in the report, so a user sees what share of real
+usage their data cannot show.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from factory.embedded.catalog import PARTS
+from factory.embedded.colours import COLOURS
+from factory.errors import LDrawError
+from factory.ldraw import Reader
+from factory.ldraw.colours import EDGE, MAIN
+from factory.prior.families import family, unprinted
+from factory.prior.prior import MINIFIG, PartUse, Prior
+
+NOT_IN_LIBRARY = "not in the library"
+NO_STUDS = "no studs and no sockets: held by pins, axles, clips or hinges, which the sampler does not connect yet"
+MINIFIGURE = "a minifigure piece: held by minifigure joints, which the sampler does not connect"
+
+
+@dataclass(frozen=True)
+class LeftOut:
+    """A prior part the sampler cannot use on this library."""
+
+    family: str
+    part: str
+    weight: float
+    """Its weight in the prior (the weights of all prior parts sum to 1)."""
+    reason: str
+
+
+@dataclass(frozen=True)
+class PartChoice:
+    """A prior resolved against one library."""
+
+    parts: tuple[tuple[str, float], ...]
+    """(library part name, weight) for `SamplerConfig.parts`, in the prior's order."""
+    colours: tuple[tuple[int, float], ...]
+    """(colour code, weight) for `SamplerConfig.colours`: the prior's colours the library has."""
+    left_out: tuple[LeftOut, ...]
+    colours_left_out: tuple[int, ...]
+    used_weight: float
+    """The prior weight of the parts used (1: every part of the prior is usable)."""
+
+
+def _family_index(names) -> dict[str, list[str]]:
+    """Family -> the unprinted library parts of it."""
+    index: dict[str, list[str]] = defaultdict(list)
+    for name in names:
+        if unprinted(name) == name:
+            index[family(name)].append(name)
+    return index
+
+
+def _candidates(use: PartUse, have: set[str], index: dict[str, list[str]]) -> list[str]:
+    """Library parts that can stand for a prior part, best first: its part, the other members
+    the designs placed, then the family's other unprinted parts (latest revision first)."""
+    names = [use.part, *use.alternatives, *sorted(index.get(use.family, ()), reverse=True)]
+    return [n for n in dict.fromkeys(names) if n in have]
+
+
+def embedded_choice(prior: Prior) -> tuple[tuple[tuple[str, float], ...], tuple[tuple[int, float], ...]]:
+    """(parts, colours) of `prior` on the embedded library, without reading it: every embedded
+    part has studs or sockets, so a family the catalog holds is usable. What the default
+    `SamplerConfig` draws from (`factory.sampler.config`)."""
+    have = {p.number for p in PARTS}
+    index = _family_index(sorted(have))
+    parts, taken = [], set()
+    for use in prior.parts:
+        found = _candidates(use, have, index) if use.connection != MINIFIG else []
+        if found and found[0] not in taken:
+            parts.append((found[0], use.weight))
+            taken.add(found[0])
+    codes = {c.code for c in COLOURS} - {MAIN, EDGE}
+    return tuple(parts), tuple((c, w) for c, w in prior.colours if c in codes)
+
+
+def why_unusable(reader: Reader, name: str) -> str | None:
+    """None when the sampler can use the library part `name`, else the reason (a property of the
+    part, or the LDraw error that reading it raised)."""
+    from factory.parts import load_part  # trimesh and scipy: only when parts are chosen
+    from factory.physics.unmodelled import is_minifig
+
+    try:
+        part = load_part(reader, name)
+        if is_minifig(part):
+            return MINIFIGURE
+        if not part.studs and not part.sockets:
+            return NO_STUDS
+    except LDrawError as exc:
+        return f"cannot be read: {exc}"
+    return None
+
+
+def choose_parts(prior: Prior, reader: Reader, progress: Callable[[int, int], None] | None = None) -> PartChoice:
+    """The parts and colours of `prior` that the library of `reader` can give the sampler."""
+    have = set(reader.library.part_names())
+    index = _family_index(sorted(have))
+    parts: list[tuple[str, float]] = []
+    left: list[LeftOut] = []
+    taken: set[str] = set()
+    for k, use in enumerate(prior.parts):
+        if progress:
+            progress(k, len(prior.parts))
+        if use.connection == MINIFIG:
+            left.append(LeftOut(use.family, use.part, use.weight, MINIFIGURE))
+            continue
+        found = _candidates(use, have, index)
+        if not found:
+            left.append(LeftOut(use.family, use.part, use.weight, NOT_IN_LIBRARY))
+            continue
+        reason = why_unusable(reader, found[0])
+        if reason is None and found[0] not in taken:
+            parts.append((found[0], use.weight))
+            taken.add(found[0])
+        else:
+            left.append(LeftOut(use.family, found[0], use.weight, reason or f"{found[0]} is listed twice"))
+    if progress:
+        progress(len(prior.parts), len(prior.parts))
+    valid = set(reader.colours.colours) - {MAIN, EDGE}
+    colours = tuple((c, w) for c, w in prior.colours if c in valid)
+    return PartChoice(tuple(parts), colours, tuple(left), tuple(c for c, _ in prior.colours if c not in valid),
+                      sum(w for _, w in parts))

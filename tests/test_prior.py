@@ -1,0 +1,144 @@
+"""Usage priors: family folding, fitting from designs, the file, and the parts a library gives."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from factory.ldraw import Library, Reader, get_reader
+from factory.prior import Prior, PriorError, family, fit_prior, load_prior, unprinted
+from factory.prior.choose import MINIFIGURE, NO_STUDS, NOT_IN_LIBRARY, choose_parts, embedded_choice
+from factory.prior.prior import DEFAULT_PRIOR, PartUse
+from factory.sampler import DEFAULT_PARTS, SamplerConfig
+from factory.sampler.from_prior import configure
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("name, fam", [
+    ("3068bp01", "3068"), ("3068b.dat", "3068"), ("3062b", "3062"), ("3062a", "3062"), ("3626bpr0001", "3626"),
+    ("973pat0001", "973"), ("3829c01", "3829c01"), ("u9057", "u9057"), ("4070", "4070"), ("PARTS\\3001.DAT", "3001"),
+    ("30104k02", "30104k02"), ("2412b", "2412"),
+])
+def test_part_families_fold_prints_and_revisions(name, fam):
+    assert family(name) == fam
+
+
+def test_unprinted_keeps_the_revision():
+    assert unprinted("3068bp01") == "3068b" and unprinted("3001") == "3001"
+
+
+DESIGN_A = """0 Design A
+0 Name: a.ldr
+0 !LICENSE Redistributable under CCAL version 2.0 : see CAreadme.txt
+1 4 0 0 0 1 0 0 0 1 0 0 0 1 3023.dat
+1 4 0 -8 0 1 0 0 0 1 0 0 0 1 3023.dat
+1 4 0 -16 0 1 0 0 0 1 0 0 0 1 old3023.dat
+1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat
+0 FILE old3023.dat
+0 ~Moved to 3023
+1 16 0 0 0 1 0 0 0 1 0 0 0 1 3023.dat
+"""
+# A design's own `~Moved to` stub (old3023) counts as its target; a printed tile no library holds
+# stands for its unprinted base; colour 16 in the main model is no colour.
+DESIGN_B = """0 Design B
+0 Name: b.mpd
+0 FILE b.mpd
+1 1 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat
+1 16 0 -24 0 1 0 0 0 1 0 0 0 1 3068bp01.dat
+"""
+
+
+@pytest.fixture
+def designs(write):
+    a = write("designs/a.mpd", "0 FILE a.ldr\n" + DESIGN_A.split("\n", 1)[1].replace("0 Name: a.ldr\n", ""))
+    b = write("designs/b.mpd", DESIGN_B)
+    return a, b
+
+
+def test_a_prior_fitted_from_two_small_designs_gives_the_expected_weights(designs):
+    """Each design weighs the same: shares 3023 3/4 and 3001 1/4 in A, 3001 1/2 and 3068 1/2 in B."""
+    reader = get_reader(None)
+    prior = fit_prior(designs, reader, temper=1.0)
+    weights = {p.family: p.weight for p in prior.parts}
+    assert weights == pytest.approx({"3023": 0.375, "3001": 0.375, "3068": 0.25})
+    by = {p.family: p for p in prior.parts}
+    assert by["3023"].placements == 3 and by["3023"].designs == 1 and by["3023"].part == "3023"
+    assert by["3068"].part == "3068b" and by["3068"].connection == "studs"  # the print stands for its base
+    assert dict(prior.colours) == pytest.approx({4: 0.5, 1: 0.5})  # B's colour-16 tile is no colour
+    assert [d.file for d in prior.designs] == ["a.mpd", "b.mpd"] and prior.designs[0].licence.startswith("Redis")
+    # temper 0.5: the square roots of the shares, normalised
+    half = {p.family: p.weight for p in fit_prior(designs, reader, temper=0.5).parts}
+    z = 2 * math.sqrt(0.375) + math.sqrt(0.25)
+    assert half == pytest.approx({"3023": math.sqrt(0.375) / z, "3001": math.sqrt(0.375) / z, "3068": 0.5 / z})
+    # only the designs that state a licence
+    assert [d.file for d in fit_prior(designs, reader, require_licence=True).designs] == ["a.mpd"]
+
+
+def test_a_prior_file_round_trips_and_a_bad_one_names_the_file(tmp_path, designs):
+    prior = fit_prior(designs, get_reader(None))
+    path = tmp_path / "p.json"
+    path.write_text(prior.dumps())
+    assert load_prior(path) == prior and load_prior(path).digest() == prior.digest()
+    data = json.loads(prior.dumps())
+    for bad, match in [("{", "p.json:1: not JSON"), (json.dumps({**data, "version": 99}), "format version 99"),
+                       (json.dumps({**data, "format": "x"}), "not a prior"),
+                       (prior.dumps().replace('"weight": 0.', '"weight": -0.', 1), "finite, >= 0"),
+                       (json.dumps({**data, "parts": [{"family": "x"}]}), "malformed prior")]:
+        path.write_text(bad)
+        with pytest.raises(PriorError, match=match) as info:
+            load_prior(path)
+        assert str(path) in str(info.value)
+    with pytest.raises(PriorError, match="cannot read the prior"):
+        load_prior(tmp_path / "missing.json")
+
+
+def test_the_shipped_prior_is_the_embedded_default():
+    """Without a library the sampler draws the shipped prior's parts the embedded library holds, with
+    its weights: the round plate, the grille, the headlight brick, the cheese slope among them."""
+    prior = load_prior()
+    assert len(prior.designs) >= 80 and all(d.licence for d in prior.designs)
+    parts, colours = embedded_choice(prior)
+    assert DEFAULT_PARTS == parts and SamplerConfig().parts == parts and SamplerConfig().prior.startswith("default ")
+    names = dict(parts)
+    for wanted in ("3023", "6141", "2412b", "4070", "54200", "3062b", "99781"):
+        assert wanted in names
+    assert names["3023"] > names["3001"] > 0  # the plate 1 x 2 is drawn more than the brick 2 x 4
+    assert {c for c, _ in colours} <= {c for c, _ in prior.colours}
+
+
+def _prior(*uses) -> Prior:
+    total = sum(u[1] for u in uses)
+    parts = tuple(PartUse(family(n), n, w / total, 1, 1, connection=kind) for n, w, kind in uses)
+    return Prior(parts, ((4, 1.0), (999999, 1.0)), (("studs", 1.0),), (), 1.0)
+
+
+def test_parts_a_library_cannot_give_are_listed_with_their_reason(mini_library):
+    """A part the library lacks, a minifigure piece, and a part with no studs and no sockets (the
+    mini library's 'brick' is a solid cube) are left out, each with why; the colours the library
+    lacks too."""
+    reader = Reader(Library.from_dir(mini_library))
+    have = reader.library.part_names()
+    prior = _prior(("3001", 2.0, "studs"), ("973", 1.0, "minifigure"), (have[0], 1.0, "studs"))
+    choice = choose_parts(prior, reader)
+    reasons = {left.part: left.reason for left in choice.left_out}
+    assert reasons == {"3001": NOT_IN_LIBRARY, "973": MINIFIGURE, have[0]: NO_STUDS}
+    assert choice.parts == () and choice.used_weight == 0
+
+
+def test_with_a_library_the_sampler_draws_the_prior_parts_it_holds(real_reader, tmp_path):
+    """By the prior's name, else another member of its family the library holds (3062a -> 3062b);
+    a part it lacks and a minifigure piece are left out, and the config names the prior."""
+    prior = _prior(("3023b", 3.0, "studs"), ("3062a", 1.0, "studs"), ("no_such_part", 1.0, "studs"),
+                   ("3820", 1.0, "minifigure"))
+    path = tmp_path / "p.json"
+    path.write_text(prior.dumps())
+    config, choice = configure(SamplerConfig(), real_reader, path)
+    assert dict(config.parts) == pytest.approx({"3023b": 0.5, "3062b": 1 / 6})
+    assert {left.part for left in choice.left_out} == {"no_such_part", "3820"}
+    assert config.prior == f"p.json sha256:{prior.digest()[:16]}" and dict(config.colours) == {4: 1.0}
