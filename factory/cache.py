@@ -1,6 +1,8 @@
 """Where the factory keeps what it computes once per machine: `$BRICK_FACTORY_CACHE`, else
-`~/.cache/brick-factory` (convex decompositions under `coacd/`, sockets under `sockets/`, outline
-segments under `outlines/`, JAX's compiled kernels under `jax/`)."""
+`~/.cache/brick-factory` (convex decompositions under `coacd/`, sockets under `sockets/`, part
+symmetries under `symmetry/`, hull points under `hulls/`, outline segments under `outlines/`, JAX's
+compiled kernels under `jax/`). `python -m pipelines.parts --pack FILE` hands the part entries to
+another machine."""
 
 from __future__ import annotations
 

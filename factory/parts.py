@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+import io
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -9,9 +11,10 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull, QhullError
 
+from factory.cache import kept, source_digest
 from factory.connections import Connector, sockets_cached, studs_from_flat
 from factory.ldraw.reader import Flat, Reader
-from factory.symmetry import Symmetry, find_symmetry
+from factory.symmetry import Symmetry, symmetry_cached
 
 ABS_DENSITY_G_CM3 = 1.05
 LDU_CM = 0.04
@@ -59,11 +62,10 @@ class Part:
         """The vertices of the convex hull of the part's triangles (k, 3) in LDU, rounded to 1e-6:
         the part's extent along any direction (its box is exact only along its own axes), and the
         points the density reward's hull is made of."""
-        pts = np.unique(np.round(self.flat.triangles.reshape(-1, 3), 6), axis=0)
-        try:
-            return pts[ConvexHull(pts).vertices]
-        except (QhullError, ValueError):
-            return pts  # flat or degenerate: every point
+        tris = np.ascontiguousarray(self.flat.triangles, dtype=np.float64)
+        h = hashlib.sha256(source_digest(__file__).encode())
+        h.update(tris.tobytes())
+        return kept("hulls", f"{h.hexdigest()[:32]}.npy", _read_points, lambda: _hull_points(tris), _points_bytes)
 
     @cached_property
     def volume_ldu3(self) -> float:
@@ -94,7 +96,7 @@ class Part:
 
     @cached_property
     def symmetry(self) -> Symmetry:
-        return find_symmetry(self.flat.triangles.reshape(-1, 3))
+        return symmetry_cached(self.flat.triangles.reshape(-1, 3))
 
     def to_json(self) -> dict:
         out = {
@@ -110,6 +112,29 @@ class Part:
         if self.moved_to:
             out["moved_to"] = self.moved_to
         return out
+
+
+def _hull_points(tris: np.ndarray) -> np.ndarray:
+    pts = np.unique(np.round(tris.reshape(-1, 3), 6), axis=0)
+    try:
+        return pts[ConvexHull(pts).vertices]
+    except (QhullError, ValueError):
+        return pts  # flat or degenerate: every point
+
+
+def _points_bytes(points: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, np.asarray(points, dtype=np.float64), allow_pickle=False)
+    return buf.getvalue()
+
+
+def _read_points(data: bytes) -> np.ndarray | None:
+    """A cache entry's (k, 3) points, None if it is not one (damaged, truncated, foreign)."""
+    try:
+        pts = np.load(io.BytesIO(data), allow_pickle=False)
+    except (ValueError, OSError, EOFError):
+        return None
+    return pts if pts.ndim == 2 and pts.shape[1] == 3 and pts.dtype == np.float64 else None
 
 
 def load_part(reader: Reader, name, model: str | None = None) -> Part:

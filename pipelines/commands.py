@@ -16,6 +16,9 @@ from pipelines import install_check
 COMMANDS: dict[str, tuple[str, str]] = {
     "ldraw": ("factory.ldraw", "read LDraw models and parts: steps, part"),
     "sample": ("pipelines.sample", "grow objects, written as .ldr files"),
+    "prior": ("pipelines.prior", "fit a usage prior (part, colour, connection frequencies) to real designs"),
+    "parts": ("pipelines.parts", "which parts of a library the factory can use, and preparing them"),
+    "distance": ("pipelines.distance", "how far objects or a dataset are from real designs"),
     "verify": ("pipelines.verify", "physics checks of a model's placements"),
     "render": ("pipelines.render", "the image set of one build step"),
     "synth": ("pipelines.synth", "the synthetic dataset (the main job)"),

@@ -84,6 +84,22 @@ def embedded_choice(prior: Prior) -> tuple[tuple[tuple[str, float], ...], tuple[
     return tuple(parts), tuple((c, w) for c, w in prior.colours if c in codes)
 
 
+def not_its_own_part(reader: Reader, name: str) -> str | None:
+    """Why a file of a library's `parts/` is not a part of its own, for lists of every part
+    (`--parts all`): a renumbered stub (`~Moved to`), an alias (`=`), a physical-colour variant
+    (`_`) or a file LDraw marks as not for use alone (`~`: a sub-part or an obsolete part). None
+    for a part of its own."""
+    try:
+        f = reader.part(name).file
+    except LDrawError as exc:
+        return f"cannot be read: {exc}"
+    if f.moved_to:
+        return f"renumbered: moved to {f.moved_to.removesuffix('.dat')}"
+    head = f.description.lstrip()[:1]
+    return {"=": "an alias of another part (=)", "_": "a physical-colour variant of another part (_)",
+            "~": "not for use on its own (~: a sub-part or obsolete)"}.get(head)
+
+
 def why_unusable(reader: Reader, name: str) -> str | None:
     """None when the sampler can use the library part `name`, else the reason (a property of the
     part, or the LDraw error that reading it raised)."""

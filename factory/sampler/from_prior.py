@@ -18,14 +18,16 @@ def is_embedded(reader: Reader) -> bool:
 
 
 def configure(config: SamplerConfig, reader: Reader, prior: str | os.PathLike | None = None, *,
-              parts: bool = True, colours: bool = True, progress=None) -> tuple[SamplerConfig, PartChoice | None]:
+              parts: bool = True, colours: bool = True, progress=None,
+              loaded: Prior | None = None) -> tuple[SamplerConfig, PartChoice | None]:
     """`config` with its parts (if `parts`) and colours (if `colours`) drawn from the prior in
-    `prior` (default: the shipped one) on `reader`'s library, and the choice made (None where
-    nothing was drawn from a library: both given, or the embedded library, whose choice needs no
-    reading). A prior none of whose parts the library can use is a `SamplerConfigError`."""
+    `prior` (default: the shipped one; `loaded`: that file already read) on `reader`'s library,
+    and the choice made (None where nothing was drawn from a library: both given, or the
+    embedded library, whose choice needs no reading). A prior none of whose parts the library
+    can use is a `SamplerConfigError`."""
     if not parts and not colours:
         return replace(config, prior=""), None
-    loaded: Prior = load_prior(prior)
+    loaded = loaded if loaded is not None else load_prior(prior)
     label = loaded.label(prior)
     if is_embedded(reader):
         p, c = embedded_choice(loaded)

@@ -1,0 +1,121 @@
+"""Which parts of a library the factory can use, per category, and why the others are left out;
+with `--prepare`, their collision pieces computed over all cores and cached.
+
+    python -m pipelines.parts --ldraw LIB [--all | --prior FILE] [--prepare] [--workers N] [--json]
+    python -m pipelines.parts --pack FILE | --unpack FILE
+
+Without `--all`, the parts of the usage prior (`--prior`, default the shipped one) as the sampler
+would draw them from this library (`factory.prior.choose`); with `--all`, every part in the
+library's `parts/` folder. `--prepare` computes what growing objects needs of each usable part
+(connections, symmetry, collision pieces) once, into the cache: a run cut short and run again
+does only what is left. `--pack FILE` writes the cache's part entries into one zip for another
+machine, `--unpack FILE` takes them in there. See docs/prior.md.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from collections import Counter, defaultdict
+from pathlib import Path
+
+from tqdm import tqdm
+
+from factory.cli import ArgumentParser, add_progress_flag, run_guarded
+from factory.ldraw import get_reader
+from factory.prior import PriorError, load_prior
+from factory.prior.choose import choose_parts
+from pipelines.prepare import pack, survey, unpack
+
+USABLE = "usable"
+
+
+def table(statuses) -> str:
+    """Per category: parts, usable, and the reasons the others are left out (largest first)."""
+    cats: dict[str, Counter] = defaultdict(Counter)
+    for s in statuses:
+        cats[s.category][USABLE if s.reason is None else _short(s.reason)] += 1
+    lines = ["| category | parts | usable | left out (why) |", "|---|---:|---:|---|"]
+    for cat, c in sorted(cats.items(), key=lambda kv: (-sum(kv[1].values()), kv[0])):
+        why = "; ".join(f"{n} {r}" for r, n in c.most_common() if r != USABLE)
+        lines.append(f"| {cat} | {sum(c.values())} | {c[USABLE]} | {why} |")
+    return "\n".join(lines)
+
+
+def _short(reason: str) -> str:
+    """A reason without the part-specific details (file names, counts), for grouping."""
+    for head in ("cannot be read", "collision pieces refused"):
+        if reason.startswith(head):
+            detail = reason.split(": ", 2)[-1]
+            if "triangles" in detail:
+                return f"{head}: too many triangles"
+            if "took more than" in detail:
+                return f"{head}: decomposition too slow"
+            return f"{head}: " + detail.split(";")[0][:60]
+    return reason.split(":")[0].split(" (")[0]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = ArgumentParser(prog="python -m pipelines.parts", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--ldraw", help="LDraw library: a folder or LDraw's complete.zip (default: $LDRAWDIR, else the "
+                    "embedded library)")
+    pick = ap.add_mutually_exclusive_group()
+    pick.add_argument("--all", action="store_true", help="every part of the library (default: the prior's parts)")
+    pick.add_argument("--prior", dest="prior_file", metavar="FILE", help="usage prior (default: the shipped one)")
+    ap.add_argument("--prepare", action="store_true",
+                    help="also compute each usable part's collision pieces (cached; resumable)")
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
+    ap.add_argument("--json", action="store_true", help="one JSON line per part instead of the table")
+    ap.add_argument("--pack", metavar="FILE", help="write the cache's part entries into one zip, and stop")
+    ap.add_argument("--unpack", metavar="FILE", help="take a zip written by --pack into this cache, and stop")
+    add_progress_flag(ap)
+    args = ap.parse_args(argv)
+    if args.workers < 1:
+        ap.error("--workers must be >= 1")
+
+    def body() -> None:
+        if args.pack:
+            print(f"wrote {args.pack}: {pack(args.pack)} cache entries")
+            return
+        if args.unpack:
+            print(f"{args.unpack}: {unpack(args.unpack)} cache entries added")
+            return
+        reader = get_reader(args.ldraw)
+        ldraw = args.ldraw or os.environ.get("LDRAWDIR") or None
+        left: list = []
+        if args.all:
+            names = reader.library.part_names()
+        else:
+            choice = choose_parts(load_prior(args.prior_file), reader)
+            names = [n for n, _ in choice.parts]
+            left = choice.left_out
+        t0 = time.perf_counter()
+        bar = tqdm(total=len(names), unit="part", desc="preparing" if args.prepare else "surveying",
+                   dynamic_ncols=True, disable=args.no_progress, file=sys.stderr)
+        statuses = survey(ldraw, names, args.prepare, args.workers, lambda s: bar.update(1), own_parts=args.all)
+        bar.close()
+        wall = time.perf_counter() - t0
+        usable = sum(s.reason is None for s in statuses)
+        if args.json:
+            for s in statuses:
+                print(json.dumps({"part": s.part, "category": s.category, "usable": s.reason is None,
+                                  "reason": s.reason, "seconds": round(s.seconds, 3)}))
+            for lo in left:
+                print(json.dumps({"part": lo.part, "family": lo.family, "usable": False, "reason": lo.reason,
+                                  "prior_weight": lo.weight}))
+        else:
+            print(table(statuses))
+            if left:
+                why = Counter(lo.reason.split(":")[0] for lo in left)
+                print(f"\nprior parts the library cannot give: {len(left)} ("
+                      + "; ".join(f"{n} {r}" for r, n in why.most_common()) + ")")
+        print(f"{usable} of {len(statuses)} parts usable; {'prepared' if args.prepare else 'surveyed'} in {wall:.1f} s "
+              f"with {args.workers} worker{'s' if args.workers != 1 else ''}", file=sys.stderr)
+
+    return run_guarded(body, {PriorError: 2, ValueError: 2, OSError: 2})
+
+
+if __name__ == "__main__":
+    sys.exit(main())

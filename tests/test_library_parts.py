@@ -1,0 +1,116 @@
+"""Which parts of a library the factory can use (python -m pipelines.parts), preparing them into the
+cache, the cache as one file for another machine, and how far objects are from real designs."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from factory.ldraw import Library, Reader, get_reader
+from factory.parts import load_part
+from factory.prior.choose import NO_STUDS
+from factory.symmetry import find_symmetry, symmetry_cached
+from pipelines.prepare import pack, survey, unpack
+from pipelines.realism import compare, coverage, read_collection
+
+ROOT = Path(__file__).resolve().parents[1]
+LDRAW = ROOT.parent / "shared" / "ldraw"
+
+
+def _run(*args, env=None):
+    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, cwd=ROOT, env=env)
+
+
+def test_every_part_of_a_library_is_usable_or_listed_with_its_reason(real_reader):
+    """The 312 parts of the shared subset: each one usable or left out for a property of the part."""
+    names = real_reader.library.part_names()
+    statuses = survey(str(LDRAW), names, own_parts=True)
+    by = {s.part: s for s in statuses}
+    assert len(statuses) == len(names) == 312
+    assert by["3001"].reason is None and by["3001"].category == "Brick"
+    assert by["3023"].reason.startswith("renumbered: moved to 3023b")  # a stub, not a part of its own
+    assert by["3673"].reason == NO_STUDS  # a Technic pin: held by what the sampler does not connect yet
+    assert by["3820"].reason.startswith("a minifigure piece")
+    usable = [s for s in statuses if s.reason is None]
+    assert 150 < len(usable) < 312
+    for s in statuses:
+        assert s.reason is None or not s.reason.startswith(("cannot be read", "collision")), (s.part, s.reason)
+
+
+def test_the_parts_command_tables_the_library_by_category(tmp_path):
+    out = _run("pipelines.parts", "--ldraw", str(LDRAW), "--all", "--workers", "2", "--no-progress")
+    assert out.returncode == 0, out.stderr
+    assert "| Brick | 30 | 30 |" in out.stdout and "| Moved | 16 | 0 | 16 renumbered |" in out.stdout
+    assert "parts usable; surveyed in" in out.stderr
+    lines = [json.loads(x) for x in _run("pipelines.parts", "--ldraw", str(LDRAW), "--json", "--workers", "1",
+                                          "--no-progress").stdout.splitlines()]
+    # the shipped prior's parts on this library: those it holds, and those it cannot give, with why
+    assert any(x["usable"] for x in lines) and any(x.get("prior_weight") for x in lines if not x["usable"])
+
+
+def test_a_prepared_cache_travels_as_one_file_and_a_foreign_member_is_refused(tmp_path, monkeypatch):
+    src, dst = tmp_path / "a", tmp_path / "b"
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(src))
+    statuses = survey(None, ["3001", "3023", "6141"], prepare=True)  # the embedded library
+    assert [s.reason for s in statuses] == [None, None, None]
+    n = pack(tmp_path / "cache.zip")
+    names = zipfile.ZipFile(tmp_path / "cache.zip").namelist()
+    assert n == len(names) and {m.split("/")[0] for m in names} >= {"coacd", "sockets", "symmetry", "hulls"}
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(dst))
+    assert unpack(tmp_path / "cache.zip") == n and unpack(tmp_path / "cache.zip") == 0  # kept, not rewritten
+    for m in names:
+        assert (dst / m).read_bytes() == (src / m).read_bytes()
+    for bad in ("../evil.json", "jax/0123456789abcdef.bin", "coacd/not-hex.npz", "/abs/0123456789abcdef.npz"):
+        with zipfile.ZipFile(tmp_path / "bad.zip", "w") as z:
+            z.writestr("coacd/0123456789abcdef.npz", b"x")
+            z.writestr(bad, b"x")
+        with pytest.raises(ValueError, match="is not a cache entry"):
+            unpack(tmp_path / "bad.zip")
+    assert not (dst / "coacd" / "0123456789abcdef.npz").exists()  # nothing unpacked from a refused file
+
+
+def test_symmetry_kept_on_disk_is_the_symmetry_found(tmp_path, monkeypatch):
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path))
+    reader = get_reader(None)
+    for name in ("3001", "6141", "3039"):
+        v = load_part(reader, name).flat.triangles.reshape(-1, 3)
+        found, first, again = find_symmetry(v), symmetry_cached(v), symmetry_cached(v)
+        for s in (first, again):
+            assert s.continuous_axis == found.continuous_axis and len(s.rotations) == len(found.rotations)
+            assert all(np.array_equal(a, b) for a, b in zip(s.rotations, found.rotations))
+    for entry in (tmp_path / "symmetry").iterdir():
+        entry.write_bytes(b"{damaged")  # a damaged entry is found again
+    assert symmetry_cached(v).continuous_axis == find_symmetry(v).continuous_axis
+
+
+def test_coverage_counts_the_real_placements_of_families_the_objects_use(write):
+    """Families fold revisions and prints: an embedded 3023 covers a real 3023b and its print."""
+    write("objects/a.ldr", "0 a\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 3023.dat\n1 4 0 -8 0 1 0 0 0 1 0 0 0 1 3001.dat\n")
+    real = write("real/r.ldr", "0 r\n" + "".join(f"1 1 0 {-8 * i} 0 1 0 0 0 1 0 0 0 1 {n}.dat\n" for i, n in
+                                                   enumerate(["3023b", "3023p01", "3001", "3068b"])))
+    reader = get_reader(None)
+    objects, designs = read_collection(real.parent.parent / "objects", reader), read_collection(real.parent, reader)
+    assert coverage(objects, designs) == (0.75, 3, 4)
+    tables = {t.name: t for t in compare(objects, designs, reader)}
+    assert tables["part families"].extra["most_missed"][0]["family"] == "3068"
+    assert tables["parts per object"].distance == pytest.approx(2.0)  # 2 parts against 4
+    assert tables["orientation"].distance == 0.0 and tables["colours"].distance == 1.0
+
+
+def test_the_distance_command_writes_tables_and_plots(write, tmp_path):
+    write("objects/a.ldr", "0 a\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 3023.dat\n")
+    write("real/r.ldr", "0 r\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 3023.dat\n1 4 0 0 0 -1 0 0 0 -1 0 0 0 1 3001.dat\n")
+    out = _run("pipelines.distance", str(tmp_path / "objects"), str(tmp_path / "real"), "--out", str(tmp_path / "rep"))
+    assert out.returncode == 0, out.stderr
+    assert "coverage 50.0% (1 of 2 placements)" in out.stdout
+    report = json.loads((tmp_path / "rep" / "report.json").read_text())
+    assert [t["table"] for t in report["tables"]][:2] == ["part families", "categories"]
+    orientation = next(t for t in report["tables"] if t["table"] == "orientation")
+    assert {r["key"]: r["real"] for r in orientation["rows"]} == {"upright": 0.5, "upside down": 0.5}
+    assert (tmp_path / "rep" / "part_families.png").stat().st_size > 1000 and (tmp_path / "rep" / "report.md").exists()
