@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from factory.embedded import arch, cheese, modified, rounds, side_studs, wedge
+from factory.embedded import arch, cheese, corner, modified, rounds, side_studs, technic, wedge
 from factory.embedded.catalog import BRICK, INVERTED_SLOPE, PLATE, SLOPE, TILE, PartSpec
 from factory.embedded.geometry import Mesh, cylinder, hollow_prism
 from factory.embedded.kit import (
@@ -124,6 +124,8 @@ _FAMILIES: dict[str, Callable[[PartSpec], list[str]]] = {
     **side_studs.FAMILIES,
     **arch.FAMILIES,
     **wedge.FAMILIES,
+    **corner.FAMILIES,
+    **technic.FAMILIES,
 }
 """Kind -> the function that writes a part's lines, for the shapes built outside this module."""
 

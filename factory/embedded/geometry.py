@@ -243,3 +243,80 @@ def prism(
         )
     mesh.face([point(u, v, lo) for u, v in polygon], along(-1.0))
     mesh.face([point(u, v, hi) for u, v in polygon], along(1.0))
+
+
+def lathe(mesh: Mesh, profile: Profile, cx: float = 0.0, cz: float = 0.0) -> None:
+    """A closed solid of revolution about a vertical axis at (cx, cz): `profile`, a simple polygon
+    in (r, y) with r >= 0 (either turning direction, convex or not), swept round the 16-gon.
+
+    Each profile edge sweeps a ring of 16 planar faces (trapezoids; triangles where it ends on the
+    axis): a cone or cylinder for a sloped or vertical edge, a flat ring for a horizontal one. A
+    cone 1 x 1 is one profile: its slope, the ledge over its base and the bores inside it.
+    """
+    area2 = sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(profile, [*profile[1:], profile[0]]))
+    turn = 1.0 if area2 > 0 else -1.0
+    rings = [circle(r, cx, cz) for r, _ in profile]
+    unit = circle(1.0)
+    for i, (r0, y0) in enumerate(profile):
+        j = (i + 1) % len(profile)
+        r1, y1 = profile[j]
+        # Out of the material, in (r, y): the edge's direction turned a quarter away from the inside.
+        nr, ny = turn * (y1 - y0), -turn * (r1 - r0)
+        for k in range(SEGMENTS):
+            k1 = (k + 1) % SEGMENTS
+            mx, mz = unit[k][0] + unit[k1][0], unit[k][1] + unit[k1][1]
+            (ax, az), (bx, bz) = rings[i][k], rings[i][k1]
+            (cx1, cz1), (dx, dz) = rings[j][k1], rings[j][k]
+            mesh.face([(ax, y0, az), (bx, y0, bz), (cx1, y1, cz1), (dx, y1, dz)], (nr * mx, ny, nr * mz))
+
+
+def _clip(polygon: list[tuple[float, float]], n: tuple[float, float], p0: tuple[float, float]):
+    """The part of a convex polygon where (p - p0) . n >= 0 (Sutherland-Hodgman, one edge)."""
+    def side(p: tuple[float, float]) -> float:
+        return (p[0] - p0[0]) * n[0] + (p[1] - p0[1]) * n[1]
+
+    out: list[tuple[float, float]] = []
+    for i, a in enumerate(polygon):
+        b = polygon[(i + 1) % len(polygon)]
+        sa, sb = side(a), side(b)
+        if sa >= 0:
+            out.append(a)
+        if (sa > 0 > sb) or (sa < 0 < sb):
+            t = sa / (sa - sb)
+            out.append((a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])))
+    clean: list[tuple[float, float]] = []
+    for p in out:
+        if not clean or math.dist(p, clean[-1]) > 1e-9:
+            clean.append(p)
+    while len(clean) > 1 and math.dist(clean[0], clean[-1]) <= 1e-9:
+        clean.pop()
+    return clean
+
+
+def bored_prism(
+    mesh: Mesh,
+    outline: Sequence[tuple[float, float]],
+    centre: tuple[float, float],
+    radius: float,
+    axis: int,
+    lo: float,
+    hi: float,
+) -> None:
+    """A convex polygon with a 16-sided hole through it, extruded along coordinate `axis` from `lo`
+    to `hi` (points as for `prism`): a wall or block with a pin hole through it.
+
+    The hole, of circumradius `radius` about `centre` (its first corner toward +u, as `circle`),
+    lies inside `outline` (it may touch it). The material is cut by the rays from the centre
+    through the hole's corners into 16 convex pieces, each between one side of the hole and the
+    outline, each a closed prism."""
+    ring = circle(radius, *centre)
+    for k in range(SEGMENTS):
+        a, b = ring[k], ring[(k + 1) % SEGMENTS]
+        da = (a[0] - centre[0], a[1] - centre[1])
+        db = (b[0] - centre[0], b[1] - centre[1])
+        piece = list(outline)
+        piece = _clip(piece, (-da[1], da[0]), centre)  # counter-clockwise of the ray through a
+        piece = _clip(piece, (db[1], -db[0]), centre)  # clockwise of the ray through b
+        piece = _clip(piece, (da[0] + db[0], da[1] + db[1]), a)  # beyond the hole's side a-b
+        if len(piece) >= 3:
+            prism(mesh, piece, axis, lo, hi)
