@@ -37,7 +37,8 @@ def every_part(config: SamplerConfig, ldraw: str | None, prior_file: str | None,
     names = reader.library.part_names()
     bar = tqdm(total=len(names), unit="part", desc="surveying the library", dynamic_ncols=True,
                disable=not progress, file=sys.stderr)
-    statuses = survey(ldraw, names, n_workers=os.cpu_count() or 1, progress=lambda s: bar.update(1), own_parts=True)
+    statuses = survey(ldraw, names, prepare=True, n_workers=os.cpu_count() or 1, progress=lambda s: bar.update(1),
+                      own_parts=True)
     bar.close()
     usable = [s.part for s in statuses if s.reason is None]
     if not usable:
@@ -85,4 +86,27 @@ def apply_prior(args, config: SamplerConfig, ldraw: str | None, prefix: str = ""
         bar.close()
     if choice is not None:
         print(report(choice, config, reader.library.description), file=sys.stderr)
+        if not parts_given:
+            config = prepared(config, ldraw, progress)
     return config
+
+
+def prepared(config: SamplerConfig, ldraw: str | None, progress: bool) -> SamplerConfig:
+    """`config` without the parts whose collision pieces cannot be made (a decomposition past its
+    time or memory limit), after preparing all of them over every core (cached: seconds once
+    prepared; `python -m pipelines.parts --prepare` does the same ahead of time). A part refused
+    mid-growth would stop the run; left out here, the config names exactly the parts drawn."""
+    names = [n for n, _ in config.parts]
+    bar = tqdm(total=len(names), unit="part", desc="preparing parts", dynamic_ncols=True, disable=not progress,
+               file=sys.stderr)
+    statuses = survey(ldraw, names, prepare=True, n_workers=os.cpu_count() or 1, progress=lambda s: bar.update(1))
+    bar.close()
+    refused = {s.part: s.reason for s in statuses if s.reason is not None}
+    if refused:
+        print(f"left out {len(refused)} part{'s' if len(refused) != 1 else ''} whose collision pieces cannot be made: "
+              + "; ".join(f"{n} ({r.split(': ', 1)[-1][:80]})" for n, r in list(refused.items())[:5])
+              + (" ..." if len(refused) > 5 else ""), file=sys.stderr)
+    kept = tuple((n, w) for n, w in config.parts if n not in refused)
+    if not kept:
+        raise SamplerConfigError("no part of the prior could be prepared; see `python -m pipelines.parts --prepare`")
+    return replace(config, parts=kept)

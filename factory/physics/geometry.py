@@ -570,6 +570,30 @@ def _decomposed(part: Part, verts: np.ndarray, faces: np.ndarray, cfg: Decomposi
     return [p for p in (inset_hull(r, cfg.inset_ldu) for r in pieces if r is not None) if p is not None]
 
 
+def _refusal_path(raw_key: str) -> Path:
+    return cache_dir() / f"{raw_key}.json"
+
+
+def _remember_refusal(raw_key: str, exc: LDrawLimitError) -> None:
+    """Keep a refused decomposition's reason with the limits it ran under: the next process gives
+    up at once instead of spending them again (a part that took more than 300 s, every run)."""
+    keep(_refusal_path(raw_key), json.dumps({"seconds": coacd_seconds(), "memory": COACD_MEMORY_BYTES,
+                                             "message": str(exc.args[0] if exc.args else exc)}).encode())
+
+
+def _refused_before(raw_key: str, file) -> None:
+    """Raise the kept refusal of this decomposition, if it ran under limits at least as wide as
+    today's (a larger `BRICK_FACTORY_COACD_SECONDS` tries again)."""
+    try:
+        kept_ = json.loads(_refusal_path(raw_key).read_bytes())
+        wide = float(kept_["seconds"]) >= coacd_seconds() and int(kept_["memory"]) >= COACD_MEMORY_BYTES
+        message = str(kept_["message"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return
+    if wide:
+        raise LDrawLimitError(f"{message} (refused before; kept in the cache)", file)
+
+
 def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()) -> CollisionShape:
     """The part's inset collision pieces, from the disk cache or decomposed now (and cached).
 
@@ -596,7 +620,12 @@ def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()
     if found is None:
         raw = _load(cache_dir() / f"{raw_key}.npz")
         if raw is None:
-            raw = (_decomposed(part, verts, faces, cfg), cfg.inset_ldu)
+            _refused_before(raw_key, getattr(part, "file", None))
+            try:
+                raw = (_decomposed(part, verts, faces, cfg), cfg.inset_ldu)
+            except LDrawLimitError as exc:
+                _remember_refusal(raw_key, exc)
+                raise
             _save(cache_dir() / f"{raw_key}.npz", *raw)
         found = (_refined(part, raw[0], cfg), raw[1])
         _save(cache_dir() / f"{key}.npz", *found)
