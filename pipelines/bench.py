@@ -12,6 +12,9 @@ Sections, each timed and written as soon as it ends (a later failure loses nothi
   reference one object at a time);
 - render: views per second of the embedded example model and, where given, of human designs;
 - synth: a small `make synth` build end to end (steps per second, per-stage seconds, bytes);
+- realism: how far that build's objects are from real designs (`pipelines.distance`: coverage of
+  the designs' placements, one distance per table), against ../shared/designs read with
+  ../shared/ldraw_library.zip where present (`--quick`: the human designs given, if any);
 - evaluation: the baselines (`oracle`, `heuristic`, `random`, and `random` revised under world
   feedback) scored on that build's test split and on the human designs, in the three modes
   (strict, paper, and bc: BC-Bench's released scorer, `eval.bc`).
@@ -41,10 +44,12 @@ from eval.score import score_file
 from factory import gpus
 from factory.atomic import write_atomic, write_figure
 from factory.cli import ArgumentParser, run_guarded
+from factory.ldraw import get_reader
 from factory.sampler import SamplerConfig, SamplerConfigError
 from pipelines.bench_physics import in_own_process, measure, measure_growth, measure_lp, measure_sweep, measure_whole
 from pipelines.dataset import ConfigMismatchError, DatasetConfig, build, usage
 from pipelines.designs import design_config
+from pipelines.realism import Collection, compare, read_collection
 from pipelines.render import view_rates
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -245,6 +250,27 @@ def designs_section(work: Path, models: list[Path], ldraw: str) -> dict:
             "wall_s": summary["wall_seconds"], "counts": summary["counts"]}
 
 
+def _real_designs(models: list[Path], ldraw: str | None) -> tuple[list[Path], str | None]:
+    """The real designs the realism section compares with: the 19 of ../shared/designs with the
+    library they resolve against, where both are present; else the human designs of this run."""
+    designs, library = SHARED / "designs", SHARED / "ldraw_library.zip"
+    if designs.is_dir() and library.is_file():
+        return sorted(p for p in designs.iterdir() if p.suffix.lower() in (".ldr", ".mpd")), str(library)
+    return models, ldraw
+
+
+def realism_section(objects: str, designs: list[Path], ldraw: str | None) -> dict:
+    """How far the synth section's objects are from real designs (`pipelines.realism`): coverage of
+    the designs' placements, and one distance per table."""
+    reader = get_reader(ldraw)
+    real = Collection("real designs")
+    for d in designs:
+        real.objects += read_collection(d, reader).objects
+    tables = compare(read_collection(objects, reader), real, reader, top=10)
+    return {"designs": [str(d) for d in designs], "ldraw": ldraw, "tables": [t.to_json() for t in tables],
+            "note": "objects of 6-10 bricks each, so parts per object differs by design"}
+
+
 def evaluation_section(datasets: dict[str, tuple[str, str | None]], work: Path) -> dict:
     """Baselines on each dataset (name -> (folder, split)), in every mode, plus random under feedback."""
     out = {}
@@ -393,6 +419,16 @@ def markdown(report: dict) -> str:
                         [[r["model"], r["parts"], r["rgb_views_per_s"], r["seg_views_per_s"], r["step_render_s"]]
                          for r in report["render"]["rows"]])
         lines += ["", "![render](render.png)", ""]
+    if "realism" in report:
+        r = report["realism"]
+        cov = r["tables"][0]
+        lines += ["## How far from real designs (`pipelines.distance`)", "",
+                  f"The synth section's objects beside {len(r['designs'])} real designs ({r['note']}): they use part "
+                  f"families covering {cov['coverage']:.1%} of the designs' placements "
+                  f"({cov['covered_placements']} of {cov['real_placements']}).", ""]
+        lines += _table(["table", "distance", "value"], [[t["table"], t["distance"], _fmt(t["value"])]
+                                                        for t in r["tables"]])
+        lines += [""]
     if "synth" in report:
         s = report["synth"]
         stages = ", ".join(f"{k} {v} s" for k, v in s["stage_seconds"].items())
@@ -437,7 +473,7 @@ def markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
-SECTIONS = ("physics", "render", "synth", "designs", "evaluation")
+SECTIONS = ("physics", "render", "synth", "realism", "designs", "evaluation")
 
 
 def _earlier_report(out: Path, report: dict, quick: bool) -> dict:
@@ -514,6 +550,9 @@ def run(args) -> int:
     section("render", lambda: render_section(render_models))
     report["machine"]["mujoco_gl"] = os.environ.get("MUJOCO_GL", report["machine"]["mujoco_gl"])
     section("synth", lambda: synth_section(work, args.quick))
+    real, real_ldraw = _real_designs(models, ldraw) if not args.quick else (models, ldraw)
+    if real:
+        section("realism", lambda: realism_section(report["synth"]["out"], real, real_ldraw))
     datasets = {"synthetic": (report["synth"]["out"], "test")}
     if models:
         section("designs", lambda: designs_section(work, models, ldraw))
