@@ -114,3 +114,19 @@ def test_the_distance_command_writes_tables_and_plots(write, tmp_path):
     orientation = next(t for t in report["tables"] if t["table"] == "orientation")
     assert {r["key"]: r["real"] for r in orientation["rows"]} == {"upright": 0.5, "upside down": 0.5}
     assert (tmp_path / "rep" / "part_families.png").stat().st_size > 1000 and (tmp_path / "rep" / "report.md").exists()
+
+
+def test_a_dataset_folder_is_read_as_its_objects(tiny_dataset):
+    """The distance report reads a dataset's rows: each object's bricks, as placed, step by step."""
+    import pyarrow.parquet as pq
+
+    reader = get_reader(None)
+    objects = read_collection(tiny_dataset, reader)
+    rows = [r for f in sorted((tiny_dataset / "data").glob("*.parquet"))
+            for r in pq.read_table(f, columns=["object_id", "bricks"]).to_pylist()]
+    ids = sorted({r["object_id"] for r in rows})
+    assert len(objects.objects) == len(ids) == 3
+    placed = sorted((b["part"].lower().removesuffix(".dat"), b["colour"]) for r in rows for b in r["bricks"])
+    assert sorted((p.part, p.colour) for p in objects.placements) == placed
+    assert len(placed) == len(rows)  # a synthetic step places one brick: a row's bricks are its step's
+    assert coverage(objects, objects)[0] == 1.0
