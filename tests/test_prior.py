@@ -178,3 +178,18 @@ def test_a_zip_library_and_its_folder_grow_the_same_objects(tmp_path, real_reade
     a = [s.to_json(steps=True) for s in Sampler(config, root).sample_many(range(2))]
     b = [s.to_json(steps=True) for s in Sampler(config, tmp_path / "complete.zip").sample_many(range(2))]
     assert a == b and all(x["steps"] >= 4 for x in a)
+
+
+def test_the_data_card_names_the_prior_the_parts_were_drawn_from():
+    from dataclasses import replace
+
+    from pipelines.dataset import DatasetConfig
+    from pipelines.dataset.card import dataset_card
+
+    counts = {s: {"objects": 1, "steps": 2, "bytes": 3} for s in ("train", "test")}
+    info = {"splits_present": ["train", "test"], "config_hash": "0123456789abcdef", "total": {"steps": 4},
+            "counts": counts, "statistics": {}, "schema_version": 1}
+    config = DatasetConfig.synthetic(2)
+    assert f"usage prior `{SamplerConfig().prior}`" in dataset_card(config, info)
+    given = DatasetConfig.synthetic(2, sampler=replace(SamplerConfig(), prior=""))
+    assert "as the build's config lists them" in dataset_card(given, info)

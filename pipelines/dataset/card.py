@@ -54,6 +54,10 @@ def dataset_card(config, info: dict) -> str:
     note = (f"\nThe {' and '.join(missing)} split has no objects in this build (too few objects); it is not "
             "listed above.\n" if missing else "")
     src = SOURCE_TEXT[config.source]
+    if config.source == "synthetic":
+        prior = config.sampler.prior
+        src += (f"; parts and colours drawn with the weights of the usage prior `{prior}` (Brick Factory's "
+                "docs/prior.md)" if prior else "; parts and colours as the build's config lists them")
     return header + f"""
 
 # {config.dataset_id}
