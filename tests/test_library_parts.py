@@ -55,9 +55,13 @@ def test_the_parts_command_tables_the_library_by_category(tmp_path):
 
 
 def test_a_prepared_cache_travels_as_one_file_and_a_foreign_member_is_refused(tmp_path, monkeypatch):
+    from factory.embedded import write_library
+
     src, dst = tmp_path / "a", tmp_path / "b"
     monkeypatch.setenv("BRICK_FACTORY_CACHE", str(src))
-    statuses = survey(None, ["3001", "3023", "6141"], prepare=True)  # the embedded library
+    # The embedded library written to a folder of its own: a reader no other test has loaded parts with
+    library = write_library(tmp_path / "lib")
+    statuses = survey(str(library), ["3001", "3023", "6141"], prepare=True)
     assert [s.reason for s in statuses] == [None, None, None]
     n = pack(tmp_path / "cache.zip")
     names = zipfile.ZipFile(tmp_path / "cache.zip").namelist()
