@@ -49,7 +49,7 @@ def resolved_name(reader: Reader, use: Use) -> str:
 
 def _find(reader: Reader, name: str):
     """The library part `name`, or None (no 'did you mean' search: many names are missing)."""
-    return reader.library.lookup(name + ".dat") is not None and reader.part(name) or None
+    return reader.part(name) if reader.library.lookup(name + ".dat") is not None else None
 
 
 def connection_kind(reader: Reader, name: str) -> tuple[str, str]:
