@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--prepare", action="store_true",
                     help="also compute each usable part's collision pieces (cached; resumable)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
-    ap.add_argument("--json", action="store_true", help="one JSON line per part instead of the table")
+    ap.add_argument("--json", action="store_true", help="one JSON line per part, printed as each finishes, instead of the table")
     ap.add_argument("--pack", metavar="FILE", help="write the cache's part entries into one zip, and stop")
     ap.add_argument("--unpack", metavar="FILE", help="take a zip written by --pack into this cache, and stop")
     add_progress_flag(ap)
@@ -91,21 +91,25 @@ def main(argv: list[str] | None = None) -> int:
             choice = choose_parts(load_prior(args.prior_file), reader)
             names = [n for n, _ in choice.parts]
             left = choice.left_out
+        if args.json:
+            for lo in left:
+                print(json.dumps({"part": lo.part, "family": lo.family, "usable": False, "reason": lo.reason,
+                                  "prior_weight": lo.weight}), flush=True)
         t0 = time.perf_counter()
         bar = tqdm(total=len(names), unit="part", desc="preparing" if args.prepare else "surveying",
                    dynamic_ncols=True, disable=args.no_progress, file=sys.stderr)
-        statuses = survey(ldraw, names, args.prepare, args.workers, lambda s: bar.update(1), own_parts=args.all)
+
+        def done(s) -> None:
+            bar.update(1)
+            if args.json:  # as each part finishes: a run cut short keeps what it learnt
+                print(json.dumps({"part": s.part, "category": s.category, "usable": s.reason is None,
+                                  "reason": s.reason, "seconds": round(s.seconds, 3)}), flush=True)
+
+        statuses = survey(ldraw, names, args.prepare, args.workers, done, own_parts=args.all)
         bar.close()
         wall = time.perf_counter() - t0
         usable = sum(s.reason is None for s in statuses)
-        if args.json:
-            for s in statuses:
-                print(json.dumps({"part": s.part, "category": s.category, "usable": s.reason is None,
-                                  "reason": s.reason, "seconds": round(s.seconds, 3)}))
-            for lo in left:
-                print(json.dumps({"part": lo.part, "family": lo.family, "usable": False, "reason": lo.reason,
-                                  "prior_weight": lo.weight}))
-        else:
+        if not args.json:
             print(table(statuses))
             if left:
                 why = Counter(lo.reason.split(":")[0] for lo in left)

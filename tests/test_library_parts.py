@@ -134,3 +134,25 @@ def test_a_dataset_folder_is_read_as_its_objects(tiny_dataset):
     assert sorted((p.part, p.colour) for p in objects.placements) == placed
     assert len(placed) == len(rows)  # a synthetic step places one brick: a row's bricks are its step's
     assert coverage(objects, objects)[0] == 1.0
+
+
+
+def test_the_json_listing_streams_each_part_as_it_finishes_so_an_interrupted_run_keeps_them(monkeypatch, capsys):
+    """`--json` prints a part's line when it is done, not the whole list at the end: a long
+    preparation cut short (Ctrl-C while the third part is prepared) keeps the two parts before."""
+    import pipelines.prepare
+    from pipelines.parts import main
+
+    real, seen = pipelines.prepare.part_status, []
+
+    def status(ldraw, name, prepare, own_parts=False):
+        seen.append(name)
+        if len(seen) == 3:
+            raise KeyboardInterrupt
+        return real(ldraw, name, prepare, own_parts)
+
+    monkeypatch.setattr(pipelines.prepare, "part_status", status)
+    assert main(["--ldraw", str(LDRAW), "--all", "--json", "--workers", "1", "--no-progress"]) == 130
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert [x["part"] for x in lines] == seen[:2]
+    assert all({"category", "usable", "reason", "seconds"} <= set(x) for x in lines)
