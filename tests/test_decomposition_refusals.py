@@ -31,3 +31,55 @@ def test_a_refused_decomposition_is_kept_and_not_tried_again_under_the_same_limi
     with pytest.raises(LDrawLimitError, match="more than 0.1 s") as wider:
         geometry.collision_shape(part())
     assert "refused before" not in str(wider.value)
+
+
+def test_a_decomposition_past_its_time_limit_is_tried_again_at_coarser_settings(monkeypatch, tmp_path):
+    """LDraw's 6061, 48169 and 4746 took more than 300 s at the default settings and were left out
+    of every library; a decomposition that runs past its limit is tried again at `COARSE`
+    settings, and the part is refused only if that runs past the limit too."""
+    from factory.errors import LDrawLimitError
+    from factory.ldraw import Library, Reader
+    from factory.parts import load_part
+    from factory.physics import geometry
+
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path))
+    monkeypatch.setattr(geometry, "_faithful_pieces", lambda part, cfg: None)  # the way to coacd
+    real, tried = geometry._decompose, []
+
+    def slow_at_defaults(vertices, faces, cfg, name=""):
+        tried.append(cfg.preprocess_resolution)
+        if cfg.preprocess_resolution != geometry.COARSE["preprocess_resolution"]:
+            raise geometry.DecompositionTooSlow(f"decomposing {name} took more than 300 s", name)
+        return real(vertices, faces, cfg, name)
+
+    monkeypatch.setattr(geometry, "_decompose", slow_at_defaults)
+    shape = geometry.collision_shape(load_part(Reader(Library.embedded()), "3001"))
+    assert tried == [50, 30] and len(shape.body) >= 1
+    monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", "0.01")  # real coacd, too slow both times
+    monkeypatch.setattr(geometry, "_decompose", real)
+    with pytest.raises(LDrawLimitError, match=r"more than 0.01 s; .*again at coarser settings: .*more than 0.01 s"):
+        geometry.collision_shape(load_part(Reader(Library.embedded()), "3003"))
+
+
+def test_the_faithfulness_test_walks_its_sample_grid_in_chunks_with_the_same_answers(monkeypatch, real_reader):
+    """A raised 32x32 baseplate's hull holds about 20 million sample points: tested at once they
+    took more than 15 GB and the preparation of LDraw's library was killed for memory. The grid is
+    walked in chunks; the answers do not depend on the chunk's size."""
+    import numpy as np
+
+    from factory.parts import load_part
+    from factory.physics import geometry
+
+    cfg = geometry.DecompositionConfig()
+    cases = []
+    for name in ("99781", "3062b", "4070", "3001"):  # bracket, round brick, headlight brick, brick
+        part = load_part(real_reader, name)
+        test = geometry._faithfulness(part, cfg)
+        body = part.flat.triangles[~part.flat.in_stud].reshape(-1, 3)
+        lo, hi = body.min(0), body.max(0)
+        halves = [body[body[:, 0] <= (lo[0] + hi[0]) / 2], body[body[:, 1] <= (lo[1] + hi[1]) / 2], body]
+        cases += [(test, h) for h in halves if len(h) >= 4]
+    whole = [test.escapes(points) for test, points in cases]
+    monkeypatch.setattr(geometry, "SAMPLE_CHUNK", 4096)
+    assert [test.escapes(points) for test, points in cases] == whole
+    assert True in whole and False in whole

@@ -176,6 +176,19 @@ COACD_MEMORY_BYTES = 8 << 30
 """Address space of that child process (the 1.2-million-triangle soup reached 24 GB)."""
 
 
+COARSE = {"preprocess_resolution": 30, "max_convex_hull": 16, "mcts_iterations": 20, "mcts_nodes": 8,
+          "threshold": 0.1}
+"""coacd settings of the second try, for a part whose decomposition ran past its time limit at
+`DecompositionConfig`'s: the voxel resolution of coacd's preprocessing sets most of its time.
+Measured on this project's 2-core machine, parts of LDraw's library that took more than 300 s:
+6061 39 s coarse (1,232 triangles, 16 pieces), 48169 37 s, 4746 9 s. Which settings a part near
+the limit gets can depend on the machine; the cache (and `pipelines.parts --pack`) keeps it."""
+
+
+class DecompositionTooSlow(LDrawLimitError):
+    """coacd ran past `coacd_seconds()` on a part."""
+
+
 def coacd_seconds() -> float:
     """The decomposition's time limit: `COACD_SECONDS_ENV` when set, else `COACD_SECONDS`."""
     raw = os.environ.get(COACD_SECONDS_ENV, "").strip()
@@ -222,7 +235,7 @@ def _decompose(vertices: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig
             done = subprocess.run([sys.executable, "-c", _COACD_CHILD, src, out, str(int(COACD_MEMORY_BYTES))],
                                   capture_output=True, text=True, timeout=limit)
         except subprocess.TimeoutExpired:
-            raise LDrawLimitError(f"{what} took more than {limit:g} s; refusing the part (on a slow machine, "
+            raise DecompositionTooSlow(f"{what} took more than {limit:g} s; refusing the part (on a slow machine, "
                                   f"{COACD_SECONDS_ENV}=SECONDS allows longer)", name or None) from None
         if done.returncode != 0 or not os.path.exists(out):
             tail = (done.stderr.strip().splitlines() or ["no message"])[-1]
@@ -236,6 +249,8 @@ _SIDES = ((0, 1.0), (0, -1.0), (2, 1.0), (2, -1.0), (1, -1.0))
 """The directions a sample point must be closed in, as (axis, sign): sideways and up (-Y)."""
 _BUCKET_LDU = 4.0
 """Cell size of the grid that sorts triangles for the axis-aligned ray casts."""
+SAMPLE_CHUNK = 1 << 23
+"""Entries (sample points x hull faces) one step of the faithfulness test holds: 64 MB."""
 
 
 def _blocked(points: np.ndarray, tris: np.ndarray, axis: int, sign: float) -> np.ndarray:
@@ -310,12 +325,16 @@ class _Faithfulness:
     1.35 x 2.2 LDU across, in the concave corner between its column and the plate at its foot, and
     the corner plate 2420 laid round the column (Vintage Car step 22) overlapped it by 1.26 LDU."""
 
-    def escaping(self, points: np.ndarray) -> int:
-        """How many sample points inside the hull of `points` see out of the part."""
+    def escapes(self, points: np.ndarray) -> bool:
+        """Whether a sample point inside the hull of `points` sees out of the part.
+
+        The grid is walked in chunks of at most `SAMPLE_CHUNK` entries (points x hull faces),
+        stopping at the first point that escapes: the hull of a raised 32x32 baseplate (2552)
+        holds about 20 million sample points, and testing them at once took more than 15 GB."""
         try:
             hull = ConvexHull(points)
         except (QhullError, ValueError):
-            return 0  # flat: holds no sample point
+            return False  # flat: holds no sample point
         # Bin centres along each axis, so that a cell a few LDU thick (a plate's top, a flange)
         # is sampled through its middle rather than skipped.
         lo, hi = points.min(0), points.max(0)
@@ -323,13 +342,25 @@ class _Faithfulness:
         for a, b in zip(lo, hi):
             n = max(1, int(round((b - a) / self.pitch)))
             axes.append(a + (np.arange(n) + 0.5) * (b - a) / n)
-        grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-        inside = np.all(grid @ hull.equations[:, :3].T + hull.equations[:, 3] < -self.depth, axis=1)
-        grid = grid[inside]
-        if self.centre and not len(grid):
-            deepest = _interior_point(hull.equations, self.depth + 1e-6)
+        shape = tuple(len(a) for a in axes)
+        total = int(np.prod(shape))
+        eq = hull.equations
+        step = max(1024, SAMPLE_CHUNK // len(eq))
+        sampled = False
+        for start in range(0, total, step):
+            i, j, k = np.unravel_index(np.arange(start, min(total, start + step)), shape)
+            grid = np.stack([axes[0][i], axes[1][j], axes[2][k]], -1)
+            grid = grid[np.all(grid @ eq[:, :3].T + eq[:, 3] < -self.depth, axis=1)]
+            sampled = sampled or len(grid) > 0
+            if self._any_escapes(grid):
+                return True
+        if self.centre and not sampled:
+            deepest = _interior_point(eq, self.depth + 1e-6)
             if deepest is not None:
-                grid = np.concatenate([grid, deepest[None]])
+                return self._any_escapes(deepest[None])
+        return False
+
+    def _any_escapes(self, grid: np.ndarray) -> bool:
         escaped = np.zeros(len(grid), bool)
         for axis, sign in _SIDES:
             open_ = ~escaped
@@ -337,7 +368,7 @@ class _Faithfulness:
         if self.socket_floor is not None:
             below = ~escaped & (grid[:, 1] > self.socket_floor + 0.5)
             escaped[below] = ~_blocked(grid[below], self.occluders, 1, 1.0)
-        return int(escaped.sum())
+        return bool(escaped.any())
 
 
 def _stud_caps(part: Part, segments: int = 16) -> np.ndarray:
@@ -400,7 +431,7 @@ def _split_faithful(polys: list[np.ndarray], test: _Faithfulness, min_cut: float
     if budget[0] < 0:
         return None
     points = np.concatenate(polys)
-    if len(points) < 4 or test.escaping(points) == 0:
+    if len(points) < 4 or not test.escapes(points):
         return [points]
     lo, hi = points.min(0), points.max(0)
     # Every polygon edge (start, end), to find the points on each side of a cut without cutting.
@@ -488,7 +519,7 @@ def _refined(part: Part, pieces: list[np.ndarray], cfg: DecompositionConfig) -> 
     body = list(part.flat.triangles[~part.flat.in_stud])
     out = []
     for piece in pieces:
-        if test.escaping(piece) == 0:
+        if not test.escapes(piece):
             out.append(piece)
             continue
         polys = _within(body, piece, cfg.inset_ldu + cfg.snap_ldu)
@@ -566,7 +597,15 @@ def _decomposed(part: Part, verts: np.ndarray, faces: np.ndarray, cfg: Decomposi
     # coacd remeshes its input on a voxel grid, so its pieces bulge up to ~1 LDU out of the part.
     # Rebuild each piece as the hull of the part's own vertices it holds (within a snap
     # distance): pieces then follow the real surface.
-    pieces = (_snap(r, verts, cfg.snap_ldu) for r in _decompose(verts, faces, cfg, getattr(part, "file", None) or part.name))
+    name = getattr(part, "file", None) or part.name
+    try:
+        raw = _decompose(verts, faces, cfg, name)
+    except DecompositionTooSlow as slow:
+        try:
+            raw = _decompose(verts, faces, replace(cfg, **COARSE), name)
+        except LDrawLimitError as again:
+            raise LDrawLimitError(f"{slow.message}; again at coarser settings: {again.message}", slow.file) from None
+    pieces = (_snap(r, verts, cfg.snap_ldu) for r in raw)
     return [p for p in (inset_hull(r, cfg.inset_ldu) for r in pieces if r is not None) if p is not None]
 
 
