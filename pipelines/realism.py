@@ -10,7 +10,13 @@ designs, or the `.ldr` files `pipelines.sample` writes) or a dataset folder (its
 - category (LDraw's: `Plate`, `Brick`, `Slope`, `Technic`, ...), colour, connection kind (of the
   part, as the prior counts them: `factory.prior.fit.connection_kind`) and orientation (upright,
   on its side, upside down): total variation distance, 0 (same shares) to 1 (disjoint);
-- parts per object: the 1-Wasserstein distance, in parts.
+- connection directions: each stud of one part in a socket of another (as the checks match them:
+  `factory.physics.structure.match`), by the stud's direction in the object's frame: up (a part
+  on another), down (a part upside down) or sideways (brackets, headlight bricks); total variation;
+- parts per object and density (summed part volume over the hull's, as the sampler's reward
+  scores it: `factory.sampler.density`): the 1-Wasserstein distance, in parts and in density.
+
+Connections and density need each part's geometry: a part the library lacks is left out of them.
 
 Families fold printed variants, revisions and renumbered parts (`factory.prior.families`), so an
 embedded `3023` and a real `3023b` count as one part.
@@ -28,6 +34,10 @@ import pyarrow.parquet as pq
 
 from factory.errors import LDrawError
 from factory.ldraw import Reader
+from factory.parts import load_part
+from factory.physics.structure import connectors, match
+from factory.pose import Pose
+from factory.sampler.density import density
 from factory.prior.families import family
 from factory.prior.fit import connection_kind, resolved_name
 from factory.prior.placements import Use, read_design
@@ -46,6 +56,10 @@ class Placement:
     family: str
     colour: int
     up: float
+    matrix: np.ndarray | None = None
+    """Rotation in the object's frame (LDraw's), None where not known."""
+    pos: np.ndarray | None = None
+    """Position in the object's frame (LDU)."""
 
 
 @dataclass
@@ -64,7 +78,7 @@ class Collection:
 
 def _placement(reader: Reader, use: Use) -> Placement:
     name = resolved_name(reader, use)
-    return Placement(name, family(name), use.colour, use.up)
+    return Placement(name, family(name), use.colour, use.up, use.matrix, use.pos)
 
 
 def read_collection(path: str | os.PathLike, reader: Reader, name: str | None = None) -> Collection:
@@ -97,8 +111,9 @@ def _read_dataset(path: Path, reader: Reader, out: Collection) -> Collection:
             for b in bricks or ():
                 name = b["part"].lower().removesuffix(".dat")
                 found = reader.library.lookup(name + ".dat") is not None
-                up = float(np.asarray(b["R"], dtype=np.float64)[1, 1])  # R maps the part's frame into the model's
-                use = Use(name, int(b["colour"]), reader.part(name) if found else None, up)
+                R = np.asarray(b["R"], dtype=np.float64)  # maps the part's frame into the model's
+                use = Use(name, int(b["colour"]), reader.part(name) if found else None, float(R[1, 1]), R,
+                          np.asarray(b["T"], dtype=np.float64))
                 objects.setdefault(oid, []).append(_placement(reader, use))
     out.objects = [objects[k] for k in sorted(objects)]
     return out
@@ -124,6 +139,61 @@ def wasserstein(a: list[float], b: list[float]) -> float:
     ca = np.searchsorted(np.sort(a), xs[:-1], side="right") / len(a)
     cb = np.searchsorted(np.sort(b), xs[:-1], side="right") / len(b)
     return float(np.sum(np.abs(ca - cb) * np.diff(xs)))
+
+
+STUDS_UP, STUDS_DOWN, STUDS_SIDEWAYS = "stud up", "stud down", "stud sideways"
+
+
+def stud_direction(axis: np.ndarray) -> str:
+    """A connection's direction by its stud's axis in the object's frame (up is -y)."""
+    up = -float(axis[1])
+    return STUDS_UP if up > UP_COS else STUDS_DOWN if up < -UP_COS else STUDS_SIDEWAYS
+
+
+class _Shapes:
+    """Each part's geometry, loaded once (None for a part the library lacks or cannot give)."""
+
+    def __init__(self, reader: Reader):
+        self.reader, self.parts = reader, {}
+
+    def __call__(self, name: str):
+        if name not in self.parts:
+            try:
+                found = self.reader.library.lookup(name + ".dat") is not None
+                self.parts[name] = load_part(self.reader, name) if found else None
+            except LDrawError:
+                self.parts[name] = None
+        return self.parts[name]
+
+
+def _gather(placed: list, which: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Positions, axes and owning part (index) of every stud or socket of the placed parts."""
+    pos, axis, owner = [np.zeros((0, 3))], [np.zeros((0, 3))], [np.zeros(0, np.int64)]
+    for k, (part, pose) in enumerate(placed):
+        p, a = connectors(part, pose, which)
+        pos.append(p)
+        axis.append(a)
+        owner.append(np.full(len(p), k))
+    return np.concatenate(pos), np.concatenate(axis), np.concatenate(owner)
+
+
+def connection_directions_and_density(objects: "Collection", shapes: _Shapes) -> tuple[Counter, list[float]]:
+    """The directions of every stud-in-socket connection between two parts of an object, and each
+    object's density (objects with fewer than two known parts have none)."""
+    directions: Counter = Counter()
+    densities: list[float] = []
+    for obj in objects.objects:
+        placed = [(shapes(p.part), Pose(p.matrix, p.pos)) for p in obj if p.matrix is not None]
+        placed = [(part, pose) for part, pose in placed if part is not None]
+        if len(placed) < 2:
+            continue
+        densities.append(density(placed))
+        sp, sa, so = _gather(placed, "studs")
+        kp, ka, ko = _gather(placed, "sockets")
+        for i, j in match(sp, sa, kp, ka):
+            if so[i] != ko[j]:
+                directions[stud_direction(sa[i])] += 1
+    return directions, densities
 
 
 def orientation(up: float) -> str:
@@ -207,6 +277,20 @@ def compare(objects: Collection, real: Collection, reader: Reader, top: int = 25
     per.extra = {"objects": len(na), "real_designs": len(nb), "median_objects": float(np.median(na)) if na else None,
                  "median_real": float(np.median(nb)) if nb else None}
     tables.append(per)
+    shapes = _Shapes(reader)
+    (da, dens_a), (db, dens_b) = (connection_directions_and_density(c, shapes) for c in (objects, real))
+    dirs = _table("connection directions", da, db)
+    dirs.extra = {"connections_objects": sum(da.values()), "connections_real": sum(db.values())}
+    tables.append(dirs)
+    bins = [0.0, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.7, 1.01]
+    dhist = lambda d: Counter(next(f"{lo:.2f}-{hi:.2f}" for lo, hi in zip(bins, bins[1:]) if lo <= x < hi)  # noqa: E731
+                              for x in d if 0 <= x < bins[-1])
+    dens = _table("density", dhist(dens_a), dhist(dens_b))
+    dens.distance_name, dens.distance = "1-Wasserstein (density)", wasserstein(dens_a, dens_b)
+    dens.rows = sorted(dens.rows, key=lambda r: float(r[0].split("-")[0]))
+    dens.extra = {"median_objects": float(np.median(dens_a)) if dens_a else None,
+                  "median_real": float(np.median(dens_b)) if dens_b else None}
+    tables.append(dens)
     return tables
 
 

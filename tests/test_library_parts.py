@@ -134,7 +134,47 @@ def test_a_dataset_folder_is_read_as_its_objects(tiny_dataset):
     assert sorted((p.part, p.colour) for p in objects.placements) == placed
     assert len(placed) == len(rows)  # a synthetic step places one brick: a row's bricks are its step's
     assert coverage(objects, objects)[0] == 1.0
+    # each brick's pose is read too: every part after an object's first sits on studs of the parts before
+    from pipelines.realism import connection_directions_and_density, _Shapes
 
+    directions, densities = connection_directions_and_density(objects, _Shapes(reader))
+    assert sum(directions.values()) >= sum(len(o) - 1 for o in objects.objects) and len(densities) == 3
+
+
+
+def test_connections_are_counted_by_direction_and_objects_by_density(write, tmp_path):
+    """Two 2x4 bricks stacked: 8 studs up; the same stack upside down: 8 studs down; a 1x2 plate
+    on a bracket's side studs: sideways. A stacked pair is denser than the same two apart."""
+    from pipelines.realism import connection_directions_and_density, _Shapes
+
+    reader = get_reader(None)
+    shapes = _Shapes(reader)
+    flip = "1 0 0 0 -1 0 0 0 -1"
+    write("up/a.ldr", "0 a\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat\n1 1 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat\n")
+    write("down/a.ldr", f"0 a\n1 4 0 0 0 {flip} 3001.dat\n1 1 0 -24 0 {flip} 3001.dat\n")
+    write("apart/a.ldr", "0 a\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat\n1 1 200 -24 0 1 0 0 0 1 0 0 0 1 3001.dat\n")
+    bracket, plate = shapes("99781"), shapes("3023")
+    side = next(c for c in bracket.studs if abs(c.axis[1]) < 0.5)
+    socket = next(c for c in plate.sockets if c.axis == (0.0, -1.0, 0.0))
+    # turn the plate so that its socket's axis (-y) lies along the side stud's
+    a, b = np.array(socket.axis), np.array(side.axis)
+    v = np.cross(a, b)
+    R = np.eye(3) + _skew(v) + _skew(v) @ _skew(v) / (1 + a @ b)
+    t = np.array(side.pos) - R @ np.array(socket.pos)
+    m = " ".join(f"{x:.6f}" for x in (*t, *R.ravel()))
+    write("side/a.ldr", f"0 a\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 99781.dat\n1 1 {m} 3023.dat\n")
+    got = {k: connection_directions_and_density(read_collection(tmp_path / k, reader), shapes)
+           for k in ("up", "down", "apart", "side")}
+    assert got["up"][0] == {"stud up": 8} and got["down"][0] == {"stud down": 8}
+    assert got["apart"][0] == {} and set(got["side"][0]) == {"stud sideways"}
+    assert got["up"][1][0] == pytest.approx(got["down"][1][0]) and got["up"][1][0] > 2 * got["apart"][1][0] > 0
+    tables = {t.name: t for t in compare(read_collection(tmp_path / "up", reader),
+                                           read_collection(tmp_path / "down", reader), reader)}
+    assert tables["connection directions"].distance == 1.0 and tables["density"].distance == pytest.approx(0.0)
+
+
+def _skew(v):
+    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
 
 
 def test_the_json_listing_streams_each_part_as_it_finishes_so_an_interrupted_run_keeps_them(monkeypatch, capsys):

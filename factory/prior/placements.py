@@ -9,7 +9,7 @@ that part.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -35,6 +35,10 @@ class Use:
     """How the part's up (-y) lies in the design's frame: the cosine between them (1 upright,
     -1 upside down, near 0 on its side), through every submodel that places it; a mirrored or
     scaled placement counts by its direction."""
+    matrix: np.ndarray | None = field(default=None, compare=False, repr=False)
+    """Its rotation in the design's frame (through every submodel), None where not known."""
+    pos: np.ndarray | None = field(default=None, compare=False, repr=False)
+    """Its position in the design's frame (LDU)."""
 
 
 @dataclass(frozen=True)
@@ -60,7 +64,7 @@ def read_design(reader: Reader, path: str | os.PathLike) -> Design:
     uses: list[Use] = []
     missing: set[str] = set()
     primitives = [0]
-    _walk(reader, main, MAIN, np.eye(3), uses, missing, primitives, ())
+    _walk(reader, main, MAIN, np.eye(3), np.zeros(3), uses, missing, primitives, ())
     licence = _licence(path)
     return Design(str(path), licence, tuple(uses), tuple(sorted(missing)), primitives[0])
 
@@ -71,16 +75,17 @@ def _is_primitive(reader: Reader, res: Resolved, name: str) -> bool:
         and reader.library.source.lookup("parts/s/" + name) is None
 
 
-def _walk(reader: Reader, res: Resolved, colour: int, matrix: np.ndarray, out: list[Use], missing: set[str],
-          primitives: list, stack: tuple) -> None:
+def _walk(reader: Reader, res: Resolved, colour: int, matrix: np.ndarray, offset: np.ndarray, out: list[Use],
+          missing: set[str], primitives: list, stack: tuple) -> None:
     reader._check_stack(res, stack)
     for ref in res.file.refs:
         c = colour if ref.colour == MAIN else ref.colour
         m = matrix @ np.asarray(ref.matrix, dtype=np.float64)
+        at = offset + matrix @ np.asarray(ref.pos, dtype=np.float64)
         name = ref.name.replace("\\", "/").lower()
         child = reader.find(ref, res.file, res.model)  # None: counted by name
         if child is not None and is_submodel(child):
-            _walk(reader, child, c, m, out, missing, primitives, stack + (res.key,))
+            _walk(reader, child, c, m, at, out, missing, primitives, stack + (res.key,))
             continue
         if child is not None and _is_primitive(reader, child, name):
             primitives[0] += 1
@@ -90,7 +95,7 @@ def _walk(reader: Reader, res: Resolved, colour: int, matrix: np.ndarray, out: l
         up = m[:, 1]  # the part's y axis in the design's frame; up is -y on both sides
         norm = float(np.linalg.norm(up))
         out.append(Use(name[:-4] if name.endswith(".dat") else name, c, child,
-                       float(up[1] / norm) if norm > 0 and np.isfinite(norm) else 0.0))
+                       float(up[1] / norm) if norm > 0 and np.isfinite(norm) else 0.0, m, at))
         if len(out) > MAX_MODEL_PARTS:
             raise LDrawLimitError(f"design places more than {MAX_MODEL_PARTS:,} parts; refusing it", res.file.path,
                                   ref.line)
