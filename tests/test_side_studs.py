@@ -48,3 +48,30 @@ def test_a_side_attachment_is_blocked_by_a_part_in_front_of_it():
     wall = at("3005", 10, -24, -70)  # a 1x1 brick standing in the plate's way out along -z
     r = swept(BASE + [wall], [plate])
     assert r.buildable is False and r.reason == "blocked" and r.blocked_by == (2,)
+
+
+def test_the_load_model_carries_a_side_stud_across_and_along_its_own_axis():
+    """A 1x8 brick hung by an end socket on the headlight brick's side stud: lying level, the load
+    grows with its reach from the stud (the weight's moment); standing up on it at a weak clutch,
+    the side stud itself (headlight -> brick, axis -z) is the connection named failing."""
+    from factory.physics.statics import LoadConfig, judge, load_model
+
+    def verdict(pose, cfg=LoadConfig()):
+        s = Structure(BASE + [at("3008", *pose.t, R=pose.R)])
+        side = [c for c in s.connections if c[0] == 1 and c[1] == 2]
+        assert len(side) == 1 and np.allclose(side[0][3], [0, 0, -1])  # the one stud, along its own axis
+        return judge(load_model(s.placed, s.connections, s.floor_y(), [2], s.links, cfg), cfg)
+
+    poses = _sideways(Structure(BASE), "3008")
+    level: dict[float, list] = {}
+    for p in poses:
+        v = verdict(p)
+        if np.isclose(p.t[1], -14) and v.reason != "unstable":  # lying level, not tipping the whole
+            level.setdefault(abs(p.t[0] - 10), []).append(v)
+    assert len(level) >= 3 and all(v.stands for vs in level.values() for v in vs)
+    loads = [[v.load for v in level[r]] for r in sorted(level)]
+    assert all(max(a) < min(b) for a, b in zip(loads, loads[1:]))
+    upright = next(p for p in poses if p.t[1] < -60)
+    weak = verdict(upright, LoadConfig(clutch_n=0.05))
+    assert verdict(upright).stands and not weak.stands and weak.reason == "overload"
+    assert (weak.failing[0].stud_part, weak.failing[0].socket_part) == (1, 2)
