@@ -67,8 +67,10 @@ endif
 bench: setup
 	$(PY) -m pipelines.bench --out bench
 
+# Test files run two at a time on a 2-core machine (-n auto: one per core), each file in one
+# process (--dist loadfile) so that a file's shared fixtures are made once.
 test: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n auto --dist loadfile
 
 clean:
 	rm -rf $(VENV) .pytest_cache

@@ -263,7 +263,7 @@ def test_check_batch_bounds_each_request_and_smaller_requests_ask_fewer_candidat
 
 
 def test_the_batched_walk_solves_only_the_load_programs_the_reference_solves(monkeypatch):
-    """Objects of the default config (of 20-24 steps) grown two at a time with the batched checks
+    """Objects of the default config (of 10-12 steps) grown two at a time with the batched checks
     (requests of `check_batch` candidates, `judge_first` of them judged) solve exactly the load programs the
     reference solves asking one candidate at a time: none for a candidate the walk would not reach
     (one after a candidate left unjudged, or after one outside the request whose key bound is
@@ -282,7 +282,7 @@ def test_the_batched_walk_solves_only_the_load_programs_the_reference_solves(mon
     programs, objects = {}, {}
     for backend, batch in (("mujoco", 1), ("mjx", 2)):
         solved.clear()
-        s = Sampler(SamplerConfig(seed=0, backend=backend, min_steps=20, max_steps=24))
+        s = Sampler(SamplerConfig(seed=0, backend=backend, min_steps=10, max_steps=12))
         grown = sorted(s.grow(range(2), batch=batch), key=lambda a: a.index)
         objects[backend] = [a.ldr_text(f"object_{a.index:05d}.ldr") for a in grown]
         programs[backend] = len(solved)
