@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -418,9 +419,9 @@ def test_a_command_pins_the_gl_backend_so_mujoco_never_loads_glfw():
     plain = subprocess.run([sys.executable, "-c", "import factory; " + code], env=env, capture_output=True, text=True)
     assert plain.stdout.split() == ["None", "True"], plain.stderr  # a user's script: untouched
     as_command = "import sys; sys.orig_argv[:] = [sys.executable, '-m', 'pipelines.synth']; "  # what -m gives
-    probe = subprocess.run(
+    probe = subprocess.run(  # SIGINT as a terminal gives it (a test runner's worker may ignore it: inherited)
         [sys.executable, "-c", as_command + "import factory; " + code],
-        env=env, capture_output=True, text=True,
+        env=env, capture_output=True, text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     assert probe.stdout.split() == [gl_backend.choose(), "False"], probe.stderr
 
