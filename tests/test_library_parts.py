@@ -21,6 +21,7 @@ from pipelines.realism import compare, coverage, read_collection
 
 ROOT = Path(__file__).resolve().parents[1]
 LDRAW = ROOT.parent / "shared" / "ldraw"
+needs_ldraw = pytest.mark.skipif(not (LDRAW / "parts").is_dir(), reason=f"the real LDraw subset is not at {LDRAW}")
 
 
 def _run(*args, env=None):
@@ -43,6 +44,7 @@ def test_every_part_of_a_library_is_usable_or_listed_with_its_reason(real_reader
         assert s.reason is None or not s.reason.startswith(("cannot be read", "collision")), (s.part, s.reason)
 
 
+@needs_ldraw
 def test_the_parts_command_tables_the_library_by_category(tmp_path):
     out = _run("pipelines.parts", "--ldraw", str(LDRAW), "--all", "--workers", "2", "--no-progress")
     assert out.returncode == 0, out.stderr
@@ -177,6 +179,7 @@ def _skew(v):
     return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
 
 
+@needs_ldraw
 def test_the_json_listing_streams_each_part_as_it_finishes_so_an_interrupted_run_keeps_them(monkeypatch, capsys):
     """`--json` prints a part's line when it is done, not the whole list at the end: a long
     preparation cut short (Ctrl-C while the third part is prepared) keeps the two parts before."""
