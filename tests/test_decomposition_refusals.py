@@ -83,3 +83,34 @@ def test_the_faithfulness_test_walks_its_sample_grid_in_chunks_with_the_same_ans
     monkeypatch.setattr(geometry, "SAMPLE_CHUNK", 4096)
     assert [test.escapes(points) for test, points in cases] == whole
     assert True in whole and False in whole
+
+
+def test_a_refusal_kept_before_the_coarser_try_existed_is_tried_again(monkeypatch, tmp_path):
+    """A cache packed on another machine held refusals made with one try only (LDraw's wheel
+    18976, past 300 s): kept as they were, they stopped the coarser second try for good. A kept
+    refusal names the settings of its second try, and its message no file in front (the error
+    names the file where it is read)."""
+    import json
+
+    from factory.errors import LDrawLimitError
+    from factory.ldraw import Library, Reader
+    from factory.parts import load_part
+    from factory.physics import geometry
+
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path))
+    monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", "0.05")
+    monkeypatch.setattr(geometry, "_faithful_pieces", lambda part, cfg: None)  # the way to coacd
+    part = lambda: load_part(Reader(Library.embedded()), "3001")  # noqa: E731
+    with pytest.raises(LDrawLimitError):
+        geometry.collision_shape(part())
+    (kept,) = (tmp_path / "coacd").glob("*.json")
+    record = json.loads(kept.read_text())
+    assert record["coarse"] == geometry.COARSE and record["message"].startswith("decomposing")  # no file before
+    del record["coarse"]  # as a refusal was kept before the second try existed
+    kept.write_text(json.dumps(record))
+    tried = []
+    real = geometry._decompose
+    monkeypatch.setattr(geometry, "_decompose", lambda *a, **k: tried.append(1) or real(*a, **k))
+    with pytest.raises(LDrawLimitError, match="again at coarser settings"):
+        geometry.collision_shape(part())
+    assert len(tried) == 2  # tried again, both ways

@@ -648,15 +648,18 @@ def _remember_refusal(raw_key: str, exc: LDrawLimitError) -> None:
     """Keep a refused decomposition's reason with the limits it ran under: the next process gives
     up at once instead of spending them again (a part that took more than 300 s, every run)."""
     keep(_refusal_path(raw_key), json.dumps({"seconds": coacd_seconds(), "memory": COACD_MEMORY_BYTES,
-                                             "message": str(exc.args[0] if exc.args else exc)}).encode())
+                                             "coarse": COARSE, "message": exc.message}).encode())
 
 
 def _refused_before(raw_key: str, file) -> None:
     """Raise the kept refusal of this decomposition, if it ran under limits at least as wide as
-    today's (a larger `BRICK_FACTORY_COACD_SECONDS` tries again)."""
+    today's and tried today's coarser settings too (a larger `BRICK_FACTORY_COACD_SECONDS`, or a
+    refusal kept before the second try existed, tries again). The message is kept without the
+    file, which may be another machine's path (a packed cache)."""
     try:
         kept_ = json.loads(_refusal_path(raw_key).read_bytes())
-        wide = float(kept_["seconds"]) >= coacd_seconds() and int(kept_["memory"]) >= COACD_MEMORY_BYTES
+        wide = float(kept_["seconds"]) >= coacd_seconds() and int(kept_["memory"]) >= COACD_MEMORY_BYTES \
+            and kept_.get("coarse") == COARSE
         message = str(kept_["message"])
     except (OSError, ValueError, KeyError, TypeError):
         return
