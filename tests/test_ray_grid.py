@@ -42,3 +42,23 @@ def test_rays_cast_through_the_cells_meet_what_every_triangle_would(real_reader)
                 got = grid.blocked(points, sign)
                 assert np.array_equal(got, _brute(points, tris, axis, sign)), (name, axis, sign)
                 assert 0 < got.sum() < len(points)
+
+
+def test_triangles_kilometres_across_keep_the_grid_and_the_samples_bounded():
+    """Hostile input may draw a triangle 100,000 LDU across: listed under every 4 LDU cell it
+    would take 6e8 entries; the cells grow instead, with the same answers. A hull that large
+    holds more sample points than the faithfulness test takes: the part is refused, at once."""
+    import pytest
+
+    from factory.errors import LDrawLimitError
+
+    big = np.array([[[-5e4, 0, -5e4], [5e4, 0, -5e4], [0, 0, 5e4]],
+                    [[0, -8, 0], [20, -8, 0], [0, -8, 20]]], dtype=np.float64)
+    points = np.random.default_rng(1).uniform([-6e4, -20, -6e4], [6e4, 20, 6e4], size=(2000, 3))
+    grid = geometry._RayGrid(big, 1)
+    assert len(grid.keys) <= geometry.MAX_GRID_ENTRIES and grid.cell > geometry._BUCKET_LDU
+    for sign in (1.0, -1.0):
+        assert np.array_equal(grid.blocked(points, sign), _brute(points, big, 1, sign))
+    test = geometry._Faithfulness(big, 1.5, None)
+    with pytest.raises(LDrawLimitError, match="sample points"):
+        test.escapes(np.concatenate([big.reshape(-1, 3), [[0, 40, 0]]]))

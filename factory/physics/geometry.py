@@ -251,6 +251,12 @@ _BUCKET_LDU = 4.0
 """Cell size of the grid that sorts triangles for the axis-aligned ray casts."""
 SAMPLE_CHUNK = 1 << 23
 """Entries (sample points x hull faces) one step of the faithfulness test holds: 64 MB."""
+MAX_SAMPLES = 500_000_000
+"""Most sample points the faithfulness test takes in one hull (LDraw's raised 32x32 baseplate 2552
+has about 20 million); past it the part is refused (hostile input: a hull kilometres across)."""
+MAX_GRID_ENTRIES = 1 << 22
+"""Most (triangle, cell) entries of a `_RayGrid` (a 32x32 baseplate's top alone covers 25,600
+cells of 4 LDU)."""
 
 
 class _RayGrid:
@@ -272,10 +278,17 @@ class _RayGrid:
         keep = np.abs(area) > 1e-9
         self.t2, self.t3, self.area = t2[keep], tris[keep], area[keep]
         self.origin = self.t2.reshape(-1, 2).min(0) if len(self.t2) else np.zeros(2)
-        lo = np.floor((self.t2.min(1) - self.origin) / _BUCKET_LDU).astype(np.int64)
-        hi = np.floor((self.t2.max(1) - self.origin) / _BUCKET_LDU).astype(np.int64)
-        nb = hi[:, 1] - lo[:, 1] + 1
-        n = (hi[:, 0] - lo[:, 0] + 1) * nb
+        # Cells grow where the list would pass `MAX_GRID_ENTRIES` (triangles hundreds of LDU
+        # across, as hostile input may draw): more triangles a cell, the same answers.
+        self.cell = _BUCKET_LDU
+        while True:
+            lo = np.floor((self.t2.min(1) - self.origin) / self.cell).astype(np.int64)
+            hi = np.floor((self.t2.max(1) - self.origin) / self.cell).astype(np.int64)
+            nb = hi[:, 1] - lo[:, 1] + 1
+            n = (hi[:, 0] - lo[:, 0] + 1) * nb
+            if n.sum() <= MAX_GRID_ENTRIES:
+                break
+            self.cell *= 2
         tri = np.repeat(np.arange(len(n)), n)
         k = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
         ca = lo[tri, 0] + k // nb[tri]
@@ -294,7 +307,7 @@ class _RayGrid:
         if not len(points) or not len(self.keys):
             return hit
         p2 = points[:, [self.a, self.b]]
-        cell = np.floor((p2 - self.origin) / _BUCKET_LDU).astype(np.int64)
+        cell = np.floor((p2 - self.origin) / self.cell).astype(np.int64)
         keys, inverse = np.unique(self._key(cell[:, 0], cell[:, 1]), return_inverse=True)
         starts = np.searchsorted(self.keys, keys, side="left")
         stops = np.searchsorted(self.keys, keys, side="right")
@@ -375,6 +388,9 @@ class _Faithfulness:
             axes.append(a + (np.arange(n) + 0.5) * (b - a) / n)
         shape = tuple(len(a) for a in axes)
         total = int(np.prod(shape))
+        if total > MAX_SAMPLES:
+            raise LDrawLimitError(f"testing the collision pieces of this part needs more than {MAX_SAMPLES:,} sample "
+                                  f"points in one piece ({np.round(hi - lo).astype(int).tolist()} LDU across); refusing the part")
         eq = hull.equations
         step = max(1024, SAMPLE_CHUNK // len(eq))
         sampled = False
