@@ -150,7 +150,7 @@ def stud_direction(axis: np.ndarray) -> str:
     return STUDS_UP if up > UP_COS else STUDS_DOWN if up < -UP_COS else STUDS_SIDEWAYS
 
 
-class _Shapes:
+class PartShapes:
     """Each part's geometry, loaded once (None for a part the library lacks or cannot give)."""
 
     def __init__(self, reader: Reader):
@@ -177,7 +177,7 @@ def _gather(placed: list, which: str) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return np.concatenate(pos), np.concatenate(axis), np.concatenate(owner)
 
 
-def connection_directions_and_density(objects: "Collection", shapes: _Shapes) -> tuple[Counter, list[float]]:
+def connection_directions_and_density(objects: "Collection", shapes: PartShapes) -> tuple[Counter, list[float]]:
     """The directions of every stud-in-socket connection between two parts of an object, and each
     object's density (objects with fewer than two known parts have none)."""
     directions: Counter = Counter()
@@ -277,7 +277,7 @@ def compare(objects: Collection, real: Collection, reader: Reader, top: int = 25
     per.extra = {"objects": len(na), "real_designs": len(nb), "median_objects": float(np.median(na)) if na else None,
                  "median_real": float(np.median(nb)) if nb else None}
     tables.append(per)
-    shapes = _Shapes(reader)
+    shapes = PartShapes(reader)
     (da, dens_a), (db, dens_b) = (connection_directions_and_density(c, shapes) for c in (objects, real))
     dirs = _table("connection directions", da, db)
     dirs.extra = {"connections_objects": sum(da.values()), "connections_real": sum(db.values())}

@@ -137,9 +137,9 @@ def test_a_dataset_folder_is_read_as_its_objects(tiny_dataset):
     assert len(placed) == len(rows)  # a synthetic step places one brick: a row's bricks are its step's
     assert coverage(objects, objects)[0] == 1.0
     # each brick's pose is read too: every part after an object's first sits on studs of the parts before
-    from pipelines.realism import connection_directions_and_density, _Shapes
+    from pipelines.realism import connection_directions_and_density, PartShapes
 
-    directions, densities = connection_directions_and_density(objects, _Shapes(reader))
+    directions, densities = connection_directions_and_density(objects, PartShapes(reader))
     assert sum(directions.values()) >= sum(len(o) - 1 for o in objects.objects) and len(densities) == 3
 
 
@@ -147,10 +147,10 @@ def test_a_dataset_folder_is_read_as_its_objects(tiny_dataset):
 def test_connections_are_counted_by_direction_and_objects_by_density(write, tmp_path):
     """Two 2x4 bricks stacked: 8 studs up; the same stack upside down: 8 studs down; a 1x2 plate
     on a bracket's side studs: sideways. A stacked pair is denser than the same two apart."""
-    from pipelines.realism import connection_directions_and_density, _Shapes
+    from pipelines.realism import connection_directions_and_density, PartShapes
 
     reader = get_reader(None)
-    shapes = _Shapes(reader)
+    shapes = PartShapes(reader)
     flip = "1 0 0 0 -1 0 0 0 -1"
     write("up/a.ldr", "0 a\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat\n1 1 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat\n")
     write("down/a.ldr", f"0 a\n1 4 0 0 0 {flip} 3001.dat\n1 1 0 -24 0 {flip} 3001.dat\n")
