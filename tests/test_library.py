@@ -182,3 +182,32 @@ def test_a_zip_that_is_no_library_or_a_file_that_is_no_zip_is_refused(tmp_path, 
     with pytest.raises(LDrawError, match="does not exist"):
         Library.from_path(tmp_path / "missing")
     assert Reader(Library.from_path(_zip_of(mini_library, tmp_path / "mini.zip", ""))).part("cube.dat")
+
+
+_FORKED = {}  # what forked workers inherit, as the preparation's pool does
+
+
+def _read_all(rounds):
+    import hashlib
+    digest = hashlib.sha256()
+    for _ in range(rounds):
+        for name in _FORKED["names"]:
+            digest.update(_FORKED["source"].lookup(name).read())
+    return digest.hexdigest()
+
+
+@needs_ldraw
+def test_forked_workers_read_one_zip_library_at_once(tmp_path):
+    """Library preparation forks workers that all read the same opened zip: each must read its own
+    members whole (sharing the parent's open file, their reads moved one another's file offset and
+    zlib refused the data on the lent machine's 16 workers)."""
+    import multiprocessing
+
+    from factory.ldraw.library import ZipSource
+
+    source = ZipSource(_zip_of(LDRAW, tmp_path / "complete.zip"), "test")
+    _FORKED.update(source=source, names=sorted(k for k in source._members if k.startswith("parts/"))[:120])
+    expected = _read_all(3)
+    with multiprocessing.get_context("fork").Pool(4) as pool:
+        got = pool.map(_read_all, [3] * 16, chunksize=1)
+    assert got == [expected] * 16

@@ -10,6 +10,7 @@ from __future__ import annotations
 import difflib
 import os
 import zipfile
+import zlib
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -166,6 +167,7 @@ class ZipSource:
         self.origin = origin
         try:
             self._zip = zipfile.ZipFile(self.path)
+            self._pid = os.getpid()
             infos = self._zip.infolist()
         except (OSError, zipfile.BadZipFile, zipfile.LargeZipFile) as exc:
             raise LDrawReadError(f"cannot read the zip archive: {exc}", str(self.path)) from None
@@ -207,14 +209,23 @@ class ZipSource:
             raise LDrawReadError(f"file is {info.file_size:,} bytes; LDraw files over {limit:,} bytes are refused",
                                  display)
         try:
-            with self._zip.open(info) as fh:
+            with self._archive().open(info) as fh:
                 data = fh.read(limit + 1)
-        except (OSError, zipfile.BadZipFile, EOFError, RuntimeError, NotImplementedError) as exc:
+        except (OSError, zipfile.BadZipFile, EOFError, RuntimeError, NotImplementedError, zlib.error) as exc:
             raise LDrawReadError(f"cannot read the archive member: {exc}", display) from None
         if len(data) > limit:  # the header understated it
             raise LDrawReadError(f"file is over {limit:,} bytes uncompressed; LDraw files that large are refused",
                                  display)
         return data
+
+    def _archive(self) -> zipfile.ZipFile:
+        # A forked worker inherits the open file and with it the parent's file offset, which every
+        # process then moves under the others' reads (zlib's "invalid distance too far back" on the
+        # lent machine's 16 workers): each process opens the archive for itself.
+        if self._pid != os.getpid():
+            self._zip = zipfile.ZipFile(self.path)
+            self._pid = os.getpid()
+        return self._zip
 
     def part_files(self) -> list[str]:
         return sorted(k[6:] for k in self._members if k.startswith("parts/") and k.count("/") == 1
@@ -249,6 +260,15 @@ class MemorySource:
 
     def names(self) -> list[str]:
         return [k.rsplit("/", 1)[-1] for k in self.files]
+
+    def _archive(self) -> zipfile.ZipFile:
+        # A forked worker inherits the open file and with it the parent's file offset, which every
+        # process then moves under the others' reads (zlib's "invalid distance too far back" on the
+        # lent machine's 16 workers): each process opens the archive for itself.
+        if self._pid != os.getpid():
+            self._zip = zipfile.ZipFile(self.path)
+            self._pid = os.getpid()
+        return self._zip
 
     def part_files(self) -> list[str]:
         return sorted(k[6:] for k in self.files if k.startswith("parts/") and k.count("/") == 1 and k.endswith(".dat"))
