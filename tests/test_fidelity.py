@@ -249,6 +249,12 @@ def test_a_part_blocked_far_out_on_its_axis_comes_in_from_the_side(at):
     # With the brick ahead within the fingertip's room, it cannot be pressed on either.
     v = verdict([base, light, at("3005", -10, -24, -30)], plate)
     assert v.reason == "blocked", v
+    # A fingertip's end pushes it in where its width has no room: the brick's face 30 LDU from
+    # the stud's tip (`PRESS_MIN_LDU` of 24 clear, not `PRESS_LDU`'s 40; the LEGO Truck's round
+    # lights between its grille plates and its front).
+    v = verdict([base, light, at("3005", -10, -24, -50)], plate)
+    assert v.reason is None and v.buildable, v
+    assert verdict([base, light, at("3005", -10, -24, -40)], plate).reason == "blocked"
 
 
 def test_a_mudguard_stands_beside_the_plate_under_its_rounded_end(at):

@@ -15,7 +15,7 @@ from factory import Pose, load_part
 from factory.physics.check import CheckConfig, check, check_units
 from factory.physics.geometry import DecompositionConfig, cache_dir, collision_shape
 from factory.physics.statics import LoadConfig
-from factory.physics import attach
+from factory.physics import attach, collide
 from factory.physics.attach import attachment_arrays, feasible_poses
 from factory.physics.structure import Placed, Structure, align, canonical_key, match
 from factory.symmetry import rotation_about
@@ -481,8 +481,8 @@ def test_a_scene_built_from_kept_bodies_is_the_scene_built_afresh():
     fresh = CollisionScene(Structure(placed), unit, floor_y=0.0)
     for name in ("geom_pos", "geom_quat", "geom_dataid", "body_pos", "body_quat", "mesh_vert", "geom_size"):
         assert np.array_equal(getattr(kept.model, name), getattr(fresh.model, name)), name
-    for name in ("owner", "is_stud", "inset", "_s_planes", "_s_piece", "_s_owner", "_s_centre", "_c_planes",
-                 "_c_piece", "_c_centre"):
+    for name in ("owner", "is_stud", "inset", "_s_planes", "_s_piece", "_s_owner", "_s_centre", "_s_box",
+                 "_c_planes", "_c_piece", "_c_centre", "_c_box"):
         assert np.array_equal(getattr(kept, name), getattr(fresh, name)), name
     assert kept.info == fresh.info
     assert len(np.unique(fresh._s_piece)) == len(fresh._s_centre)
@@ -524,3 +524,22 @@ def test_the_deepest_overlap_asks_only_the_studs_that_could_raise_it():
         assert all(overlap[i] > floor for i in asked)
         saved += len(studs) - len(asked)
     assert saved > 1000
+
+
+def test_depths_inside_pieces_measured_only_where_a_box_holds_the_point():
+    """The coincidence test measures a point only against pieces whose box holds it: the same
+    depths as against every face of every piece, wherever the point is inside one."""
+    placed = [at("3001", 0, 0, 0), at("4070", 40, -24, 0), at("6141", 0, -32, 10), at("3062b", -30, -24, 10),
+              at("2412b", 60, -32, 0)]
+    planes, piece, _, centres, boxes = collide._joined_pieces(
+        [collide._pieces([(p.pose, collision_shape(p.part), i)]) for i, p in enumerate(placed)])
+    rng = np.random.default_rng(5)
+    lo, hi = boxes[:, 0].min(axis=0) - 5, boxes[:, 1].max(axis=0) + 5
+    points = np.concatenate([rng.uniform(lo, hi, (400, 3)), centres])
+    every = points @ planes[:, :3].T + planes[:, 3]
+    expected = np.stack([-every[:, piece == k].max(axis=1) for k in range(len(centres))])
+    got = collide._inside_depth(planes, piece, boxes, points)
+    inside = expected > 0
+    assert inside.sum() > 50 and (~inside).sum() > 50
+    assert np.allclose(got[inside], expected[inside])
+    assert np.all(got[~inside] <= 0)

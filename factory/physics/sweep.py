@@ -27,8 +27,9 @@ bracket could, is not swept).
 
 **Pressed on last** (`PRESS_LDU`). A hand brings a part near along any line and presses it along
 the axis only at the end, with a fingertip behind it. So a unit blocked further out on its axis is
-still buildable when the last `PRESS_LDU` of the axis is clear and, from there (studs out of their
-sockets: nothing connected), it reaches clear space along one of four directions square to the axis
+still buildable when the last `PRESS_LDU` of the axis is clear (or, failing that, the last
+`PRESS_MIN_LDU`: a fingertip's end in a recess) and, from there (studs out of their sockets:
+nothing connected), it reaches clear space along one of four directions square to the axis
 (`across`), swept the same way: the LEGO Truck's lights, pressed onto side studs of its front with
 the wheel holders 100 LDU further out on their axis. A brick in a gap under a roof, or a tile slid
 into a one-plate slot under an overhang, meets the roof within that stretch: blocked.
@@ -78,6 +79,12 @@ the room behind a part that a hand needs to press it on (the part's own path sta
 finger's). Further out, a hand brings the part in along any line (a light pressed onto a side
 stud of a truck's front, whose wheel holders stand 100 LDU further out on its axis); a brick
 slid into a gap with a roof 24 LDU above it cannot be pressed down."""
+
+PRESS_MIN_LDU = 24.0
+"""Where the fingertip's width is not clear behind a part, the room its end needs to push the part
+in (a fingertip's thickness, about 10 mm): the LEGO Truck's round lights sit between its grille
+plates and its front, 29 and 39 LDU clear on their axis. A tile in a one-plate slot, a brick in a
+gap under a roof, or a round plate 16 LDU from a brick ahead still has no such room."""
 
 
 MIN_STEP_LDU = 0.25
@@ -278,10 +285,20 @@ def _pressed_last(scene, structure, unit, connected, d, tol, step_ldu, straight:
     is connected), it reaches clear space along one of the directions `across` the axis; else the
     straight sweep's verdict stands."""
     queries = straight.poses_checked
+    for reach in (press, PRESS_MIN_LDU) if press > PRESS_MIN_LDU else (press,):
+        found, queries = _from_the_side(scene, structure, unit, connected, d, tol, step_ldu, reach, queries)
+        if found is not None:
+            return found
+    return replace(straight, poses_checked=queries)
+
+
+def _from_the_side(scene, structure, unit, connected, d, tol, step_ldu, press, queries):
+    """(the buildable verdict or None, queries so far): the last `press` LDU along the axis clear,
+    and from there a way out `across` it."""
     near = _along(scene, structure, unit, connected, d, tol, step_ldu, reach=press)
     queries += near.poses_checked
     if not near.buildable:
-        return replace(straight, poses_checked=queries)
+        return None, queries
     anchor = unit[0][1]
     with _without_floor(scene):
         depth, _ = scene.penetration(Pose(anchor.R, anchor.t - press * d), set())
@@ -292,8 +309,8 @@ def _pressed_last(scene, structure, unit, connected, d, tol, step_ldu, straight:
             way = _along(scene, structure, backed, set(), side, tol, step_ldu)
             queries += way.poses_checked
             if way.buildable:
-                return SweepResult(True, None, (), max(near.depth_ldu, way.depth_ldu), press, queries)
-    return replace(straight, poses_checked=queries)
+                return SweepResult(True, None, (), max(near.depth_ldu, way.depth_ldu), press, queries), queries
+    return None, queries
 
 
 def _along(scene, structure, unit, connected, d, tol, step_ldu, reach: float | None = None) -> SweepResult:

@@ -28,7 +28,8 @@ whole call is swept on the CPU instead.
 A unit is blocked when a counted interval meets s > 0 (s = 0, the final pose, is the collision
 check's). One blocked only further out than `sweep.PRESS_LDU` is swept by `sweep.sweep` on the
 CPU, which then asks whether it comes in from the side and is pressed on only over that last
-stretch (`sweep._pressed_last`): the same rule on both backends. The blocking pose reported (`at_ldu`) is the outer end of the outermost interval, where
+stretch (`sweep._pressed_last`): the same rule on both backends; one blocked within that
+stretch but clear over the fingertip's end (`sweep.PRESS_MIN_LDU`) is rare and swept on the CPU. The blocking pose reported (`at_ldu`) is the outer end of the outermost interval, where
 the unit coming from outside first overlaps beyond the tolerance; `blocked_by` names the parts
 whose decided intervals hold a pose just inside it (`MIN_STEP_LDU` / 4 in, or the interval's middle
 if shorter). The depth there is not computed (`depth_ldu` is nan); no contact query is made.
@@ -71,7 +72,7 @@ from factory.physics import jax_export
 from factory.physics.jax_cache import enable as enable_compile_cache
 from factory.physics.keep_last import KeepLast
 from factory.physics.structure import Placed, Structure
-from factory.physics.sweep import (PRESS_LDU, MIN_STEP_LDU, SweepResult, _boxes, _overlap_intervals, across,
+from factory.physics.sweep import (PRESS_LDU, PRESS_MIN_LDU, MIN_STEP_LDU, SweepResult, _boxes, _overlap_intervals, across,
                                    approaches_from, box_interval, seating_directions, sweep)
 from factory.pose import Pose
 
@@ -960,6 +961,9 @@ class _SweepJob:
         # Blocked within the stretch it is pressed along (`sweep.PRESS_LDU`): no side approach helps.
         pressed = np.zeros(len(idx), bool)
         pressed[dk[dlo < PRESS_LDU]] = True
+        # ... but clear over the fingertip's end (`sweep.PRESS_MIN_LDU`): rare, swept on the CPU.
+        pressed_min = np.zeros(len(idx), bool)
+        pressed_min[dk[dlo < PRESS_MIN_LDU]] = True
         if self.side_of:
             self.states = np.where(np.isfinite(top), _BLOCKED, np.where(maybe, _UNDECIDED, _CLEAR)).astype(np.int8)
             return
@@ -975,6 +979,9 @@ class _SweepJob:
                     self.pending.append(row)
                     results[i] = SweepResult(False, "blocked", tuple(sorted(blockers.get(row, ()))), float("nan"),
                                              round(float(top[row]), 4), 0)
+            elif np.isfinite(top[row]) and not pressed_min[row]:
+                COUNTS["referred"] += 1
+                results[i] = self.cpu(i)
             elif np.isfinite(top[row]):
                 COUNTS["device"] += 1
                 results[i] = SweepResult(False, "blocked", tuple(sorted(blockers.get(row, ()))), float("nan"),
