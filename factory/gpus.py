@@ -100,7 +100,7 @@ def cuda_jax() -> str | None:
 def checks_backend() -> tuple[str, str]:
     """The physics checks' backend for `--check-backend auto` on this machine, and why: 'mjx' (the
     batched checks, on the GPU) where an NVIDIA GPU and JAX's CUDA build are, else 'mujoco' (the
-    reference, on the CPU). Both write the same files; their build times are in docs/dataset.md."""
+    reference, on the CPU). Both write the same files; their build times are in docs/results.md."""
     n = count()
     if not n:
         return "mujoco", "no NVIDIA GPU here"

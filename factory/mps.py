@@ -4,7 +4,7 @@ Why: without MPS the CUDA contexts of different processes take turns on a GPU, o
 so 16 grower processes launching small batched checks wait on each other's slices. Under MPS their
 kernels run side by side. Measured on one lent H100 (16 cores), 2026-11-26, 16 grower processes
 of 256 objects of 30 parts (`pipelines.bench_physics --growth`): 138.7 steps/s without, 186.0 with
-(docs/sampler.md).
+(docs/guides/gpus-and-clusters.md).
 
 `shared_gpu(clients)` starts a control daemon of this job's own when it helps and nothing else
 stands in the way (`plan`): in the foreground as a child of this process (so it ends with it), with

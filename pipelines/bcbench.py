@@ -4,7 +4,7 @@
     python -m pipelines.bcbench import SRC OUT [--ldraw DIR]   # their layout -> ours (`import_bcbench`)
 
 The layout is the one BC-Bench's evaluation scripts read (Brick-Composer, `reasoning/`; docs:
-docs/dataset.md, "BC-Bench layout: export and import"):
+docs/reference/bcbench-layout.md, "BC-Bench layout: export and import"):
 
 - pose estimation: a LLaMA-Factory ShareGPT JSON file, a list of records {"system", "conversations":
   [{"from": "human", "value": text with one `<image>` per image}, {"from": "gpt", "value": answer}],

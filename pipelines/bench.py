@@ -173,7 +173,7 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None, d
     # The two expensive checks alone at 30, 60 and 90 bricks: on a GPU the batched path in one
     # process and in GPU_PROCS processes sharing the device (the host's cores select pairs and
     # build programs while another process's launch runs, as the factory's workers do; the CPU
-    # reference's rates come from a machine without one: docs/physics.md compares them); without
+    # reference's rates come from a machine without one: docs/results.md compares them); without
     # one, the CPU reference in two processes.
     check_sizes = [30] if quick else [30, 60, 90]
     if gpu:
@@ -242,7 +242,7 @@ def synth_section(work: Path, quick: bool) -> dict:
 
 def designs_section(work: Path, models: list[Path], ldraw: str) -> dict:
     # No physics replay: the baselines need the targets and images only, and the replay would first
-    # decompose every real part with coacd (minutes on a new machine; physics.md, pipelines.verify).
+    # decompose every real part with coacd (minutes on a new machine; docs/concepts/collision.md, pipelines.verify).
     config = design_config(models, ldraw, seed=0, physics=False, objects_per_shard=1, dataset_id="bench-designs")
     out = work / "designs"
     summary = build(config, out, workers=1, progress=False)

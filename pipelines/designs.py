@@ -3,7 +3,7 @@
 Each LDraw model (.ldr/.mpd with `0 STEP`s) becomes one object (source `design`), its id the file
 name without extension. Sub-assemblies are shown as a printed manual shows them: their own steps on
 their own, in their own frame, then one multi-brick "module" step attaching the finished
-sub-assembly to its parent (see docs/dataset.md). Each step's physics record is the replay of
+sub-assembly to its parent (see docs/concepts/dataset-contract.md). Each step's physics record is the replay of
 `pipelines.verify` (skip it with --no-physics). Same layout, resume and summary as
 `pipelines.synth`.
 """

@@ -1,7 +1,7 @@
 """Synthetic step-wise data: `python -m pipelines.synth --n N --out OUT [--seed S] [--runner local|ray] [--workers W] [--batch B]`.
 
 Samples N physics-verified objects (`factory.sampler`), renders every step and writes sharded
-Parquet under OUT (see docs/dataset.md). Re-running the same command resumes: finished shards are
+Parquet under OUT (see docs/guides/build-a-dataset.md). Re-running the same command resumes: finished shards are
 kept, the rest are built, and the result is byte-identical to an uninterrupted run. A different
 config for an existing OUT is refused. Ends with a one-line summary on stdout.
 """

@@ -307,7 +307,7 @@ def test_command_line_import_then_predict_and_score(release, tmp_path):
         assert scores["oracle"][mode]["overall"]["selection_accuracy"] == 1.0
         assert scores["oracle"][mode]["overall"]["step_success"] == 1.0
         assert scores["random"][mode]["overall"]["step_success"] < 1.0
-    # the scores quoted in docs/dataset.md and the report
+    # the scores quoted in docs/reference/bcbench-layout.md and the report
     print({m: {mode: scores[m][mode]["overall"] for mode in ("strict", "paper")} for m in scores})
 
 

@@ -1,6 +1,6 @@
 """factory.mps: when a job starts an MPS daemon of its own, and that a daemon which does not come up
 is stopped and leaves nothing behind. (The daemon's success path needs an NVIDIA GPU; it is
-measured on the lent GPU machines, docs/sampler.md.)"""
+measured on the lent GPU machines, docs/guides/gpus-and-clusters.md.)"""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """What a build ran on and used (`pipelines.dataset.usage`): the host's CPU and GPU models, and the
 GPU sampler. CI has no GPU, so the sampler is driven here by a stand-in `nvidia-smi` that prints
-the same CSV lines; on a GPU machine every build runs the real one (docs/dataset.md)."""
+the same CSV lines; on a GPU machine every build runs the real one (docs/guides/build-a-dataset.md)."""
 
 from __future__ import annotations
 

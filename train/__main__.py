@@ -16,7 +16,7 @@ resumes from the last checkpoint; other settings in an existing RUN are refused.
 Under torchrun every process trains (DistributedDataParallel, or with --shard fsdp the model
 sharded by FSDP2 for full fine-tuning; `batch_size * grad_accum * N` examples per step); rank 0
 alone writes the run folder, prints, and evaluates after training, while the others end
-(`train.loop`, docs/training.md).
+(`train.loop`, docs/guides/train.md).
 """
 
 from __future__ import annotations

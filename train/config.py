@@ -69,7 +69,7 @@ class TrainConfig:
     own examples in its own shuffled order, epoch after epoch). Empty: every example of every
     folder once per epoch, folders in proportion to their sizes."""
     model: str | None = None
-    """A local model folder to fine-tune (any supported family, see docs/training.md); None builds a
+    """A local model folder to fine-tune (any supported family, see docs/guides/train.md); None builds a
     tiny model of `base_family` into OUTDIR/base first."""
     tasks: tuple[str, ...] = field(default=TASKS, metadata={"choices": TASKS})
     """Tasks to train on; each (row, task) is one example. Feedback folders give pose only."""

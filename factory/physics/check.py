@@ -515,7 +515,7 @@ def _until_standing(call: "_Call", loads: LoadBase, links: Sequence[Link]) -> li
     solved. For an asker that takes the first survivor (`CheckRequest.judge_first`): a
     candidate's program, started from the structure's, takes a few simplex iterations, so solving
     them one by one and stopping there costs less than any batch of the programs after it
-    (docs/physics.md)."""
+    (docs/concepts/batched-checks.md)."""
     first = [e for e in call.pending if e[0] == 0]
     rest = [e for e in call.pending if e[0] != 0]
     solved: list[tuple] = []  # (pending entry, its load verdict), in the order solved

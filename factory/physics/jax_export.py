@@ -4,7 +4,7 @@ shape it has not met without tracing it.
 The persistent compilation cache (`jax_cache`) spares the XLA compile of a shape a process meets
 for the first time, but not the tracing and lowering before it: about 0.37 s of a load program's
 first launch of 0.55 s in a fresh process with the cache warm (0.21 s through an export, this
-2-core CPU, docs/sampler.md), and a grower process meets tens of shapes. `call(name, fn, *args)`
+2-core CPU, docs/concepts/batched-checks.md), and a grower process meets tens of shapes. `call(name, fn, *args)`
 runs `fn(*args)` through the kernel's export for those argument shapes, read from this folder
 when an earlier process wrote it, else exported (traced once) and written; either way the
 exported module is compiled through `jax.jit` and the compilation cache. The results are those

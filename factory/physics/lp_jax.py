@@ -54,7 +54,7 @@ once per shape met (`COMPILES`), never per call; tolerance and iteration cap are
 Memory per LP is dominated by the normal matrix, 8 m^2 bytes for m padded rows: 1.2 MB at 384 (60
 bricks: 366 rows), 2.7 MB at 576 (90 bricks: 546 rows); 4,096 of them, 11 GB.
 
-Measured (CPU and one H200, `pipelines.bench_physics --lp`): docs/physics.md, Backends.
+Measured (CPU and one H200, `pipelines.bench_physics --lp`): docs/results.md.
 
 Precision: float64, switched on only inside the call (`jax.enable_x64` as a context manager, so the
 global flag stays float32 for the rest of the project): the normal matrices' diagonals span 20

@@ -5,7 +5,7 @@ A merged rigid body on flat ground stands exactly when its centre of mass lies o
 polygon, so a rollout of the merged object adds nothing a point-in-polygon test does not give, and
 it never asks what the connections inside the structure must carry. This module asks it, as a
 linear program per structure (StableLego's formulation, as BrickGPT uses it, with our constants;
-docs/physics.md says why):
+docs/concepts/physics.md says why):
 
 - every part is a rigid body with its weight at its centre of mass;
 - every stud connection (a stud of part `a` in a socket of part `b`, stud base `p`, stud axis `n`
@@ -57,7 +57,7 @@ UP = np.array([0.0, -1.0, 0.0])
 
 @dataclass(frozen=True)
 class LoadConfig:
-    """Constants of the whole-structure load model (docs/physics.md: why these)."""
+    """Constants of the whole-structure load model (docs/concepts/physics.md: why these)."""
 
     clutch_n: float = 1.0
     """Tension one stud connection holds (N): StableLego and BrickGPT use 0.98 N per contact point,

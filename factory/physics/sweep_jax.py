@@ -573,7 +573,7 @@ def _gathered(tables: list[tuple], rows: np.ndarray, size: int) -> np.ndarray:
     """The rows `rows` (ascending) of `tables` (one bucket's (vertices, normals, edges, centres) of
     several sets, counted one after the other) packed in one (size, vertices + normals + edges + 1,
     3) array, padded to `size` by repeating its first row. A launch takes only the pieces its
-    pairs name: a round's whole tables were 14.5 MB a launch on average (docs/sampler.md), and
+    pairs name: a round's whole tables were 14.5 MB a launch on average (docs/concepts/batched-checks.md), and
     every host array is copied again on its way to the device."""
     chunks, start = [], 0
     for table in tables:

@@ -4,7 +4,7 @@ Every render takes a `Renderer` (a context manager owning the GL context, the co
 the image caches): `with Renderer(reader) as r: render_step(r, before, new)`.
 
 Importing this package chooses the headless OpenGL backend (`factory.render.gl`) before MuJoCo's GL
-modules load. See docs/render.md.
+modules load. See docs/concepts/renders.md.
 """
 
 from factory.render import gl as _gl

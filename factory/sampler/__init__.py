@@ -1,5 +1,5 @@
 """The sampler: physics-verified synthetic objects grown with a density reward, reproducible from a
-seed. See `docs/sampler.md`.
+seed. See `docs/concepts/sampler.md`.
 
     from factory.sampler import Sampler, SamplerConfig
     a = Sampler(SamplerConfig(seed=7)).sample(0)     # an Assembly

@@ -191,7 +191,7 @@ MJX_CHECK_BATCH = 16
 """`check_batch` of the batched 'mjx' checks. The walk reaches its first survivor after about 12
 candidates (30-part objects), so asking all 64 of a draw at once checked 29,380 candidates where
 16 at a time checked 11,958 (16 objects, one process): 20-22 % less host time on a 2-core CPU, and
-on one H100 (16 processes, 256 objects) 182.6 steps/s against 174.7 at 64 (docs/sampler.md)."""
+on one H100 (16 processes, 256 objects) 182.6 steps/s against 174.7 at 64 (docs/results.md)."""
 
 
 def default_check_batch(backend: str, candidates_per_step: int) -> int:
@@ -202,9 +202,9 @@ def default_check_batch(backend: str, candidates_per_step: int) -> int:
 
 JUDGE_FIRST = 4
 """`judge_first` where a request holds more candidates: about half the candidates that pass the
-clutch rule pass the sweep and the loads too (30-brick structures, docs/physics.md), so 4 of them
+clutch rule pass the sweep and the loads too (30-brick structures, docs/concepts/physics.md), so 4 of them
 hold the first survivor in most requests. Growing 30-part objects in 16 processes on an H100, 4
-was faster than 2 and 1 (docs/sampler.md): each further request is another round of launches."""
+was faster than 2 and 1 (docs/results.md): each further request is another round of launches."""
 
 
 def default_judge_first(check_batch: int) -> int:

@@ -4,7 +4,7 @@
     summary = build(config, "out/synth", backend="local", workers=2)
 
 The row contract (tasks, prompts, answer formats, schema, meta/info.json) is `factory.dataset`;
-the names below from it are re-exported. See docs/dataset.md: rows, layout, determinism and
+the names below from it are re-exported. See docs/concepts/dataset-contract.md: rows, layout, determinism and
 resume, the Ray backend, the designs source.
 """
 

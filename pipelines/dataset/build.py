@@ -206,7 +206,7 @@ def _run_ray(config, todo, out, workers, bar, source=None):
 def growers_of(workers: int, growers: int | None = None) -> int:
     """Grower tasks of a lockstep build: `growers` (at most the workers), by default two thirds of
     the workers (on one H200 machine a step's growth took 0.32 s of a process at batch 16, its
-    render and encoding 0.20 s of a worker: `docs/sampler.md`, issue measurements)."""
+    render and encoding 0.20 s of a worker: `docs/results.md`)."""
     return min(max(1, workers), growers or max(1, (2 * workers) // 3))
 
 

@@ -3,7 +3,7 @@ the build's processes, and each NVIDIA GPU's utilisation and memory while it ran
 
 Build times differ by host more than by most code changes: `make synth N=700` with the reference
 checks took 446 s on one lent 16-core H200 machine and 571 s on another, whose CPUs went unrecorded
-(docs/dataset.md). So every build records them itself, in `meta/timings.json` and its summary line.
+(docs/guides/build-a-dataset.md). So every build records them itself, in `meta/timings.json` and its summary line.
 
 The GPU figures come from `nvidia-smi` run beside the build (`GpuWatch`), one sample a second:
 utilisation is the share of each second in which a kernel ran (the driver's own figure, as
