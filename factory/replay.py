@@ -5,7 +5,8 @@ and the physics records of the design dataset source (`pipelines.dataset.sources
 
 Each placed part is checked against the parts placed before it in the same sub-assembly (the first
 part of a sub-assembly, or one laid on the table beside it, needs no connection; a part may hang
-from another part of its own step); a completed sub-assembly is checked as one rigid unit against
+from another part of its own step, or be held in hand until the next step's parts of its assembly
+hold it); a completed sub-assembly is checked as one rigid unit against
 the parts of its parent placed before it. Each sub-assembly is checked in its own frame (as its
 author built it) and is held in hand while built: only the main model must stand on the ground,
 sub-assemblies are judged on their connections.
@@ -155,6 +156,15 @@ parts placed before it; the turn also against the finished design (`TURN_FINISHE
 TURN_FINISHED = "turn-in-finished-design"
 
 
+def _held_by(structure: Structure, later: list[Placed]) -> Structure | None:
+    """`structure` with the next step's parts added (None when there are none)."""
+    if not later:
+        return None
+    held = Structure(structure.placed + later)
+    held.links.extend(structure.links)
+    return held
+
+
 def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckConfig = CheckConfig(),
                  faults: bool = False):
     """Yield one record per placed part and per sub-assembly attachment, in build order.
@@ -202,6 +212,13 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
                 out += [q for q in locals_of[id(step)] if _solid(q.part)]
         return out
 
+    next_step: dict[int, list[Placed]] = {}
+    """Per step: the solid parts of the next step of its assembly, in its frame."""
+    for i, step in enumerate(steps):
+        later = next((t for t in steps[i + 1:] if t.assembly == step.assembly), None)
+        if later is not None:
+            next_step[id(step)] = [q for q in locals_of[id(later)] if _solid(q.part)]
+
     structures: dict[str, Structure] = {}
     """The parts placed so far in every open assembly, in its own frame, with their rigid links."""
     for event in walk(steps, frames):
@@ -243,6 +260,13 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
                 judged_on = Structure(structure.placed + [q for q in locals_[index + 1 :] if _solid(q.part)])
                 judged_on.links.extend(structure.links)
                 (v,) = check_units(judged_on, [[local]], backend, config, standing=standing)
+            held = _held_by(judged_on, next_step.get(id(step), [])) if v.reason in ("no-connection", "unstable") else None
+            if held is not None:
+                # Held in hand until the next step's parts of its assembly are on (a plate laid
+                # beside the model, then fixed from below): accepted if they hold it.
+                (w,) = check_units(held, [[local]], backend, config, standing=standing)
+                if w.ok:
+                    v, judged_on = w, held
             yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour)
             if faults and v.ok and v.connected:
                 # Faults move the part off the connections it was accepted on: those of the

@@ -303,6 +303,32 @@ def test_sub_assemblies_of_one_step_go_in_together(write, step, reason):
     assert units["main/prop.ldr#1"]["reason"] is None and units["main/prop.ldr#1"]["connections"] == 1, units
 
 
+HELD = """0 FILE held.ldr
+1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat
+0 STEP
+1 4 100 -8 0 1 0 0 0 1 0 0 0 1 3020.dat
+0 STEP
+{step}1 4 100 0 0 1 0 0 0 1 0 0 0 1 3001.dat
+"""
+
+
+@pytest.mark.parametrize("step, reason", [("", None), ("1 4 -100 0 0 1 0 0 0 1 0 0 0 1 3001.dat\n0 STEP\n",
+                                                    "no-connection")])
+def test_a_part_is_held_in_hand_until_the_next_steps_parts_hold_it(write, step, reason):
+    # X-wing Fighter (Mini), step 1: a 3x2 plate with a hole laid beside the first plates,
+    # touching none, fixed from below by the next step's plates. Here a 2x4 plate beside a brick,
+    # a plate's height off the table, and a brick under it in the next step: held until then, it
+    # is accepted; with a step between (another brick on the table), nothing holds it. Lifted off the brick, it is rejected.
+    from factory.replay import verify_model
+
+    path = write("held.ldr", HELD.format(step=step))
+    records = list(verify_model(path, None, faults=True))
+    plate = [r for r in records if r["part"] == "3020.dat" and "fault" not in r]
+    assert [r["reason"] for r in plate] == [reason], plate
+    lifted = [r for r in records if r["part"] == "3020.dat" and r.get("fault") == "lift"]
+    assert all(r["reason"] == "no-connection" for r in lifted) and len(lifted) == (reason is None), lifted
+
+
 # Vintage Car (verify's steps 50-53): the rear mudguards 35789 of the two step 26 units, then 1x3
 # plates and a 1x4 plate laid beside their rounded ends, above their sockets, on the open side
 # of the corner between a mudguard's side face and the wall of its row of sockets. Real poses.
