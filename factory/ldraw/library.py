@@ -261,15 +261,6 @@ class MemorySource:
     def names(self) -> list[str]:
         return [k.rsplit("/", 1)[-1] for k in self.files]
 
-    def _archive(self) -> zipfile.ZipFile:
-        # A forked worker inherits the open file and with it the parent's file offset, which every
-        # process then moves under the others' reads (zlib's "invalid distance too far back" on the
-        # lent machine's 16 workers): each process opens the archive for itself.
-        if self._pid != os.getpid():
-            self._zip = zipfile.ZipFile(self.path)
-            self._pid = os.getpid()
-        return self._zip
-
     def part_files(self) -> list[str]:
         return sorted(k[6:] for k in self.files if k.startswith("parts/") and k.count("/") == 1 and k.endswith(".dat"))
 
