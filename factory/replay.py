@@ -5,8 +5,8 @@ and the physics records of the design dataset source (`pipelines.dataset.sources
 
 Each placed part is checked against the parts placed before it in the same sub-assembly (the first
 part of a sub-assembly, or one laid on the table beside it, needs no connection; a part may hang
-from another part of its own step, or be held in hand until the next step's parts of its assembly
-hold it); a completed sub-assembly is checked as one rigid unit against
+from another part of its own step, or be held in hand until what the next step of its assembly
+places holds it); a completed sub-assembly is checked as one rigid unit against
 the parts of its parent placed before it. Each sub-assembly is checked in its own frame (as its
 author built it) and is held in hand while built: only the main model must stand on the ground,
 sub-assemblies are judged on their connections.
@@ -213,11 +213,20 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
         return out
 
     next_step: dict[int, list[Placed]] = {}
-    """Per step: the solid parts of the next step of its assembly, in its frame."""
-    for i, step in enumerate(steps):
-        later = next((t for t in steps[i + 1:] if t.assembly == step.assembly), None)
-        if later is not None:
-            next_step[id(step)] = [q for q in locals_of[id(later)] if _solid(q.part)]
+    """Per step: what the next STEP block of its assembly's file places, in that assembly's frame
+    (its parts, and the sub-assemblies it attaches, whole)."""
+    for step in steps:
+        ours = [t for t in steps if t.assembly == step.assembly and t.block > step.block]
+        units = [t for t in finished if parent_of(t) == step.assembly and blocks.get(t, -1) > step.block]
+        following = min([t.block for t in ours] + [blocks[t] for t in units], default=None)
+        if following is None:
+            continue
+        held = [q for t in ours if t.block == following for q in locals_of[id(t)] if _solid(q.part)]
+        for t in units:
+            if blocks[t] == following:
+                move = relative_frame(frames, step.assembly, t)
+                held += [Placed(q.part, q.colour, move @ q.pose) for q in finished[t]]
+        next_step[id(step)] = held
 
     structures: dict[str, Structure] = {}
     """The parts placed so far in every open assembly, in its own frame, with their rigid links."""
@@ -262,8 +271,9 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
                 (v,) = check_units(judged_on, [[local]], backend, config, standing=standing)
             held = _held_by(judged_on, next_step.get(id(step), [])) if v.reason in ("no-connection", "unstable") else None
             if held is not None:
-                # Held in hand until the next step's parts of its assembly are on (a plate laid
-                # beside the model, then fixed from below): accepted if they hold it.
+                # Held in hand until the next step of its assembly is on (a plate laid beside the
+                # model, then fixed from below; a brick set on a horse that comes next, whole):
+                # accepted if that holds it.
                 (w,) = check_units(held, [[local]], backend, config, standing=standing)
                 if w.ok:
                     v, judged_on = w, held
