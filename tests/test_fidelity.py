@@ -329,6 +329,26 @@ def test_a_part_is_held_in_hand_until_the_next_steps_parts_hold_it(write, step, 
     assert all(r["reason"] == "no-connection" for r in lifted) and len(lifted) == (reason is None), lifted
 
 
+HELD_BY_UNIT = """0 FILE held.ldr
+1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat
+0 STEP
+1 4 100 -8 0 1 0 0 0 1 0 0 0 1 3020.dat
+0 STEP
+1 16 100 0 0 1 0 0 0 1 0 0 0 1 leg.ldr
+0 FILE leg.ldr
+1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat
+"""
+
+
+def test_a_part_is_held_in_hand_until_a_sub_assembly_of_the_next_step_holds_it(write):
+    # Covered Wagon's horse: a brick set on what the next step attaches as a sub-assembly.
+    from factory.replay import verify_model
+
+    path = write("held.mpd", HELD_BY_UNIT)
+    plate = [r for r in verify_model(path, None) if r["part"] == "3020.dat"]
+    assert [r["reason"] for r in plate] == [None], plate
+
+
 # Vintage Car (verify's steps 50-53): the rear mudguards 35789 of the two step 26 units, then 1x3
 # plates and a 1x4 plate laid beside their rounded ends, above their sockets, on the open side
 # of the corner between a mudguard's side face and the wall of its row of sockets. Real poses.
