@@ -156,6 +156,19 @@ parts placed before it; the turn also against the finished design (`TURN_FINISHE
 TURN_FINISHED = "turn-in-finished-design"
 
 
+def stud_pairs(structure: Structure, unit: list[Placed]) -> int:
+    """Stud-in-socket pairs between a unit at its pose and the structure, whatever the checks say
+    of it: whether the design connects the placement by studs (a tyre on its rim, a part held only
+    by a clip, or one laid loose has none)."""
+    sp, sa, _ = structure.studs
+    kp, ka, _ = structure.sockets
+    n = 0
+    for q in unit:
+        n += len(match(sp, sa, *connectors(q.part, q.pose, "sockets")))
+        n += len(match(*connectors(q.part, q.pose, "studs"), kp, ka))
+    return n
+
+
 def _held_by(structure: Structure, later: list[Placed]) -> Structure | None:
     """`structure` with the next step's parts added (None when there are none)."""
     if not later:
@@ -247,7 +260,8 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
                 judged_on.links.extend(parent.links)
                 (v,) = check_units(judged_on, [unit], backend, config, standing=standing, unit_links=done.links)
             yield _record(v, step=event.last_step, index=0, part=event.tag.rsplit("/", 1)[-1],
-                          color=unit[0].colour, unit=True, assembly=event.tag)
+                          color=unit[0].colour, unit=True, assembly=event.tag,
+                          stud_pairs=stud_pairs(judged_on if along else parent, unit))
             _add_unit(parent, unit, done.links, v)
             continue
         step = event.step
@@ -277,7 +291,8 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
                 (w,) = check_units(held, [[local]], backend, config, standing=standing)
                 if w.ok:
                     v, judged_on = w, held
-            yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour)
+            yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour,
+                          stud_pairs=stud_pairs(judged_on, [local]))
             if faults and v.ok and v.connected:
                 # Faults move the part off the connections it was accepted on: those of the
                 # structure it was judged against (with the later parts of its step, if it hangs).
@@ -294,12 +309,18 @@ def summarize(records: list[dict]) -> dict:
     """Fidelity (share of stud-connected placements accepted) and fault rejection rates."""
     plain = [r for r in records if "fault" not in r]
     judged = [r for r in plain if r["reason"] not in ("unsupported-connection", NO_VOLUME)]
+    studded = [r for r in judged if r.get("stud_pairs", 0) > 0]
     out = {
         "placements": len(plain),
         "unsupported_connection": sum(r["reason"] == "unsupported-connection" for r in plain),
         "no_volume": sum(r["reason"] == NO_VOLUME for r in plain),
         "accepted": sum(r["reason"] is None for r in judged),
         "fidelity": (sum(r["reason"] is None for r in judged) / len(judged)) if judged else None,
+        # The same over the placements the design connects by studs (`stud_pairs`): a part with
+        # none (a tyre on a rim, cloth, a part laid loose) is judged above but not here.
+        "stud_connected": len(studded),
+        "stud_accepted": sum(r["reason"] is None for r in studded),
+        "stud_fidelity": (sum(r["reason"] is None for r in studded) / len(studded)) if studded else None,
         "rejections": dict(Counter(r["reason"] for r in judged if r["reason"])),
         # Steps a person built in this order that the sweep finds unbuildable, and those whose
         # approach was not judged (connections on two axes).

@@ -327,6 +327,15 @@ def test_a_part_is_held_in_hand_until_the_next_steps_parts_hold_it(write, step, 
     assert [r["reason"] for r in plate] == [reason], plate
     lifted = [r for r in records if r["part"] == "3020.dat" and r.get("fault") == "lift"]
     assert all(r["reason"] == "no-connection" for r in lifted) and len(lifted) == (reason is None), lifted
+    # Stud-connected placements are those the design connects by studs, whatever the checks say:
+    # the brick under the plate (into its sockets), and the plate when that brick holds it.
+    from factory.replay import summarize
+
+    pairs = [(r["part"], r["stud_pairs"]) for r in records if "fault" not in r]
+    assert pairs == [("3001.dat", 0), ("3020.dat", 8 if reason is None else 0)] + \
+        ([("3001.dat", 0)] if reason else []) + [("3001.dat", 8)], pairs
+    summary = summarize(records)
+    assert summary["stud_connected"] == (2 if reason is None else 1) and summary["stud_fidelity"] == 1.0
 
 
 HELD_BY_UNIT = """0 FILE held.ldr
