@@ -8,7 +8,7 @@ import pytest
 
 from factory.physics.attach import feasible_poses
 from factory.physics.structure import Structure
-from factory.physics.sweep import approach
+from factory.physics.sweep import PRESS_MIN_LDU, approach
 from conftest import at, part
 from test_sweep import swept
 
@@ -45,9 +45,13 @@ def test_a_side_attachment_is_blocked_by_a_part_in_front_of_it():
     structure = Structure(BASE)
     pose = _sideways(structure, "3024")[0]
     plate = at("3024", *pose.t, R=pose.R)
-    wall = at("3005", 10, -24, -70)  # a 1x1 brick standing in the plate's way out along -z
+    wall = at("3005", 10, -24, -60)  # a 1x1 brick 18 LDU in front of the plate's stud, along -z
     r = swept(BASE + [wall], [plate])
     assert r.buildable is False and r.reason == "blocked" and r.blocked_by == (2,)
+    # 28 LDU in front: room for a fingertip's end (`sweep.PRESS_MIN_LDU`), the plate brought in
+    # from the side.
+    r = swept(BASE + [at("3005", 10, -24, -70)], [plate])
+    assert r.buildable and r.at_ldu == PRESS_MIN_LDU
 
 
 def test_the_load_model_carries_a_side_stud_across_and_along_its_own_axis():
