@@ -23,7 +23,7 @@ DESIGNS ?= out/designs
 STAGE_STEPS ?= 200,100,200
 GPUS ?= 1
 
-.PHONY: setup synth designs train bench test clean
+.PHONY: setup synth designs train bench test test-fast clean
 
 setup: $(STAMP)
 
@@ -71,6 +71,11 @@ bench: setup
 # process (--dist loadfile) so that a file's shared fixtures are made once.
 test: setup
 	$(PY) -m pytest -q -n auto --dist loadfile
+
+# The development lane: the suite without the tests marked slow (whole builds, training runs,
+# wheels in fresh environments, large batches; pyproject.toml lists the markers).
+test-fast: setup
+	$(PY) -m pytest -q -n auto --dist loadfile -m "not slow"
 
 clean:
 	rm -rf $(VENV) .pytest_cache

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -10,9 +11,13 @@ import pytest
 
 from factory.ldraw import Library, Reader
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
+SHARED = Path(os.environ.get("BRICK_FACTORY_SHARED") or Path(__file__).resolve().parents[2] / "shared")
+"""The real LDraw data the tests read (`ldraw/`, `ldraw_models/`, `designs/`, `ldraw_library.zip`):
+`$BRICK_FACTORY_SHARED`, else `../shared` beside the checkout."""
 LDRAW = SHARED / "ldraw"
 MODELS = SHARED / "ldraw_models"
+LIBRARY_ZIP = SHARED / "ldraw_library.zip"
+DESIGNS = SHARED / "designs"
 
 needs_ldraw = pytest.mark.skipif(
     not (LDRAW / "parts").is_dir(),

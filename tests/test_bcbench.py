@@ -289,6 +289,7 @@ def test_import_symmetry_from_the_ldraw_library(release, tmp_path):
     assert without["rotation_error_deg"] == pytest.approx(180.0) and without["step_success"] == 0.0
 
 
+@pytest.mark.slow
 def test_command_line_import_then_predict_and_score(release, tmp_path):
     out = tmp_path / "cli"
     r = _run("pipelines.bcbench", "import", str(release), str(out))
@@ -361,6 +362,7 @@ def _edit(path: Path, change) -> None:
     path.write_text(json.dumps(data))
 
 
+@pytest.mark.slow
 def test_command_line_errors_are_one_line(release, tmp_path):
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "x").write_text("")
@@ -454,6 +456,7 @@ def test_export_refuses_a_folder_that_is_not_empty(tiny_dataset, tmp_path):
     assert [p.name for p in (tmp_path / "dest").iterdir()] == ["keep.txt"]
 
 
+@pytest.mark.slow
 def test_round_trip_gives_the_same_targets_answers_and_scores(tiny_dataset, exported, tmp_path):
     back = tmp_path / "back"
     s = import_bcbench(exported, back, ldraw="embedded", dataset_id="brick-factory-synth")

@@ -13,6 +13,7 @@ import pytest
 from pipelines import bench
 
 
+@pytest.mark.slow
 def test_quick_bench_writes_report_and_plots(tmp_path):
     out = tmp_path / "bench"
     assert bench.main(["--out", str(out), "--quick", "--backends", "mujoco", "--models"]) == 0
@@ -160,6 +161,7 @@ def test_batched_growth_rows_count_the_compiles_in_their_window():
     assert bench_physics._JIT["compiles"] == 1
 
 
+@pytest.mark.slow
 def test_grower_processes_load_the_kernels_one_process_compiled(tmp_path, monkeypatch):
     """`bench_physics --growth --procs 2` on the batched path, with an empty compilation cache:
     one process grows the warm-up objects alone first and compiles their kernels into the
@@ -192,6 +194,7 @@ def _fails(n: int):
     raise ValueError(f"not an out-of-memory error ({n})")
 
 
+@pytest.mark.slow
 def test_a_call_out_of_device_memory_is_listed_and_the_part_goes_on():
     """`bench.part_rows` on a GPU (each call in its own process): a call that runs out of the
     device's memory (a real JAX allocation failure, here of the CPU backend) is listed with its

@@ -58,6 +58,7 @@ def test_embedded_library_is_used_without_ldraw():
         (b"\x00\x01\x02binary", "binary data"),
     ],
 )
+@pytest.mark.slow
 def test_bad_input_is_one_line_error_and_nonzero_exit(tmp_path, content, expected):
     bad = tmp_path / "bad.ldr"
     if isinstance(content, bytes):
@@ -87,6 +88,7 @@ def test_bad_library_folder(tmp_path):
     ("empty.ldr", "0 an empty model\n0 STEP\n"),
     ("empty-main.mpd", "0 FILE main.ldr\n0 nothing here\n0 FILE b.ldr\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat\n"),
 ])
+@pytest.mark.slow
 def test_a_model_that_places_no_parts_is_an_error(tmp_path, name, content):
     path = tmp_path / name
     path.write_text(content)
@@ -112,6 +114,7 @@ def test_console_script_lists_commands_and_refuses_unknown_ones(capsys):
     assert "unknown command 'synthesise'" in err and "synth" in err and err.count("\n") == 1
 
 
+@pytest.mark.slow
 def test_console_script_runs_each_command_as_its_module():
     """`brick-factory NAME ARGS` is `python -m MODULE ARGS`: same output, same exit status."""
     from pipelines.commands import COMMANDS

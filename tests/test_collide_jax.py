@@ -40,6 +40,7 @@ def questions():
     return out
 
 
+@pytest.mark.slow
 def test_depths_and_touching_parts_are_those_of_mujoco(questions, monkeypatch):
     probes = []
     real = collide_jax._Job._studs_cross

@@ -285,6 +285,7 @@ def test_killed_run_resumes_to_identical_bytes(built, tmp_path):
     _assert_identical(built, out)
 
 
+@pytest.mark.slow
 def test_ray_backend_gives_the_same_bytes(built, tmp_path):
     ray = pytest.importorskip("ray")
     out = tmp_path / "ray"
@@ -324,6 +325,7 @@ def test_export_llamafactory(built, tmp_path):
     assert first["messages"][1]["content"] == row["selection_answer"]
 
 
+@pytest.mark.slow
 def test_export_llamafactory_merges_into_a_users_registry(built, tmp_path):
     """`dataset_info.json` of a LLaMA-Factory data folder in use was replaced, losing the user's
     entries. Now they are kept and the export says so; a clash of names and a broken registry are
@@ -352,6 +354,7 @@ def test_export_llamafactory_merges_into_a_users_registry(built, tmp_path):
     assert r.returncode == 2 and "dataset_info.json:3:" in r.stderr and r.stderr.count("\n") == 1
 
 
+@pytest.mark.slow
 def test_local_worker_processes_give_the_same_bytes(built, tmp_path):
     out = tmp_path / "pool"
     s = build(_config(), out, backend="local", workers=2, progress=False)
@@ -369,6 +372,7 @@ def test_local_worker_processes_give_the_same_bytes(built, tmp_path):
     assert f"on {os.cpu_count()} x {used['host']['cpu_model']}" in summary_line(s)
 
 
+@pytest.mark.slow
 def test_lockstep_build_gives_the_same_bytes_and_keeps_grown_objects(built, tmp_path):
     """Objects grown together by grower workers while the others render (`--batch`, `--growers`)
     give the same files; objects grown before a kill are taken from the spool, not grown again."""
@@ -396,6 +400,7 @@ def test_lockstep_build_gives_the_same_bytes_and_keeps_grown_objects(built, tmp_
         build(config, tmp_path / "bad", batch=2, growers=0, progress=False)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc; the parent-death signal is Linux's")
 def test_workers_end_with_a_killed_build(tmp_path):
     """`kill -9` of a `synth --workers 2` ends its worker processes too (they used to finish their
@@ -443,6 +448,7 @@ def test_gpu_share_of_a_numbered_worker(monkeypatch):
     assert gpus.choose_egl_device() is None and "MUJOCO_EGL_DEVICE_ID" not in os.environ
 
 
+@pytest.mark.slow
 def test_a_waiting_shard_renders_each_object_as_it_is_grown(tmp_path):
     """`build_shard(..., wait=True)` (a lockstep build's shard started before its objects are all
     grown) renders each object as it is spooled, whatever its index, waits while the growers run,
@@ -516,6 +522,7 @@ def test_png_level_reaches_the_config_and_its_hash():
     assert (six.png_compress_level, one.png_compress_level) == (6, 1) and six.hash != one.hash
 
 
+@pytest.mark.slow
 def test_a_second_run_on_the_same_folder_is_refused_naming_the_first(tmp_path):
     """Two runs on one OUT would delete each other's temporary files: the second is refused while
     the first holds the folder, the folder is free again (no lock file left) once it ends, and a
@@ -559,6 +566,7 @@ def test_a_second_run_on_the_same_folder_is_refused_naming_the_first(tmp_path):
     (["--seed", str(2 ** 70)], "seed must be"),
     (["--max-steps", "100000"], "max_steps"),
 ])
+@pytest.mark.slow
 def test_config_errors_are_found_before_anything_is_written(tmp_path, args, message):
     """A bad part, library, seed or length exits 2 at once, the folder not created: the corrected
     command is then not refused as 'a different config'."""
@@ -633,6 +641,7 @@ too: `gallery/img/` was not covered) are removed, so
     assert sorted(p.relative_to(out) for p in out.rglob("*")) == sorted(p.relative_to(built) for p in built.rglob("*"))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dataset_id", ["../../escaped", "lego: v2", ".hidden", "a/b"])
 def test_a_dataset_id_that_is_not_a_plain_name_is_refused(tmp_path, dataset_id):
     out = tmp_path / "out"
@@ -702,6 +711,7 @@ def test_start_reads_only_the_markers_there(tmp_path, monkeypatch):
         _config(n_objects=MAX_OBJECTS + 1)
 
 
+@pytest.mark.slow
 def test_a_shard_with_batched_checks_grows_its_objects_together(tmp_path, monkeypatch):
     """With the batched checks ('mjx') and no growers (`--batch 1`), a shard grows its objects in
     lockstep, so each round of device calls serves all of them (one at a time it made a round per
@@ -729,6 +739,7 @@ def test_a_shard_with_batched_checks_grows_its_objects_together(tmp_path, monkey
 
 # 1.3 s: `import mujoco` (MUJOCO_GL unset) imported glfw there, whose version probe starts a Python
 # child that printed Python's own "Fatal Python error" under our line; a command now pins MUJOCO_GL.
+@pytest.mark.slow
 @pytest.mark.parametrize("delay", [0.4, 1.3, 3.5])
 def test_ctrl_c_while_starting_or_building_is_one_line_and_the_resume_is_identical(built, tmp_path, delay):
     """Ctrl-C in a build's first second was ignored (trimesh catches BaseException round an

@@ -17,9 +17,10 @@ import pytest
 from factory import read_steps
 from pipelines.dataset.sources import manual_steps
 
+from conftest import SHARED
+
 ROOT = Path(__file__).resolve().parents[1]
 TOWER = ROOT / "factory" / "data" / "examples" / "tower.mpd"
-SHARED = ROOT.parent / "shared"
 LDRAW = SHARED / "ldraw"
 CAR = SHARED / "ldraw_models" / "car.ldr"
 MINI = SHARED / "ldraw_models" / "4915-1-MiniConstruction.mpd"
@@ -78,6 +79,7 @@ def test_nested_submodels_place_every_part_once():
     assert sorted(map(_key, final)) == sorted(_key(p) for s in build for p in s.parts)
 
 
+@pytest.mark.slow
 @needs_ldraw
 def test_designs_cli_on_the_car(tmp_path):
     """The car end to end through the command line (render only: coacd of its real parts is slow on

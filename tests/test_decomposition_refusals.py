@@ -33,6 +33,7 @@ def test_a_refused_decomposition_is_kept_and_not_tried_again_under_the_same_limi
     assert "refused before" not in str(wider.value)
 
 
+@pytest.mark.slow
 def test_a_decomposition_past_its_time_limit_is_tried_again_at_coarser_settings(monkeypatch, tmp_path):
     """LDraw's 6061, 48169 and 4746 took more than 300 s at the default settings and were left out
     of every library; a decomposition that runs past its limit is tried again at `COARSE`

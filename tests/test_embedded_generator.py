@@ -9,7 +9,6 @@ import hashlib
 import math
 import re
 from collections import Counter
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,7 +20,9 @@ from factory.ldraw import Library, Reader
 from factory.ldraw.library import MemorySource
 from factory.ldraw.parse import parse_lines
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "ldraw"
+from conftest import SHARED
+
+REAL = SHARED / "ldraw"
 needs_real = pytest.mark.skipif(
     not (REAL / "parts").is_dir(), reason=f"real LDraw library not found at {REAL}"
 )

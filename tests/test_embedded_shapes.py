@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,7 +21,9 @@ from factory.embedded.geometry import Mesh, bored_prism, lathe, prism
 from factory.ldraw import Library, Reader
 from factory.parts import load_part
 
-REAL_ZIP = Path(__file__).resolve().parents[2] / "shared" / "ldraw_library.zip"
+from conftest import LIBRARY_ZIP
+
+REAL_ZIP = LIBRARY_ZIP
 
 REAL_NAME = {
     "6141": "6141",

@@ -55,6 +55,7 @@ def test_ids(tiny_dataset) -> list[str]:
 # -- baselines through both command lines ------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_oracle_scores_perfect_through_the_command_lines(tiny_dataset, tmp_path, test_ids):
     pred = tmp_path / "oracle.jsonl"
     p = _cli("eval.predict", "--data", tiny_dataset, "--model", "baseline:oracle", "--out", pred, "--no-progress")

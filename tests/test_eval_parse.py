@@ -73,6 +73,7 @@ def test_fuzz_parsers_never_raise(text):
     _check_outputs(text)
 
 
+@pytest.mark.slow
 @settings(FUZZ, max_examples=1000)
 @given(st.lists(st.sampled_from(POSE.splitlines(keepends=True)) | ADVERSARIAL, max_size=20).map("".join))
 def test_fuzz_shuffled_and_truncated_blocks(text):

@@ -8,6 +8,8 @@ import importlib.util
 import sys
 from pathlib import Path
 
+import pytest
+
 HOSTILE = Path(__file__).resolve().parent / "hostile"
 
 
@@ -30,6 +32,7 @@ def test_generate_writes_every_case(tmp_path):
     assert sum(p.stat().st_size for p in (tmp_path / "ldraw").rglob("*") if p.is_file()) < 8 << 20
 
 
+@pytest.mark.slow
 def test_quick_subset_ends_within_limits_without_traceback(tmp_path):
     run = _load("run")
     results = run.run_all(tmp_path, quick=True, timeout=30, mem_mb=2048)
@@ -54,6 +57,7 @@ def test_designs_exits_2_on_a_bad_part_found_inside_a_shard(tmp_path):
     assert "reference cycle" in result.stderr and "fix the input" in result.stderr and result.stderr.count("\n") == 1
 
 
+@pytest.mark.slow
 def test_unknown_colours_are_input_errors_in_every_command(tmp_path):
     """A colour code of 10^40 went through steps, verify and render (exit 0) and ended designs in
     an OverflowError ("re-run the same command"); a code no LDConfig.ldr has and no rule allows
@@ -80,6 +84,7 @@ def test_a_million_triangle_part_is_refused_by_the_renders_in_one_line(tmp_path)
     assert "1,000,000 triangles; renders take parts of at most 250,000" in by["render"].stderr
 
 
+@pytest.mark.slow
 def test_bad_flag_values_a_zip_library_and_bad_predictions_end_in_one_line(tmp_path):
     """Each ended in a traceback (a weight that is no number, weights whose sum overflows, a
     --predict of nan, 1e308 or a word: also exit 1, not 2); a zip library, now read in place, is

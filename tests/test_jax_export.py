@@ -94,6 +94,7 @@ def _first_launch(barrier) -> list[int]:
     return list(jax_export.EXPORTS)
 
 
+@pytest.mark.slow
 def test_processes_meeting_a_new_shape_at_once_export_it_once(exports, tmp_path, monkeypatch):
     """Two processes launch the same new shape at the same moment: one exports and compiles it, the
     other waits on its lock and then reads the export (without the lock both would export it)."""

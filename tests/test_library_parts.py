@@ -19,8 +19,9 @@ from factory.symmetry import find_symmetry, symmetry_cached
 from pipelines.prepare import pack, survey, unpack
 from pipelines.realism import compare, coverage, read_collection
 
+from conftest import LDRAW
+
 ROOT = Path(__file__).resolve().parents[1]
-LDRAW = ROOT.parent / "shared" / "ldraw"
 needs_ldraw = pytest.mark.skipif(not (LDRAW / "parts").is_dir(), reason=f"the real LDraw subset is not at {LDRAW}")
 
 
@@ -44,6 +45,7 @@ def test_every_part_of_a_library_is_usable_or_listed_with_its_reason(real_reader
         assert s.reason is None or not s.reason.startswith(("cannot be read", "collision")), (s.part, s.reason)
 
 
+@pytest.mark.slow
 @needs_ldraw
 def test_the_parts_command_tables_the_library_by_category(tmp_path):
     out = _run("pipelines.parts", "--ldraw", str(LDRAW), "--all", "--workers", "2", "--no-progress")

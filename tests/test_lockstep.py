@@ -21,6 +21,7 @@ def alone() -> dict[int, bytes]:
     return {a.index: a.ldr_text(f"object_{a.index:05d}.ldr").encode() for a in s.sample_many(range(64))}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("batch", [4, 64])
 def test_objects_are_byte_identical_whatever_the_batch(alone, batch, tmp_path):
     s = Sampler(SamplerConfig(seed=3, **TINY))
@@ -105,6 +106,7 @@ def _requests(n_objects: int = 6, per: int = 48) -> list[CheckRequest]:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend", ["mujoco", "mjx"])
 def test_check_many_answers_each_request_as_check_does(backend):
     if backend == "mjx":
@@ -176,6 +178,7 @@ def test_judge_first_leaves_only_later_survivors_unjudged(backend):
         check_many([replace(requests[0], judge_first=0)], backend)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend", ["mujoco", "mjx"])
 def test_loads_after_the_first_candidate_go_in_the_askers_order(backend):
     """With `CheckRequest.order`, when a request's first candidate does not stand, the load programs
@@ -262,6 +265,7 @@ def test_check_batch_bounds_each_request_and_smaller_requests_ask_fewer_candidat
     assert max(n for sizes, _ in asked[16] for n in sizes) > 3  # the larger bound was used
 
 
+@pytest.mark.slow
 def test_the_batched_walk_solves_only_the_load_programs_the_reference_solves(monkeypatch):
     """Objects of the default config (of 10-12 steps) grown two at a time with the batched checks
     (requests of `check_batch` candidates, `judge_first` of them judged) solve exactly the load programs the

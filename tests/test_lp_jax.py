@@ -223,6 +223,7 @@ def real_models():
     return [m for m in load_models(s, poses) if not tips(m)][::3]
 
 
+@pytest.mark.slow
 def test_real_load_programs_and_their_verdicts_near_the_limit_match_highs(real_models):
     """At least 1,000 real load programs in one call: each model at the default clutch, at clutches
     that put its s near 1 (s scales as 1 / clutch where shear does not bind: s = 1/u for clutch
@@ -271,6 +272,7 @@ def test_real_load_programs_and_their_verdicts_near_the_limit_match_highs(real_m
         assert [(v.stands, v.reason) for v in a] == [(v.stands, v.reason) for v in b]
 
 
+@pytest.mark.slow
 def test_candidates_judged_on_the_structures_shared_columns_match_highs():
     """`judge_on_base` with `solve_on_base` (the structure's columns sent once, each candidate's
     own joined on the device) gives `judge_many`'s HiGHS verdicts, loads and failing connections
@@ -304,6 +306,7 @@ def test_candidates_judged_on_the_structures_shared_columns_match_highs():
             assert sum(v.reason == "overload" for v in ref) >= 20
 
 
+@pytest.mark.slow
 def test_programs_of_several_structures_share_launches_and_match_highs(monkeypatch):
     """`judge_on_bases` (objects grown in lockstep): the candidates of three structures (12, 20 and
     30 bricks of one grown object) solved together give each structure's HiGHS verdicts and

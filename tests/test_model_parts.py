@@ -80,6 +80,7 @@ def test_verify_finds_the_models_own_part(layout, write):
     assert recs[1]["connected"] and not recs[1]["collision"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("layout", LAYOUTS)
 def test_render_finds_the_models_own_part(layout, write, tmp_path):
     """`pipelines.render` refused a step placing the model's own part ("cannot find 'mybrick.dat'"):

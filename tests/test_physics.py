@@ -251,6 +251,7 @@ def _random_candidates(rng, n):
     return cases
 
 
+@pytest.mark.slow
 def test_mujoco_and_mjx_backends_agree_on_200_candidates():
     pytest.importorskip("jax")
     rng = np.random.default_rng(7)
@@ -324,6 +325,7 @@ def test_which_parts_may_be_held_by_connections_not_modelled(real_reader, name, 
     assert (unmodelled.held_otherwise(p), unmodelled.offers_other(p)) == (held_otherwise, offers_other)
 
 
+@pytest.mark.slow
 def test_a_pin_is_excused_only_in_the_hole(real_reader):
     # A Technic beam 1 (18654: one pin hole along Y through its centre, 20 LDU long) and a friction
     # pin (2780: two 20 LDU halves along X from its collar) turned to run along Y, half in the hole.

@@ -144,6 +144,7 @@ def test_with_a_library_the_sampler_draws_the_prior_parts_it_holds(real_reader, 
     assert config.prior == f"p.json sha256:{prior.digest()[:16]}" and dict(config.colours) == {4: 1.0}
 
 
+@pytest.mark.slow
 def test_the_prior_command_fits_and_the_sampler_draws_from_the_file(designs, tmp_path):
     out = subprocess.run([sys.executable, "-m", "pipelines.prior", str(designs[0].parent), "--out",
                           str(tmp_path / "p.json"), "--temper", "1"], capture_output=True, text=True, cwd=ROOT)

@@ -163,6 +163,7 @@ def test_config_is_frozen_and_normalised():
     assert two.to_dict()["judge_first"] == 2 and SamplerConfig.from_dict(two.to_dict()) == two
 
 
+@pytest.mark.slow
 def test_cli_tiny_run(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "LDRAWDIR"}
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
@@ -225,6 +226,7 @@ def twelve_parts():
     return sampler, _growing_tracker(sampler, 0, 12)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("weight", [30.0, 0.0, -30.0])
 def test_candidate_order_computes_only_the_densities_it_needs(twelve_parts, weight):
     """`KeyOrder` gives the candidates in exactly the order of the keys computed from every

@@ -14,9 +14,8 @@ from factory.errors import LDrawLimitError
 from factory.ldraw import get_reader
 from factory.parts import load_part
 
-from conftest import needs_ldraw
+from conftest import LIBRARY_ZIP, needs_ldraw
 
-LIBRARY_ZIP = Path(__file__).resolve().parents[2] / "shared" / "ldraw_library.zip"
 
 
 def _plain_find_sockets(tris: np.ndarray, columns) -> list:

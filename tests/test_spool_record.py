@@ -61,6 +61,7 @@ def test_a_foreign_record_is_refused(doc, message):
         record.loads(b"\x80\x04\x95")  # a pickle's first bytes
 
 
+@pytest.mark.slow
 def test_a_planted_pickle_or_record_in_the_spool_never_runs(tiny_dataset, tmp_path):
     """Anyone who can write to a shared output folder could run code as the next user of it: the
     spool was read with `pickle.loads`. A planted pickle (under the old name and the new one) and

@@ -164,6 +164,7 @@ def test_a_structure_keeps_the_bases_of_its_first_candidates_only(monkeypatch):
     assert len(s.solved_loads.candidates) == 3
 
 
+@pytest.mark.slow
 def test_the_batched_path_solves_the_samplers_load_programs_one_by_one_started_too(monkeypatch):
     """With 'mjx' the sampler's candidates (it takes the first survivor: `judge_first`) get their
     load programs one at a time, each started from the structure's own, up to the first that

@@ -64,6 +64,7 @@ def test_walk_places_every_part_in_its_frame_and_reassembles_the_model(name):
     assert len(units) == len(set(units)) and (name == "car.ldr") == (not units)
 
 
+@pytest.mark.slow
 @needs_ldraw
 @pytest.mark.parametrize("name", ["car.ldr", "4915-1-MiniConstruction.mpd"])
 def test_replay_and_dataset_source_walk_alike(name):

@@ -158,6 +158,7 @@ def _compare(s: Structure, part, limit: int, rng) -> list:
     return [(part.name, w[0][1].t.round(2).tolist(), a, b) for (w, _), a, b in zip(cases, ref, got)]
 
 
+@pytest.mark.slow
 def test_verdicts_agree_with_the_stepped_reference_on_over_a_thousand_candidates(capsys):
     reader = get_reader()
     emb = {n: load_part(reader, n) for n in
@@ -228,6 +229,7 @@ def _random_pair(rng):
     return a, b, d
 
 
+@pytest.mark.slow
 def test_intervals_match_dense_stepping_of_the_minkowski_depth():
     rng = np.random.default_rng(3)
     pairs = [_random_pair(rng) for _ in range(160)]

@@ -154,6 +154,7 @@ def test_weighted_folders_mix_by_weight_and_resume(tiny_dataset, tmp_path):
         TrainConfig(data=(str(tiny_dataset), str(other)), outdir="x", weights=(1.0, 0.0))
 
 
+@pytest.mark.slow
 def test_worker_processes_give_the_same_examples(tiny_dataset, tiny_model, processor):
     from train.data import ExampleStream
 
@@ -169,6 +170,7 @@ def test_worker_processes_give_the_same_examples(tiny_dataset, tiny_model, proce
         assert all(torch.equal(a[k], b[k]) for k in a)
 
 
+@pytest.mark.slow
 def test_overfits_a_fixed_batch(tiny_dataset, tiny_model, processor):
     from train.data import ExampleStream, collate
     from train.loop import forward_backward, make_optimizer, make_scheduler
@@ -336,6 +338,7 @@ def test_large_weights_are_saved_in_shards_and_a_run_resumes_from_them(tiny_data
         torch.testing.assert_close(resumed[k], uninterrupted[k], atol=1e-6, rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_bf16_weights_train_and_resume_in_bf16(tiny_dataset, tmp_path):
     """weight_dtype=bf16 holds every weight of a full fine-tuning in bf16, and with them the AdamW
     states (what lets full fine-tuning of an 8B model fit one GPU); its checkpoints and `final/` are

@@ -60,6 +60,7 @@ def full_runs(tiny_dataset, tiny_model, tmp_path_factory):
     return one, two, done
 
 
+@pytest.mark.slow
 def test_rank_0_alone_writes_the_run_folder(full_runs):
     from train import checkpoint as ckpt
 
@@ -84,6 +85,7 @@ def test_two_processes_train_as_one_with_their_global_batch(full_runs, tiny_mode
     _assert_same_training(one, two, tiny_model)
 
 
+@pytest.mark.slow
 def test_an_interrupted_two_process_run_resumes_to_the_same_result(full_runs, tmp_path):
     _, two, _ = full_runs
     run, config, log_before, weights_before = interrupted_copy(two, tmp_path)
@@ -107,6 +109,7 @@ def test_another_process_count_is_refused(full_runs, tiny_dataset, tiny_model, c
         check_processes({}, two / "checkpoint-000002", 2, TrainConfig.load(two))
 
 
+@pytest.mark.slow
 def test_lora_with_gradient_checkpointing_and_accumulation(tiny_dataset, tiny_model, tmp_path, capsys):
     """LoRA (no dropout, so both runs draw nothing), gradient checkpointing, 2 passes per step: two
     processes at batch 1 train as one at batch 2."""

@@ -161,6 +161,7 @@ def test_only_the_final_answer_of_a_feedback_chat_is_trained(name, folders, tiny
     assert processor.tokenizer.decode(ex["input_ids"][ex["labels"] != -100]) == answer + end
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", FAMILIES)
 def test_trains_resumes_and_evaluates_from_a_local_folder(name, folders, tiny_dataset, tmp_path):
     from safetensors.torch import load_file

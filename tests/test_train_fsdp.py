@@ -37,6 +37,7 @@ def runs(tiny_dataset, tiny_model, tmp_path_factory):
     return one, two
 
 
+@pytest.mark.slow
 def test_two_sharded_processes_train_as_one_with_their_global_batch(runs, tiny_model):
     from safetensors.torch import load_file
 
@@ -77,6 +78,7 @@ def test_a_sharded_checkpoint_holds_the_whole_model_and_each_process_optimizer_s
     assert json.loads((two / "train_summary.json").read_text())["processes"] == 2
 
 
+@pytest.mark.slow
 def test_an_interrupted_sharded_run_resumes_to_the_same_result(runs, tmp_path):
     _, two = runs
     run, config, log_before, weights_before = interrupted_copy(two, tmp_path)
@@ -197,6 +199,7 @@ def test_kept_gathered_weights_stay_gathered_from_forward_to_backward(tiny_model
         dist.destroy_process_group()
 
 
+@pytest.mark.slow
 def test_two_processes_keeping_gathered_weights_train_as_the_sharded_run(runs, tiny_dataset, tiny_model, tmp_path):
     """`--fsdp-keep-gathered` (python -m train under torchrun): the same losses and final weights as
     the sharded run that gathers each block twice."""

@@ -46,6 +46,7 @@ def _wrong(designs, preds) -> dict[str, str]:
             if pose_errors(row, answers.get(row["step_id"])) is not None}
 
 
+@pytest.mark.slow
 def test_staged_recipe_end_to_end_resumes_and_refuses_other_settings(tiny_dataset, synthetic, tmp_path, capsys):
     from safetensors.torch import load_file
 
@@ -127,6 +128,7 @@ def test_staged_recipe_end_to_end_resumes_and_refuses_other_settings(tiny_datase
     assert "stage_steps: [100, 2, 4] -> [100, 2, 6]" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_no_wrong_answer_skips_stage_2_and_bad_inputs_are_named(tiny_dataset, synthetic, tmp_path, capsys):
     """A stage-1 model of one step answers nothing that parses: no feedback rows, stage 2 is
     skipped (said so), stage 3 trains on the designs and the synthetic data from stage 1."""

@@ -50,6 +50,7 @@ def _check_rates(row, steps=2, batch=2):
     assert row["peak_allocated_gib"] is None  # no GPU here
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("family", ["qwen3-vl", "gemma3"])
 def test_lora_run_writes_a_row(family, tiny_dataset, tmp_path, capsys):
     pytest.importorskip("peft")
@@ -65,6 +66,7 @@ def test_lora_run_writes_a_row(family, tiny_dataset, tmp_path, capsys):
     assert [json.loads(line) for line in out.read_text().splitlines()] == [row, again]
 
 
+@pytest.mark.slow
 def test_full_run_trains_every_weight(tiny_dataset, capsys):
     row = _row(capsys, "--family", "qwen3-vl", "--mode", "full", "--data", str(tiny_dataset), "--batch-size", "2",
                "--steps", "2", "--warmup-steps", "0", "--device", "cpu", "--workers", "0", "--weight-dtype", "fp32")
@@ -100,6 +102,7 @@ def test_saved_model_trains_with_python_m_train(tiny_dataset, tmp_path, capsys):
     assert summary["steps"] == 2 and (tmp_path / "run" / "final" / "model.safetensors").is_file()
 
 
+@pytest.mark.slow
 def test_profile_writes_each_process_trace_and_tables_outside_the_timed_steps(tiny_dataset, tmp_path, capsys):
     prof = tmp_path / "prof"
     row = _row(capsys, "--family", "qwen3-vl", "--mode", "full", "--data", str(tiny_dataset), "--batch-size", "2",
@@ -210,6 +213,7 @@ def test_real_processors_give_the_checkpoints_image_tokens(tiny_dataset):
             assert int(ex["image_grid_thw"].prod(-1).sum()) == 4 * expected
 
 
+@pytest.mark.slow
 def test_two_processes_under_torchrun_write_one_row_for_both(tiny_dataset, tmp_path):
     """torchrun with two CPU processes (gloo): one row, both processes' examples over the slowest's
     seconds, and the processes trained different examples (their own seeds) on one model."""
@@ -230,6 +234,7 @@ def test_two_processes_under_torchrun_write_one_row_for_both(tiny_dataset, tmp_p
     assert len(last) == 2 and last[0] != last[1]  # each process its own examples
 
 
+@pytest.mark.slow
 def test_two_sharded_processes_write_one_fsdp_row(tiny_dataset):
     """torchrun with two CPU processes and --shard fsdp: one row that records the mode, both
     processes' examples, every weight trained."""

@@ -74,6 +74,7 @@ def _env(tmp_path: Path) -> dict:
     return env
 
 
+@pytest.mark.slow
 def test_wheel_installs_and_runs_from_another_folder(tmp_path, wheel):
     py, site = _fresh_venv(tmp_path, wheel)
     env = _env(tmp_path)
@@ -103,6 +104,7 @@ def test_wheel_installs_and_runs_from_another_folder(tmp_path, wheel):
     assert r.stdout == here.stdout  # the installed package judges as the checkout does
 
 
+@pytest.mark.slow
 def test_another_distribution_of_factory_is_refused_with_a_clear_error(tmp_path, wheel):
     """factory_boy also installs a top-level `factory` (with `__init__.py` and `errors.py`, like ours):
     pip merges the two into one folder, overwriting the shared files, and uninstalling it removes
