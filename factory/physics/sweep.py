@@ -263,7 +263,7 @@ def sweep(
         return SweepResult(False if found.reason == "clamped" else None, found.reason, (), 0.0, 0.0, 0)
     d = found.direction
     straight = _along(scene, structure, unit, connected, d, max_penetration_ldu, step_ldu)
-    if straight.buildable or press_ldu is None or straight.at_ldu <= press_ldu:
+    if straight.buildable or press_ldu is None or straight.at_ldu <= min(press_ldu, PRESS_MIN_LDU):
         return straight
     return _pressed_last(scene, structure, unit, connected, d, max_penetration_ldu, step_ldu, straight, press_ldu)
 
