@@ -119,7 +119,8 @@ def test_step_json_matches_the_command_line_format(embedded_reader, write):
 def test_a_placement_that_is_not_a_rotation_is_refused_with_its_line(embedded_reader, write, matrix, what):
     from factory.errors import LDrawPlacementError
 
-    path = write("m.ldr", f"0 model\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat\n1 4 0 -24 0 {matrix} 3001.dat\n")
+    # The corner plate 2420 is not its own mirror image through any of its axis planes.
+    path = write("m.ldr", f"0 model\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat\n1 4 0 -24 0 {matrix} 2420.dat\n")
     with pytest.raises(LDrawPlacementError, match=r"m\.ldr:3: .*rotation") as err:
         build_steps(embedded_reader, embedded_reader.open_model(path))
     assert what and err.value.line == 3
@@ -127,6 +128,24 @@ def test_a_placement_that_is_not_a_rotation_is_refused_with_its_line(embedded_re
     mpd = write("s.mpd", f"0 FILE a.ldr\n1 16 0 0 0 {matrix} b.ldr\n0 FILE b.ldr\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat\n")
     with pytest.raises(LDrawPlacementError, match=r"s\.mpd#a\.ldr:2: "):
         build_steps(embedded_reader, embedded_reader.open_model(mpd))
+
+
+@pytest.mark.parametrize("matrix", ["-1 0 0 0 1 0 0 0 1", "0 0 1 0 1 0 1 0 0", "1 0 0 0 -1 0 0 0 1"])
+def test_a_part_that_is_its_own_mirror_image_may_be_placed_mirrored(embedded_reader, write, matrix):
+    # A design mirrors a hinge brick into its other half (vehicle_084 of ../shared/designs): for a
+    # part symmetric through one of its axis planes the mirroring matrix times that reflection is a
+    # rotation that puts the same shape in the same place.
+    from factory.ldraw.model import _mirror_plane
+
+    path = write("m.ldr", f"0 model\n1 4 0 -24 0 {matrix} 3001.dat\n")
+    (step,) = build_steps(embedded_reader, embedded_reader.open_model(path))
+    R = step.parts[0].pose.R
+    assert np.isclose(np.linalg.det(R), 1.0) and np.allclose(R @ R.T, np.eye(3))
+    m = np.array(matrix.split(), float).reshape(3, 3)
+    points = embedded_reader.flatten(embedded_reader.part("3001.dat")).triangles.reshape(-1, 3)
+    placed = {tuple(np.round(p, 6)) for p in points @ R.T}
+    assert placed == {tuple(np.round(p, 6)) for p in points @ m.T}  # the same shape
+    assert _mirror_plane(embedded_reader, embedded_reader.part("2420.dat")) is None
 
 
 def test_rotations_written_to_six_decimals_are_accepted(embedded_reader, write):

@@ -157,7 +157,8 @@ def _expand(
             raise LDrawSyntaxError(f"unknown colour code {item.colour}; expected {COLOUR_RULE}", res.file.path,
                                    item.line)
         child = reader.resolve(item, res.file, res.model)
-        child_pose = pose @ Pose(_placement_rotation(item, res.file.path), item.pos)
+        mirror = None if is_submodel(child) else (lambda c=child: _mirror_plane(reader, c))
+        child_pose = pose @ Pose(_placement_rotation(item, res.file.path, mirror), item.pos)
         child_colour = colour if item.colour == 16 else item.colour
         if is_submodel(child):
             label = _label(child.file, item)
@@ -183,16 +184,46 @@ rotation: hand-edited real files turn parts by approximate matrices (10156's min
 rows (1, 0.17, 0) and (-0.17, 1, 0): 1.4 % stretch). Anything further is refused."""
 
 
-def _placement_rotation(ref: Ref, path: str) -> np.ndarray:
+MIRROR_MATCH_LDU = 0.01
+"""How close a part's mirrored vertices must lie to its own for the part to count as its own mirror
+image (`_mirror_plane`)."""
+
+
+def _mirror_plane(reader: Reader, res: Resolved) -> np.ndarray | None:
+    """A reflection through one of the part's axis planes (diagonal, one -1) that maps the part's
+    geometry onto itself, or None: a part placed by a mirroring matrix is then placed by that
+    matrix times this reflection, a rotation that puts the same shape in the same place."""
+    from scipy.spatial import cKDTree
+
+    points = np.unique(np.round(reader.flatten(res).triangles.reshape(-1, 3), 4), axis=0)
+    if not len(points):
+        return None
+    tree = cKDTree(points)
+    for k in range(3):
+        flip = np.ones(3)
+        flip[k] = -1.0
+        gap, _ = tree.query(points * flip)
+        if float(gap.max()) <= MIRROR_MATCH_LDU:
+            return np.diag(flip)
+    return None
+
+
+def _placement_rotation(ref: Ref, path: str, mirror=None) -> np.ndarray:
     """The rotation a part or submodel is placed by: its matrix when orthonormal within
-    `ROTATION_TOL`, the nearest rotation when it stretches by at most `NEAR_ROTATION`; a zero,
-    rank-deficient, scaled, sheared or mirrored matrix is refused (`LDrawPlacementError`, with the
-    file and line). (Primitives inside a part may be scaled or mirrored, as the LDraw spec allows;
-    they are not placed here.)"""
+    `ROTATION_TOL`, the nearest rotation when it stretches by at most `NEAR_ROTATION`; a part
+    placed by a mirroring matrix that is its own mirror image (`mirror()`: the reflection, or None)
+    by that matrix times the reflection (a hinge brick mirrored in a design's other half); a zero,
+    rank-deficient, scaled, sheared, or otherwise mirrored matrix is refused
+    (`LDrawPlacementError`, with the file and line). (Primitives inside a part may be scaled or
+    mirrored, as the LDraw spec allows; they are not placed here.)"""
     m = np.asarray(ref.matrix, dtype=np.float64)
     if np.isfinite(m).all():
         stretch = np.linalg.svd(m, compute_uv=False)
         det = float(np.linalg.det(m))
+        if det < 0 and mirror is not None and float(np.abs(stretch - 1.0).max()) <= NEAR_ROTATION:
+            plane = mirror()
+            if plane is not None:
+                m, det = m @ plane, -det
         if det > 0 and float(np.abs(stretch - 1.0).max()) <= NEAR_ROTATION:
             if float(np.abs(m @ m.T - np.eye(3)).max()) <= ROTATION_TOL:
                 return m
@@ -204,7 +235,8 @@ def _placement_rotation(ref: Ref, path: str) -> np.ndarray:
     raise LDrawPlacementError(
         f"{ref.name} is placed by a matrix that {kind} it ({rows}; determinant {det:.3g}); a part or "
         f"submodel placement must be a rotation (orthonormal rows, determinant +1; within "
-        f"{NEAR_ROTATION:.0%} it is taken as the nearest rotation)", path, ref.line)
+        f"{NEAR_ROTATION:.0%} it is taken as the nearest rotation), or mirror a part that is its own mirror image",
+        path, ref.line)
 
 
 def _label(f: LDrawFile, ref: Ref) -> str:

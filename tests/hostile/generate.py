@@ -214,10 +214,13 @@ def generate(out: str | os.PathLike, big: bool = True) -> dict[str, Path]:
     model("symlink_model_folder", [brick, _line(16, (0, -24, 0), ID, "escape_model.dat")])
 
     # -- placement matrices ---------------------------------------------------------------------
+    # A part that is not its own mirror image through any axis plane (one mirrored that is, a
+    # plain brick, is placed by the rotation that gives the same shape).
+    _write(lib / "parts" / "lopsided.dat", _part("lopsided.dat", ["3 16 0 0 0 10 0 0 0 5 10"]))
     for case, m in (("zero_matrix", "0 0 0 0 0 0 0 0 0"), ("rank_deficient", "1 0 0 1 0 0 1 0 0"),
                     ("scaled", "2 0 0 0 2 0 0 0 2"), ("sheared", "1 0.5 0 0 1 0 0 0 1"),
                     ("mirrored", "-1 0 0 0 1 0 0 0 1")):
-        model(case, [brick, "0 STEP", f"1 4 0 -24 0 {m} 3001.dat"])
+        model(case, [brick, "0 STEP", f"1 4 0 -24 0 {m} {'lopsided' if case == 'mirrored' else '3001'}.dat"])
 
     # -- degenerate parts and models ------------------------------------------------------------
     _write(lib / "parts" / "flat.dat", _part("flat.dat", [
