@@ -12,6 +12,7 @@ from collections import defaultdict
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from factory.errors import LDrawLimitError, LDrawPlacementError, LDrawSyntaxError
 from factory.ldraw.colours import RULE as COLOUR_RULE
@@ -193,8 +194,6 @@ def _mirror_plane(reader: Reader, res: Resolved) -> np.ndarray | None:
     """A reflection through one of the part's axis planes (diagonal, one -1) that maps the part's
     geometry onto itself, or None: a part placed by a mirroring matrix is then placed by that
     matrix times this reflection, a rotation that puts the same shape in the same place."""
-    from scipy.spatial import cKDTree
-
     points = np.unique(np.round(reader.flatten(res).triangles.reshape(-1, 3), 4), axis=0)
     if not len(points):
         return None
