@@ -210,36 +210,32 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
             move = relative_frame(frames, parent, tag)
             finished.setdefault(parent, []).extend(Placed(q.part, q.colour, move @ q.pose) for q in finished[tag])
 
+    def in_block(assembly: str, block: int, after: str | None = None) -> list[Placed]:
+        """What STEP block `block` of `assembly`'s file places, in its frame: the sub-assemblies it
+        references (those after `after`, if given), whole, and its own solid parts."""
+        units = [t for t in finished if parent_of(t) == assembly and blocks.get(t) == block]
+        out = []
+        for t in units[units.index(after) + 1:] if after is not None else units:
+            move = relative_frame(frames, assembly, t)
+            out += [Placed(q.part, q.colour, move @ q.pose) for q in finished[t]]
+        for step in steps:
+            if step.assembly == assembly and step.block == block:
+                out += [q for q in locals_of[id(step)] if _solid(q.part)]
+        return out
+
     def going_in_with(tag: str) -> list[Placed]:
         """The parts that go in with sub-assembly `tag`, in its parent's frame: the later
         sub-assemblies its parent's file references in the same STEP block, and the parts that
         block places itself (a wagon rests its front on the drawbar built beside it)."""
-        parent = parent_of(tag)
-        siblings = [t for t in finished if parent_of(t) == parent and blocks.get(t) == blocks[tag]]
-        out = []
-        for t in siblings[siblings.index(tag) + 1:]:
-            move = relative_frame(frames, parent, t)
-            out += [Placed(q.part, q.colour, move @ q.pose) for q in finished[t]]
-        for step in steps:
-            if step.assembly == parent and step.block == blocks[tag]:
-                out += [q for q in locals_of[id(step)] if _solid(q.part)]
-        return out
+        return in_block(parent_of(tag), blocks[tag], after=tag)
 
     next_step: dict[int, list[Placed]] = {}
-    """Per step: what the next STEP block of its assembly's file places, in that assembly's frame
-    (its parts, and the sub-assemblies it attaches, whole)."""
+    """Per step: what the next STEP block of its assembly's file places (`in_block`)."""
     for step in steps:
-        ours = [t for t in steps if t.assembly == step.assembly and t.block > step.block]
-        units = [t for t in finished if parent_of(t) == step.assembly and blocks.get(t, -1) > step.block]
-        following = min([t.block for t in ours] + [blocks[t] for t in units], default=None)
-        if following is None:
-            continue
-        held = [q for t in ours if t.block == following for q in locals_of[id(t)] if _solid(q.part)]
-        for t in units:
-            if blocks[t] == following:
-                move = relative_frame(frames, step.assembly, t)
-                held += [Placed(q.part, q.colour, move @ q.pose) for q in finished[t]]
-        next_step[id(step)] = held
+        later = [t.block for t in steps if t.assembly == step.assembly and t.block > step.block]
+        later += [b for t, b in blocks.items() if t in finished and parent_of(t) == step.assembly and b > step.block]
+        if later:
+            next_step[id(step)] = in_block(step.assembly, min(later))
 
     structures: dict[str, Structure] = {}
     """The parts placed so far in every open assembly, in its own frame, with their rigid links."""
