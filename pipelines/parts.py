@@ -1,12 +1,14 @@
 """Which parts of a library the factory can use, per category, and why the others are left out;
 with `--prepare`, their collision pieces computed over all cores and cached.
 
-    python -m pipelines.parts --ldraw LIB [--all | --prior FILE] [--prepare] [--workers N] [--json]
+    python -m pipelines.parts --ldraw LIB [--all | --prior FILE | --designs DESIGN...] [--prepare] [--workers N] [--json]
     python -m pipelines.parts --pack FILE | --unpack FILE
 
 Without `--all`, the parts of the usage prior (`--prior`, default the shipped one) as the sampler
 would draw them from this library (`factory.prior.choose`); with `--all`, every part in the
-library's `parts/` folder. `--prepare` computes what growing objects needs of each usable part
+library's `parts/` folder; with `--designs`, every library part the designs place (with
+`--prepare`, also those the sampler cannot use: `pipelines.verify` needs the collision pieces of
+each, and a design of a few hundred parts takes long to decompose on one core). `--prepare` computes what growing objects needs of each usable part
 (connections, symmetry, collision pieces) once, into the cache: a run cut short and run again
 does only what is left. `--pack FILE` writes the cache's part entries into one zip for another
 machine, `--unpack FILE` takes them in there. See docs/prior.md.
@@ -27,9 +29,20 @@ from factory.cli import ArgumentParser, add_progress_flag, run_guarded
 from factory.ldraw import get_reader
 from factory.prior import PriorError, load_prior
 from factory.prior.choose import choose_parts
+from factory.prior.placements import read_design
 from pipelines.prepare import pack, survey, unpack
 
 USABLE = "usable"
+
+
+def design_parts(reader, designs) -> list[str]:
+    """The distinct library parts the designs place, by the names they use, in order of first use."""
+    names: dict[str, None] = {}
+    for path in designs:
+        for use in read_design(reader, path).uses:
+            if use.resolved is not None and use.resolved.origin == "library":
+                names.setdefault(use.part, None)
+    return list(names)
 
 
 def table(statuses) -> str:
@@ -64,6 +77,8 @@ def main(argv: list[str] | None = None) -> int:
     pick = ap.add_mutually_exclusive_group()
     pick.add_argument("--all", action="store_true", help="every part of the library (default: the prior's parts)")
     pick.add_argument("--prior", dest="prior_file", metavar="FILE", help="usage prior (default: the shipped one)")
+    pick.add_argument("--designs", nargs="+", metavar="DESIGN",
+                      help="the parts these LDraw models place (with --prepare: all of them, for pipelines.verify)")
     ap.add_argument("--prepare", action="store_true",
                     help="also compute each usable part's collision pieces (cached; resumable)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
@@ -87,6 +102,8 @@ def main(argv: list[str] | None = None) -> int:
         left: list = []
         if args.all:
             names = reader.library.part_names()
+        elif args.designs:
+            names = design_parts(reader, args.designs)
         else:
             choice = choose_parts(load_prior(args.prior_file), reader)
             names = [n for n, _ in choice.parts]
@@ -105,7 +122,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(json.dumps({"part": s.part, "category": s.category, "usable": s.reason is None,
                                   "reason": s.reason, "seconds": round(s.seconds, 3)}), flush=True)
 
-        statuses = survey(ldraw, names, args.prepare, args.workers, done, own_parts=args.all)
+        statuses = survey(ldraw, names, args.prepare, args.workers, done, own_parts=args.all,
+                          every=bool(args.designs))
         bar.close()
         wall = time.perf_counter() - t0
         usable = sum(s.reason is None for s in statuses)

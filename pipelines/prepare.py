@@ -58,10 +58,13 @@ def _init(counter, parent: int, ldraw: str | None) -> None:
     _LDRAW = ldraw
 
 
-def part_status(ldraw: str | None, name: str, prepare: bool, own_parts: bool = False) -> PartStatus:
+def part_status(ldraw: str | None, name: str, prepare: bool, own_parts: bool = False,
+                every: bool = False) -> PartStatus:
     """The status of one part (in a worker process: the reader is that process's own). With
     `own_parts`, renumbered stubs, aliases and parts not for use alone are left out too (a list
-    of every file of a library's `parts/`)."""
+    of every file of a library's `parts/`). With `every`, `prepare` prepares a readable part the
+    sampler cannot use as well (a design's parts: replaying it needs the collision pieces of
+    every part it places, a Technic beam or a minifigure arm included)."""
     from factory.physics.geometry import collision_shape  # MuJoCo-free, but coacd: only when preparing
     from factory.parts import load_part
 
@@ -72,35 +75,36 @@ def part_status(ldraw: str | None, name: str, prepare: bool, own_parts: bool = F
     except LDrawError:
         category = "?"
     reason = (not_its_own_part(reader, name) if own_parts else None) or why_unusable(reader, name)
-    if reason is None and prepare:
+    if prepare and (reason is None or (every and not reason.startswith("cannot be read"))):
         try:
             part = load_part(reader, name)
             part.symmetry, part.hull_points
             collision_shape(part)
         except LDrawError as exc:
-            reason = f"collision pieces refused: {exc}"
+            reason = reason or f"collision pieces refused: {exc}"
     return PartStatus(name, category, reason, time.perf_counter() - t0)
 
 
-def _one(args: tuple[str, bool, bool]) -> PartStatus:
+def _one(args: tuple[str, bool, bool, bool]) -> PartStatus:
     return part_status(_LDRAW, *args)
 
 
 def survey(ldraw: str | None, names: Iterable[str], prepare: bool = False, n_workers: int = 1,
-           progress: Callable[[PartStatus], None] | None = None, own_parts: bool = False) -> list[PartStatus]:
-    """Every part's status, in the order of `names`, over `n_workers` processes (`own_parts`:
-    `part_status`)."""
+           progress: Callable[[PartStatus], None] | None = None, own_parts: bool = False,
+           every: bool = False) -> list[PartStatus]:
+    """Every part's status, in the order of `names`, over `n_workers` processes (`own_parts`,
+    `every`: `part_status`)."""
     names = list(names)
     out: dict[str, PartStatus] = {}
     if n_workers <= 1:
         for name in names:
-            out[name] = part_status(ldraw, name, prepare, own_parts)
+            out[name] = part_status(ldraw, name, prepare, own_parts, every)
             if progress:
                 progress(out[name])
     else:
         ctx = mp.get_context("fork")
         with ctx.Pool(n_workers, initializer=_init, initargs=(*workers.numbering(ctx), ldraw)) as pool:
-            for status in pool.imap_unordered(_one, [(n, prepare, own_parts) for n in names], chunksize=1):
+            for status in pool.imap_unordered(_one, [(n, prepare, own_parts, every) for n in names], chunksize=1):
                 out[status.part] = status
                 if progress:
                     progress(status)

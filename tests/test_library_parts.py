@@ -4,6 +4,7 @@ cache, the cache as one file for another machine, and how far objects are from r
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import zipfile
@@ -190,14 +191,46 @@ def test_the_json_listing_streams_each_part_as_it_finishes_so_an_interrupted_run
 
     real, seen = pipelines.prepare.part_status, []
 
-    def status(ldraw, name, prepare, own_parts=False):
+    def status(ldraw, name, prepare, own_parts=False, every=False):
         seen.append(name)
         if len(seen) == 3:
             raise KeyboardInterrupt
-        return real(ldraw, name, prepare, own_parts)
+        return real(ldraw, name, prepare, own_parts, every)
 
     monkeypatch.setattr(pipelines.prepare, "part_status", status)
     assert main(["--ldraw", str(LDRAW), "--all", "--json", "--workers", "1", "--no-progress"]) == 130
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     assert [x["part"] for x in lines] == seen[:2]
     assert all({"category", "usable", "reason", "seconds"} <= set(x) for x in lines)
+
+
+@needs_ldraw
+def test_a_designs_parts_are_prepared_even_those_the_sampler_cannot_use(tmp_path, monkeypatch, capsys):
+    """`--designs` lists the library parts a design places; with `--prepare` a Technic pin (no
+    studs: the sampler cannot use it) gets its collision pieces too, since a replay needs them."""
+    from pipelines.parts import main
+
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path / "cache"))
+    design = tmp_path / "pinned.ldr"
+    design.write_text("0 pinned\n0 Name: pinned.ldr\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat\n"
+                      "1 0 0 -24 0 1 0 0 0 1 0 0 0 1 3673.dat\n1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat\n")
+    assert main(["--ldraw", str(LDRAW), "--designs", str(design), "--json", "--workers", "1", "--no-progress"]) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert [(x["part"], x["reason"]) for x in lines] == [("3001", None), ("3673", NO_STUDS)]
+    assert not (tmp_path / "cache" / "coacd").exists()  # listed, not prepared
+    assert main(["--ldraw", str(LDRAW), "--designs", str(design), "--prepare", "--json", "--workers", "1",
+                 "--no-progress"]) == 0
+    assert [json.loads(x)["reason"] for x in capsys.readouterr().out.splitlines()] == [None, NO_STUDS]
+    pieces = {p.name for p in (tmp_path / "cache" / "coacd").iterdir()}
+    # A fresh process with a fresh cache: the pin alone, prepared as the sampler would (not at all:
+    # it cannot use it), then as a design's part
+    env = {**os.environ, "BRICK_FACTORY_CACHE": str(tmp_path / "pin")}
+    assert survey(str(LDRAW), ["3673"])[0].reason == NO_STUDS
+    code = ("import sys; from pipelines.prepare import survey; "
+            "print(survey(sys.argv[1], ['3673'], prepare=True, every=sys.argv[2] == '1')[0].reason)")
+    for every in ("0", "1"):
+        out = subprocess.run([sys.executable, "-c", code, str(LDRAW), every], capture_output=True, text=True,
+                             cwd=ROOT, env=env)
+        assert out.returncode == 0 and out.stdout.strip() == NO_STUDS, out.stderr
+        made = {p.name for p in (tmp_path / "pin" / "coacd").iterdir()} if (tmp_path / "pin" / "coacd").exists() else set()
+        assert bool(made) == (every == "1") and made <= pieces
