@@ -1,12 +1,13 @@
 """Replay a human-designed model's build steps through the physics checks (`verify_model`).
 
-The library behind `python -m pipelines.verify MODEL [--ldraw DIR] [--check-backend mujoco|mjx] --json`
+The library behind `python -m pipelines.verify MODEL [--ldraw DIR] [--check-backend cpu|jax] --json`
 and the physics records of the design dataset source (`pipelines.dataset.sources`).
 
 Each placed part is checked against the parts placed before it in the same sub-assembly (the first
 part of a sub-assembly, or one laid on the table beside it, needs no connection; a part may hang
 from another part of its own step, or be held in hand until what the next step of its assembly
-places holds it); a completed sub-assembly is checked as one rigid unit against
+places holds it; the parts of one step go in in any order, so a part that cannot be pressed in
+under or between parts of its own step listed before it is judged going in first); a completed sub-assembly is checked as one rigid unit against
 the parts of its parent placed before it. Each sub-assembly is checked in its own frame (as its
 author built it) and is held in hand while built: only the main model must stand on the ground,
 sub-assemblies are judged on their connections.
@@ -113,8 +114,9 @@ def _faults(structure, local: Placed, backend, config, standing, step, index, fi
 
 def _links(index: int, verdict: Verdict) -> list[Link]:
     """Rigid links of a part placed at `index` that is held by connections the checker does not
-    model (its verdict's `held_by`), so the whole-structure loads carry it through them."""
-    return [Link(index, j, tuple(float(v) for v in verdict.pose.t)) for j in verdict.held_by]
+    model (its verdict's `held_by`), so the whole-structure loads carry it through them. A holder
+    not placed yet (a later part of its step it hangs from) links to it when that part comes."""
+    return [Link(index, j, tuple(float(v) for v in verdict.pose.t)) for j in verdict.held_by if j < index]
 
 
 def _add_unit(structure: Structure, unit: list[Placed], inner_links, verdict: Verdict) -> None:
@@ -178,7 +180,36 @@ def _held_by(structure: Structure, later: list[Placed]) -> Structure | None:
     return held
 
 
-def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckConfig = CheckConfig(),
+def _without(structure: Structure, drop: set[int]) -> tuple[Structure, list[int]]:
+    """`structure` without the parts at indices `drop`, and each kept part's index in the original."""
+    keep = [k for k in range(len(structure)) if k not in drop]
+    new = {k: i for i, k in enumerate(keep)}
+    out = Structure([structure.placed[k] for k in keep])
+    out.links.extend(Link(new[l.a], new[l.b], l.point) for l in structure.links if l.a in new and l.b in new)
+    return out, keep
+
+
+def _going_first(structure: Structure, start: int, local: Placed, backend, config, standing: bool):
+    """(verdict, structure judged on) of `local` going in before the parts of its step already
+    placed (`structure.placed[start:]`), when it is accepted there and each of those parts is
+    still accepted after it, in their order; else None."""
+    before, _ = _without(structure, set(range(start, len(structure))))
+    (w,) = check_units(before, [[local]], backend, config, require_connection=not _on_table(before, [local]),
+                       standing=standing)
+    if not w.ok:
+        return None
+    after, _ = _without(structure, set(range(start, len(structure))))
+    after.add(local, _links(len(after), w))
+    for q in structure.placed[start:]:
+        (u,) = check_units(after, [[q]], backend, config, require_connection=not _on_table(after, [q]),
+                           standing=standing)
+        if not u.ok:
+            return None
+        after.add(q, _links(len(after), u))
+    return w, before
+
+
+def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConfig = CheckConfig(),
                  faults: bool = False):
     """Yield one record per placed part and per sub-assembly attachment, in build order.
 
@@ -264,6 +295,7 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
         structure = structures.setdefault(step.assembly, Structure())
         standing = step.assembly == "main"
         locals_ = locals_of[id(step)]
+        step_start = len(structure)
         for index, (placed, local) in enumerate(zip(step.parts, locals_)):
             if not _solid(local.part):
                 # A sticker or another part with no volume: nothing to collide, weigh or hold; it is
@@ -287,8 +319,16 @@ def verify_model(model_path, ldraw=None, backend: str = "mujoco", config: CheckC
                 (w,) = check_units(held, [[local]], backend, config, standing=standing)
                 if w.ok:
                     v, judged_on = w, held
+            first = None
+            if v.reason in ("blocked", "clamped") and step_start < len(structure):
+                # The parts of one step go in in any order: a part that cannot be pressed in under
+                # or between parts of its own step listed before it (a brick under the plate that
+                # bridges it) is judged going in first, and those parts again after it.
+                first = _going_first(structure, step_start, local, backend, config, standing)
+                if first is not None:
+                    v, judged_on = first
             yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour,
-                          stud_pairs=stud_pairs(judged_on, [local]))
+                          stud_pairs=stud_pairs(judged_on, [local]), **({"first_in_step": True} if first else {}))
             if faults and v.ok and v.connected:
                 # Faults move the part off the connections it was accepted on: those of the
                 # structure it was judged against (with the later parts of its step, if it hangs).

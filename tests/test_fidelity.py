@@ -397,3 +397,48 @@ def test_a_corner_plate_round_a_steering_column_is_clear_of_it(at):
     # top at y = 0).
     shape = collision_shape(stand.part)
     assert not any(np.all(ConvexHull(p).equations @ [-10.6, -0.6, -8.0, 1.0] < 0) for p in shape.body)
+
+
+ANY_ORDER = """0 FILE order.ldr
+1 4 0 0 0 1 0 0 0 1 0 0 0 1 3036.dat
+1 4 -40 -24 10 1 0 0 0 1 0 0 0 1 3004.dat
+1 4 40 -24 10 1 0 0 0 1 0 0 0 1 3004.dat
+0 STEP
+{first}1 1 0 -24 10 1 0 0 0 1 0 0 0 1 3004.dat
+{then}"""
+BRIDGE = "1 14 0 -32 10 1 0 0 0 1 0 0 0 1 3666.dat\n"
+
+
+@pytest.mark.parametrize("same_step", [True, False])
+def test_the_parts_of_one_step_go_in_in_any_order(write, same_step):
+    # A 1x6 plate bridging two bricks, and a brick between them under the plate: listed after the
+    # plate in the same step, it goes in first (pressed onto the base plate, then the plate on
+    # it); in the step after the plate's, it cannot go in at all.
+    from factory.replay import verify_model
+
+    then = "0 STEP\n" if not same_step else ""
+    path = write("order.ldr", ANY_ORDER.format(first=BRIDGE + then, then=""))
+    records = [r for r in verify_model(path, None) if "fault" not in r]
+    brick = records[-1]
+    assert [r["part"] for r in records] == ["3036.dat", "3004.dat", "3004.dat", "3666.dat", "3004.dat"]
+    assert records[3]["reason"] is None
+    if same_step:
+        assert brick["reason"] is None and brick["first_in_step"], brick
+    else:  # between the plate on its studs and the base plate under it: no way in
+        assert brick["reason"] == "clamped" and "first_in_step" not in brick, brick
+    # Listed before the plate, it is simply built in that order
+    path = write("order2.ldr", ANY_ORDER.format(first="", then=then + BRIDGE))
+    records = [r for r in verify_model(path, None) if "fault" not in r]
+    assert [r["reason"] for r in records] == [None] * 5 and not any("first_in_step" in r for r in records), records
+
+
+def test_a_part_hung_from_a_later_part_of_its_step_links_only_to_parts_placed():
+    # Gearbox.ldr (a Technic model): a part held by a pin of a part listed after it in its step
+    # linked to that part's index before it was placed, and the loads of the next step indexed
+    # past the structure. The later part makes the link when it comes (its own `held_by`).
+    from factory.physics.check import Verdict
+    from factory.replay import _links
+
+    v = Verdict(Pose.identity(), connected=False, connections=0, collision=False, max_penetration_ldu=0.0,
+                held_by=(3, 7), reason="unsupported-connection")
+    assert [(l.a, l.b) for l in _links(5, v)] == [(5, 3)]
