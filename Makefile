@@ -31,12 +31,14 @@ setup: $(STAMP)
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet -c constraints.txt --upgrade pip
-	$(PY) -m pip install --quiet -c constraints.txt -e '.[mjx,ray,train,bench,dev]'
+	$(PY) -m pip install --quiet -c constraints.txt -e '.[jax,ray,train,bench,dev]'
 	touch $(STAMP)
 
 # The main job: sample N physics-verified objects, render every step, write sharded Parquet to OUT
 # (embedded part library unless LDRAWDIR is set). RUNNER=local|ray says where shards run,
-# CHECK_BACKEND=auto|mujoco|mjx how the physics checks run (auto: mjx where a CUDA GPU and the gpu extra are). Re-running resumes; a changed config is refused.
+# CHECK_BACKEND=auto|cpu|jax how the physics checks run (cpu: MuJoCo's C collision and NumPy/SciPy,
+# one candidate at a time; jax: this project's batched JAX kernels; auto: jax where a CUDA GPU and
+# the gpu extra are, else cpu; both write the same files). Re-running resumes; a changed config is refused.
 synth: setup
 	$(PY) -m pipelines.synth --n $(N) --out $(OUT) --seed $(SEED) --runner $(RUNNER) --check-backend $(CHECK_BACKEND) --workers $(WORKERS)
 

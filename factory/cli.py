@@ -64,8 +64,9 @@ def add_config_args(ap, cls: type, *, skip=(), prefix: str = "") -> None:
     value; tuples -> comma-separated values (the flag may repeat; names listed twice count once,
     numbers are kept as given); tuples of (name, weight) pairs -> `name[:weight],...`. A field's
     metadata may say more: `choices` (its valid values), `flag` (another name, e.g. `check-backend`
-    where `--backend` would be ambiguous; False: no flag, the command sets the field itself) and
-    `aliases` (more spellings, e.g. `("--candidates",)`).
+    where `--backend` would be ambiguous; False: no flag, the command sets the field itself),
+    `aliases` (more spellings, e.g. `("--candidates",)`) and `type` (the flag's own parser of its
+    text, run before `choices` is checked: `--check-backend` maps former names to new ones).
     """
     docs, types = field_docs(cls), field_types(cls)
     for f in dataclasses.fields(cls):
@@ -84,6 +85,8 @@ def add_config_args(ap, cls: type, *, skip=(), prefix: str = "") -> None:
             default = dataclasses.MISSING
         names = ["--" + f.metadata.get("flag", f.name.replace("_", "-")), *f.metadata.get("aliases", ())]
         kw = _flag(optional_of(types[f.name]), f.metadata.get("choices"))
+        if "type" in f.metadata:
+            kw["type"] = f.metadata["type"]
         kw.setdefault("metavar", None if "choices" in kw or "action" in kw else names[0][2:].upper().replace("-", "_"))
         text = docs.get(f.name, "").replace("%", "%%")
         if default is dataclasses.MISSING:

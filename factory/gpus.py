@@ -98,13 +98,13 @@ def cuda_jax() -> str | None:
 
 
 def checks_backend() -> tuple[str, str]:
-    """The physics checks' backend for `--check-backend auto` on this machine, and why: 'mjx' (the
-    batched checks, on the GPU) where an NVIDIA GPU and JAX's CUDA build are, else 'mujoco' (the
+    """The physics checks' backend for `--check-backend auto` on this machine, and why: 'jax' (the
+    batched JAX kernels, on the GPU) where an NVIDIA GPU and JAX's CUDA build are, else 'cpu' (the
     reference, on the CPU). Both write the same files; their build times are in docs/results.md."""
     n = count()
     if not n:
-        return "mujoco", "no NVIDIA GPU here"
+        return "cpu", "no NVIDIA GPU here"
     cuda = cuda_jax()
     if cuda is None:
-        return "mujoco", f"{n} NVIDIA GPU(s) but no CUDA build of JAX (pip install -e '.[gpu]')"
-    return "mjx", f"{n} NVIDIA GPU(s) and JAX's CUDA build ({cuda})"
+        return "cpu", f"{n} NVIDIA GPU(s) but no CUDA build of JAX (pip install -e '.[gpu]')"
+    return "jax", f"{n} NVIDIA GPU(s) and JAX's CUDA build ({cuda})"

@@ -5,7 +5,7 @@
 Sections, each timed and written as soon as it ends (a later failure loses nothing before it):
 
 - machine: CPU count, GPU (through JAX or torch when they see one), package versions;
-- physics: candidate checks per second per backend present (`mujoco` always; `mjx` when JAX is
+- physics: candidate checks per second per backend present (`cpu` always; `jax` when JAX is
   installed; larger batches when a GPU is present), from `pipelines.bench_physics.measure`; load
   checks and sweeps at 30-90 bricks; lockstep growth of the same objects (`measure_growth`: on a
   GPU the batched path at batch 16, twice (the second row every shape compiled), against the CPU
@@ -45,6 +45,7 @@ from factory import gpus
 from factory.atomic import write_atomic, write_figure
 from factory.cli import ArgumentParser, run_guarded
 from factory.ldraw import get_reader
+from factory.physics.check import BACKENDS, OLD_BACKEND_NAMES, backend_arg
 from factory.sampler import SamplerConfig, SamplerConfigError
 from pipelines.bench_physics import in_own_process, measure, measure_growth, measure_lp, measure_sweep, measure_whole
 from pipelines.dataset import ConfigMismatchError, DatasetConfig, build, usage
@@ -56,7 +57,7 @@ ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "factory" / "data" / "examples" / "tower.mpd"
 SHARED = ROOT.parent / "shared"
 BASELINES = ("oracle", "heuristic", "random")
-PACKAGES = ("numpy", "mujoco", "mujoco-mjx", "jax", "coacd", "trimesh", "pyarrow", "torch", "transformers")
+PACKAGES = ("numpy", "mujoco", "jax", "jaxlib", "coacd", "trimesh", "pyarrow", "torch", "transformers")
 
 
 def _version(name: str) -> str | None:
@@ -73,7 +74,7 @@ def gpu_name() -> str | None:
     if listed:
         return listed[0]
     try:
-        import jax  # optional: the [mjx] extra
+        import jax  # optional: the [jax] extra
 
         devices = [d for d in jax.devices() if d.platform == "gpu"]
         if devices:
@@ -147,7 +148,7 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None, d
     """The physics section; parts already in `done` (a resumed run's) are kept, and `save(part)`
     is called with the section so far after each part."""
     if backends is None:
-        backends = ["mujoco"] + (["mjx"] if _version("jax") else [])
+        backends = ["cpu"] + (["jax"] if _version("jax") else [])
     section = {"backends": backends, **{k: v for k, v in (done or {}).items() if k in PHYSICS_PARTS}}
     section["failed"] = [f for f in (done or {}).get("failed", []) if f["part"] in section]
     log = lambda kind: functools.partial(_log_row, kind)
@@ -199,14 +200,14 @@ def physics_section(gpu: bool, quick: bool, backends: list[str] | None = None, d
     # the same whatever the batch, only the cost moves). The batched path grows them twice: its
     # first row holds the compiles of the shapes its warm-up objects did not meet (36 kernels, 28 s
     # of a 51 s row on an H100, 2026-11-26), the second, every shape compiled, its steady rate.
-    if gpu and "mjx" in backends:
-        part("growth", P(measure_growth, "mjx", [16, 16], steps=20, objects=16, log=log("growth")),
-             P(measure_growth, "mujoco", [1], steps=20, objects=16, log=log("growth")))
+    if gpu and "jax" in backends:
+        part("growth", P(measure_growth, "jax", [16, 16], steps=20, objects=16, log=log("growth")),
+             P(measure_growth, "cpu", [1], steps=20, objects=16, log=log("growth")))
     else:
         objects, steps = (2, 3) if quick else (8, 10)
-        part("growth", P(measure_growth, "mujoco", [1, objects], steps=steps, objects=objects, log=log("growth")))
+        part("growth", P(measure_growth, "cpu", [1, objects], steps=steps, objects=objects, log=log("growth")))
     section["note"] = ("candidates of a 2x4 brick on grown 2x4-brick structures; loads/s is the "
-                       "whole-structure load program alone (HiGHS for mujoco, the batched JAX solver for mjx), "
+                       "whole-structure load program alone (HiGHS for cpu, the batched JAX solver for jax), "
                        "checks/s the whole check (connection, contacts, clutch, loads)")
     return section
 
@@ -536,10 +537,11 @@ def run(args) -> int:
         report["wall_s"] = round(time.perf_counter() - t0, 1)
         save()
 
-    backends = None if args.backends == "auto" else [b.strip() for b in args.backends.split(",") if b.strip()]
-    for b in backends or []:
-        if b not in ("mujoco", "mjx"):
-            raise ValueError(f"unknown backend {b!r}; valid: mujoco, mjx, auto")
+    named = [] if args.backends == "auto" else [b.strip() for b in args.backends.split(",") if b.strip()]
+    for b in named:
+        if b not in BACKENDS and b not in OLD_BACKEND_NAMES:
+            raise ValueError(f"unknown backend {b!r}; valid: {', '.join(BACKENDS)}, auto")
+    backends = [backend_arg(b) for b in named] or None
 
     def save_physics(part: dict) -> None:
         report["physics"] = part
@@ -578,7 +580,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="keep the sections that OUT/report.json already holds from a run on this machine with the "
                          "same --quick, and run the rest (a bench cut short goes on where it stopped)")
     ap.add_argument("--backends", default="auto",
-                    help="physics backends to time: comma-separated mujoco,mjx, or auto (default: every one installed)")
+                    help="physics backends to time: comma-separated cpu,jax, or auto (default: every one installed)")
     args = ap.parse_args(argv)
     return run_guarded(lambda: run(args), {DatasetError: 2, ConfigMismatchError: 2, SamplerConfigError: 2,
                                            OSError: 2, ValueError: 2})

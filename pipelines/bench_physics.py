@@ -1,10 +1,10 @@
 """Benchmark the physics checks: candidate checks per second by structure size, batch and backend.
 
-`python -m pipelines.bench_physics [--backends mujoco,mjx] [--sizes 10,30,60]
+`python -m pipelines.bench_physics [--backends cpu,jax] [--sizes 10,30,60]
 [--batches 256,1024,4096] [--out FILE.json]`; with `--sweep`, the buildability sweep alone
 (`measure_sweep`: the batched exact JAX path against the CPU reference).
 
-`python -m pipelines.bench_physics --growth --backends mjx --batches 1,16,64 --steps 30 --objects 64`:
+`python -m pipelines.bench_physics --growth --backends jax --batches 1,16,64 --steps 30 --objects 64`:
 lockstep growth of the same objects at each batch, steps per second (`measure_growth`).
 
 `python -m pipelines.bench_physics --lp --sizes 30,60,90 --batches 1024,4096,16384`: the load check
@@ -15,7 +15,7 @@ Structures are grown from a seed with 2x4 bricks (embedded library) by the check
 they are valid; candidates are feasible attachments of a 2x4 brick (drawn with replacement to fill
 a batch). Reported per (backend, size, batch): full check rate (connection, collision, clutch,
 whole-structure loads), and the load stage alone (each candidate's load program, models already
-built): HiGHS one program at a time for `mujoco`, the batched JAX solver for `mjx`, with the
+built): HiGHS one program at a time for `cpu`, the batched JAX solver for `jax`, with the
 compiles it made.
 """
 
@@ -42,7 +42,7 @@ from factory.atomic import write_atomic
 from factory.cli import ArgumentParser, add_mps_flag
 from factory.physics import check as check_mod
 from factory.physics import sweep_jax
-from factory.physics.check import STAGE_SECONDS, CheckConfig, check
+from factory.physics.check import STAGE_SECONDS, CheckConfig, backend_arg, backend_name, check
 from factory.physics import collide as collide_mod
 from factory.physics.collide import CollisionScene
 from factory.physics.check import _unit_connections
@@ -133,7 +133,8 @@ def measure(backends, sizes, batches, log=None, full_max: int | None = None,
             config: CheckConfig = CheckConfig(), reference_max: int | None = None) -> list[dict]:
     """One row per (size, batch, backend): load-stage and full-check candidates per second (full
     checks only up to `full_max` candidates: their contact stage runs on the CPU for every backend;
-    the `mujoco` reference only up to `reference_max`)."""
+    the `cpu` reference only up to `reference_max`)."""
+    backends = [backend_name(b) for b in backends]
     brick = load_part(get_reader(), "3001")
     cfg = config
     rows = []
@@ -145,11 +146,11 @@ def measure(backends, sizes, batches, log=None, full_max: int | None = None,
             poses = candidates(s, batch)
             models = load_models(s, poses, cfg)
             for backend in backends:
-                if backend == "mujoco" and reference_max is not None and batch > reference_max:
+                if backend == "cpu" and reference_max is not None and batch > reference_max:
                     continue
                 compile_s, compiles = 0.0, 0
-                if backend == "mjx":
-                    from factory.physics.lp_jax import COMPILES, solve_loads  # optional: JAX (the [mjx] extra)
+                if backend == "jax":
+                    from factory.physics.lp_jax import COMPILES, solve_loads  # optional: JAX (the [jax] extra)
 
                     t = time.perf_counter()
                     judge_many(models, cfg.loads, solve_loads)  # compile (and warm) this batch's bucket
@@ -209,7 +210,7 @@ def load_stage(s: Structure, poses: list[Pose], batched: bool = False, config: C
     base = LoadBase(s.placed, s.connections, 24.0, s.links, config.loads)
     units = [[Placed(brick, 4, p)] for p in poses]
     if batched:
-        from factory.physics.lp_jax import solve_on_base  # optional: JAX (the [mjx] extra)
+        from factory.physics.lp_jax import solve_on_base  # optional: JAX (the [jax] extra)
 
         return judge_on_base(base, units, conns, config.loads, solve_on_base, explain=False)
     return judge_many([base.model(u, c) for u, c in zip(units, conns)], config.loads, explain=False)
@@ -254,7 +255,7 @@ def _batched_answers(a: int, b: int) -> list:
     the reference's `_ctx_run` gives them."""
     kind, s = _CTX["kind"], _CTX["s"]
     if kind == "whole":
-        got = check(s, load_part(get_reader(), "3001"), _CTX["poses"][a:b], backend="mjx", floor_y=24.0, explain=False)
+        got = check(s, load_part(get_reader(), "3001"), _CTX["poses"][a:b], backend="jax", floor_y=24.0, explain=False)
         return [(v.ok, v.reason) for v in got]
     if kind == "loads":
         return [(v.stands, v.reason) for v in load_stage(s, _CTX["poses"][a:b], True, conns=_CTX["conns"][a:b])]
@@ -412,7 +413,7 @@ def measure_lp(sizes, batches, log=None, cpu_max: int = 128, cpu_workers: int = 
     on its first `cpu_max` candidates in `cpu_workers` processes; verdicts compared on those.
     `batched=False`: the reference alone. `procs` > 1: the batched path in that many processes
     sharing the device (`batched_processes`), with the default config."""
-    from factory.physics import lp_jax  # optional: JAX (the [mjx] extra)
+    from factory.physics import lp_jax  # optional: JAX (the [jax] extra)
 
     rows = []
     for n in sizes:
@@ -450,8 +451,8 @@ def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int
                   config: CheckConfig = CheckConfig(), batched: bool = True, procs: int = 1) -> list[dict]:
     """Whole checks per second (every check a candidate goes through: connection, collision,
     clutch, buildability sweep, whole-structure loads; `check` as the sampler calls it, failing
-    connections not sought): the batched path (`backend='mjx'`, default JAX device) on each batch
-    and the reference (`'mujoco'`, in `cpu_workers` processes) on its first `cpu_max` candidates,
+    connections not sought): the batched path (`backend='jax'`, default JAX device) on each batch
+    and the reference (`'cpu'`, in `cpu_workers` processes) on its first `cpu_max` candidates,
     verdicts (accepted, reason) compared on those. `batched=False`: the reference alone.
     `procs` > 1: the batched path in that many processes sharing the device (`batched_processes`),
     with the default config."""
@@ -471,7 +472,7 @@ def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int
                            reasons=dict(Counter(r for _, r in answers if r)))
             elif batched:
                 t = time.perf_counter()
-                check(s, brick, poses, backend="mjx", config=config, floor_y=24.0, explain=False)  # compiles
+                check(s, brick, poses, backend="jax", config=config, floor_y=24.0, explain=False)  # compiles
                 first_s = time.perf_counter() - t
                 # A process that has compiled with JAX holds many long-lived objects (a sampler
                 # process: 661K, a full collection 0.29 s); moved out of the collector's view.
@@ -480,7 +481,7 @@ def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int
                 _ALONE.clear()  # the warm-up's clutch answers: the timed call finds its own
                 before = check_mod.STAGE_SECONDS.copy()
                 t = time.perf_counter()
-                got = check(s, brick, poses, backend="mjx", config=config, floor_y=24.0, explain=False)
+                got = check(s, brick, poses, backend="jax", config=config, floor_y=24.0, explain=False)
                 gpu_s = time.perf_counter() - t
                 stages = check_mod.STAGE_SECONDS - before
                 row.update(gpu_per_s=round(batch / gpu_s, 1), first_call_s=round(first_s, 2),
@@ -563,20 +564,21 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
     from the first start to the last end. Stage seconds are summed over the processes.
     `judge_first`, `check_batch`: the sampler's (None: its defaults); the rows record the values used."""
     rows = []
+    backend = backend_name(backend)
     # The value the sampler takes (its default when None), recorded in every row.
     knobs = {"judge_first": judge_first, "check_batch": check_batch}
     config = SamplerConfig(backend=backend, **knobs)
     used = {"judge_first": config.judge_first, "check_batch": config.check_batch}
     if procs > 1:
         spans = _spans(objects, procs)
-        fill = _fill_compile_cache(backend, steps, objects, knobs) if backend == "mjx" else None
+        fill = _fill_compile_cache(backend, steps, objects, knobs) if backend == "jax" else None
         if fill is not None:
             _say(f"compile cache filled by one process in {fill[0]:.1f} s ({fill[1]} kernels compiled)")
         for batch in batches:
             per = max(1, batch // len(spans))
             # New processes for every row, so that no row finds the answers an earlier one cached.
             done, wall, shared = _together(spans, _growth_init, (backend, steps, objects, knobs), _growth_run,
-                                           per, gpu=backend == "mjx")
+                                           per, gpu=backend == "jax")
             infos = [info for *_, info in done]
             stages, jit = Counter(), Counter()
             for info in infos:
@@ -622,7 +624,7 @@ def _count_compiles() -> None:
 @functools.cache
 def _listen() -> None:
     """JAX's compile events to `_JIT`, once per process (JAX has no way to remove a listener)."""
-    import jax.monitoring  # optional: the [mjx] extra
+    import jax.monitoring  # optional: the [jax] extra
 
     jax.monitoring.register_event_duration_secs_listener(_on_duration)
     jax.monitoring.register_event_listener(_on_event)
@@ -659,7 +661,7 @@ def _growth_row(backend, batch, objects, placed, steps, wall, stages, procs=1, j
            "stage_seconds": {k: round(v, 2) for k, v in sorted(stages.items())}}
     if cpu_s is not None:
         row.update(cpu_seconds=round(cpu_s, 2), cpu_share=round(cpu_s / (procs * wall), 3))
-    if backend == "mjx":
+    if backend == "jax":
         jit = jit or {}
         row.update(warm_seconds=None if warm_s is None else round(warm_s, 2),
                    compiles=int(jit.get("compiles", 0)), compile_cache_misses=int(jit.get("cache_misses", 0)),
@@ -702,7 +704,7 @@ def _warm_sampler(backend: str, steps: int, objects: int, knobs: dict | None = N
                   keep: bool = True) -> Sampler | None:
     """A sampler (with `knobs`: `SamplerConfig` fields, None for their defaults) that has grown the
     `WARM_OBJECTS` warm-up objects (returned when `keep`)."""
-    if backend == "mjx":
+    if backend == "jax":
         _count_compiles()
     sampler = Sampler(SamplerConfig(seed=0, min_steps=steps, max_steps=steps, backend=backend, **(knobs or {})),
                       None)
@@ -736,7 +738,7 @@ def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, floa
 
 def main(argv=None) -> int:
     ap = ArgumentParser(prog="python -m pipelines.bench_physics")
-    ap.add_argument("--backends", default="mujoco")
+    ap.add_argument("--backends", default="cpu", help="check backends, comma-separated: cpu, jax")
     ap.add_argument("--sizes", default="10,30,60")
     ap.add_argument("--batches", default="256")
     ap.add_argument("--full-max", type=int, help="run full checks only for batches up to this size")
@@ -769,7 +771,7 @@ def main(argv=None) -> int:
     sizes, batches = [int(x) for x in args.sizes.split(",")], [int(x) for x in args.batches.split(",")]
     log = lambda r: print(json.dumps(r), flush=True)
     if args.growth:
-        rows = measure_growth(args.backends.split(",")[0], batches, args.steps, args.objects, log=log,
+        rows = measure_growth(backend_arg(args.backends.split(",")[0]), batches, args.steps, args.objects, log=log,
                               procs=args.procs, judge_first=args.judge_first, check_batch=args.check_batch)
     elif args.sweep:
         rows = measure_sweep(sizes, batches, 512 if args.cpu_max is None else args.cpu_max, log=log,
@@ -781,7 +783,7 @@ def main(argv=None) -> int:
         rows = measure_lp(sizes, batches, log=log, cpu_max=128 if args.cpu_max is None else args.cpu_max,
                           cpu_workers=args.cpu_workers, batched=not args.reference_only, procs=args.procs)
     else:
-        rows = measure(args.backends.split(","), sizes, batches, log=log, full_max=args.full_max)
+        rows = measure([backend_arg(b) for b in args.backends.split(",")], sizes, batches, log=log, full_max=args.full_max)
     if args.out:
         meta = {"machine": platform.node(), "processor": platform.processor(), "rows": rows}
         write_atomic(args.out, json.dumps(meta, indent=1).encode())

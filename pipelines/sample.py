@@ -1,6 +1,6 @@
 """Sample physics-verified objects to LDraw files.
 
-`python -m pipelines.sample --n N --seed S --out DIR [--ldraw DIR] [--check-backend mujoco|mjx]
+`python -m pipelines.sample --n N --seed S --out DIR [--ldraw DIR] [--check-backend cpu|jax]
 [--start I] [--workers W] [--batch B] [--min-steps A --max-steps B --candidates K --check-batch C
 --density-weight W --temperature T ...]` (a flag per `SamplerConfig` field, as `pipelines.synth` has)
 
@@ -32,7 +32,7 @@ from factory import mps
 from factory.cli import (ArgumentParser, add_config_args, add_mps_flag, add_progress_flag, config_from_args,
                          renamed_flag, run_guarded)
 from factory.physics import sweep_jax
-from factory.physics.check import BACKENDS, STAGE_SECONDS
+from factory.physics.check import BACKENDS, STAGE_SECONDS, backend_arg
 from factory.sampler import Sampler, SamplerConfig, SamplerConfigError
 from factory.atomic import write_atomic
 from pipelines import workers
@@ -125,7 +125,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--workers", type=int, default=1, help="processes (objects do not depend on it)")
     ap.add_argument("--batch", type=int, default=1,
                     help="objects grown together in lockstep per process, their checks asked in one call "
-                         "per step (objects do not depend on it; with mjx the round's collision tests, sweeps and load "
+                         "per step (objects do not depend on it; with the jax checks the round's collision tests, sweeps and load "
                          "programs go to the device together)")
     ap.add_argument("--steps-json", action="store_true", help="also list every step in summary.json")
     add_mps_flag(ap)
@@ -133,7 +133,7 @@ def parser() -> argparse.ArgumentParser:
     add_prior_flag(ap)
     # The sampler's settings: the same flags, defaults and check_batch rule as pipelines.synth's.
     add_config_args(ap, SamplerConfig, skip=("check",))
-    renamed_flag(ap, "--backend", "--check-backend", "backend", choices=BACKENDS)
+    renamed_flag(ap, "--backend", "--check-backend", "backend", choices=BACKENDS, type=backend_arg)
     return ap
 
 
@@ -165,7 +165,7 @@ def _run(args, config: SamplerConfig) -> int:
     pool = None
     chunks = _chunks(indices, args.batch, args.workers)
     # The workers' batched checks share each GPU through MPS where that helps (`factory.mps`).
-    sharing = mps.shared_gpu(args.workers, args.mps) if config.backend == "mjx" and args.workers > 1 \
+    sharing = mps.shared_gpu(args.workers, args.mps) if config.backend == "jax" and args.workers > 1 \
         else contextlib.nullcontext()
     with sharing:
         if args.workers > 1:
@@ -194,8 +194,8 @@ def _run(args, config: SamplerConfig) -> int:
     summary["batch"] = args.batch
     if args.workers == 1:  # (worker processes keep their own counts)
         summary["totals"]["check_stage_seconds"] = {k: round(v, 3) for k, v in sorted(STAGE_SECONDS.items())}
-        if config.backend == "mjx":
-            from factory.physics import lp_jax  # optional: JAX (the [mjx] extra)
+        if config.backend == "jax":
+            from factory.physics import lp_jax  # optional: JAX (the [jax] extra)
 
             summary["totals"]["compiles"] = {"loads": len(lp_jax.COMPILES), "sweeps": len(sweep_jax.COMPILES)}
     write_atomic(out / "summary.json", (json.dumps(summary, indent=1, default=_json_default) + "\n").encode())

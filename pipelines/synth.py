@@ -47,8 +47,8 @@ def add_auto_backend(ap: argparse.ArgumentParser) -> None:
     """`--check-backend` takes `auto` too, and defaults to it."""
     (action,) = [a for a in ap._actions if "--check-backend" in a.option_strings]
     action.choices, action.default = (*action.choices, AUTO), AUTO
-    action.help = action.help.replace(" (default:", " Or 'auto': 'mjx' where an NVIDIA GPU and JAX's CUDA build (the "
-                                      "gpu extra) are, else 'mujoco' (default:")
+    action.help = action.help.replace(" (default:", " Or 'auto': 'jax' where an NVIDIA GPU and JAX's CUDA build (the "
+                                      "gpu extra) are, else 'cpu' (default:")
 
 
 def checks_backend(args) -> tuple[str, str]:
@@ -75,7 +75,7 @@ def add_run_args(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--workers", type=int, default=1, help="parallel shards (default 1: this process)")
     ap.add_argument("--batch", type=int, default=1,
                     help="synthetic objects grown together in lockstep per grower while the other workers "
-                         "render (default 1: each shard grows its own objects, with the mjx checks all of "
+                         "render (default 1: each shard grows its own objects, with the jax checks all of "
                          "them together; the data is the same whatever it is)")
     ap.add_argument("--growers", type=int, default=None,
                     help="with --batch > 1: workers that grow objects (default two thirds of --workers)")
@@ -91,13 +91,13 @@ def run(config, args) -> int:
     if args.batch > 1 and synthetic:
         print(f"growth: {args.batch} objects at a time in each of {growers_of(args.workers, args.growers)} "
               f"growers; {args.workers} workers", file=sys.stderr, flush=True)
-    elif synthetic and config.sampler.backend == "mjx":
+    elif synthetic and config.sampler.backend == "jax":
         print(f"growth: each shard's objects (up to {config.objects_per_shard}) together in the worker that "
               f"renders them; {args.workers} worker{'s' if args.workers != 1 else ''}", file=sys.stderr, flush=True)
     if synthetic:
-        print(f"physics: {config.sampler.backend} ({checks_backend(args)[1]}; --check-backend mujoco|mjx|auto); renders: "
+        print(f"physics: {config.sampler.backend} ({checks_backend(args)[1]}; --check-backend cpu|jax|auto); renders: "
               f"{gpus.render_path()}", file=sys.stderr, flush=True)
-    summary = build(config, args.out, backend=args.runner, workers=args.workers,
+    summary = build(config, args.out, runner=args.runner, workers=args.workers,
                     progress=not args.no_progress, batch=args.batch, growers=args.growers, mps_mode=args.mps)
     print(summary_line(summary), flush=True)
     return 0

@@ -1,6 +1,6 @@
 """Replay a human-designed model's build steps through the physics checks.
 
-`python -m pipelines.verify MODEL [--ldraw DIR] [--check-backend mujoco|mjx] --json`
+`python -m pipelines.verify MODEL [--ldraw DIR] [--check-backend cpu|jax] --json`
 
 The replay is `factory.replay.verify_model` (see its module docstring for how parts and
 sub-assemblies are judged). One JSON object per placed part, and one with `"unit": true` per
@@ -14,7 +14,7 @@ import json
 import sys
 
 from factory.cli import ArgumentParser, renamed_flag, run_guarded
-from factory.physics.check import BACKENDS
+from factory.physics.check import BACKENDS, backend_arg
 from factory.replay import summarize, verify_model
 
 
@@ -23,9 +23,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("model")
     ap.add_argument("--ldraw", help="LDraw library: a folder or LDraw's complete.zip (default: "
                     "$LDRAWDIR, else the embedded library)")
-    ap.add_argument("--check-backend", dest="backend", choices=BACKENDS, default="mujoco",
-                    help="physics checks on the CPU (mujoco, default) or batched in JAX (mjx)")
-    renamed_flag(ap, "--backend", "--check-backend", "backend", choices=BACKENDS)
+    ap.add_argument("--check-backend", dest="backend", choices=BACKENDS, default="cpu", type=backend_arg,
+                    help="physics checks one candidate at a time on the CPU (cpu, default: MuJoCo's C "
+                         "collision and NumPy/SciPy) or batched in JAX kernels (jax, on a GPU where there is one)")
+    renamed_flag(ap, "--backend", "--check-backend", "backend", choices=BACKENDS, type=backend_arg)
     ap.add_argument("--json", action="store_true", help="print JSON lines (the only format)")
     ap.add_argument("--faults", action="store_true",
                     help="also inject faults into accepted parts and end with a summary line")

@@ -16,13 +16,13 @@ from pipelines import bench
 @pytest.mark.slow
 def test_quick_bench_writes_report_and_plots(tmp_path):
     out = tmp_path / "bench"
-    assert bench.main(["--out", str(out), "--quick", "--backends", "mujoco", "--models"]) == 0
+    assert bench.main(["--out", str(out), "--quick", "--backends", "cpu", "--models"]) == 0
     report = json.loads((out / "report.json").read_text())
     for name in ("report.md", "physics.png", "render.png", "eval.png"):
         assert (out / name).stat().st_size > 0, name
     assert set(report["section_s"]) == {"physics", "render", "synth", "evaluation"}
     (phys,) = report["physics"]["rows"]
-    assert phys["backend"] == "mujoco" and phys["checks_per_s"] > 0 and 0 < phys["accepted"] <= phys["batch"]
+    assert phys["backend"] == "cpu" and phys["checks_per_s"] > 0 and 0 < phys["accepted"] <= phys["batch"]
     (loads,), (sweeps,) = report["physics"]["loads"], report["physics"]["sweeps"]
     assert loads["bricks"] == sweeps["bricks"] == 30 and loads["cpu_per_s"] > 0 and sweeps["cpu_per_s"] > 0
     growth = report["physics"]["growth"]
@@ -44,7 +44,7 @@ def test_quick_bench_writes_report_and_plots(tmp_path):
     assert "| oracle | 1.000 | 1.000 | 0.0 | 0.0 | 1.000 | 1.000 | 1.000 | 0 |" in md
     assert "random + feedback" in md
     # a re-run reuses the finished dataset (the builder resumes) and rewrites the report
-    assert bench.main(["--out", str(out), "--quick", "--backends", "mujoco", "--models"]) == 0
+    assert bench.main(["--out", str(out), "--quick", "--backends", "cpu", "--models"]) == 0
     again = json.loads((out / "report.json").read_text())
     assert again["synth"]["resumed"] is True and again["kept"] == []
 
@@ -53,7 +53,7 @@ def test_quick_bench_writes_report_and_plots(tmp_path):
     cut = {k: v for k, v in again.items() if k not in ("synth", "evaluation")}
     cut["physics"] = {k: v for k, v in again["physics"].items() if k != "growth"}
     (out / "report.json").write_text(json.dumps(cut))
-    assert bench.main(["--out", str(out), "--quick", "--backends", "mujoco", "--models", "--resume"]) == 0
+    assert bench.main(["--out", str(out), "--quick", "--backends", "cpu", "--models", "--resume"]) == 0
     resumed = json.loads((out / "report.json").read_text())
     assert resumed["kept"] == ["render", "physics (rows, loads, sweeps, whole)"]
     for key in ("rows", "loads", "sweeps", "whole"):
@@ -68,13 +68,13 @@ def test_quick_bench_writes_report_and_plots(tmp_path):
     # ... but not those of a report made on another machine
     cut["machine"]["cpus"] = (cut["machine"]["cpus"] or 0) + 1
     (out / "report.json").write_text(json.dumps(cut))
-    assert bench.main(["--out", str(out), "--quick", "--backends", "mujoco", "--models", "--resume"]) == 0
+    assert bench.main(["--out", str(out), "--quick", "--backends", "cpu", "--models", "--resume"]) == 0
     assert json.loads((out / "report.json").read_text())["kept"] == []
 
 
 def test_unknown_backend_is_a_clear_error(tmp_path, capsys):
     assert bench.main(["--out", str(tmp_path), "--backends", "cuda"]) == 2
-    assert "unknown backend 'cuda'; valid: mujoco, mjx, auto" in capsys.readouterr().err
+    assert "unknown backend 'cuda'; valid: cpu, jax, auto" in capsys.readouterr().err
 
 
 def test_growth_rows_grow_the_same_objects_at_every_batch(capsys):
@@ -82,7 +82,7 @@ def test_growth_rows_grow_the_same_objects_at_every_batch(capsys):
     with a positive rate."""
     from pipelines.bench_physics import measure_growth
 
-    rows = measure_growth("mujoco", [1, 3], steps=3, objects=3)
+    rows = measure_growth("cpu", [1, 3], steps=3, objects=3)
     assert "bench_physics: warm-up: 4 objects in" in capsys.readouterr().err  # progress on stderr
     assert [r["batch"] for r in rows] == [1, 3]
     assert rows[0]["steps"] == rows[1]["steps"] > 0
@@ -99,8 +99,8 @@ def test_growth_in_several_processes_grows_the_same_objects(capfd):
     growing its half, all of them to their length, with each process's stage seconds summed."""
     from pipelines.bench_physics import measure_growth
 
-    (one,) = measure_growth("mujoco", [2], steps=3, objects=4)
-    (two,) = measure_growth("mujoco", [2], steps=3, objects=4, procs=2)
+    (one,) = measure_growth("cpu", [2], steps=3, objects=4)
+    (two,) = measure_growth("cpu", [2], steps=3, objects=4, procs=2)
     err = capfd.readouterr().err  # the grower processes' progress, on the inherited stderr
     assert err.count("warm-up in") == 2 and err.count("2 of 2 objects") == 2
     assert two["procs"] == 2 and two["batch"] == 2 and one["procs"] == 1
@@ -140,7 +140,7 @@ def test_batched_growth_rows_count_the_compiles_in_their_window():
     pytest.importorskip("jax")
     from pipelines.bench_physics import measure_growth
 
-    first, second = measure_growth("mjx", [2, 2], steps=3, objects=2)
+    first, second = measure_growth("jax", [2, 2], steps=3, objects=2)
     assert first["warm_seconds"] > 0 and second["warm_seconds"] is None
     assert first["steps"] == second["steps"] > 0
     assert second["compiles"] == second["compile_cache_misses"] == 0 and second["compile_seconds"] == 0
@@ -171,7 +171,7 @@ def test_grower_processes_load_the_kernels_one_process_compiled(tmp_path, monkey
     from pipelines.bench_physics import measure_growth
 
     monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "jax"))  # the spawned processes' cache
-    (row,) = measure_growth("mjx", [2], steps=3, objects=2, procs=2)
+    (row,) = measure_growth("jax", [2], steps=3, objects=2, procs=2)
     assert row["steps"] == 6 and row["cache_fill_seconds"] > 0 and row["cache_fill_misses"] > 0
     # without the shared cache each of the two would compile what the one did (2x); here together at most 1x
     assert row["warm_cache_misses"] <= row["cache_fill_misses"]

@@ -22,7 +22,7 @@ from factory.physics.statics import LoadConfig
 from factory.sampler import SamplerConfig, SamplerConfigError
 from pipelines import designs, sample, synth
 from pipelines.dataset import DatasetConfig
-from pipelines.dataset.config import SCHEMA_VERSION
+from pipelines.dataset.config import SCHEMA_VERSION, started_hash
 from train.__main__ import config_from_args as train_config_from_args, parser as train_parser
 from train.config import ConfigError as TrainConfigError, TrainConfig
 
@@ -61,7 +61,7 @@ def test_configs_are_frozen(cls):
 def _examples():
     loads = dataclasses.replace(LoadConfig(), clutch_n=0.7, support_points=4)
     sampler = SamplerConfig(parts=[("3001", 2.0), "3003"], colours={4: 1, 15: 3}, min_steps=3, max_steps=7,
-                            candidates_per_step=9, backend="mjx", seed=5,
+                            candidates_per_step=9, backend="jax", seed=5,
                             check=CheckConfig(max_penetration_ldu=0.25, loads=loads))
     models = ({"object_id": "car", "path": "/x/car.ldr", "sha256": "ab"},)
     return [
@@ -116,7 +116,7 @@ def test_a_nested_unknown_key_names_its_place():
 def test_dataset_json_record_is_versioned_and_refuses_another_version():
     cfg = tiny_dataset_config()
     record = cfg.to_json()
-    assert record["schema_version"] == SCHEMA_VERSION and DatasetConfig.from_json(record) == cfg
+    assert record["schema_version"] == SCHEMA_VERSION == 2 and DatasetConfig.from_json(record) == cfg
     with pytest.raises(ConfigError, match="schema version 99"):
         DatasetConfig.from_json({**record, "schema_version": 99})
     design = DatasetConfig("design", 1, models=({"object_id": "m", "path": "/m.ldr", "sha256": "0"},))
@@ -143,11 +143,16 @@ def test_hash_of_a_build_made_before_the_sampler_was_typed_is_unchanged(monkeypa
     args = synth_parser().parse_args(["--n", "2", "--out", "unused", "--seed", "0", "--parts", OLD_DEFAULT_PARTS,
                                       "--colours", OLD_DEFAULT_COLOURS])
     config = synth.config_from_args(args)
-    assert config.sampler.prior == "" and config.hash == "7128f1ff5ea58dd7"
+    # Schema version 2 leaves the check backend out of the hash; the folder resumes under the hash it
+    # recorded (the version-1 rule, with the run settings that version wrote: `version1_record`).
+    old = {"config_hash": "7128f1ff5ea58dd7",
+           "config": {**config.to_json(), "schema_version": 1,
+                      "sampler": {**config.to_json()["sampler"], "backend": "mujoco", "check_batch": 1}}}
+    assert config.sampler.prior == "" and started_hash(config, old) == "7128f1ff5ea58dd7" != config.hash
     assert type(config).from_json(config.to_json()) == config  # no `prior` key in the record: none
     # the default command now draws from the shipped prior: another config, which an old folder refuses
     default = synth.config_from_args(synth_parser().parse_args(["--n", "2", "--out", "unused", "--seed", "0"]))
-    assert default.sampler.prior.startswith("default sha256:") and default.hash != "7128f1ff5ea58dd7"
+    assert default.sampler.prior.startswith("default sha256:") and started_hash(default, old) is None
 
 
 def test_check_thresholds_are_recorded_only_when_changed():
@@ -160,10 +165,10 @@ def test_check_thresholds_are_recorded_only_when_changed():
 
 def test_check_batch_default_follows_the_backend():
     assert SamplerConfig().check_batch == 1
-    assert SamplerConfig(backend="mjx", candidates_per_step=16).check_batch == 16
-    assert SamplerConfig(backend="mjx").check_batch == 16  # MJX_CHECK_BATCH, below the 64 candidates
-    assert SamplerConfig(backend="mjx", candidates_per_step=8).check_batch == 8
-    assert SamplerConfig(backend="mjx", candidates_per_step=16, check_batch=4).check_batch == 4
+    assert SamplerConfig(backend="jax", candidates_per_step=16).check_batch == 16
+    assert SamplerConfig(backend="jax").check_batch == 16  # JAX_CHECK_BATCH, below the 64 candidates
+    assert SamplerConfig(backend="jax", candidates_per_step=8).check_batch == 8
+    assert SamplerConfig(backend="jax", candidates_per_step=16, check_batch=4).check_batch == 4
     with pytest.raises(SamplerConfigError, match="check_batch must be >= 1"):
         SamplerConfig(check_batch=0)
 
@@ -233,7 +238,7 @@ def test_synth_command_line_and_the_factory_function_agree(monkeypatch):
 
 def test_sample_and_synth_configure_the_sampler_alike(monkeypatch):
     monkeypatch.delenv("LDRAWDIR", raising=False)
-    argv = ["--seed", "4", "--min-steps", "3", "--max-steps", "6", "--candidates", "12", "--check-backend", "mjx",
+    argv = ["--seed", "4", "--min-steps", "3", "--max-steps", "6", "--candidates", "12", "--check-backend", "jax",
             "--temperature", "0.5", "--parts", "3001:2,3003"]
     from_sample = sample_config(argv)
     from_synth = synth.config_from_args(synth_parser().parse_args(["--n", "1", "--out", "unused", *argv])).sampler
@@ -246,40 +251,47 @@ def test_old_flag_spellings_still_work_with_a_warning(capsys):
     assert args.runner == "ray" and args.no_progress
     err = capsys.readouterr().err
     assert "--backend is deprecated, use --runner" in err and "--quiet is deprecated, use --no-progress" in err
-    assert sample_config(["--backend", "mjx"]).backend == "mjx"
+    assert sample_config(["--backend", "jax"]).backend == "jax"
     assert "--backend is deprecated, use --check-backend" in capsys.readouterr().err
+    # The backends' former names: mapped to the new ones, with a warning line.
+    assert sample_config(["--check-backend", "mjx"]).backend == "jax"
+    assert "warning: check backend 'mjx' is deprecated; use 'jax'" in capsys.readouterr().err
+    args = synth_parser().parse_args(["--n", "1", "--out", "o", "--check-backend", "mujoco"])
+    assert getattr(args, "sampler.backend") == "cpu"
+    assert "warning: check backend 'mujoco' is deprecated; use 'cpu'" in capsys.readouterr().err
     assert synth_parser().parse_args(["--n", "1", "--out", "o", "--png-level", "3"]).png_compress_level == 3
 
 
 def test_auto_checks_take_the_gpu_only_with_an_nvidia_gpu_and_cudas_jax(tmp_path, monkeypatch):
     """`--check-backend auto` (synth's default) resolves per machine: the reference without an
-    NVIDIA GPU or without JAX's CUDA build, the batched checks with both; the config records
-    the backend taken. The GPU is the driver's listing (`gpus._NVIDIA_GPUS`), here a folder."""
+    NVIDIA GPU or without JAX's CUDA build, the batched checks with both; the config holds the
+    backend taken (its hash does not). The GPU is the driver's listing (`gpus._NVIDIA_GPUS`), here a folder."""
     from factory import gpus
 
     monkeypatch.delenv("LDRAWDIR", raising=False)
     args = synth_parser().parse_args(["--n", "2", "--out", "unused"])
     assert getattr(args, "sampler.backend") == synth.AUTO
     monkeypatch.setattr(gpus, "_NVIDIA_GPUS", str(tmp_path / "none"))
-    assert synth.checks_backend(args) == ("mujoco", "no NVIDIA GPU here")
-    assert synth.config_from_args(args).sampler.backend == "mujoco"
+    assert synth.checks_backend(args) == ("cpu", "no NVIDIA GPU here")
+    assert synth.config_from_args(args).sampler.backend == "cpu"
     (tmp_path / "gpus" / "0000:01:00.0").mkdir(parents=True)
     monkeypatch.setattr(gpus, "_NVIDIA_GPUS", str(tmp_path / "gpus"))
     monkeypatch.setattr(gpus, "cuda_jax", lambda: None)
     backend, why = synth.checks_backend(args)
-    assert backend == "mujoco" and "no CUDA build of JAX" in why
+    assert backend == "cpu" and "no CUDA build of JAX" in why
     monkeypatch.setattr(gpus, "cuda_jax", lambda: "jax-cuda13-plugin")
-    assert synth.checks_backend(args) == ("mjx", "1 NVIDIA GPU(s) and JAX's CUDA build (jax-cuda13-plugin)")
+    assert synth.checks_backend(args) == ("jax", "1 NVIDIA GPU(s) and JAX's CUDA build (jax-cuda13-plugin)")
     cfg = synth.config_from_args(args)
-    assert cfg.sampler.backend == "mjx" and cfg.sampler.check_batch == 16  # the batched path's own default
-    chosen = synth_parser().parse_args(["--n", "2", "--out", "unused", "--check-backend", "mujoco"])
-    assert synth.config_from_args(chosen).sampler.backend == "mujoco"  # a chosen backend is kept
+    assert cfg.sampler.backend == "jax" and cfg.sampler.check_batch == 16  # the batched path's own default
+    chosen = synth_parser().parse_args(["--n", "2", "--out", "unused", "--check-backend", "cpu"])
+    assert synth.config_from_args(chosen).sampler.backend == "cpu"  # a chosen backend is kept
+    assert synth.config_from_args(chosen).hash == cfg.hash  # the same dataset either way
 
 
 def test_a_bad_choice_lists_the_valid_ones(capsys):
     with pytest.raises(SystemExit):
         synth_parser().parse_args(["--n", "1", "--out", "o", "--check-backend", "cuda"])
-    assert "choose from 'mujoco', 'mjx'" in capsys.readouterr().err
+    assert "choose from 'cpu', 'jax'" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         train_parser().parse_args(["--data", "/d", "--outdir", "/r", "--tasks", "pose,colour"])
     assert f"'colour' is not valid; valid: {', '.join(TASKS)}" in capsys.readouterr().err
@@ -305,7 +317,7 @@ def synth_settings(draw):
     lo = draw(st.integers(1, 40))
     sampler = dict(min_steps=lo, max_steps=draw(st.integers(lo, 60)), density_weight=draw(floats),
                    temperature=draw(floats), candidates_per_step=draw(st.integers(1, 99)),
-                   max_redraws=draw(st.integers(0, 9)), backend=draw(st.sampled_from(["mujoco", "mjx"])),
+                   max_redraws=draw(st.integers(0, 9)), backend=draw(st.sampled_from(["cpu", "jax"])),
                    parts=tuple((p, draw(floats)) for p in draw(st.lists(st.sampled_from(part_names), min_size=1,
                                                                         max_size=5, unique=True))))
     if draw(st.booleans()):
@@ -338,7 +350,10 @@ def test_any_synth_config_survives_the_command_line_and_json(s):
     args = synth_parser().parse_args([*argv, "--out", "unused", "--ldraw", "/lib"])
     got = synth.config_from_args(args)
     assert dataclasses.replace(got, ldraw=None) == expected
-    assert DatasetConfig.from_json(_json(got.to_json())) == got and DatasetConfig.from_dict(_json(got.to_dict())) == got
+    assert DatasetConfig.from_dict(_json(got.to_dict())) == got
+    # The JSON record leaves the run settings out (the checks' backend, check_batch, judge_first).
+    again = DatasetConfig.from_json(_json(got.to_json()))
+    assert again.to_json() == got.to_json() and again.hash == got.hash and again.sampler.backend == "cpu"
 
 
 @settings(max_examples=60, deadline=None)

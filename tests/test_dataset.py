@@ -1,6 +1,6 @@
 """The dataset builder (pipelines.dataset, pipelines.synth, pipelines.export): schema, split,
 byte-identical resume after a deleted shard and after a kill, refusal of a changed config, the Ray
-backend, `datasets.load_dataset`, the gallery and the LLaMA-Factory export.
+runner, `datasets.load_dataset`, the gallery and the LLaMA-Factory export.
 
 One small build (3 sampled objects of 2-3 steps, 128 px views, one object per shard) is made once
 per session and compared against by the other tests.
@@ -286,7 +286,7 @@ def test_killed_run_resumes_to_identical_bytes(built, tmp_path):
 
 
 @pytest.mark.slow
-def test_ray_backend_gives_the_same_bytes(built, tmp_path):
+def test_ray_runner_gives_the_same_bytes(built, tmp_path):
     ray = pytest.importorskip("ray")
     out = tmp_path / "ray"
     ray.init(num_cpus=2, include_dashboard=False, runtime_env={"env_vars": {
@@ -294,7 +294,7 @@ def test_ray_backend_gives_the_same_bytes(built, tmp_path):
         **({"BRICK_FACTORY_CACHE": os.environ["BRICK_FACTORY_CACHE"]} if "BRICK_FACTORY_CACHE" in os.environ
            else {})}})
     try:
-        s = build(_config(), out, backend="ray", workers=2, progress=False)
+        s = build(_config(), out, runner="ray", workers=2, progress=False)
     finally:
         ray.shutdown()
     assert s["shards_built"] == 3
@@ -357,7 +357,7 @@ def test_export_llamafactory_merges_into_a_users_registry(built, tmp_path):
 @pytest.mark.slow
 def test_local_worker_processes_give_the_same_bytes(built, tmp_path):
     out = tmp_path / "pool"
-    s = build(_config(), out, backend="local", workers=2, progress=False)
+    s = build(_config(), out, runner="local", workers=2, progress=False)
     assert s["shards_built"] == 3
     pids = {json.loads((out / "meta" / "shards" / f"{k:05d}.json").read_text())["pid"] for k in range(3)}
     assert os.getpid() not in pids
@@ -704,7 +704,7 @@ def test_start_reads_only_the_markers_there(tmp_path, monkeypatch):
         (out / "meta" / "shards" / f"{k:05d}.json").write_text("{}")
     (out / "meta" / "shards" / "notes.txt").write_text("not a marker")
     calls = []
-    monkeypatch.setattr(build_mod, "read_marker", lambda o, k, c: calls.append(k) or ({} if k == 3 else None))
+    monkeypatch.setattr(build_mod, "read_marker", lambda o, k, c, h=None: calls.append(k) or ({} if k == 3 else None))
     assert build_mod.finished_shards(config, out) == {3} and sorted(calls) == [3, 7]
     assert build_mod.finished_shards(config, tmp_path / "none") == set()
     with pytest.raises(ValueError, match="at most 10,000,000"):
@@ -713,7 +713,7 @@ def test_start_reads_only_the_markers_there(tmp_path, monkeypatch):
 
 @pytest.mark.slow
 def test_a_shard_with_batched_checks_grows_its_objects_together(tmp_path, monkeypatch):
-    """With the batched checks ('mjx') and no growers (`--batch 1`), a shard grows its objects in
+    """With the batched checks ('jax') and no growers (`--batch 1`), a shard grows its objects in
     lockstep, so each round of device calls serves all of them (one at a time it made a round per
     object), and writes the same data files as the reference's checks."""
     pytest.importorskip("jax")
@@ -728,13 +728,13 @@ def test_a_shard_with_batched_checks_grows_its_objects_together(tmp_path, monkey
     real = lockstep.check_many
     monkeypatch.setattr(lockstep, "check_many", lambda requests, *a, **k: asked.append(len(requests)) or
                         real(requests, *a, **k))
-    build_shard(config("mjx"), 0, tmp_path / "mjx")
+    build_shard(config("jax"), 0, tmp_path / "jax")
     assert max(asked) == 3  # the shard's three objects in one call
-    build_shard(config("mujoco"), 0, tmp_path / "ref")
+    build_shard(config("cpu"), 0, tmp_path / "ref")
     data = sorted(p.name for p in (tmp_path / "ref" / "data").glob("*.parquet"))
-    assert data and data == sorted(p.name for p in (tmp_path / "mjx" / "data").glob("*.parquet"))
+    assert data and data == sorted(p.name for p in (tmp_path / "jax" / "data").glob("*.parquet"))
     for name in data:
-        assert filecmp.cmp(tmp_path / "ref" / "data" / name, tmp_path / "mjx" / "data" / name, shallow=False), name
+        assert filecmp.cmp(tmp_path / "ref" / "data" / name, tmp_path / "jax" / "data" / name, shallow=False), name
 
 
 # 1.3 s: `import mujoco` (MUJOCO_GL unset) imported glfw there, whose version probe starts a Python

@@ -12,7 +12,7 @@ import pytest
 from eval.data import DatasetError, info
 from factory.dataset import TASKS
 from factory.dataset.info import Counts, DatasetInfo, InfoError, json_bytes, read_info, write_info
-from pipelines.dataset.config import DatasetConfig
+from pipelines.dataset.config import DatasetConfig, record_hash, started_hash
 
 INFOS = Path(__file__).parent / "data" / "info"
 WRITTEN = ("synthetic.json", "design.json", "bcbench.json")
@@ -34,7 +34,12 @@ def test_builder_file_is_typed():
     assert meta.dataset_id == "brick-factory-synth" and meta.seed == 0 and meta.num_shards == 1
     assert meta.counts["train"] == Counts(objects=1, steps=5, bytes=meta.counts["train"].bytes)
     assert meta.splits_present == ("train", "test") and meta.available_tasks == TASKS
-    assert DatasetConfig.from_json(meta.config).hash == meta.config_hash
+    # A version-1 record (its sampler names the backend 'mujoco'): read, and its folder resumed under
+    # its own hash by a config with the same settings (`started_hash`, the version-1 rule).
+    assert meta.config["schema_version"] == 1 and meta.config["sampler"]["backend"] == "mujoco"
+    config = DatasetConfig.from_json(meta.config)
+    assert config.hash != meta.config_hash and record_hash(meta.config) == meta.config_hash
+    assert started_hash(config, {"config_hash": meta.config_hash, "config": meta.config}) == meta.config_hash
     assert meta.statistics["rejections"]["collision"] == 15
     with pytest.raises(dataclasses.FrozenInstanceError):
         meta.dataset_id = "other"  # type: ignore[misc]
@@ -69,7 +74,7 @@ def _synthetic() -> dict:
     (lambda d: d.update(bcbench_import={}), "unknown key 'bcbench_import' for source 'synthetic'"),
     (lambda d: d.pop("counts"), "missing 'counts'"),
     (lambda d: d.update(source="scraped"), "source must be one of synthetic, design, bcbench, feedback, got 'scraped'"),
-    (lambda d: d.update(schema_version=2), "schema_version must be an integer in 1..1"),
+    (lambda d: d.update(schema_version=3), "schema_version must be an integer in 1..2"),
     (lambda d: d["total"].update(steps=10), "total.steps is 10 but the splits' counts sum to 9"),
     (lambda d: d["counts"].update(validation={"objects": 1, "steps": 1}), "counts: unknown split 'validation'; valid: train, test"),
     (lambda d: d["counts"]["train"].update(steps=-1), "counts.train.steps must be an integer >= 0, got -1"),

@@ -126,7 +126,7 @@ def test_allowed_imports_pass(tmp_path):
 # -- imports at the top ----------------------------------------------------------------------------
 
 OPTIONAL = {
-    "jax": "[mjx]", "jaxlib": "[mjx]", "mujoco_warp": "[gpu]", "ray": "[ray]",
+    "jax": "[jax]", "jaxlib": "[jax]", "ray": "[ray]",
     "torch": "[train]", "transformers": "[train]", "peft": "[train]", "accelerate": "[train]",
     "matplotlib": "[train], [bench]", "datasets": "[dev]",
     "tokenizers": "transformers' own", "safetensors": "transformers' own",

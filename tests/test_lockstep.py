@@ -107,16 +107,16 @@ def _requests(n_objects: int = 6, per: int = 48) -> list[CheckRequest]:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("backend", ["mujoco", "mjx"])
+@pytest.mark.parametrize("backend", ["cpu", "jax"])
 def test_check_many_answers_each_request_as_check_does(backend):
-    if backend == "mjx":
+    if backend == "jax":
         pytest.importorskip("jax")
     requests = _requests()
     many = check_many(requests, backend, explain=False)
     reasons = set()
     total = 0
     for r, got in zip(requests, many):
-        want = check(r.structure, r.part, list(r.poses), "mujoco", colour=r.colour, floor_y=r.floor_y,
+        want = check(r.structure, r.part, list(r.poses), "cpu", colour=r.colour, floor_y=r.floor_y,
                      explain=False)
         assert [v.reason for v in got] == [v.reason for v in want]
         assert [v.buildable for v in got] == [v.buildable for v in want]
@@ -145,13 +145,13 @@ def test_jax_processes_share_the_gpu_memory(given, expected):
     assert out.stdout.strip() == expected
 
 
-@pytest.mark.parametrize("backend", ["mujoco", "mjx"])
+@pytest.mark.parametrize("backend", ["cpu", "jax"])
 def test_judge_first_leaves_only_later_survivors_unjudged(backend):
     """With `judge_first=2` the sweep and the loads judge the first two candidates of each request
     that pass the clutch rule; every later one comes back None, and so does one of those two that
     reached the loads after the first that stands (the asker takes the first survivor). Every
     other verdict is `check`'s."""
-    if backend == "mjx":
+    if backend == "jax":
         pytest.importorskip("jax")
     from dataclasses import replace
 
@@ -159,7 +159,7 @@ def test_judge_first_leaves_only_later_survivors_unjudged(backend):
     many = check_many([replace(r, judge_first=2) for r in requests], backend, explain=False)
     unjudged = stopped = 0
     for r, got in zip(requests, many):
-        want = check(r.structure, r.part, list(r.poses), "mujoco", colour=r.colour, floor_y=r.floor_y,
+        want = check(r.structure, r.part, list(r.poses), "cpu", colour=r.colour, floor_y=r.floor_y,
                      explain=False)
         past_clutch = [i for i, v in enumerate(want) if v.clutch]
         judged = past_clutch[:2]
@@ -179,13 +179,13 @@ def test_judge_first_leaves_only_later_survivors_unjudged(backend):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("backend", ["mujoco", "mjx"])
+@pytest.mark.parametrize("backend", ["cpu", "jax"])
 def test_loads_after_the_first_candidate_go_in_the_askers_order(backend):
     """With `CheckRequest.order`, when a request's first candidate does not stand, the load programs
     of the others go in the asker's order up to the first that stands, and stop before the first
     candidate left unjudged (`judge_first`) or where the order ends: those it does not reach come
     back None. Here the asker's order is the reverse of the request's, then one that ends at once."""
-    if backend == "mjx":
+    if backend == "jax":
         pytest.importorskip("jax")
     from dataclasses import replace
 
@@ -212,7 +212,7 @@ def test_loads_after_the_first_candidate_go_in_the_askers_order(backend):
     for order in (reverse, ends_at_once):
         many = check_many([replace(r, judge_first=4, order=order) for r in requests], backend, explain=False)
         for r, got in zip(requests, many):
-            want = check(r.structure, r.part, list(r.poses), "mujoco", colour=r.colour, floor_y=r.floor_y,
+            want = check(r.structure, r.part, list(r.poses), "cpu", colour=r.colour, floor_y=r.floor_y,
                          explain=False)
             past_clutch = [i for i, v in enumerate(want) if v.clutch]
             reach = [i for i in past_clutch[:4] if want[i].buildable is not False]
@@ -284,12 +284,12 @@ def test_the_batched_walk_solves_only_the_load_programs_the_reference_solves(mon
 
     monkeypatch.setattr(chk, "solve_from", counted)
     programs, objects = {}, {}
-    for backend, batch in (("mujoco", 1), ("mjx", 2)):
+    for backend, batch in (("cpu", 1), ("jax", 2)):
         solved.clear()
         s = Sampler(SamplerConfig(seed=0, backend=backend, min_steps=10, max_steps=12))
         grown = sorted(s.grow(range(2), batch=batch), key=lambda a: a.index)
         objects[backend] = [a.ldr_text(f"object_{a.index:05d}.ldr") for a in grown]
         programs[backend] = len(solved)
     assert s.config.check_batch > 1 and s.config.judge_first > 1  # the batched walk's requests
-    assert objects["mjx"] == objects["mujoco"]
-    assert programs["mjx"] == programs["mujoco"] > 0
+    assert objects["jax"] == objects["cpu"]
+    assert programs["jax"] == programs["cpu"] > 0

@@ -345,7 +345,7 @@ def test_programs_of_several_structures_share_launches_and_match_highs(monkeypat
 
 
 def test_clutch_programs_on_the_device_give_the_verdicts_of_highs():
-    # holds_alone_many with the batched solver (what the 'mjx' checks use) against HiGHS, on the
+    # holds_alone_many with the batched solver (what the 'jax' checks use) against HiGHS, on the
     # cases the closed form leaves to the program: sitting on some studs while hanging from others,
     # hanging while resting on the ground, tilted studs; heavy and light parts, near the limit too.
     from factory.physics.statics import LoadConfig, _closed_form, holds_alone_many

@@ -100,7 +100,7 @@ def test_no_gpu_leaves_the_environment_alone(clean_env):
 
 
 def test_a_build_asks_for_mps_only_for_the_batched_checks_in_local_processes(clean_env):
-    """`pipelines.dataset.build`: the growers of a lockstep build with the 'mjx' checks (or every
+    """`pipelines.dataset.build`: the growers of a lockstep build with the 'jax' checks (or every
     worker without lockstep) are the clients; the CPU reference and Ray tasks ask for nothing."""
     from factory.sampler import SamplerConfig
     from pipelines.dataset.build import _gpu_sharing
@@ -108,13 +108,13 @@ def test_a_build_asks_for_mps_only_for_the_batched_checks_in_local_processes(cle
 
     asked = []
     clean_env.setattr(mps, "shared_gpu", lambda clients, mode: asked.append((clients, mode)) or "sharing")
-    mjx = DatasetConfig("synthetic", 4, seed=0, sampler=SamplerConfig(seed=0, backend="mjx"))
-    assert _gpu_sharing(mjx, "local", 12, 16, None, None) == "sharing"  # 8 growers of 12 workers
-    assert _gpu_sharing(mjx, "local", 12, 16, 5, "off") == "sharing"
-    assert _gpu_sharing(mjx, "local", 6, 1, None, None) == "sharing"  # every worker grows its own
+    batched = DatasetConfig("synthetic", 4, seed=0, sampler=SamplerConfig(seed=0, backend="jax"))
+    assert _gpu_sharing(batched, "local", 12, 16, None, None) == "sharing"  # 8 growers of 12 workers
+    assert _gpu_sharing(batched, "local", 12, 16, 5, "off") == "sharing"
+    assert _gpu_sharing(batched, "local", 6, 1, None, None) == "sharing"  # every worker grows its own
     assert asked == [(8, None), (5, "off"), (6, None)]
     reference = DatasetConfig("synthetic", 4, seed=0)
-    for config, runner in ((reference, "local"), (mjx, "ray")):
+    for config, runner in ((reference, "local"), (batched, "ray")):
         with _gpu_sharing(config, runner, 12, 16, None, None) as got:
             assert got is None
     assert len(asked) == 3

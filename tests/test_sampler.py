@@ -131,7 +131,7 @@ def test_library_validation_lists_choices(kwargs, message):
 @pytest.mark.parametrize(
     "kwargs, message",
     [
-        (dict(backend="cuda"), "unknown backend 'cuda'; valid choices: mujoco, mjx"),
+        (dict(backend="cuda"), "unknown check backend 'cuda'; valid choices: cpu, jax"),
         (dict(min_steps=10, max_steps=5), "max_steps (5) must be >= min_steps (10)"),
         (dict(parts={"3001": -1}), "weight of '3001' must be a finite number > 0"),
         (dict(parts=[]), "parts: the set is empty"),
@@ -156,10 +156,10 @@ def test_config_is_frozen_and_normalised():
     assert SamplerConfig().min_steps == 20 and SamplerConfig().max_steps == 90
     # judge_first only changes the cost: left out of the recorded settings at its default, kept
     # when set otherwise, and read back to the same config either way.
-    mjx = SamplerConfig(backend="mjx")
-    assert (mjx.check_batch, mjx.judge_first) == (16, 4) and SamplerConfig().judge_first == 1
-    assert "judge_first" not in mjx.to_dict() and SamplerConfig.from_dict(mjx.to_dict()) == mjx
-    two = SamplerConfig(backend="mjx", judge_first=2)
+    batched = SamplerConfig(backend="jax")
+    assert (batched.check_batch, batched.judge_first) == (16, 4) and SamplerConfig().judge_first == 1
+    assert "judge_first" not in batched.to_dict() and SamplerConfig.from_dict(batched.to_dict()) == batched
+    two = SamplerConfig(backend="jax", judge_first=2)
     assert two.to_dict()["judge_first"] == 2 and SamplerConfig.from_dict(two.to_dict()) == two
 
 

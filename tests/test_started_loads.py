@@ -166,7 +166,7 @@ def test_a_structure_keeps_the_bases_of_its_first_candidates_only(monkeypatch):
 
 @pytest.mark.slow
 def test_the_batched_path_solves_the_samplers_load_programs_one_by_one_started_too(monkeypatch):
-    """With 'mjx' the sampler's candidates (it takes the first survivor: `judge_first`) get their
+    """With 'jax' the sampler's candidates (it takes the first survivor: `judge_first`) get their
     load programs one at a time, each started from the structure's own, up to the first that
     stands, as the reference does: none goes to the device solver, and the objects and their loads
     are the reference's."""
@@ -178,7 +178,7 @@ def test_the_batched_path_solves_the_samplers_load_programs_one_by_one_started_t
         real = getattr(lp_jax, name)
         monkeypatch.setattr(lp_jax, name, lambda *a, real=real, name=name, **k: sent.append(name) or real(*a, **k))
     statics.WARM_COUNTS.update(started=0, cold=0, iterations=0)
-    sampler = Sampler(SamplerConfig(seed=3, min_steps=20, max_steps=20, backend="mjx"), None)
+    sampler = Sampler(SamplerConfig(seed=3, min_steps=20, max_steps=20, backend="jax"), None)
     batched = _digest(sorted(sampler.grow(range(2), batch=2), key=lambda a: a.index))
     assert sent == []
     assert statics.WARM_COUNTS["started"] >= 30, statics.WARM_COUNTS

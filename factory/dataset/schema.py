@@ -12,9 +12,20 @@ import json
 
 import pyarrow as pa
 
-SCHEMA_VERSION = 1
-"""Version of the row layout (this module) and of `meta/info.json` (`factory.dataset.info`); part of
-a build's config hash."""
+SCHEMA_VERSION = 2
+"""Version of the row layout (this module), of `meta/info.json` (`factory.dataset.info`) and of a
+build's config record (`meta/config.json`, `pipelines.dataset.config.DatasetConfig.to_json`); part
+of a build's config hash. Folders of every version are read (`SCHEMA_VERSIONS`).
+
+1. The first layout.
+2. The physics checks' backend left the config record and its hash, with the sampler's other
+   settings that change only how the checks run (`check_batch`, `judge_first`): both backends
+   write the same files, so a dataset no longer depends on which one built it (the build records
+   it in `meta/timings.json`). Rows and info.json keys unchanged; a folder started at version 1
+   keeps its record and hash when resumed (`pipelines.dataset.config.version1_record`)."""
+
+SCHEMA_VERSIONS = (1, 2)
+"""The versions this code reads."""
 
 IMAGE_COLUMNS = ("before", "after", "isometric", "part", "axes", "catalog")
 

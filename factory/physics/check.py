@@ -20,7 +20,9 @@ it), `clamped` (it sits on studs and under sockets at once: no approach reaches 
 
 from __future__ import annotations
 
+import sys
 import time
+import warnings
 from collections import Counter
 from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
@@ -40,7 +42,43 @@ from factory.physics.structure import Placed, Structure, connections_at, lowest_
 from factory.physics.unmodelled import bar_joints, may_hold
 from factory.pose import Pose
 
-BACKENDS = ("mujoco", "mjx")
+BACKENDS = ("cpu", "jax")
+"""The physics checks' backends: 'cpu', the reference (MuJoCo's C collision and NumPy/SciPy, one
+candidate at a time, on the CPU), and 'jax', the batched JAX kernels of this project
+(`collide_jax`, `sweep_jax`, `lp_jax`: every candidate of a round at once, on a GPU where there is
+one). Both give the same verdicts."""
+
+OLD_BACKEND_NAMES = {"mujoco": "cpu", "mjx": "jax"}
+"""The backends' former names (the batched one never used MuJoCo MJX), still accepted with a
+`FutureWarning` by `backend_name`."""
+
+
+def backend_name(name: str, stacklevel: int = 2) -> str:
+    """The check backend `name` as `BACKENDS` spells it: a former name (`OLD_BACKEND_NAMES`) gives
+    its new one with a `FutureWarning` (at `stacklevel` as `warnings.warn` counts it); any other
+    name not in `BACKENDS` raises ValueError listing the valid choices. Every entry point that
+    takes a backend goes through here."""
+    if name in BACKENDS:
+        return name
+    if isinstance(name, str) and name in OLD_BACKEND_NAMES:
+        new = OLD_BACKEND_NAMES[name]
+        warnings.warn(f"check backend {name!r} is deprecated; use {new!r}", FutureWarning, stacklevel=stacklevel + 1)
+        return new
+    raise ValueError(f"unknown check backend {name!r}; valid choices: {', '.join(BACKENDS)}")
+
+
+def backend_arg(text: str) -> str:
+    """`backend_name` as an argparse `type` for `--check-backend`: a former name gives its new one
+    with a warning line on stderr (as a renamed flag does); other text is left for the flag's
+    `choices` to accept or refuse (a command may add its own, as `auto`)."""
+    if text not in OLD_BACKEND_NAMES:
+        return text
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        name = backend_name(text)
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
+    return name
 
 
 @dataclass(frozen=True)
@@ -105,7 +143,7 @@ def _unit_connections(structure: Structure, unit: Sequence[tuple[Part, Pose]]) -
 def check_units(
     structure: Structure,
     units: Sequence[Sequence[Placed]],
-    backend: str = "mujoco",
+    backend: str = "cpu",
     config: CheckConfig = CheckConfig(),
     require_connection: bool = True,
     floor_y: float | None = None,
@@ -126,8 +164,7 @@ def check_units(
     `explain=False` leaves `failing` empty on overloads (it costs a second program each; the
     sampler only counts the reason of a candidate it rejects).
     """
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
+    backend = backend_name(backend)
     if not units:
         return []
     (verdicts,) = _run_calls([_Call(structure, units, backend, config, require_connection, floor_y, standing,
@@ -152,7 +189,7 @@ class CheckRequest:
     does: their load programs are solved one at a time in that order, each started from the
     structure's own, and stop at the first candidate that stands, so those after it come back
     None too. A later request judges them if it needs to. None judges every candidate (with
-    'mjx', their load programs together on the device)."""
+    'jax', their load programs together on the device)."""
     order: Callable[[list[int]], list[int]] | None = field(default=None, compare=False)
     """With `judge_first`: the asker's own order of candidates, given their positions in `poses`
     (a list) and giving them back in the order it would take them, first the one it would take
@@ -164,17 +201,16 @@ class CheckRequest:
     them, whose verdict the asker needs first. None: `poses`' order."""
 
 
-def check_many(requests: Sequence[CheckRequest], backend: str = "mujoco", config: CheckConfig = CheckConfig(),
+def check_many(requests: Sequence[CheckRequest], backend: str = "cpu", config: CheckConfig = CheckConfig(),
                explain: bool = True) -> list[list[Verdict]]:
     """`check` of every request, each against its own structure (objects grown in lockstep:
     `factory.sampler.lockstep`). The verdicts are those `check` gives each request alone, except
-    None for the candidates a request's `judge_first` leaves unjudged; with 'mjx' the collision
+    None for the candidates a request's `judge_first` leaves unjudged; with 'jax' the collision
     rule, the clutch rule's programs and the sweeps of all requests go to the device together
     (`collide_jax`, `sweep_jax`), and so do the load programs of requests that judge every
     candidate (`lp_jax.solve_on_bases`); those of a request with `judge_first` are solved on
     the host up to its first candidate that stands (`_until_standing`)."""
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
+    backend = backend_name(backend)
     calls = [_Call(r.structure, [[Placed(r.part, r.colour, p)] for p in r.poses], backend, config,
                    floor_y=r.floor_y, explain=explain, judge_first=r.judge_first, order=r.order)
              for r in requests if r.poses]
@@ -185,16 +221,16 @@ def check_many(requests: Sequence[CheckRequest], backend: str = "mujoco", config
 STAGE_SECONDS: Counter = Counter()
 """Seconds spent in this process by stage of `check_units`/`check_many`: 'rules' (connection,
 clutch, and for the reference collision and the CPU sweep), 'collide' (the batched collision
-rule, `collide_jax`), 'clutch' (for 'mjx': the clutch rule of every call at once), 'sweep' (the
+rule, `collide_jax`), 'clutch' (for 'jax': the clutch rule of every call at once), 'sweep' (the
 batched sweeps), 'loads'."""
 
 
 def _run_calls(calls: "Sequence[_Call]", backend: str) -> list[list[Verdict]]:
-    """Collision (for 'mjx'; the reference's ran at construction), the sweeps, then the load
-    programs of every call: for 'mjx' on the device, each stage of all calls together
+    """Collision (for 'jax'; the reference's ran at construction), the sweeps, then the load
+    programs of every call: for 'jax' on the device, each stage of all calls together
     (`collide_jax.penetrations`, `sweep_jax.sweep_groups`, `_judge_loads`)."""
     t0 = time.perf_counter()
-    if backend == "mjx":
+    if backend == "jax":
         todo = [c for c in calls if c.to_collide]
         found_all = penetrations([c.collide_group() for c in todo])
         STAGE_SECONDS["collide"] += time.perf_counter() - t0
@@ -223,7 +259,7 @@ def _run_calls(calls: "Sequence[_Call]", backend: str) -> list[list[Verdict]]:
 
 class _Call:
     """One `check_units` call: each candidate's connections at construction, then collision (the
-    scene's contacts for the reference; for 'mjx' `collide_group`/`collided`, where many calls share
+    scene's contacts for the reference; for 'jax' `collide_group`/`collided`, where many calls share
     the device), the cheap rules after it (and the CPU sweep for the reference), then its sweeps
     (`sweep_group`, `swept`) and loads (`_judge_loads`)."""
 
@@ -257,7 +293,7 @@ class _Call:
             outer = [c for c in conns if min(c[0], c[1]) < base_n]
             self.to_collide.append((k, unit, world, conns, outer, {min(c[0], c[1]) for c in outer}))
         STAGE_SECONDS["rules"] += time.perf_counter() - t0
-        if backend != "mjx":
+        if backend != "jax":
             # The reference: MuJoCo's contacts, one candidate pose at a time.
             t0 = time.perf_counter()
             found = []
@@ -269,7 +305,7 @@ class _Call:
 
     @property
     def scene(self) -> CollisionScene:
-        """The MuJoCo collision scene (the reference's; for 'mjx' built only if a sweep is referred
+        """The MuJoCo collision scene (the reference's; for 'jax' built only if a sweep is referred
         to the CPU)."""
         if self._scene is None:
             self._scene = _collision_scene(self.structure, self.rel, self.floor_y if self.floor_y is not None else 1e6)
@@ -283,7 +319,7 @@ class _Call:
     def collided(self, found: Sequence[Penetration]) -> None:
         """The rules after collision, given each candidate's `Penetration`: verdicts for those
         that collide or connect to nothing; the rest queued for the clutch rule (`clutch_cases`,
-        `clutched`: for 'mjx' the programs of every call go to the device together)."""
+        `clutched`: for 'jax' the programs of every call go to the device together)."""
         t0 = time.perf_counter()
         structure, config, base_n = self.structure, self.config, self.base_n
         self.to_clutch = []
@@ -319,7 +355,7 @@ class _Call:
             self.to_clutch.append((k, base, unit, world, conns, outer, touched))
         self.to_collide = []
         STAGE_SECONDS["rules"] += time.perf_counter() - t0
-        if self.backend != "mjx":
+        if self.backend != "jax":
             self.clutched(holds_alone_many(self.clutch_cases(), config.loads))
 
     def _joints(self, unit: Sequence[Placed], near) -> dict[int, np.ndarray]:
@@ -372,7 +408,7 @@ class _Call:
                 continue  # not judged: its verdict stays None (`CheckRequest.judge_first`)
             judged += 1
             dirs = seating_from_connections(outer, self.base_n)
-            if outer and self.backend == "mjx":
+            if outer and self.backend == "jax":
                 # Swept later, with every call's candidates at once on the device (`sweep_jax`).
                 self.to_sweep.append((k, base, unit, conns, world, touched, dirs))
                 continue
@@ -586,14 +622,14 @@ def _started_solver(call: "_Call", models: Sequence[LoadModel], units: Sequence[
 
 def _lp_jax(backend: str):
     """None for the CPU reference (HiGHS, one program at a time); the batched JAX solver's module
-    (`factory.physics.lp_jax`) for 'mjx'."""
-    if backend != "mjx":
+    (`factory.physics.lp_jax`) for 'jax'."""
+    if backend != "jax":
         return None
     try:
-        from factory.physics import lp_jax  # JAX is an optional dependency (the mjx extra)
+        from factory.physics import lp_jax  # JAX is an optional dependency (the jax extra)
     except ModuleNotFoundError as e:
-        raise RuntimeError(f"backend 'mjx' needs the batched load solver factory.physics.lp_jax and JAX "
-                           f"(pip install -e '.[mjx]'); not available: {e.name}") from None
+        raise RuntimeError(f"backend 'jax' needs the batched load solver factory.physics.lp_jax and JAX "
+                           f"(pip install -e '.[jax]'); not available: {e.name}") from None
     return lp_jax
 
 
@@ -639,7 +675,7 @@ def check(
     structure: Structure,
     part: Part,
     poses: Sequence[Pose],
-    backend: str = "mujoco",
+    backend: str = "cpu",
     config: CheckConfig = CheckConfig(),
     colour: int = 16,
     floor_y: float | None = None,
@@ -647,5 +683,6 @@ def check(
 ) -> list[Verdict]:
     """Check one part type at many candidate poses against the structure (a batch); see
     `check_units` for the ground (`floor_y`) and `explain`."""
+    backend = backend_name(backend)
     return check_units(structure, [[Placed(part, colour, p)] for p in poses], backend, config,
                        floor_y=floor_y, explain=explain)

@@ -1,4 +1,4 @@
-"""The collision rule of many candidates at once, on the device (backend 'mjx').
+"""The collision rule of many candidates at once, on the device (backend 'jax').
 
 `CollisionScene.penetration` asks MuJoCo for the contacts of one candidate pose at a time and
 walks them in Python. Here every candidate of every request of a lockstep round is judged

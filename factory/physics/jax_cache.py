@@ -21,7 +21,7 @@ MIN_COMPILE_SECONDS = 0.1
 def enable() -> str:
     """Point JAX at the cache (once per process, before the first compile); returns the folder.
     A numbered worker also takes its share of the GPUs here (`factory.gpus`)."""
-    import jax  # optional: the [mjx] extra; the 'mujoco' backend needs none
+    import jax  # optional: the [jax] extra; the 'cpu' backend needs none
 
     gpus.choose_jax_device(jax)
     path = os.environ.get("JAX_COMPILATION_CACHE_DIR") or str(cache_root() / "jax")

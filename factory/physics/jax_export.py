@@ -18,7 +18,7 @@ compile it once; the others wait, read the export and load the kernel from the c
 A file is named by the kernel, the argument shapes and dtypes, the platform, the JAX and jaxlib
 versions and a digest of the kernel's source file, so changed code never loads an old export. A
 file that does not load is exported again. Without the `flatbuffers` package (JAX's
-serialisation needs it; the [mjx] extra installs it) kernels are called directly, as before.
+serialisation needs it; the [jax] extra installs it) kernels are called directly, as before.
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def call(name: str, fn, *args, source: str):
     """`fn(*args)` through its export for these argument shapes (`fn` traceable by `jax.jit`;
     arguments arrays, NumPy scalars, or tuples of them); `source`: the file that defines the
     kernel (its digest names the export). `fn` is called directly when exports are not available."""
-    import jax  # optional: the [mjx] extra
+    import jax  # optional: the [jax] extra
 
     if not _available():
         return fn(*args)
@@ -131,6 +131,6 @@ def _available() -> bool:
         import flatbuffers  # noqa: F401  (JAX's export serialisation imports it)
     except ModuleNotFoundError:
         warnings.warn("flatbuffers is not installed: the batched checks' kernels are traced in every "
-                      "process (pip install -e '.[mjx]' installs it)", stacklevel=3)
+                      "process (pip install -e '.[jax]' installs it)", stacklevel=3)
         return False
     return True

@@ -1,4 +1,4 @@
-"""Buildability sweeps of many candidates at once, exactly, in JAX (backend 'mjx').
+"""Buildability sweeps of many candidates at once, exactly, in JAX (backend 'jax').
 
 `sweep.sweep` asks MuJoCo for contacts at poses stepped along the approach. Here the same question
 is answered without stepping. Two convex pieces A and B overlap by depth = min over axes n of
@@ -139,7 +139,7 @@ def _pow2(n: int, minimum: int) -> int:
 @cache
 def _on_gpu() -> bool:
     """Whether JAX's default device is a GPU (asked at the first launch, not at import)."""
-    import jax  # optional: the [mjx] extra; the 'mujoco' backend needs none
+    import jax  # optional: the [jax] extra; the 'cpu' backend needs none
 
     enable_compile_cache()
     return jax.default_backend() == "gpu"
@@ -376,10 +376,10 @@ _KERNEL = None
 
 def _kernel():
     """The jitted batches of pairs by kind: 'sweep' (intervals of s) and 'still' (depths at the
-    candidate's pose, `collide_jax`). JAX is imported here: the 'mujoco' backend needs none."""
+    candidate's pose, `collide_jax`). JAX is imported here: the 'cpu' backend needs none."""
     global _KERNEL
     if _KERNEL is None:
-        import jax  # optional: the [mjx] extra
+        import jax  # optional: the [jax] extra
         import jax.numpy as jnp
 
         enable_compile_cache()
@@ -477,7 +477,7 @@ def _launch(crosses: bool, ut, us: tuple, st, ss: tuple, poses, u, s, k, thr, th
     `us`, `ss`; `poses`: the candidates' packed poses on the device (`_on_device`). A caller
     starts all its launches before it waits for any: the device runs them back to back, and the
     host waits once."""
-    import jax  # optional: the [mjx] extra
+    import jax  # optional: the [jax] extra
 
     n = len(u)
     chunk = _chunk(crosses, us, ss)
@@ -507,7 +507,7 @@ def _launch(crosses: bool, ut, us: tuple, st, ss: tuple, poses, u, s, k, thr, th
 def _results(launches: list, kind: str) -> list[np.ndarray]:
     """The (pairs, `WIDTH[kind]`) results of `_launch`es, copied to the host together (one wait,
     not one per launch)."""
-    import jax  # optional: the [mjx] extra
+    import jax  # optional: the [jax] extra
 
     host = iter(jax.device_get([res for started in launches for _, _, res in started]))
     out = []
@@ -521,7 +521,7 @@ def _results(launches: list, kind: str) -> list[np.ndarray]:
 
 def _on_device(arrays: list[np.ndarray]) -> list:
     """Host arrays on the device, float64 as on the host, in one call."""
-    import jax  # optional: the [mjx] extra
+    import jax  # optional: the [jax] extra
 
     with jax.enable_x64(True):
         return jax.device_put(arrays)
@@ -552,7 +552,7 @@ def warm_up() -> int:
     if _WARMED or not _on_gpu():
         return 0
     _WARMED = True
-    import jax  # optional: the [mjx] extra
+    import jax  # optional: the [jax] extra
 
     shapes = warm_shapes()
     # A build's workers are numbered; other processes (Ray tasks, say) start by their pid instead.

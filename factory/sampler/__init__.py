@@ -7,13 +7,15 @@ seed. See `docs/concepts/sampler.md`.
 """
 
 from factory.sampler.assembly import Assembly, AssemblyStep
-from factory.sampler.config import DEFAULT_COLOURS, DEFAULT_PARTS, SamplerConfig, SamplerConfigError, default_check_batch
+from factory.sampler.config import (DEFAULT_COLOURS, DEFAULT_PARTS, RUN_SETTINGS, SamplerConfig, SamplerConfigError,
+                                    default_check_batch)
 from factory.sampler.density import density
 from factory.sampler.sampler import Sampler
 
 __all__ = [
     "DEFAULT_COLOURS",
     "DEFAULT_PARTS",
+    "RUN_SETTINGS",
     "Assembly",
     "AssemblyStep",
     "Sampler",

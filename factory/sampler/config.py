@@ -9,7 +9,7 @@ from typing import Mapping, Sequence, Union
 from factory.config import ConfigError, config_from_dict, config_to_dict
 from factory.prior.choose import embedded_choice
 from factory.prior.prior import load_prior
-from factory.physics.check import BACKENDS, CheckConfig
+from factory.physics.check import BACKENDS, CheckConfig, backend_arg, backend_name
 
 
 MAX_STEPS = 1000
@@ -108,19 +108,23 @@ class SamplerConfig:
     chosen placement, the rejection counts and `checked` stop at the first survivor (see
     `Sampler`). None (the default) takes `default_check_batch(backend, candidates_per_step)`: 1
     on the CPU, where every check past the first survivor is wasted (6 objects grew in 28.7 s at 1
-    against 36.1 s at 8, the same files); `MJX_CHECK_BATCH` for the 'mjx' backend."""
+    against 36.1 s at 8, the same files); `JAX_CHECK_BATCH` for the 'jax' backend."""
     judge_first: int | None = None
     """Of a checker request's candidates that pass connection, collision and clutch, how many (in
     decreasing order of their keys' bounds) are swept and load-judged in that request; the sweep
     and the loads are the dearest checks, and only the first survivor in key order is used. A later
     request judges the next ones when none of these is it. Changes only the cost, never the object
     (like `check_batch`). None (the default) takes `default_judge_first(check_batch)`: 4 when a
-    request holds more candidates than that (the 'mjx' backend), else all."""
+    request holds more candidates than that (the 'jax' backend), else all."""
     max_redraws: int = 8
     """Part draws after the first in one step when no candidate of the drawn part survives; then
     the object ends (`end_reason` 'stuck')."""
-    backend: str = field(default="mujoco", metadata={"choices": BACKENDS, "flag": "check-backend"})
-    """Rollout backend of the physics check: 'mujoco' (CPU) or 'mjx' (batched, GPU)."""
+    backend: str = field(default="cpu", metadata={"choices": BACKENDS, "flag": "check-backend",
+                                                         "type": backend_arg})
+    """How the physics checks run: 'cpu' (MuJoCo's C collision and NumPy/SciPy on the CPU, one
+    candidate at a time) or 'jax' (this project's batched JAX kernels, on a GPU where there is
+    one). Both grow the same objects, so it is not part of a dataset's identity. The former names
+    'mujoco' and 'mjx' are accepted with a FutureWarning."""
     seed: int = 0
     """Seed of the whole run: object i draws from `np.random.default_rng([seed, i])` only."""
     prior: str = field(default=DEFAULT_PRIOR_LABEL, metadata={"flag": False})
@@ -131,6 +135,11 @@ class SamplerConfig:
     defaults, so the hashes of datasets built before they were recorded stay the same)."""
 
     def __post_init__(self):
+        try:
+            # stacklevel 4: backend_name, here, the dataclass's __init__, the caller.
+            object.__setattr__(self, "backend", backend_name(self.backend, stacklevel=3))
+        except ValueError as e:
+            raise SamplerConfigError(str(e)) from None
         object.__setattr__(self, "parts", _weights("parts", self.parts, part_key))
         if self.check_batch is None and isinstance(self.candidates_per_step, int):
             object.__setattr__(self, "check_batch", default_check_batch(self.backend, self.candidates_per_step))
@@ -162,10 +171,6 @@ class SamplerConfig:
             raise SamplerConfigError(f"density_weight must be a finite number >= 0, got {self.density_weight}")
         if not (math.isfinite(self.temperature) and self.temperature > 0):
             raise SamplerConfigError(f"temperature must be a finite number > 0, got {self.temperature}")
-        if self.backend not in BACKENDS:
-            raise SamplerConfigError(
-                f"unknown backend {self.backend!r}; valid choices: {', '.join(BACKENDS)}"
-            )
 
     def to_dict(self) -> dict:
         """The settings as JSON values (`factory.config`); parts and colours as ordered
@@ -187,17 +192,23 @@ class SamplerConfig:
         return config_from_dict(cls, {"prior": "", **data} if isinstance(data, dict) else data, SamplerConfigError)
 
 
-MJX_CHECK_BATCH = 16
-"""`check_batch` of the batched 'mjx' checks. The walk reaches its first survivor after about 12
+RUN_SETTINGS = ("backend", "check_batch", "judge_first")
+"""`SamplerConfig` fields that change how the physics checks run (where, and how many candidates
+one request holds), never an object: not part of a dataset's identity (`DatasetConfig.to_json`
+leaves them out from schema version 2)."""
+
+
+JAX_CHECK_BATCH = 16
+"""`check_batch` of the batched 'jax' checks. The walk reaches its first survivor after about 12
 candidates (30-part objects), so asking all 64 of a draw at once checked 29,380 candidates where
 16 at a time checked 11,958 (16 objects, one process): 20-22 % less host time on a 2-core CPU, and
 on one H100 (16 processes, 256 objects) 182.6 steps/s against 174.7 at 64 (docs/results.md)."""
 
 
 def default_check_batch(backend: str, candidates_per_step: int) -> int:
-    """`check_batch` for a checker backend: 1 for MuJoCo C on the CPU (no check past the first
-    survivor), `MJX_CHECK_BATCH` (at most a draw's candidates) for the batched 'mjx' checks."""
-    return min(MJX_CHECK_BATCH, candidates_per_step) if backend == "mjx" else 1
+    """`check_batch` for a checker backend: 1 for 'cpu', one candidate at a time (no check past the first
+    survivor), `JAX_CHECK_BATCH` (at most a draw's candidates) for the batched 'jax' checks."""
+    return min(JAX_CHECK_BATCH, candidates_per_step) if backend_name(backend) == "jax" else 1
 
 
 JUDGE_FIRST = 4

@@ -4,7 +4,7 @@ Each object is a coroutine (`Sampler.growth`) that yields a batch of candidates 
 their verdicts back; its random choices come from its own stream, so it grows the same whatever
 objects share its rounds. A round asks every live object's pending batch at once; an object that
 ends leaves and the next index takes its slot, so the batch stays full until the indices run out.
-With the 'mjx' backend the round's collision tests and sweeps go to the device together
+With the 'jax' backend the round's collision tests and sweeps go to the device together
 (`check.check_many`); each object's load programs are solved on the host, up to its first
 candidate that stands.
 """

@@ -1,11 +1,11 @@
 """Sharded Parquet datasets of assembly steps for training and evaluating vision-language models.
 
     from pipelines.dataset import DatasetConfig, build, build_shard
-    summary = build(config, "out/synth", backend="local", workers=2)
+    summary = build(config, "out/synth", runner="local", workers=2)
 
 The row contract (tasks, prompts, answer formats, schema, meta/info.json) is `factory.dataset`;
 the names below from it are re-exported. See docs/concepts/dataset-contract.md: rows, layout, determinism and
-resume, the Ray backend, the designs source.
+resume, the Ray runner, the designs source.
 """
 
 from factory.dataset import POSE_IMAGES, SCHEMA_VERSION, SELECTION_IMAGES
@@ -17,7 +17,7 @@ from factory.dataset.prompts import (
     selection_prompt,
 )
 from pipelines.dataset.build import (
-    BACKENDS,
+    RUNNERS,
     FolderBusyError,
     ShardFailedError,
     ShardInputError,
@@ -30,8 +30,8 @@ from pipelines.dataset.config import ConfigMismatchError, DatasetConfig, split_o
 from pipelines.dataset.shards import build_shard
 
 __all__ = [
-    "BACKENDS",
     "POSE_IMAGES",
+    "RUNNERS",
     "SCHEMA_VERSION",
     "SELECTION_IMAGES",
     "SYSTEM_TEXT",

@@ -3,7 +3,7 @@ local worker processes or as Ray tasks), then write `meta/info.json`, the datase
 gallery from the completion markers and the data files.
 
     from pipelines.dataset import DatasetConfig, build
-    summary = build(config, "out/synth", backend="local", workers=2)
+    summary = build(config, "out/synth", runner="local", workers=2)
 
 Every source is built this way: sampled objects and human designs (the builder makes their
 source from the config), and world feedback (`pipelines.feedback` gives its source: it reads a
@@ -32,16 +32,20 @@ from factory.dataset.info import Counts, DatasetInfo, json_bytes, write_info
 from factory.dataset.tasks import FEEDBACK_IMAGES, SPLITS
 from factory.errors import LDrawError
 from factory.physics.geometry import COACD_SECONDS_ENV
+from factory.sampler.config import RUN_SETTINGS
 from factory.sampler.sampler import target_steps
-from pipelines.dataset.config import ConfigMismatchError, DatasetConfig, diff_configs
+from pipelines.dataset.config import (ConfigMismatchError, DatasetConfig, diff_configs, record_hash, started_hash,
+                                      started_record)
 from pipelines.dataset import spool, usage
 from pipelines.dataset.card import dataset_card
 from pipelines.dataset.gallery import write_gallery
-from pipelines.dataset.shards import build_shard, marker_path, object_source, read_marker, remove_stranded
+from pipelines.dataset.shards import (build_shard, folder_identity, marker_path, object_source, read_marker,
+                                      remove_stranded)
 from pipelines.workers import ONE_THREAD, one_thread_each
 from pipelines.workers import pool as workers_pool
 
-BACKENDS = ("local", "ray")
+RUNNERS = ("local", "ray")
+"""Where a build's shards run: worker processes of this machine, or Ray tasks."""
 PACKAGES = ("brick-factory", "numpy", "scipy", "trimesh", "mujoco", "pillow", "pyarrow")
 ENV_FOR_WORKERS = ("PYTHONPATH", "MUJOCO_GL", "BRICK_FACTORY_CACHE", "LDRAWDIR", "BRICK_RENDER_SAMPLES",
                    COACD_SECONDS_ENV)
@@ -104,33 +108,39 @@ def holding(out):
 def prepare(config: DatasetConfig, out) -> Path:
     """Create `out` for `config`, or check that it was started with the same config."""
     out = Path(out)
-    if not _started_with(config, out):
+    if _started_with(config, out) is None:
         write_atomic(out / "meta" / "config.json", json_bytes({"config_hash": config.hash, "config": config.to_json()}))
     return out
 
 
-def _started_with(config: DatasetConfig, out: Path) -> bool:
-    """Whether `out` was started with `config` (False: not started); raises `ConfigMismatchError`
-    for another config or data without one. Writes nothing."""
+def _started_with(config: DatasetConfig, out: Path) -> str | None:
+    """The hash `out` was started with `config` under (None: not started): `config.hash`, or the
+    recorded hash of a folder that an earlier schema version started with the same settings
+    (`started_hash`: a version-1 folder, whatever check backend it recorded); raises
+    `ConfigMismatchError` for another config or data without one. Writes nothing."""
     cfg_path = out / "meta" / "config.json"
     if cfg_path.exists():
         try:
             old = json.loads(cfg_path.read_text())
         except ValueError:
             raise ConfigMismatchError(f"{cfg_path} is not valid JSON; delete {out} to start over") from None
-        if old.get("config_hash") != config.hash:
-            diffs = diff_configs(old.get("config", {}), config.to_json())
+        known = started_hash(config, old)
+        if known is None:
+            recorded = old.get("config") if isinstance(old, dict) else None
+            mine = started_record(config, old)  # this config as the folder's schema version writes it
+            diffs = diff_configs(recorded if isinstance(recorded, dict) else {}, mine)
             raise ConfigMismatchError(
-                f"{out} was started with a different config (hash {old.get('config_hash')}, this run "
-                f"{config.hash}): " + ("; ".join(diffs) or "same keys, different values")
+                f"{out} was started with a different config (hash "
+                f"{old.get('config_hash') if isinstance(old, dict) else None}, this run "
+                f"{record_hash(mine)}): " + ("; ".join(diffs) or "same keys, different values")
                 + f". Resume it with the original settings, use another output folder, or delete {out} "
                 "to start over."
             )
-        return True
+        return known
     data = out / "data"
     if data.is_dir() and any(data.iterdir()):
         raise ConfigMismatchError(f"{out} holds data files but no meta/config.json; use an empty folder")
-    return False
+    return None
 
 
 def _worker_env() -> dict[str, str]:
@@ -150,7 +160,7 @@ def _run_local(config, todo, out, workers, bar, source=None):
                 errors.append((k, exc))
         return errors
     with workers_pool(workers) as pool:
-        futures = {pool.submit(build_shard, config.to_json(), k, str(out), None, source): k for k in todo}
+        futures = {pool.submit(build_shard, config.to_dict(), k, str(out), None, source): k for k in todo}
         for fut in as_completed(futures):
             k = futures[fut]
             try:
@@ -166,7 +176,7 @@ def _ray_tasks(workers: int):
     """`build_shard` as a Ray task, on the running Ray, else on a local instance (`workers` CPUs) or
     the cluster at `$RAY_ADDRESS` (then `out` must be a folder every node sees, e.g. a shared
     filesystem); a Ray started here is shut down after."""
-    import ray  # the optional `ray` extra, loaded only for --backend ray
+    import ray  # the optional `ray` extra, loaded only for --runner ray
 
     started = False
     if not ray.is_initialized():
@@ -188,7 +198,7 @@ def _run_ray(config, todo, out, workers, bar, source=None):
     import ray
 
     with _ray_tasks(workers) as task:
-        refs = {task.remote(config.to_json(), k, str(out), None, source): k for k in todo}
+        refs = {task.remote(config.to_dict(), k, str(out), None, source): k for k in todo}
         errors = []
         pending = list(refs)
         while pending:
@@ -210,7 +220,7 @@ def growers_of(workers: int, growers: int | None = None) -> int:
     return min(max(1, workers), growers or max(1, (2 * workers) // 3))
 
 
-def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, growers: int | None = None):
+def _run_grown(config, todo, out, workers, bar, batch: int, runner: str, growers: int | None = None):
     """A lockstep build: `growers` tasks (default two thirds of the workers) grow the objects of the
     missing shards, each the objects of every G-th shard `batch` at a time (`spool.grow`: each
     kept in `spool` as it ends), while the other workers render and encode each shard whose objects
@@ -228,19 +238,19 @@ def _run_grown(config, todo, out, workers, bar, batch: int, backend: str, grower
     errors: list = []
     running: dict = {}
     with ExitStack() as stack:
-        if backend == "ray":
+        if runner == "ray":
             import ray
 
             task = stack.enter_context(_ray_tasks(workers))
             grow_task = ray.remote(num_cpus=1, max_retries=2)(spool.grow)
-            submit = lambda k: task.remote(config.to_json(), k, str(out), wait=True)  # noqa: E731
-            submit_grow = lambda part: grow_task.remote(config.to_json(), part, str(out), batch)  # noqa: E731
+            submit = lambda k: task.remote(config.to_dict(), k, str(out), wait=True)  # noqa: E731
+            submit_grow = lambda part: grow_task.remote(config.to_dict(), part, str(out), batch)  # noqa: E731
             finish = ray.get
         else:
             # Growers are submitted first: they hold `growers` of the workers while they run.
             pool = stack.enter_context(workers_pool(workers))
-            submit = lambda k: pool.submit(build_shard, config.to_json(), k, str(out), wait=True)  # noqa: E731
-            submit_grow = lambda part: pool.submit(spool.grow, config.to_json(), part, str(out), batch)  # noqa: E731
+            submit = lambda k: pool.submit(build_shard, config.to_dict(), k, str(out), wait=True)  # noqa: E731
+            submit_grow = lambda part: pool.submit(spool.grow, config.to_dict(), part, str(out), batch)  # noqa: E731
             finish = lambda f: f.result()  # noqa: E731
         # While this is there, a shard started before its objects are all grown waits for them.
         stack.enter_context(spool.growers_running(out))
@@ -318,7 +328,8 @@ def finished_shards(config: DatasetConfig, out) -> set[int]:
     except FileNotFoundError:
         return set()
     present = sorted(int(n[:-5]) for n in names if n.endswith(".json") and n[:-5].isdigit())
-    return {k for k in present if k < config.num_shards and read_marker(out, k, config) is not None}
+    identity = folder_identity(config, out)[0]
+    return {k for k in present if k < config.num_shards and read_marker(out, k, config, identity) is not None}
 
 
 def largest_first(config: DatasetConfig, shards: list[int]) -> list[int]:
@@ -339,20 +350,23 @@ def _check_source(config: DatasetConfig, source=None) -> None:
         object_source(config)
 
 
-def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, progress: bool = True,
+def build(config: DatasetConfig, out, runner: str = "local", workers: int = 1, progress: bool = True,
           desc: str = "objects", batch: int = 1, growers: int | None = None, source=None,
           mps_mode: str | None = None) -> dict:
     """Build every missing shard of `config` into `out`, then the metadata; returns the summary.
 
-    `batch` > 1 (synthetic data): objects grown `batch` at a time by `growers` of the workers
+    `runner`: where the shards run, `RUNNERS` ('local': `workers` processes of this machine, or this
+    process when 1; 'ray': Ray tasks). `batch` > 1 (synthetic data): objects grown `batch` at a time by `growers` of the workers
     (default two thirds) while the others render (`_run_grown`); the data files are the same
     whatever `batch` and `growers`. `source`: the object source, for a source the builder does not
     make from the config (world feedback, `pipelines.feedback.FeedbackSource`; sent to the worker
     processes or Ray tasks with each shard). The folder is held for the build (`holding`).
-    `mps_mode`: with the batched checks ('mjx') in several local processes, whether they share each
-    GPU through an MPS daemon of the build's own (`factory.mps.shared_gpu`; None: its default)."""
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    `mps_mode`: with the batched checks ('jax') in several local processes, whether they share each
+    GPU through an MPS daemon of the build's own (`factory.mps.shared_gpu`; None: its default).
+    `meta/timings.json` records how this run went, the checks' backend among it (not part of the
+    config's hash: every backend writes the same files)."""
+    if runner not in RUNNERS:
+        raise ValueError(f"runner must be one of {RUNNERS}, got {runner!r}")
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
         raise ValueError(f"batch must be an integer >= 1, got {batch!r}")
     if growers is not None and (isinstance(growers, bool) or not isinstance(growers, int) or growers < 1):
@@ -364,10 +378,10 @@ def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, 
     _started_with(config, Path(out))
     mps.mode_of(mps_mode)  # a bad value is refused before any work
     cpu0 = usage.cpu_seconds()
-    with holding(out), _gpu_sharing(config, backend, workers, batch, growers, mps_mode):
+    with holding(out), _gpu_sharing(config, runner, workers, batch, growers, mps_mode):
         host = usage.host()
         with usage.GpuWatch(gpus=host["gpus"]) as watch:
-            summary = _build(config, out, backend, workers, progress, desc, batch, growers, t0, source)
+            summary = _build(config, out, runner, workers, progress, desc, batch, growers, t0, source)
         cpu1 = usage.cpu_seconds()
         summary["usage"] = {
             "host": host,
@@ -375,7 +389,11 @@ def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, 
             "gpus": watch.report(),
             "gpus_not_sampled": watch.why_not,
         }
+        if config.source == "synthetic":
+            summary["checks"] = {k: getattr(config.sampler, k) for k in RUN_SETTINGS}
         write_atomic(Path(summary["out"]) / "meta" / "timings.json", json_bytes({
+            **({"checks_last_run": summary["checks"]} if "checks" in summary else {}),
+            "runner_last_run": runner,
             "wall_seconds_last_run": summary["wall_seconds"],
             "shards_built_last_run": summary["shards_built"],
             "peak_rss_mb_last_run": summary["peak_rss_mb"],
@@ -386,16 +404,16 @@ def build(config: DatasetConfig, out, backend: str = "local", workers: int = 1, 
         return summary
 
 
-def _gpu_sharing(config: DatasetConfig, backend: str, workers: int, batch: int, growers: int | None, mode):
+def _gpu_sharing(config: DatasetConfig, runner: str, workers: int, batch: int, growers: int | None, mode):
     """MPS for a local build whose worker processes run the batched checks (`factory.mps`): the
     growers of a lockstep build, else every worker; nothing for the reference's checks or Ray."""
-    if config.source != "synthetic" or config.sampler.backend != "mjx" or backend != "local":
+    if config.source != "synthetic" or config.sampler.backend != "jax" or runner != "local":
         return contextlib.nullcontext()
     clients = growers_of(workers, growers) if batch > 1 else max(1, workers)
     return mps.shared_gpu(clients, mode)
 
 
-def _build(config, out, backend, workers, progress, desc, batch, growers, t0, source=None) -> dict:
+def _build(config, out, runner, workers, progress, desc, batch, growers, t0, source=None) -> dict:
     out = prepare(config, out)
     remove_stranded(out)
     done = finished_shards(config, out)
@@ -404,10 +422,10 @@ def _build(config, out, backend, workers, progress, desc, batch, growers, t0, so
     with tqdm(total=config.n_objects, initial=done_objects, desc=desc, unit="obj", disable=not progress,
               file=sys.stderr, dynamic_ncols=True) as bar:
         if batch > 1 and config.source == "synthetic":
-            errors = _run_grown(config, todo, out, workers, bar, batch, backend, growers) if todo else []
+            errors = _run_grown(config, todo, out, workers, bar, batch, runner, growers) if todo else []
         else:
-            runner = _run_local if backend == "local" else _run_ray
-            errors = runner(config, todo, out, workers, bar, source) if todo else []
+            run = _run_local if runner == "local" else _run_ray
+            errors = run(config, todo, out, workers, bar, source) if todo else []
     if errors:
         k, exc = errors[0]
         if all(isinstance(e, LDrawError) for _, e in errors):
@@ -436,9 +454,12 @@ def _versions() -> dict:
 
 
 def finalize(config: DatasetConfig, out) -> dict:
-    """`meta/info.json`, `meta/objects.jsonl`, `README.md` and `gallery/` from the markers."""
+    """`meta/info.json`, `meta/objects.jsonl`, `README.md` and `gallery/` from the markers. The
+    config record and hash in info.json are those the folder knows the config by
+    (`folder_identity`: a folder an earlier schema version started keeps its own)."""
     out = Path(out)
-    markers = [read_marker(out, k, config) for k in range(config.num_shards)]
+    identity, record = folder_identity(config, out)
+    markers = [read_marker(out, k, config, identity) for k in range(config.num_shards)]
     if any(m is None for m in markers):
         raise ShardFailedError("not every shard is complete; re-run the build")
     counts = {s: {"objects": 0, "steps": 0, "bytes": 0} for s in SPLITS}
@@ -462,12 +483,13 @@ def finalize(config: DatasetConfig, out) -> dict:
     typed = DatasetInfo(
         dataset_id=config.dataset_id,
         source=config.source,
-        config=config.to_json(),
+        config=record,
         counts={s: Counts(**c) for s, c in counts.items()},
         total=Counts(**total),
         splits_present=tuple(s for s in SPLITS if counts[s]["steps"] > 0),
+        schema_version=record["schema_version"],
         seed=config.seed,
-        config_hash=config.hash,
+        config_hash=identity,
         num_shards=config.num_shards,
         statistics=statistics,
         package_versions=_versions(),

@@ -1,8 +1,11 @@
 """The configuration of a dataset build: what goes into the rows, and how objects map to shards.
 
 Everything that changes a byte of the data files is in `DatasetConfig` and in its hash; how the
-build is run (backend, workers, output folder) is not. A build folder remembers the hash of the
-config it was started with (`OUT/meta/config.json`); resuming it with another config is refused.
+build is run (runner, workers, output folder, and the physics checks' backend and batch sizes:
+`factory.sampler.RUN_SETTINGS`) is not. A build folder remembers the hash of the config it was
+started with (`OUT/meta/config.json`); resuming it with another config is refused. A folder
+started by schema version 1, whose hash still held the run settings, resumes under its own hash
+(`version1_record`, `started_hash`).
 """
 
 from __future__ import annotations
@@ -14,9 +17,9 @@ import re
 from dataclasses import dataclass, field, replace
 
 from factory.config import ConfigError, config_from_dict, config_to_dict
-from factory.dataset.schema import SCHEMA_VERSION
+from factory.dataset.schema import SCHEMA_VERSION, SCHEMA_VERSIONS
 from factory.dataset.tasks import FEEDBACK_IMAGES, SPLITS
-from factory.sampler import SamplerConfig
+from factory.sampler import RUN_SETTINGS, SamplerConfig
 
 SOURCES = ("synthetic", "design", "feedback")
 
@@ -27,6 +30,12 @@ class ConfigMismatchError(RuntimeError):
 
 def _canonical(obj) -> str:
     return json.dumps(obj, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+
+
+def record_hash(record: dict) -> str:
+    """sha256 (hex, first 16 digits) of the canonical JSON of a config record (every schema version
+    hashes its record this way; what the record holds is what changed)."""
+    return hashlib.sha256(_canonical(record).encode()).hexdigest()[:16]
 
 
 @dataclass(frozen=True)
@@ -158,12 +167,13 @@ class DatasetConfig:
         return config_from_dict(cls, data, ConfigError)
 
     def to_json(self) -> dict:
-        """`to_dict()` plus `schema_version`: the record hashed and written to `meta/`. A design's
-        sampler is `{}` there, as in folders written before the field was typed, and `feedback` is
-        there only for a feedback dataset, so the hashes (and resumes) of earlier folders are
-        unchanged."""
+        """`to_dict()` plus `schema_version`, less the sampler's run settings (`RUN_SETTINGS`: the
+        checks' backend, `check_batch`, `judge_first`, which change no byte of the data): the
+        dataset's identity, hashed and written to `meta/`. A design's sampler is `{}` there, as in
+        folders written before the field was typed, and `feedback` is there only for a feedback
+        dataset. To send a whole config, run settings included, to a worker: `to_dict`."""
         out = self.to_dict()
-        out["sampler"] = out["sampler"] or {}
+        out["sampler"] = {k: v for k, v in (out["sampler"] or {}).items() if k not in RUN_SETTINGS}
         if out["feedback"] is None:
             del out["feedback"]
         out["schema_version"] = SCHEMA_VERSION
@@ -171,19 +181,31 @@ class DatasetConfig:
 
     @classmethod
     def from_json(cls, data: dict) -> "DatasetConfig":
-        """The inverse of `to_json` (a record of another schema version is refused)."""
+        """The inverse of `to_json`, the sampler's run settings at their defaults. A record of
+        schema version 1 is read too, its sampler's run settings (the backend, as 'mujoco' or
+        'mjx', and the batch sizes) dropped; a record of a version this code does not know is
+        refused."""
         data = dict(data)
         version = data.pop("schema_version", SCHEMA_VERSION)
-        if version != SCHEMA_VERSION:
-            raise ConfigError(f"config of row schema version {version!r}; this code reads version {SCHEMA_VERSION}")
+        if version not in SCHEMA_VERSIONS:
+            raise ConfigError(f"config of row schema version {version!r}; this code reads versions "
+                              f"{', '.join(map(str, SCHEMA_VERSIONS))}")
         if data.get("sampler") == {}:
             data["sampler"] = None
+        elif version == 1 and isinstance(data.get("sampler"), dict):
+            data["sampler"] = {k: v for k, v in data["sampler"].items() if k not in RUN_SETTINGS}
         return cls.from_dict(data)
+
+    @classmethod
+    def from_any(cls, data: dict) -> "DatasetConfig":
+        """A config sent as `to_dict()` (every setting, as the builder sends it to its workers) or
+        as `to_json()` (a record with `schema_version`: the run settings at their defaults)."""
+        return cls.from_json(data) if "schema_version" in data else cls.from_dict(data)
 
     @property
     def hash(self) -> str:
-        """sha256 (hex, first 16 digits) of the canonical JSON of `to_json()`."""
-        return hashlib.sha256(_canonical(self.to_json()).encode()).hexdigest()[:16]
+        """`record_hash` of `to_json()`: the same for every run setting (`RUN_SETTINGS`)."""
+        return record_hash(self.to_json())
 
     # -- layout -----------------------------------------------------------------------------------
     @property
@@ -278,3 +300,43 @@ def diff_configs(old: dict, new: dict, prefix: str = "") -> list[str]:
             out.append(f"{prefix}{k}: {sa} -> {sb}")
     return out
 
+
+def version1_record(config: DatasetConfig, recorded: dict) -> dict:
+    """The config record the schema-version-1 code wrote for `config` built with the run settings
+    that `recorded` (the `config` of a version-1 `meta/config.json`) holds.
+
+    The version-1 rule: `to_json()` with `schema_version` 1 and the sampler's run settings
+    (`RUN_SETTINGS`: `backend` as 'mujoco' or 'mjx', `check_batch`, and `judge_first` where not at
+    its default) inside, hashed by `record_hash`. Version 2 leaves the run settings out, so they
+    are put back here as recorded (any backend resumes the folder: both write the same files);
+    every other setting comes from `config`, so the hash equals the recorded one only when they
+    are the same."""
+    record = config.to_json()
+    sampler = recorded.get("sampler") if isinstance(recorded, dict) else None
+    if record["sampler"] and isinstance(sampler, dict):
+        record["sampler"] = {**record["sampler"], **{k: sampler[k] for k in RUN_SETTINGS if k in sampler}}
+    record["schema_version"] = 1
+    return record
+
+
+def started_hash(config: DatasetConfig, stored) -> str | None:
+    """The hash under which a folder whose `meta/config.json` holds `stored` (`{"config_hash",
+    "config"}`) was started with `config`, or None when it was started with another config: its
+    own recorded hash, checked by the rule of the version that wrote it (`config.hash` for version
+    2, that of `version1_record` for version 1). A folder keeps its hash for good: its shard
+    markers and `meta/info.json` carry it."""
+    if not isinstance(stored, dict) or not isinstance(stored.get("config"), dict):
+        return None
+    recorded, known = stored["config"], stored.get("config_hash")
+    if recorded.get("schema_version") == 1:
+        return known if known == record_hash(version1_record(config, recorded)) else None
+    return known if known == config.hash else None
+
+
+def started_record(config: DatasetConfig, stored) -> dict:
+    """`config`'s record in the form of the version that wrote `stored` (see `started_hash`), to
+    name the differences from it."""
+    recorded = stored.get("config") if isinstance(stored, dict) else None
+    if isinstance(recorded, dict) and recorded.get("schema_version") == 1:
+        return version1_record(config, recorded)
+    return config.to_json()

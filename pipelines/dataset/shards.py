@@ -3,7 +3,8 @@
 `build_shard(config, k, out)` is the whole job for shard k, the same function whether it runs in
 this process, in a local worker process or as a Ray task:
 
-1. if `OUT/meta/shards/NNNNN.json` (the completion marker) exists for this config, return;
+1. if `OUT/meta/shards/NNNNN.json` (the completion marker) exists for this config (the hash the
+   folder knows it by: `folder_identity`), return;
 2. for each object of the shard, in index order: make it (sampler or design; a synthetic object
    grown ahead by a lockstep build is taken from `spool`), render and encode every step, and
    append its rows to the temporary file of its split as one row group;
@@ -33,7 +34,7 @@ from factory.dataset.info import json_bytes
 from factory.dataset.schema import arrow_schema
 from factory.dataset.tasks import SPLITS
 from pipelines.dataset import spool
-from pipelines.dataset.config import DatasetConfig
+from pipelines.dataset.config import DatasetConfig, started_hash
 from pipelines.dataset.sources import make_source
 
 WRITER_OPTIONS = dict(
@@ -54,16 +55,36 @@ def marker_path(out, shard: int) -> Path:
     return Path(out) / "meta" / "shards" / f"{shard:05d}.json"
 
 
-def read_marker(out, shard: int, config: DatasetConfig) -> dict | None:
-    """The shard's completion record when it is done under this config and its data files are
-    there at the sizes it records, else None (then the shard is built again; a missing or cut file
-    is named on stderr)."""
+def folder_identity(config: DatasetConfig, out) -> tuple[str, dict]:
+    """(hash, record) that the folder `out` knows `config` by: the `config_hash` and `config` of its
+    `meta/config.json` when they are `config`'s by the rule of the schema version that wrote them
+    (`started_hash`: a folder started at version 1 keeps its hash, so the shards it finished stay
+    finished), else `config.hash` and `config.to_json()` (a folder not started yet, or one started
+    with another config, which `build` refuses before any shard). Shard markers and
+    `meta/info.json` carry this hash."""
+    try:
+        stored = json.loads((Path(out) / "meta" / "config.json").read_text())
+    except (OSError, ValueError):
+        stored = None
+    known = started_hash(config, stored)
+    if known is None:
+        return config.hash, config.to_json()
+    return known, stored["config"]
+
+
+def read_marker(out, shard: int, config: DatasetConfig, config_hash: str | None = None) -> dict | None:
+    """The shard's completion record when it is done under this config (`config_hash`: the hash
+    the folder knows it by, `folder_identity`; read from the folder when None) and its data files
+    are there at the sizes it records, else None (then the shard is built again; a missing or cut
+    file is named on stderr)."""
+    if config_hash is None:
+        config_hash = folder_identity(config, out)[0]
     p = marker_path(out, shard)
     try:
         rec = json.loads(p.read_text())
     except (OSError, ValueError):
         return None
-    if not isinstance(rec, dict) or rec.get("config_hash") != config.hash:
+    if not isinstance(rec, dict) or rec.get("config_hash") != config_hash:
         return None
     try:
         files, sizes = rec["files"], rec["bytes"]
@@ -82,8 +103,9 @@ def read_marker(out, shard: int, config: DatasetConfig) -> dict | None:
 
 
 def object_source(config: DatasetConfig):
-    """One object source per process and config (a Ray or pool worker reuses it across shards)."""
-    key = config.hash
+    """One object source per process and config, run settings included (a Ray or pool worker
+    reuses it across shards)."""
+    key = json.dumps(config.to_dict(), sort_keys=True)
     if key not in _SOURCES:
         _SOURCES.clear()
         _SOURCES[key] = make_source(config)
@@ -143,7 +165,7 @@ WAIT_POLL_S = 0.2
 
 
 def _grown_together(out: Path, config: DatasetConfig, sampler, indices: list[int]):
-    """(index, (assembly, seconds)) for each object of a shard whose checks are batched ('mjx'):
+    """(index, (assembly, seconds)) for each object of a shard whose checks are batched ('jax'):
     those grown ahead (`spool`) first, then the rest grown here in lockstep, each as it ends. One
     round of device calls serves every object of the shard, where growing them one at a time made
     a round per object; the objects are the same (`Sampler.grow`). An object's seconds are the
@@ -180,7 +202,8 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
                 source=None, wait: bool = False) -> Path:
     """Build shard `shard` of `config` into the folder `out`; returns its completion marker's path.
 
-    `progress`, if given, is called with 1 after each object (in-process runs use it for a
+    `config`: a `DatasetConfig`, or one as a dict (`DatasetConfig.from_any`: the builder sends
+    `to_dict()`, which keeps the run settings, the checks' backend among them). `progress`, if given, is called with 1 after each object (in-process runs use it for a
     per-object progress bar). `source`: the object source (default `object_source(config)`); an
     object it gives with finished `rows` is written as it is (world feedback), else rendered.
     `wait` (a lockstep build, started before all the shard's objects are grown): render each
@@ -191,10 +214,11 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
     from pipelines.dataset.rows import object_rows  # lazy: it imports factory.render (GL at import)
 
     if isinstance(config, dict):
-        config = DatasetConfig.from_json(config)
+        config = DatasetConfig.from_any(config)
     out = Path(out)
     marker = marker_path(out, shard)
-    if read_marker(out, shard, config) is not None:
+    identity = folder_identity(config, out)[0]
+    if read_marker(out, shard, config, identity) is not None:
         return marker
     t_start = time.perf_counter()
     finals = {s: out / config.shard_file(s, shard) for s in SPLITS}
@@ -229,7 +253,7 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
         made: dict[int, tuple] = {}  # objects made out of index order, until those before them are written
         at = 0
         sampler = getattr(source, "sampler", None)
-        if not wait and sampler is not None and sampler.config.backend == "mjx":
+        if not wait and sampler is not None and sampler.config.backend == "jax":
             arrivals = _grown_together(out, config, sampler, indices)
         else:
             arrivals = _arrivals(out, config, indices, wait)
@@ -266,7 +290,7 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
                 p.unlink()
     record = {
         "shard": shard,
-        "config_hash": config.hash,
+        "config_hash": identity,
         "files": {s: config.shard_file(s, shard) for s in SPLITS},
         "bytes": {s: finals[s].stat().st_size for s in SPLITS},
         "counts": counts,

@@ -136,7 +136,7 @@ def _physics_records(path, ldraw, enabled: bool):
         return None, None, 0.0
     t = time.perf_counter()
     parts, units = {}, {}
-    for r in verify_model(path, ldraw):
+    for r in verify_model(path, ldraw, "cpu"):  # the reference checks, one part at a time
         r = _py(r)
         if r.get("unit"):
             units[r["assembly"]] = r

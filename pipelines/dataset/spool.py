@@ -2,7 +2,7 @@
 
 `build(..., batch=B)` grows the synthetic objects of every missing shard in grower tasks (`grow`:
 each takes the objects of every G-th shard and grows them B at a time, `Sampler.grow`: their
-checks of a step in one call, on the device with the 'mjx' backend) while the other workers render
+checks of a step in one call, on the device with the 'jax' backend) while the other workers render
 and encode the shards whose objects are all grown. Each grown object is
 written here at once, atomically (`OUT/meta/spool/NNNNNNN.json`: the `Assembly` and its seconds,
 as data only: `factory.sampler.record`; a file here is never run as code, whoever wrote it),
@@ -124,10 +124,11 @@ def drop(out, indices) -> None:
 
 
 def grow(config_json: dict, indices: list[int], out, batch: int) -> int:
-    """Grow objects `indices` of a synthetic dataset config (`DatasetConfig.to_json()`) `batch` at a
-    time and keep each here as it ends (a grower task of a lockstep build; runs in a worker process
-    or a Ray task). Objects already here are not grown again. Returns how many it grew."""
-    config = DatasetConfig.from_json(config_json)
+    """Grow objects `indices` of a synthetic dataset config (`DatasetConfig.to_dict()`, as the
+    builder sends it, or `to_json()`: `DatasetConfig.from_any`) `batch` at a time and keep each
+    here as it ends (a grower task of a lockstep build; runs in a worker process or a Ray task).
+    Objects already here are not grown again. Returns how many it grew."""
+    config = DatasetConfig.from_any(config_json)
     todo = [i for i in indices if not has(out, i)]
     sampler = Sampler(config.sampler, config.ldraw)
     t0 = time.perf_counter()
