@@ -4,9 +4,10 @@ whether the batched checks run on one (`checks_backend`).
 A build's pool numbers its workers (`SLOT_ENV`, set by `pipelines.dataset.build`). On a machine
 with several NVIDIA GPUs, worker k renders on EGL device k mod G (`MUJOCO_EGL_DEVICE_ID`, read by
 MuJoCo's EGL backend when the process's context is made) and runs its JAX kernels on JAX's GPU
-k mod G (`jax_default_device`); with one GPU, none or no slot, nothing is chosen. A user's own
-`MUJOCO_EGL_DEVICE_ID` wins. `CUDA_VISIBLE_DEVICES` is not set: NVIDIA's EGL remaps its devices
-by it (google-deepmind/mujoco#3245), so setting it for JAX could move the renders too.
+k mod G, the only GPU JAX opens in that process (`jax_cuda_visible_devices`); with one GPU, none
+or no slot, nothing is chosen. A user's own `MUJOCO_EGL_DEVICE_ID` wins. `CUDA_VISIBLE_DEVICES`
+is not set: NVIDIA's EGL remaps its devices by it (google-deepmind/mujoco#3245), so setting it for
+JAX could move the renders too.
 """
 
 from __future__ import annotations
@@ -64,17 +65,34 @@ def choose_egl_device() -> int | None:
     return k % gpus
 
 
+class CudaStartError(RuntimeError):
+    """JAX's CUDA backend did not start in a process on a machine with NVIDIA GPUs and JAX's CUDA
+    build: JAX would have run the batched checks on the CPU, slowly, without saying so."""
+
+
 def choose_jax_device(jax) -> object | None:
-    """Make this worker's JAX default device its share of the GPUs; returns it, or None."""
-    k = slot()
-    if k is None:
-        return None
+    """Make this worker's JAX default device its share of the GPUs; returns it, or None.
+
+    Worker k of a pool on a machine with G >= 2 NVIDIA GPUs lets JAX open GPU k mod G only
+    (`jax_cuda_visible_devices`, set before JAX starts its CUDA backend; unlike
+    `CUDA_VISIBLE_DEVICES` it leaves EGL's devices alone). A process that opened every GPU held a
+    CUDA context, and an MPS client, on each: 64 workers of a 4-GPU machine asked the MPS daemons
+    for 256 clients and a quarter of them failed to start CUDA. Where JAX's CUDA build is installed
+    and GPUs are there but JAX starts without one, `CudaStartError` says so."""
+    k, gpus = slot(), count()
+    if k is not None and gpus >= 2:
+        jax.config.update("jax_cuda_visible_devices", str(k % gpus))
+    if gpus and cuda_jax() is not None and jax.default_backend() != "gpu":
+        raise CudaStartError(
+            f"JAX did not start CUDA in this process (worker {k if k is not None else '-'}; {gpus} NVIDIA GPU(s), "
+            f"{cuda_jax()} installed; JAX's backend is {jax.default_backend()!r}): the batched checks would run "
+            "on the CPU. JAX's log above says why (out of memory, MPS clients); use fewer workers, or "
+            "--check-backend cpu")
     devices = [d for d in jax.devices() if d.platform == "gpu"]
-    if len(devices) < 2:
+    if k is None or gpus < 2 or not devices:
         return None
-    device = devices[k % len(devices)]
-    jax.config.update("jax_default_device", device)
-    return device
+    jax.config.update("jax_default_device", devices[0])
+    return devices[0]
 
 
 def render_path() -> str:

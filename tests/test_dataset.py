@@ -428,6 +428,31 @@ def _slot_after(seconds: float) -> str:
     return os.environ[gpus.SLOT_ENV]
 
 
+JAX_SHARE = """
+import os, jax
+from factory import gpus
+gpus.count = lambda: 4  # a 4-GPU machine's driver listing; this process's JAX has only the CPU
+os.environ[gpus.SLOT_ENV] = "5"
+print(gpus.choose_jax_device(jax), jax.config.values["jax_cuda_visible_devices"])
+gpus.cuda_jax = lambda: "jax-cuda13-plugin"  # JAX's CUDA build installed, yet JAX started without a GPU
+try:
+    gpus.choose_jax_device(jax)
+except gpus.CudaStartError as e:
+    print("refused:", e)
+"""
+
+
+def test_a_numbered_worker_lets_jax_open_its_own_gpu_only_and_a_cuda_that_did_not_start_is_an_error():
+    # 64 workers of a 4-GPU machine each opened all 4 GPUs (256 MPS clients; a quarter failed to
+    # start CUDA and ran their checks on JAX's CPU backend, silently)
+    out = subprocess.run([sys.executable, "-c", JAX_SHARE], capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    first, refused = out.stdout.splitlines()
+    assert first == "None 1"  # worker 5 of 4 GPUs: GPU 1 only
+    assert refused.startswith("refused: JAX did not start CUDA in this process (worker 5; 4 NVIDIA GPU(s)")
+    assert "--check-backend cpu" in refused
+
+
 def test_gpu_share_of_a_numbered_worker(monkeypatch):
     from factory import gpus
 
