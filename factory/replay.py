@@ -27,7 +27,7 @@ from factory.ldraw.subassembly import UnitDone, parent_of, relative_frame, to_lo
 from factory.parts import box_corners, load_part
 from factory.physics.geometry import collision_shape
 from factory.physics.check import CheckConfig, Verdict, check_units
-from factory.physics.statics import Link
+from factory.physics.load_model import Link
 from factory.physics.structure import Placed, Structure, canonical_key, connectors, match
 from factory.pose import Pose
 from factory.symmetry import rotation_about

@@ -6,7 +6,7 @@ Sections, each timed and written as soon as it ends (a later failure loses nothi
 
 - machine: CPU count, GPU (through JAX or torch when they see one), package versions;
 - physics: candidate checks per second per backend present (`cpu` always; `jax` when JAX is
-  installed; larger batches when a GPU is present), from `pipelines.bench_physics.measure`; load
+  installed; larger batches when a GPU is present), from `pipelines.bench_checks.measure`; load
   checks and sweeps at 30-90 bricks; lockstep growth of the same objects (`measure_growth`: on a
   GPU the batched path at batch 16, twice (the second row every shape compiled), against the CPU
   reference one object at a time);
@@ -47,7 +47,9 @@ from factory.cli import ArgumentParser, run_guarded
 from factory.ldraw import get_reader
 from factory.physics.check import BACKENDS, OLD_BACKEND_NAMES, backend_arg
 from factory.sampler import SamplerConfig, SamplerConfigError
-from pipelines.bench_physics import in_own_process, measure, measure_growth, measure_lp, measure_sweep, measure_whole
+from pipelines.bench_checks import measure, measure_lp, measure_sweep, measure_whole
+from pipelines.bench_growth import measure_growth
+from pipelines.bench_processes import in_own_process
 from pipelines.dataset import ConfigMismatchError, DatasetConfig, build, usage
 from pipelines.designs import design_config
 from pipelines.realism import Collection, compare, read_collection

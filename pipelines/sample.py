@@ -31,7 +31,7 @@ from tqdm import tqdm
 from factory import mps
 from factory.cli import (ArgumentParser, add_config_args, add_mps_flag, add_progress_flag, config_from_args,
                          renamed_flag, run_guarded)
-from factory.physics import sweep_jax
+from factory.physics import pair_kernels
 from factory.physics.check import BACKENDS, STAGE_SECONDS, backend_arg
 from factory.sampler import Sampler, SamplerConfig, SamplerConfigError
 from factory.atomic import write_atomic
@@ -197,7 +197,7 @@ def _run(args, config: SamplerConfig) -> int:
         if config.backend == "jax":
             from factory.physics import lp_jax  # optional: JAX (the [jax] extra)
 
-            summary["totals"]["compiles"] = {"loads": len(lp_jax.COMPILES), "sweeps": len(sweep_jax.COMPILES)}
+            summary["totals"]["compiles"] = {"loads": len(lp_jax.COMPILES), "sweeps": len(pair_kernels.COMPILES)}
     write_atomic(out / "summary.json", (json.dumps(summary, indent=1, default=_json_default) + "\n").encode())
     t = summary["totals"]
     print(f"{t['objects']} objects, {t['steps']} steps, median density "

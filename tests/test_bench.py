@@ -80,7 +80,7 @@ def test_unknown_backend_is_a_clear_error(tmp_path, capsys):
 def test_growth_rows_grow_the_same_objects_at_every_batch(capsys):
     """`bench_physics --growth`: one row per batch, each over the same objects (the same parts placed),
     with a positive rate."""
-    from pipelines.bench_physics import measure_growth
+    from pipelines.bench_growth import measure_growth
 
     rows = measure_growth("cpu", [1, 3], steps=3, objects=3)
     assert "bench_physics: warm-up: 4 objects in" in capsys.readouterr().err  # progress on stderr
@@ -97,7 +97,7 @@ def test_growth_rows_grow_the_same_objects_at_every_batch(capsys):
 def test_growth_in_several_processes_grows_the_same_objects(capfd):
     """`bench_physics --growth --procs 2`: the objects split over two grower processes, each
     growing its half, all of them to their length, with each process's stage seconds summed."""
-    from pipelines.bench_physics import measure_growth
+    from pipelines.bench_growth import measure_growth
 
     (one,) = measure_growth("cpu", [2], steps=3, objects=4)
     (two,) = measure_growth("cpu", [2], steps=3, objects=4, procs=2)
@@ -121,15 +121,15 @@ def _fail_before_the_barrier(span, barrier):
 
 
 def test_a_process_that_fails_in_its_warm_up_stops_the_others(monkeypatch):
-    """`bench_physics._together`: when one process fails before the barrier, the others stop
+    """`bench_processes._together`: when one process fails before the barrier, the others stop
     waiting for it and the error reaches the caller at once (on 2026-11-26 a process out of device
     memory left three others waiting until the bench was killed 375 s later)."""
-    from pipelines import bench_physics
+    from pipelines import bench_processes
 
-    monkeypatch.setattr(bench_physics, "BARRIER_S", 120.0)  # without the guard, the wait ends here
+    monkeypatch.setattr(bench_processes, "BARRIER_S", 120.0)  # without the guard, the wait ends here
     t = time.perf_counter()
     with pytest.raises(ValueError, match="warm-up"):
-        bench_physics._together([(0, 1), (1, 2)], _noop, (), _fail_before_the_barrier)
+        bench_processes._together([(0, 1), (1, 2)], _noop, (), _fail_before_the_barrier)
     assert time.perf_counter() - t < 60.0
 
 
@@ -138,7 +138,7 @@ def test_batched_growth_rows_count_the_compiles_in_their_window():
     the warm-up took (the first row) and how many JAX compiles fell inside its timed window; a
     second row over the same objects meets no new shape, so it compiles nothing."""
     pytest.importorskip("jax")
-    from pipelines.bench_physics import measure_growth
+    from pipelines.bench_growth import measure_growth
 
     first, second = measure_growth("jax", [2, 2], steps=3, objects=2)
     assert first["warm_seconds"] > 0 and second["warm_seconds"] is None
@@ -150,15 +150,15 @@ def test_batched_growth_rows_count_the_compiles_in_their_window():
     import jax
     import jax.numpy as jnp
 
-    from pipelines import bench_physics
+    from pipelines import bench_growth
 
-    bench_physics._count_compiles()
+    bench_growth._count_compiles()
     f = jax.jit(lambda x: jnp.cumsum(x * 3.25))
     x = np.ones(1237, np.float32)  # a numpy input: jnp.ones would compile a kernel of its own
     f(x).block_until_ready()
-    assert bench_physics._JIT["compiles"] == 1 and bench_physics._JIT["compile_s"] > 0
+    assert bench_growth._JIT["compiles"] == 1 and bench_growth._JIT["compile_s"] > 0
     f(x).block_until_ready()
-    assert bench_physics._JIT["compiles"] == 1
+    assert bench_growth._JIT["compiles"] == 1
 
 
 @pytest.mark.slow
@@ -168,7 +168,7 @@ def test_grower_processes_load_the_kernels_one_process_compiled(tmp_path, monkey
     persistent cache; the two grower processes then compile fewer of them each (only those too
     quick to compile to be written), and the row says so."""
     pytest.importorskip("jax")
-    from pipelines.bench_physics import measure_growth
+    from pipelines.bench_growth import measure_growth
 
     monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "jax"))  # the spawned processes' cache
     (row,) = measure_growth("jax", [2], steps=3, objects=2, procs=2)
@@ -227,3 +227,13 @@ def test_the_gpu_is_named_from_the_driver_list_before_any_cuda_library(monkeypat
     monkeypatch.setitem(sys.modules, "torch", None)  # importing it fails: no CUDA library asked
     monkeypatch.setitem(sys.modules, "jax", None)
     assert bench.gpu_name() is None
+
+
+@pytest.mark.slow
+def test_the_solver_benchmark_compares_the_batched_solver_with_highs(capsys):
+    from pipelines.bench_physics import main
+
+    assert main(["--solver", "--sizes", "120", "--batches", "8"]) == 0
+    (row,) = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert row["size"] == 120 and row["problems"] == 8 and row["variables"] >= 120
+    assert row["not_optimal"] == 0 and row["verdicts_differing"] == 0 and row["max_objective_error"] < 1e-4

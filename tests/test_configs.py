@@ -18,7 +18,7 @@ from factory.cli import config_from_args
 from factory.config import ConfigError, config_from_dict, config_to_dict, field_docs
 from factory.embedded.catalog import PARTS
 from factory.physics.check import CheckConfig
-from factory.physics.statics import LoadConfig
+from factory.physics.load_model import LoadConfig
 from factory.sampler import SamplerConfig, SamplerConfigError
 from pipelines import designs, sample, synth
 from pipelines.dataset import DatasetConfig

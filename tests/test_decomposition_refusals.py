@@ -13,20 +13,20 @@ def test_a_refused_decomposition_is_kept_and_not_tried_again_under_the_same_limi
     from factory.errors import LDrawLimitError
     from factory.ldraw import Library, Reader
     from factory.parts import load_part
-    from factory.physics import geometry
+    from factory.physics import decompose, geometry
 
     monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path))
     monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", "0.05")
-    monkeypatch.setattr(geometry, "_faithful_pieces", lambda part, cfg: None)  # the way to coacd
+    monkeypatch.setattr(decompose, "_faithful_pieces", lambda part, cfg: None)  # the way to coacd
     part = lambda: load_part(Reader(Library.embedded()), "3001")  # noqa: E731 (a fresh part: nothing in memory)
     with pytest.raises(LDrawLimitError, match="more than 0.05 s") as first:
         geometry.collision_shape(part())
     assert "refused before" not in str(first.value)
-    run = geometry.subprocess.run
-    monkeypatch.setattr(geometry.subprocess, "run", lambda *a, **k: pytest.fail("a decomposition was started"))
+    run = decompose.subprocess.run
+    monkeypatch.setattr(decompose.subprocess, "run", lambda *a, **k: pytest.fail("a decomposition was started"))
     with pytest.raises(LDrawLimitError, match=r"more than 0.05 s.*\(refused before; kept in the cache\)"):
         geometry.collision_shape(part())
-    monkeypatch.setattr(geometry.subprocess, "run", run)
+    monkeypatch.setattr(decompose.subprocess, "run", run)
     monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", "0.1")  # a wider limit tries again
     with pytest.raises(LDrawLimitError, match="more than 0.1 s") as wider:
         geometry.collision_shape(part())
@@ -41,23 +41,23 @@ def test_a_decomposition_past_its_time_limit_is_tried_again_at_coarser_settings(
     from factory.errors import LDrawLimitError
     from factory.ldraw import Library, Reader
     from factory.parts import load_part
-    from factory.physics import geometry
+    from factory.physics import decompose, geometry
 
     monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path))
-    monkeypatch.setattr(geometry, "_faithful_pieces", lambda part, cfg: None)  # the way to coacd
-    real, tried = geometry._decompose, []
+    monkeypatch.setattr(decompose, "_faithful_pieces", lambda part, cfg: None)  # the way to coacd
+    real, tried = decompose._decompose, []
 
     def slow_at_defaults(vertices, faces, cfg, name=""):
         tried.append(cfg.preprocess_resolution)
-        if cfg.preprocess_resolution != geometry.COARSE["preprocess_resolution"]:
-            raise geometry.DecompositionTooSlow(f"decomposing {name} took more than 300 s", name)
+        if cfg.preprocess_resolution != decompose.COARSE["preprocess_resolution"]:
+            raise decompose.DecompositionTooSlow(f"decomposing {name} took more than 300 s", name)
         return real(vertices, faces, cfg, name)
 
-    monkeypatch.setattr(geometry, "_decompose", slow_at_defaults)
+    monkeypatch.setattr(decompose, "_decompose", slow_at_defaults)
     shape = geometry.collision_shape(load_part(Reader(Library.embedded()), "3001"))
     assert tried == [50, 30] and len(shape.body) >= 1
     monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", "0.01")  # real coacd, too slow both times
-    monkeypatch.setattr(geometry, "_decompose", real)
+    monkeypatch.setattr(decompose, "_decompose", real)
     with pytest.raises(LDrawLimitError, match=r"more than 0.01 s; .*again at coarser settings: .*more than 0.01 s"):
         geometry.collision_shape(load_part(Reader(Library.embedded()), "3003"))
 
@@ -69,19 +69,19 @@ def test_the_faithfulness_test_walks_its_sample_grid_in_chunks_with_the_same_ans
     import numpy as np
 
     from factory.parts import load_part
-    from factory.physics import geometry
+    from factory.physics import decompose, faithful
 
-    cfg = geometry.DecompositionConfig()
+    cfg = decompose.DecompositionConfig()
     cases = []
     for name in ("99781", "3062b", "4070", "3001"):  # bracket, round brick, headlight brick, brick
         part = load_part(real_reader, name)
-        test = geometry._faithfulness(part, cfg)
+        test = faithful._faithfulness(part, cfg)
         body = part.flat.triangles[~part.flat.in_stud].reshape(-1, 3)
         lo, hi = body.min(0), body.max(0)
         halves = [body[body[:, 0] <= (lo[0] + hi[0]) / 2], body[body[:, 1] <= (lo[1] + hi[1]) / 2], body]
         cases += [(test, h) for h in halves if len(h) >= 4]
     whole = [test.escapes(points) for test, points in cases]
-    monkeypatch.setattr(geometry, "SAMPLE_CHUNK", 4096)
+    monkeypatch.setattr(faithful, "SAMPLE_CHUNK", 4096)
     assert [test.escapes(points) for test, points in cases] == whole
     assert True in whole and False in whole
 
@@ -96,22 +96,22 @@ def test_a_refusal_kept_before_the_coarser_try_existed_is_tried_again(monkeypatc
     from factory.errors import LDrawLimitError
     from factory.ldraw import Library, Reader
     from factory.parts import load_part
-    from factory.physics import geometry
+    from factory.physics import decompose, geometry
 
     monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path))
     monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", "0.05")
-    monkeypatch.setattr(geometry, "_faithful_pieces", lambda part, cfg: None)  # the way to coacd
+    monkeypatch.setattr(decompose, "_faithful_pieces", lambda part, cfg: None)  # the way to coacd
     part = lambda: load_part(Reader(Library.embedded()), "3001")  # noqa: E731
     with pytest.raises(LDrawLimitError):
         geometry.collision_shape(part())
     (kept,) = (tmp_path / "coacd").glob("*.json")
     record = json.loads(kept.read_text())
-    assert record["coarse"] == geometry.COARSE and record["message"].startswith("decomposing")  # no file before
+    assert record["coarse"] == decompose.COARSE and record["message"].startswith("decomposing")  # no file before
     del record["coarse"]  # as a refusal was kept before the second try existed
     kept.write_text(json.dumps(record))
     tried = []
-    real = geometry._decompose
-    monkeypatch.setattr(geometry, "_decompose", lambda *a, **k: tried.append(1) or real(*a, **k))
+    real = decompose._decompose
+    monkeypatch.setattr(decompose, "_decompose", lambda *a, **k: tried.append(1) or real(*a, **k))
     with pytest.raises(LDrawLimitError, match="again at coarser settings"):
         geometry.collision_shape(part())
     assert len(tried) == 2  # tried again, both ways

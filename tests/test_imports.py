@@ -227,3 +227,56 @@ def test_an_unexplained_import_in_a_function_is_named(tmp_path, source, flagged)
     assert bool(found) == flagged, found
     if flagged:
         assert found[0].startswith("eval/mod.py:")
+
+
+def _runtime_imports(path: Path, root: Path) -> set[str]:
+    """The project modules a file imports when it runs (not under `if TYPE_CHECKING:`): for `from
+    M import a`, `M.a` where that is a module, else `M`."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    typing_only = {id(n) for node in ast.walk(tree) if isinstance(node, ast.If)
+                   and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING"
+                   for body in node.body for n in ast.walk(body)}
+    name = _module_name(path, root)
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    out = set()
+    for node in ast.walk(tree):
+        if id(node) in typing_only or not isinstance(node, (ast.Import, ast.ImportFrom)):
+            continue
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+            continue
+        if node.level:
+            base = package.split(".")
+            module = ".".join([*base[: len(base) - (node.level - 1)], *([node.module] if node.module else [])])
+        else:
+            module = node.module
+        for a in node.names:
+            sub = f"{module}.{a.name}"
+            out.add(sub if (root / Path(*sub.split("."))).with_suffix(".py").exists()
+                    or (root / Path(*sub.split(".")) / "__init__.py").exists() else module)
+    return {m for m in out if _layer(m) is not None and m != name and not name.startswith(m + ".")}
+
+
+def mutual_imports(root: Path = ROOT) -> list[str]:
+    """`A <-> B` for every two modules that import each other (a package's `__init__` importing
+    its own modules, and a module importing a package above it, are not counted)."""
+    graph = {}
+    for package in PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            graph[_module_name(path, root)] = _runtime_imports(path, root)
+    return sorted(f"{a} <-> {b}" for a, deps in graph.items() for b in deps
+                  if a < b and a in graph.get(b, ()) and not a.startswith(b + ".") and not b.startswith(a + "."))
+
+
+def test_no_two_modules_import_each_other():
+    assert mutual_imports() == []
+
+
+def test_two_modules_importing_each_other_are_named(tmp_path):
+    pkg = tmp_path / "factory"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("from factory.a import f\n")
+    (pkg / "a.py").write_text("from factory import b, c\n\ndef f():\n    return b, c\n")
+    (pkg / "b.py").write_text("def g():\n    from factory.a import f  # lazily: still a cycle\n    return f\n")
+    (pkg / "c.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from factory.a import f\n")
+    assert mutual_imports(tmp_path) == ["factory.a <-> factory.b"]

@@ -273,7 +273,7 @@ def test_the_batched_walk_solves_only_the_load_programs_the_reference_solves(mon
     (one after a candidate left unjudged, or after one outside the request whose key bound is
     higher). The same objects."""
     pytest.importorskip("jax")
-    import factory.physics.check as chk
+    import factory.physics.check_loads as chk
 
     solved = []
     real = chk.solve_from

@@ -1,6 +1,7 @@
-"""The batched JAX LP solver (`factory.physics.lp_jax`) against HiGHS: random LPs with every kind of
-bound, load programs of the kind it is for (generated, and real ones from a grown structure, with
-their verdicts near s = 1), a cantilever worked by hand, batching and compiles."""
+"""The batched JAX LP solver (`factory.physics.lp_jax`, its kernel `interior_point_jax`) against HiGHS:
+random LPs with every kind of bound, load programs of the kind it is for (generated, and real ones
+from a grown structure, with their verdicts near s = 1, also written straight from their models by
+`loads_jax`), a cantilever worked by hand, batching and compiles."""
 
 from __future__ import annotations
 
@@ -10,8 +11,9 @@ import scipy.sparse as sp
 
 pytest.importorskip("jax")
 
-from factory.physics import lp_jax  # noqa: E402
+from factory.physics import interior_point_jax, loads_jax, lp_jax  # noqa: E402
 from factory.physics.lp import LinearProgram, solve_highs  # noqa: E402
+from pipelines.bench_solver import statics_like_lp  # noqa: E402
 
 
 def assert_agrees(lp: LinearProgram, res, ref) -> None:
@@ -63,7 +65,7 @@ def load_programs() -> list[LinearProgram]:
     the largest group with the same equality rows' and slots' buckets kept: the file then compiles
     few shapes)."""
     rng = np.random.default_rng(1)
-    lps = [lp_jax.statics_like_lp(rng, 150) for _ in range(16)]
+    lps = [statics_like_lp(rng, 150) for _ in range(16)]
     buckets = [lp_jax.bucket_of(lp)[1::2] for lp in lps]
     common = max(set(buckets), key=buckets.count)
     group = [lp for lp, b in zip(lps, buckets) if b == common]
@@ -163,7 +165,7 @@ def _lp_kernels() -> int:
 
     if jax_export._available():
         return sum(1 for key in jax_export._LOADED if key[0] == "lp")
-    return lp_jax._SOLVE._cache_size()
+    return interior_point_jax._SOLVE._cache_size()
 
 
 def test_one_compile_per_bucket():
@@ -209,7 +211,7 @@ def test_launches_of_programs_with_many_rows_are_smaller():
 def real_models():
     """The load models (those that do not tip; every third) of the distinct attachments of a 2x4
     brick to a grown 8-brick structure, as `check` builds them for the sampler's candidates."""
-    from pipelines.bench_physics import candidates, grow, load_models
+    from pipelines.bench_structures import candidates, grow, load_models
 
     from factory.physics.statics import tips
 
@@ -232,7 +234,9 @@ def test_real_load_programs_and_their_verdicts_near_the_limit_match_highs(real_m
     the same, and `judge_many` gives the same verdicts through either solver."""
     from dataclasses import replace
 
-    from factory.physics.statics import LoadConfig, judge_many, to_lp
+    from factory.physics.load_model import LoadConfig
+    from factory.physics.load_program import to_lp
+    from factory.physics.statics import judge_many
 
     base = [solve_highs(to_lp(m)).objective for m in real_models]
     programs = []
@@ -257,7 +261,7 @@ def test_real_load_programs_and_their_verdicts_near_the_limit_match_highs(real_m
     direct = np.full(len(programs), np.nan)
     for cfg in {cfg for _, cfg in programs}:
         at = [i for i, (_, c) in enumerate(programs) if c == cfg]
-        for i, r in zip(at, lp_jax.solve_loads([programs[i][0] for i in at], cfg, fallback=False)):
+        for i, r in zip(at, loads_jax.solve_loads([programs[i][0] for i in at], cfg, fallback=False)):
             direct[i] = r.objective if r.status == "optimal" else np.nan
     assert np.all(np.isfinite(direct)), f"{np.isnan(direct).sum()} not solved"
     assert np.abs(direct - ref).max() <= 1e-7 * max(1.0, np.abs(ref).max())
@@ -268,7 +272,7 @@ def test_real_load_programs_and_their_verdicts_near_the_limit_match_highs(real_m
     for cfg in [LoadConfig(), *near_limit]:
         models = [m for m, c in programs if c == cfg]
         a = judge_many(models, cfg)
-        b = judge_many(models, cfg, lp_jax.solve_loads)
+        b = judge_many(models, cfg, loads_jax.solve_loads)
         assert [(v.stands, v.reason) for v in a] == [(v.stands, v.reason) for v in b]
 
 
@@ -278,10 +282,11 @@ def test_candidates_judged_on_the_structures_shared_columns_match_highs():
     own joined on the device) gives `judge_many`'s HiGHS verdicts, loads and failing connections
     for the distinct attachments of a 2x4 brick to a grown 30-brick structure, those on the ground
     included, at the default clutch and at a weak one that overloads many."""
-    from pipelines.bench_physics import candidates, grown
+    from pipelines.bench_structures import candidates, grown
 
     from factory.physics.check import _unit_connections
-    from factory.physics.statics import LoadBase, LoadConfig, judge_many, judge_on_base, support_points
+    from factory.physics.load_model import LoadBase, LoadConfig, support_points
+    from factory.physics.statics import judge_many, judge_on_base
     from factory.physics.structure import Placed
 
     s = grown(30)
@@ -294,7 +299,7 @@ def test_candidates_judged_on_the_structures_shared_columns_match_highs():
     for cfg in (LoadConfig(), LoadConfig(clutch_n=0.25)):
         base = LoadBase(s.placed, s.connections, 24.0, s.links, cfg)
         assert base.shared()
-        got = judge_on_base(base, units, conns, cfg, lp_jax.solve_on_base)
+        got = judge_on_base(base, units, conns, cfg, loads_jax.solve_on_base)
         ref = judge_many([base.model(u, c) for u, c in zip(units, conns)], cfg)
         assert [(v.stands, v.reason) for v in got] == [(v.stands, v.reason) for v in ref]
         for a, b in zip(got, ref):
@@ -311,10 +316,11 @@ def test_programs_of_several_structures_share_launches_and_match_highs(monkeypat
     """`judge_on_bases` (objects grown in lockstep): the candidates of three structures (12, 20 and
     30 bricks of one grown object) solved together give each structure's HiGHS verdicts and
     loads; the 12- and 20-brick programs (equality rows 78 and 126, one bucket) share a launch."""
-    from pipelines.bench_physics import candidates, grown
+    from pipelines.bench_structures import candidates, grown
 
     from factory.physics.check import _unit_connections
-    from factory.physics.statics import LoadBase, LoadConfig, judge_many, judge_on_bases
+    from factory.physics.load_model import LoadBase, LoadConfig
+    from factory.physics.statics import judge_many, judge_on_bases
     from factory.physics.structure import Placed, Structure
 
     full = grown(30)
@@ -331,9 +337,9 @@ def test_programs_of_several_structures_share_launches_and_match_highs(monkeypat
         groups.append((base, units, conns))
         refs.append(judge_many([base.model(u, c) for u, c in zip(units, conns)], cfg))
     launches = []
-    run = lp_jax._run
-    monkeypatch.setattr(lp_jax, "_run", lambda arrays, *a: launches.append(arrays["b"].shape) or run(arrays, *a))
-    got = judge_on_bases(groups, cfg, lp_jax.solve_on_bases)
+    run = loads_jax._run
+    monkeypatch.setattr(loads_jax, "_run", lambda arrays, *a: launches.append(arrays["b"].shape) or run(arrays, *a))
+    got = judge_on_bases(groups, cfg, loads_jax.solve_on_bases)
     assert sorted(m for _, m in launches) == [128, 192]
     for g, r in zip(got, refs):
         assert [(v.stands, v.reason) for v in g] == [(v.stands, v.reason) for v in r]
@@ -348,7 +354,8 @@ def test_clutch_programs_on_the_device_give_the_verdicts_of_highs():
     # holds_alone_many with the batched solver (what the 'jax' checks use) against HiGHS, on the
     # cases the closed form leaves to the program: sitting on some studs while hanging from others,
     # hanging while resting on the ground, tilted studs; heavy and light parts, near the limit too.
-    from factory.physics.statics import LoadConfig, _closed_form, holds_alone_many
+    from factory.physics.clutch import _closed_form, holds_alone_many
+    from factory.physics.load_model import LoadConfig
 
     rng = np.random.default_rng(11)
     cfg = LoadConfig()
@@ -379,9 +386,9 @@ def test_clutch_programs_on_the_device_give_the_verdicts_of_highs():
 
 
 def test_the_arrays_cross_products_are_numpys_bit_for_bit():
-    """`_load_arrays` takes its torques from `lp_jax._cross`, written out for (n, 3) rows: the
+    """`_load_arrays` takes its torques from `loads_jax._cross`, written out for (n, 3) rows: the
     same bits as `np.cross`, so the programs are unchanged."""
-    from factory.physics.lp_jax import _cross
+    from factory.physics.loads_jax import _cross
 
     rng = np.random.default_rng(3)
     for n in (0, 1, 7, 500):

@@ -14,7 +14,7 @@ import pytest
 from factory import Pose, load_part
 from factory.physics.check import CheckConfig, check, check_units
 from factory.physics.geometry import DecompositionConfig, cache_dir, collision_shape
-from factory.physics.statics import LoadConfig
+from factory.physics.load_model import LoadConfig
 from factory.physics import attach, collide
 from factory.physics.attach import attachment_arrays, feasible_poses
 from factory.physics.structure import Placed, Structure, align, canonical_key, match

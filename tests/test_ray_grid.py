@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from factory.parts import load_part
-from factory.physics import geometry
+from factory.physics import faithful, ray_grid
 
 
 def _brute(points, tris, axis, sign):
@@ -37,7 +37,7 @@ def test_rays_cast_through_the_cells_meet_what_every_triangle_would(real_reader)
         lo, hi = tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)
         points = rng.uniform(lo - 10, hi + 10, size=(3000, 3))
         for axis in range(3):
-            grid = geometry._RayGrid(tris, axis)
+            grid = ray_grid._RayGrid(tris, axis)
             for sign in (1.0, -1.0):
                 got = grid.blocked(points, sign)
                 assert np.array_equal(got, _brute(points, tris, axis, sign)), (name, axis, sign)
@@ -55,10 +55,10 @@ def test_triangles_kilometres_across_keep_the_grid_and_the_samples_bounded():
     big = np.array([[[-5e4, 0, -5e4], [5e4, 0, -5e4], [0, 0, 5e4]],
                     [[0, -8, 0], [20, -8, 0], [0, -8, 20]]], dtype=np.float64)
     points = np.random.default_rng(1).uniform([-6e4, -20, -6e4], [6e4, 20, 6e4], size=(2000, 3))
-    grid = geometry._RayGrid(big, 1)
-    assert len(grid.keys) <= geometry.MAX_GRID_ENTRIES and grid.cell > geometry._BUCKET_LDU
+    grid = ray_grid._RayGrid(big, 1)
+    assert len(grid.keys) <= ray_grid.MAX_GRID_ENTRIES and grid.cell > ray_grid._BUCKET_LDU
     for sign in (1.0, -1.0):
         assert np.array_equal(grid.blocked(points, sign), _brute(points, big, 1, sign))
-    test = geometry._Faithfulness(big, 1.5, None)
+    test = faithful._Faithfulness(big, 1.5, None)
     with pytest.raises(LDrawLimitError, match="sample points"):
         test.escapes(np.concatenate([big.reshape(-1, 3), [[0, 40, 0]]]))

@@ -58,7 +58,8 @@ def test_the_load_model_carries_a_side_stud_across_and_along_its_own_axis():
     """A 1x8 brick hung by an end socket on the headlight brick's side stud: lying level, the load
     grows with its reach from the stud (the weight's moment); standing up on it at a weak clutch,
     the side stud itself (headlight -> brick, axis -z) is the connection named failing."""
-    from factory.physics.statics import LoadConfig, judge, load_model
+    from factory.physics.load_model import LoadConfig, load_model
+    from factory.physics.statics import judge
 
     def verdict(pose, cfg=LoadConfig()):
         s = Structure(BASE + [at("3008", *pose.t, R=pose.R)])

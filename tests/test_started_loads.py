@@ -1,4 +1,4 @@
-"""Load programs started from a solved one (`statics.solve_from`, `lp.solve_highs_from`): the same
+"""Load programs started from a solved one (`started_loads.solve_from`, `lp.solve_highs_from`): the same
 optimum as a solve from nothing, in fewer simplex iterations, and the same sampled objects."""
 
 from __future__ import annotations
@@ -8,10 +8,12 @@ import hashlib
 import numpy as np
 import pytest
 
-from factory.physics import statics
+from factory.physics import started_loads
 from factory.physics.check import check
 from factory.physics.lp import Basis, solve_highs, solve_highs_from
-from factory.physics.statics import LoadBase, LoadConfig, Solved, solve_from, start_basis, to_lp
+from factory.physics.load_model import LoadBase, LoadConfig
+from factory.physics.load_program import to_lp
+from factory.physics.started_loads import Solved, solve_from, start_basis
 from factory.physics.structure import Structure
 from factory.sampler import Sampler, SamplerConfig
 from conftest import at
@@ -74,8 +76,8 @@ def test_each_structures_program_started_from_the_one_before_has_its_optimum_in_
                 started += start_basis(before, model, cfg) is not None
                 assert abs(got.objective - want.objective) <= 1e-9 * max(1.0, abs(want.objective))
                 cold += n_cold
-                warm += statics.WARM_COUNTS["iterations"]
-            statics.WARM_COUNTS["iterations"] = 0
+                warm += started_loads.WARM_COUNTS["iterations"]
+            started_loads.WARM_COUNTS["iterations"] = 0
             before = solved
     assert started >= 40
     assert warm * 3 < cold, (warm, cold)
@@ -119,15 +121,15 @@ def _digest(objects) -> str:
 
 
 def test_sampled_objects_and_their_loads_are_the_same_with_started_programs_as_without(monkeypatch):
-    statics.WARM_COUNTS.update(started=0, cold=0, iterations=0)
+    started_loads.WARM_COUNTS.update(started=0, cold=0, iterations=0)
     started = _digest(_grown(2, 20)[2])
-    counts = dict(statics.WARM_COUNTS)
-    monkeypatch.setattr(statics, "WARM_START", False)
-    statics.WARM_COUNTS.update(started=0, cold=0, iterations=0)
+    counts = dict(started_loads.WARM_COUNTS)
+    monkeypatch.setattr(started_loads, "WARM_START", False)
+    started_loads.WARM_COUNTS.update(started=0, cold=0, iterations=0)
     cold = _digest(_grown(2, 20)[2])
-    assert statics.WARM_COUNTS["started"] == 0
+    assert started_loads.WARM_COUNTS["started"] == 0
     assert counts["started"] >= 30 and counts["cold"] <= 4, counts
-    assert counts["iterations"] * 3 < statics.WARM_COUNTS["iterations"], (counts, statics.WARM_COUNTS)
+    assert counts["iterations"] * 3 < started_loads.WARM_COUNTS["iterations"], (counts, started_loads.WARM_COUNTS)
     assert started == cold
 
 
@@ -136,27 +138,27 @@ def test_a_structure_starts_only_from_the_program_of_the_part_it_placed_last():
     part's program starts the next candidates' programs."""
     s = Structure([at("3001", 0, 0, 0)])
     floor = s.floor_y()
-    statics.WARM_COUNTS.update(started=0, cold=0, iterations=0)
+    started_loads.WARM_COUNTS.update(started=0, cold=0, iterations=0)
     top = at("3001", 0, -24, 0)
     assert check(s, top.part, [top.pose], floor_y=floor)[0].ok
-    assert (statics.WARM_COUNTS["started"], statics.WARM_COUNTS["cold"]) == (0, 1)
+    assert (started_loads.WARM_COUNTS["started"], started_loads.WARM_COUNTS["cold"]) == (0, 1)
     s.add(top)
     asked = at("3001", 0, -48, 0)
     assert check(s, asked.part, [asked.pose], floor_y=floor)[0].ok
-    assert (statics.WARM_COUNTS["started"], statics.WARM_COUNTS["cold"]) == (1, 1)
+    assert (started_loads.WARM_COUNTS["started"], started_loads.WARM_COUNTS["cold"]) == (1, 1)
     # A part placed one stud along from the one asked: its program was never solved, so the
     # candidates on top of it start from nothing.
     s.add(at("3001", 20, -48, 0))
     nxt = at("3001", 20, -72, 0)
     assert check(s, nxt.part, [nxt.pose], floor_y=floor)[0].ok
-    assert (statics.WARM_COUNTS["started"], statics.WARM_COUNTS["cold"]) == (1, 2)
+    assert (started_loads.WARM_COUNTS["started"], started_loads.WARM_COUNTS["cold"]) == (1, 2)
 
 
 def test_a_structure_keeps_the_bases_of_its_first_candidates_only(monkeypatch):
     """Judging many candidates against one structure keeps at most `KEPT_BASES` of their bases."""
-    from factory.physics import check as check_mod
+    from factory.physics import check_loads
 
-    monkeypatch.setattr(check_mod, "KEPT_BASES", 3)
+    monkeypatch.setattr(check_loads, "KEPT_BASES", 3)
     s = Structure([at("3001", 0, 0, 0)])
     poses = [at("3001", x, -24, z).pose for x in (-20, 0, 20) for z in (-20, 0, 20)]
     verdicts = check(s, at("3001", 0, 0, 0).part, poses, floor_y=s.floor_y())
@@ -171,15 +173,15 @@ def test_the_batched_path_solves_the_samplers_load_programs_one_by_one_started_t
     stands, as the reference does: none goes to the device solver, and the objects and their loads
     are the reference's."""
     pytest.importorskip("jax")
-    from factory.physics import lp_jax
+    from factory.physics import loads_jax
 
     sent = []
     for name in ("solve_on_bases", "solve_loads"):
-        real = getattr(lp_jax, name)
-        monkeypatch.setattr(lp_jax, name, lambda *a, real=real, name=name, **k: sent.append(name) or real(*a, **k))
-    statics.WARM_COUNTS.update(started=0, cold=0, iterations=0)
+        real = getattr(loads_jax, name)
+        monkeypatch.setattr(loads_jax, name, lambda *a, real=real, name=name, **k: sent.append(name) or real(*a, **k))
+    started_loads.WARM_COUNTS.update(started=0, cold=0, iterations=0)
     sampler = Sampler(SamplerConfig(seed=3, min_steps=20, max_steps=20, backend="jax"), None)
     batched = _digest(sorted(sampler.grow(range(2), batch=2), key=lambda a: a.index))
     assert sent == []
-    assert statics.WARM_COUNTS["started"] >= 30, statics.WARM_COUNTS
+    assert started_loads.WARM_COUNTS["started"] >= 30, started_loads.WARM_COUNTS
     assert batched == _digest(_grown(2, 20)[2])

@@ -11,7 +11,10 @@ from factory import Pose
 from factory.connections import STUD_RADIUS
 from factory.physics.check import CheckConfig, check, check_units
 from factory.physics.mass import GRAVITY, part_mass_properties
-from factory.physics.statics import LoadConfig, holds_alone, judge, load_model, to_lp
+from factory.physics.clutch import holds_alone
+from factory.physics.load_model import LoadConfig, load_model
+from factory.physics.load_program import to_lp
+from factory.physics.statics import judge
 from factory.physics.lp import solve_highs
 from factory.physics.structure import Structure
 from conftest import at, part
@@ -176,7 +179,7 @@ def test_a_units_model_from_the_structures_load_base_is_the_component_holding_it
     apart, a brick joining the second only, a brick bridging both, and a link from a brick
     laid on the ground to the first tower."""
     from factory.physics.check import _unit_connections
-    from factory.physics.statics import LoadBase, Link
+    from factory.physics.load_model import LoadBase, Link
 
     s = Structure([at("3001", 0, 0, 0), at("3001", 0, -24, 0), at("3001", 200, 0, 0), at("3001", 200, -24, 0)])
     base = LoadBase(s.placed, s.connections, floor_y, s.links)
@@ -192,9 +195,9 @@ def test_a_units_model_from_the_structures_load_base_is_the_component_holding_it
 
 def test_clutch_case_keys_round_each_position_and_axis_alone():
     """`holds_alone_many` keys a case by its connections relative to its centre of mass, rounded
-    (`statics._alone_key`, which rounds all of a case's rows at once): the key is the one rounding
+    (`clutch._alone_key`, which rounds all of a case's rows at once): the key is the one rounding
     each connection by itself gives, on random cases with positions off the grid."""
-    from factory.physics.statics import _alone_key
+    from factory.physics.clutch import _alone_key
 
     rng = np.random.default_rng(7)
     for _ in range(200):

@@ -199,7 +199,7 @@ def _plain_sweep(scene, structure, world, touched, step=2.0) -> tuple[bool, int]
 def test_sweep_cost_and_agreement_with_the_plain_sweep_on_grown_structures(size, capsys):
     """Accepted 2x4 brick candidates on a structure grown by the checker: the box filter changes no
     verdict of the plain definition; the time per candidate is printed (not asserted)."""
-    from pipelines.bench_physics import grow
+    from pipelines.bench_structures import grow
 
     s = grow(size)
     brick = part("3001")

@@ -15,7 +15,7 @@ pytest.importorskip("jax")
 from conftest import LDRAW  # noqa: E402
 from factory import Pose, get_reader, load_part  # noqa: E402
 from factory.ldraw import Library, Reader  # noqa: E402
-from factory.physics import sweep_jax  # noqa: E402
+from factory.physics import pair_kernels, piece_sets, sweep_jax  # noqa: E402
 from factory.physics.attach import feasible_poses, lowest_y  # noqa: E402
 from factory.physics.check import CheckConfig, _unit_connections  # noqa: E402
 from factory.physics.geometry import collision_shape  # noqa: E402
@@ -188,7 +188,7 @@ def test_verdicts_agree_with_the_stepped_reference_on_over_a_thousand_candidates
     with capsys.disabled():
         print(f"\n{len(rows)} candidates ({len(judged)} judged, {sum(r[2].buildable is False for r in rows)} "
               f"blocked), {agree} same verdict; {len(near)} with the reference's depth within 0.25 LDU "
-              f"of the tolerance; judged by {dict(counts)}; compiles so far {len(sweep_jax.COMPILES)}")
+              f"of the tolerance; judged by {dict(counts)}; compiles so far {len(pair_kernels.COMPILES)}")
         for name, t, a, b in rows:
             if a.buildable != b.buildable:
                 print(f"  differs: {name} at {t}: reference {a}, exact {b}")
@@ -235,7 +235,8 @@ def test_intervals_match_dense_stepping_of_the_minkowski_depth():
     rng = np.random.default_rng(3)
     pairs = [_random_pair(rng) for _ in range(160)]
     thr = rng.choice([0.0, 0.3, 1.5, 4.0], size=len(pairs))
-    got = sweep_jax.exact_intervals([p[0] for p in pairs], [p[1] for p in pairs], np.array([p[2] for p in pairs]), thr)
+    got = pair_kernels.exact_intervals([p[0] for p in pairs], [p[1] for p in pairs], np.array([p[2] for p in pairs]),
+                                       thr)
     s = np.linspace(-20, 80, 20001)  # 0.005 LDU apart
     nonempty = 0
     for (a, b, d), th, (lo, hi) in zip(pairs, thr, got):
@@ -282,14 +283,14 @@ def test_a_launch_takes_only_the_rows_its_pairs_name_packed_in_one_table():
     other), each row its vertices, normals, edges and centre side by side, padded by repeating the
     first row."""
     brick = load_part(get_reader(None), "3001")
-    sets = [sweep_jax._structure_set(Structure([Placed(brick, 4, Pose(np.eye(3), np.array([x, 0.0, 0.0])))]))[0]
+    sets = [piece_sets.structure_set(Structure([Placed(brick, 4, Pose(np.eye(3), np.array([x, 0.0, 0.0])))]))[0]
             for x in (0.0, 40.0)]
     b = int(np.argmax([len(t[0]) for t in sets[0].tables]))  # the studs' bucket: 8 pieces
     tables = [sets[0].tables[b], sets[1].tables[b]]  # one bucket of two structures
     n0 = len(tables[0][0])
     assert n0 >= 3
     rows = np.array([1, n0, n0 + 2])
-    got = sweep_jax._gathered(tables, rows, 8)
+    got = pair_kernels._gathered(tables, rows, 8)
     v, nn, e = (tables[0][i].shape[1] for i in range(3))
     assert got.shape == (8, v + nn + e + 1, 3) and got.dtype == np.float64
     for i, (which, row) in enumerate([(0, 1), (1, 0), (1, 2)]):
@@ -301,39 +302,39 @@ def test_a_launch_takes_only_the_rows_its_pairs_name_packed_in_one_table():
 def _job(rng, count):
     """A job of `exact_intervals`' form: `count` random convex pairs, each its own candidate."""
     pairs = [_random_pair(rng) for _ in range(count)]
-    ua = sweep_jax._Set.of_pieces([sweep_jax._piece(a, False, 0.0) for a, _, _ in pairs],
-                                  np.array([a.mean(0) for a, _, _ in pairs]), np.arange(count), count)
-    sb = sweep_jax._Set.of_pieces([sweep_jax._piece(b, False, 0.0) for _, b, _ in pairs],
-                                  np.array([b.mean(0) for _, b, _ in pairs]), np.arange(count), count)
+    ua = piece_sets.PieceSet.of_pieces([piece_sets.convex_piece(a, False, 0.0) for a, _, _ in pairs],
+                                       np.array([a.mean(0) for a, _, _ in pairs]), np.arange(count), count)
+    sb = piece_sets.PieceSet.of_pieces([piece_sets.convex_piece(b, False, 0.0) for _, b, _ in pairs],
+                                       np.array([b.mean(0) for _, b, _ in pairs]), np.arange(count), count)
     idx = np.arange(count)
     return (ua, sb, np.repeat(np.eye(3)[None], count, 0), np.zeros((count, 3)), np.array([d for *_, d in pairs]), idx,
             idx, idx, rng.choice([0.0, 0.3, 1.5], size=count), np.full(count, np.inf))
 
 
 def test_a_rounds_jobs_go_to_the_device_in_one_call_and_come_back_in_one_copy(monkeypatch):
-    """Several jobs in one `_intervals_many` (a lockstep round): their tables and poses go to the
+    """Several jobs in one `intervals_many` (a lockstep round): their tables and poses go to the
     device in one call and every launch's results come back in one copy, and each job's intervals
     are those it gets alone."""
     rng = np.random.default_rng(11)
     jobs = [_job(rng, 7), _job(rng, 12), _job(rng, 5)]
-    alone = [sweep_jax._intervals_many([j])[0] for j in jobs]
+    alone = [pair_kernels.intervals_many([j])[0] for j in jobs]
     calls = {"_on_device": 0, "_results": 0}
     for name in calls:
-        real = getattr(sweep_jax, name)
+        real = getattr(pair_kernels, name)
 
         def counted(*a, _real=real, _name=name, **k):
             calls[_name] += 1
             return _real(*a, **k)
 
-        monkeypatch.setattr(sweep_jax, name, counted)
-    together = sweep_jax._intervals_many(jobs)
+        monkeypatch.setattr(pair_kernels, name, counted)
+    together = pair_kernels.intervals_many(jobs)
     assert calls == {"_on_device": 1, "_results": 1}
     for a, b in zip(alone, together):
         np.testing.assert_array_equal(a, b)
 
 
 def test_a_structure_grown_part_by_part_has_the_pieces_of_one_built_at_once():
-    """`_structure_set` turns and moves only the parts it has not met (kept by part placed): after
+    """`structure_set` turns and moves only the parts it has not met (kept by part placed): after
     every part added, its pieces, boxes and tables equal those of `_set_of` over all the parts, and
     at the end each piece is its part's collision piece moved by the part's pose."""
     reader = get_reader(None)
@@ -344,8 +345,8 @@ def test_a_structure_grown_part_by_part_has_the_pieces_of_one_built_at_once():
         part = (brick, plate, slope)[i % 3]
         R = rotation_about(np.array([0.0, 1.0, 0.0]), 90.0 * float(rng.integers(4)))
         structure.add(Placed(part, 4, Pose(R, rng.integers(-5, 6, 3) * np.array([20.0, 8.0, 20.0]))))
-        got, boxes = sweep_jax._structure_set(structure)
-        want = sweep_jax._set_of([(p.part, p.pose) for p in structure.placed])
+        got, boxes = piece_sets.structure_set(structure)
+        want = piece_sets._set_of([(p.part, p.pose) for p in structure.placed])
         for name in ("stud", "inset", "prism", "centres", "owner", "box", "owner_box", "bucket_of", "local"):
             np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
         assert got.buckets == want.buckets
@@ -374,22 +375,22 @@ def test_on_a_gpu_a_round_starts_at_the_working_sizes_with_the_same_intervals(mo
     the first round, so a process meets fewer kernel shapes; the padding changes no interval."""
     rng = np.random.default_rng(3)
     jobs = [_job(rng, 9), _job(rng, 30)]
-    monkeypatch.setattr(sweep_jax, "_HIGH", {})
-    monkeypatch.setattr(sweep_jax, "COMPILES", [])
-    on_cpu = sweep_jax._intervals_many(jobs)
-    cpu_shapes = list(sweep_jax.COMPILES)
-    monkeypatch.setattr(sweep_jax, "_on_gpu", lambda: True)
-    monkeypatch.setattr(sweep_jax, "_HIGH", {})
-    monkeypatch.setattr(sweep_jax, "COMPILES", [])
-    on_gpu = sweep_jax._intervals_many(jobs)
+    monkeypatch.setattr(pair_kernels, "_HIGH", {})
+    monkeypatch.setattr(pair_kernels, "COMPILES", [])
+    on_cpu = pair_kernels.intervals_many(jobs)
+    cpu_shapes = list(pair_kernels.COMPILES)
+    monkeypatch.setattr(pair_kernels, "_on_gpu", lambda: True)
+    monkeypatch.setattr(pair_kernels, "_HIGH", {})
+    monkeypatch.setattr(pair_kernels, "COMPILES", [])
+    on_gpu = pair_kernels.intervals_many(jobs)
     for a, b in zip(on_cpu, on_gpu):
         np.testing.assert_array_equal(a, b)
     # COMPILES rows: (kind, crosses, pairs, unit rows, structure rows, candidates, sizes...)
-    assert cpu_shapes and all(s[2] == sweep_jax.MIN_ROWS and s[4] == sweep_jax.MIN_ROWS for s in cpu_shapes)
-    assert sweep_jax.COMPILES and all(s[4] == sweep_jax.GPU_MIN_STRUCTURE_ROWS and s[3] == sweep_jax.MIN_ROWS
-                                      for s in sweep_jax.COMPILES)
-    for s in sweep_jax.COMPILES:
-        assert s[2] == min(sweep_jax._chunk(bool(s[1]), s[6:9], s[9:12]), sweep_jax.GPU_MIN_PAIRS)
+    assert cpu_shapes and all(s[2] == pair_kernels.MIN_ROWS and s[4] == pair_kernels.MIN_ROWS for s in cpu_shapes)
+    assert pair_kernels.COMPILES and all(s[4] == pair_kernels.GPU_MIN_STRUCTURE_ROWS and s[3] == pair_kernels.MIN_ROWS
+                                         for s in pair_kernels.COMPILES)
+    for s in pair_kernels.COMPILES:
+        assert s[2] == min(pair_kernels._chunk(bool(s[1]), s[6:9], s[9:12]), pair_kernels.GPU_MIN_PAIRS)
 
 
 def test_a_gpu_process_readies_its_first_rounds_kernels_starting_at_its_worker_number(monkeypatch):
@@ -402,9 +403,9 @@ def test_a_gpu_process_readies_its_first_rounds_kernels_starting_at_its_worker_n
     cases = [(TOWER + [DIAMOND], [HANGING]), (TOWER + [at("3020", 40, 24, 0)], [HANGING]),
              (COLUMN + [TOPS["plate"]], [at("3003", 0, -24, 0)]), (SLOT, [at("3068b", 20, -8, 0)])]
     want = [exact(parts, unit) for parts, unit in cases]
-    monkeypatch.setattr(sweep_jax, "_on_gpu", lambda: True)
-    monkeypatch.setattr(sweep_jax, "_HIGH", {})
-    monkeypatch.setattr(sweep_jax, "_WARMED", False)
+    monkeypatch.setattr(pair_kernels, "_on_gpu", lambda: True)
+    monkeypatch.setattr(pair_kernels, "_HIGH", {})
+    monkeypatch.setattr(pair_kernels, "_WARMED", False)
     monkeypatch.setattr(jax_export, "_LOADED", {})
     monkeypatch.setenv("BRICK_FACTORY_WORKER", "21")
     order = []
@@ -415,15 +416,15 @@ def test_a_gpu_process_readies_its_first_rounds_kernels_starting_at_its_worker_n
         return real(name, *a, **k)
 
     monkeypatch.setattr(jax_export, "call", spy)
-    shapes = sweep_jax.warm_shapes()
+    shapes = pair_kernels.warm_shapes()
     assert len(shapes) == 16
-    assert sweep_jax.warm_up() == len(shapes)
+    assert pair_kernels.warm_up() == len(shapes)
     first = shapes[21 % len(shapes)]
     assert order[0] == f"{first[0]}-{int(first[1])}-{'.'.join(map(str, (*first[2], *first[3])))}"
     assert len(set(order)) == len(shapes)
     readied = set(jax_export._LOADED)
     assert len(readied) == len(shapes)
-    assert sweep_jax.warm_up() == 0  # once per process
+    assert pair_kernels.warm_up() == 0  # once per process
     warm_calls = len(order)
     got = [exact(parts, unit) for parts, unit in cases]
     assert len(order) > warm_calls + len(cases)  # the rounds launched kernels ...
@@ -437,9 +438,9 @@ def test_a_process_without_a_worker_number_starts_its_warm_up_at_its_pid(monkeyp
     so such processes on one machine do not all compile the same shape first."""
     import os
 
-    monkeypatch.setattr(sweep_jax, "_on_gpu", lambda: True)
-    monkeypatch.setattr(sweep_jax, "_HIGH", {})
-    monkeypatch.setattr(sweep_jax, "_WARMED", False)
+    monkeypatch.setattr(pair_kernels, "_on_gpu", lambda: True)
+    monkeypatch.setattr(pair_kernels, "_HIGH", {})
+    monkeypatch.setattr(pair_kernels, "_WARMED", False)
     monkeypatch.delenv("BRICK_FACTORY_WORKER", raising=False)
     seen = []
 
@@ -447,8 +448,8 @@ def test_a_process_without_a_worker_number_starts_its_warm_up_at_its_pid(monkeyp
         seen.append((rest[-1], crosses, us, ss))  # the last argument is the kind
         return []
 
-    monkeypatch.setattr(sweep_jax, "_launch", launch)
-    shapes = sweep_jax.warm_shapes()
-    assert sweep_jax.warm_up() == len(shapes)
+    monkeypatch.setattr(pair_kernels, "_launch", launch)
+    shapes = pair_kernels.warm_shapes()
+    assert pair_kernels.warm_up() == len(shapes)
     start = os.getpid() % len(shapes)
     assert seen == shapes[start:] + shapes[:start]

@@ -138,11 +138,11 @@ def test_coacd_runs_bounded_in_a_child_and_gives_its_own_pieces(monkeypatch):
     import coacd
 
     from factory.errors import LDrawLimitError
-    from factory.physics import geometry
+    from factory.physics import decompose
 
     v, f = _box_mesh()
-    cfg = geometry.DecompositionConfig()
-    pieces = geometry._decompose(v, f, cfg, "box.dat")
+    cfg = decompose.DecompositionConfig()
+    pieces = decompose._decompose(v, f, cfg, "box.dat")
     coacd.set_log_level("error")
     ref = coacd.run_coacd(coacd.Mesh(v, f), threshold=cfg.threshold, max_convex_hull=cfg.max_convex_hull,
                           preprocess_mode="auto", preprocess_resolution=cfg.preprocess_resolution,
@@ -150,24 +150,24 @@ def test_coacd_runs_bounded_in_a_child_and_gives_its_own_pieces(monkeypatch):
                           mcts_max_depth=cfg.mcts_max_depth, seed=cfg.seed)
     assert len(pieces) == len(ref) >= 1
     assert all(np.array_equal(np.asarray(a, float), b) for (a, _), b in zip(ref, pieces))
-    monkeypatch.setattr(geometry, "COACD_SECONDS", 0.01)
+    monkeypatch.setattr(decompose, "COACD_SECONDS", 0.01)
     with pytest.raises(LDrawLimitError, match=r"box.dat: decomposing box.dat \(12 triangles\).*more than 0.01 s"):
-        geometry._decompose(v, f, cfg, "box.dat")
+        decompose._decompose(v, f, cfg, "box.dat")
     # The environment's limit wins over the module's, and is named in the refusal.
-    monkeypatch.setattr(geometry, "COACD_SECONDS", 60)
+    monkeypatch.setattr(decompose, "COACD_SECONDS", 60)
     monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", "0.02")
     with pytest.raises(LDrawLimitError, match=r"more than 0.02 s; .*BRICK_FACTORY_COACD_SECONDS=SECONDS"):
-        geometry._decompose(v, f, cfg, "box.dat")
+        decompose._decompose(v, f, cfg, "box.dat")
     for bad in ("soon", "0", "-5", "inf", "nan"):
         monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", bad)
         with pytest.raises(ValueError, match=f"BRICK_FACTORY_COACD_SECONDS must be a number of seconds > 0, got '{bad}'"):
-            geometry._decompose(v, f, cfg, "box.dat")
+            decompose._decompose(v, f, cfg, "box.dat")
     monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", "60")
-    assert len(geometry._decompose(v, f, cfg, "box.dat")) == len(pieces)
+    assert len(decompose._decompose(v, f, cfg, "box.dat")) == len(pieces)
     monkeypatch.delenv("BRICK_FACTORY_COACD_SECONDS")
-    monkeypatch.setattr(geometry, "COACD_MEMORY_BYTES", 32 << 20)  # too little to start Python with numpy
+    monkeypatch.setattr(decompose, "COACD_MEMORY_BYTES", 32 << 20)  # too little to start Python with numpy
     with pytest.raises(LDrawLimitError, match="failed within 32 MB of memory"):
-        geometry._decompose(v, f, cfg, "box.dat")
+        decompose._decompose(v, f, cfg, "box.dat")
 
 
 def test_collision_geometry_refuses_a_part_past_its_triangle_budget(monkeypatch, tmp_path):

@@ -3,7 +3,7 @@
 `CollisionScene.penetration` asks MuJoCo for the contacts of one candidate pose at a time and
 walks them in Python. Here every candidate of every request of a lockstep round is judged
 together: the piece pairs near each candidate are picked on the host by boxes, and one jitted
-vmap per piece-bucket shape (`sweep_jax`, kind 'still') gives each pair's separating-axis depth and
+vmap per piece-bucket shape (`pair_kernels`, kind 'still') gives each pair's separating-axis depth and
 the depth of each piece's centre inside the other. The rule applied to them is the scene's:
 
 - a stud piece and a part the candidate is stud-connected to never collide;
@@ -34,7 +34,8 @@ from factory.parts import Part
 from factory.physics.collide import CONNECTED_SLACK_LDU, NEAR_LDU, Penetration, probe_frame, studs_cross
 from factory.physics.geometry import collision_shape
 from factory.physics.structure import Structure
-from factory.physics.sweep_jax import _Set, _intervals_many, _structure_set, _unit_set, near_pairs_threaded
+from factory.physics.pair_kernels import intervals_many
+from factory.physics.piece_sets import PieceSet, near_pairs_threaded, structure_set, unit_set
 from factory.pose import Pose
 
 MARGIN_LDU = NEAR_LDU + 0.5
@@ -49,8 +50,8 @@ class _Job:
                  connected: Sequence[set[int]], floor_y: float | None, tol: float | None = None):
         self.structure, self.rel, self.poses, self.connected = structure, list(rel), list(poses), connected
         self.floor_y, self.tol = floor_y, tol
-        self.uset: _Set = _unit_set(self.rel)
-        self.sset, sboxes = _structure_set(structure)
+        self.uset: PieceSet = unit_set(self.rel)
+        self.sset, sboxes = structure_set(structure)
         K = len(poses)
         self.R = np.stack([p.R for p in poses])
         self.t = np.stack([p.t for p in poses])
@@ -138,9 +139,9 @@ class _Job:
         return out
 
 
-def _pairs_at(uset: _Set, sset: _Set, sboxes: np.ndarray, rel, R, t, conn):
+def _pairs_at(uset: PieceSet, sset: PieceSet, sboxes: np.ndarray, rel, R, t, conn):
     """Piece pairs within `MARGIN_LDU` of each other by their boxes at each candidate's pose
-    (`sweep_jax.near_pairs` with no motion, chunks on threads), the stud pieces of connected parts left out:
+    (`piece_sets.near_pairs` with no motion, chunks on threads), the stud pieces of connected parts left out:
     (candidate, unit piece, structure piece, part, connected)."""
     if not len(sboxes) or not uset.n:
         return (np.zeros(0, np.int64),) * 4 + (np.zeros(0, bool),)
@@ -155,5 +156,5 @@ def penetrations(requests: Sequence[tuple]) -> list[list[Penetration]]:
     probe is not probed further: its depth is that pair's (at most MuJoCo's)."""
     jobs = [_Job(*r) for r in requests]
     live = [j for j in jobs if len(j.pairs[0])]
-    results = dict(zip(map(id, live), _intervals_many([j.launch_args() for j in live], "still")))
+    results = dict(zip(map(id, live), intervals_many([j.launch_args() for j in live], "still")))
     return [j.finish(results.get(id(j), np.zeros((0, 3)))) for j in jobs]

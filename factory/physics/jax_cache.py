@@ -1,6 +1,6 @@
 """JAX's persistent compilation cache, in the factory's cache folder (`factory.cache`).
 
-The batched checks compile one kernel per padded shape (`sweep_jax`, `lp_jax`); a run meets tens
+The batched checks compile one kernel per padded shape (`pair_kernels`, `lp_jax`); a run meets tens
 of them, each 0.3-2 s to compile, and every grower process and every run met them again. With the
 cache each shape compiles once per machine: later processes load it. `JAX_COMPILATION_CACHE_DIR`,
 when set, wins (JAX reads it itself)."""

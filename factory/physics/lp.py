@@ -1,6 +1,6 @@
 """Linear programs as plain arrays, and the CPU reference solver (HiGHS through scipy).
 
-The whole-structure load check (`statics.py`) writes each structure's equilibrium as one
+The whole-structure load check (`statics.py`; `load_program.to_lp`) writes each structure's equilibrium as one
 `LinearProgram`; the CPU path solves it here with HiGHS, and a batched solver on the GPU takes the
 same arrays. Form:
 

@@ -117,7 +117,7 @@ class Structure:
         self.connections: list[tuple[int, int, np.ndarray, np.ndarray]] = []
         """(stud part, socket part, stud base, stud axis) of every stud connection."""
         self.links: list = []
-        """`factory.physics.statics.Link`s: rigid connections the checker does not model."""
+        """`factory.physics.load_model.Link`s: rigid connections the checker does not model."""
         self._stud_pos = np.zeros((0, 3))
         self._stud_axis = np.zeros((0, 3))
         self._stud_owner = np.zeros(0, np.int64)
@@ -128,9 +128,9 @@ class Structure:
         self._sock_busy = np.zeros(0, bool)
         self._trees: dict[str, cKDTree] = {}
         self.solved_loads = None
-        """Load programs solved on this structure, kept by `physics.check` (`_LoadStarts`): the
+        """Load programs solved on this structure, kept by `physics.check_loads` (`_LoadStarts`): the
         basis its last part's program ended at, when that part was a candidate, starts the
-        candidates' programs after it (`statics.solve_from`)."""
+        candidates' programs after it (`started_loads.solve_from`)."""
         for p in parts:
             self.add(p)
 

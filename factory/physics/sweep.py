@@ -124,7 +124,7 @@ class SweepResult:
 
 def seating_directions(structure: Structure, unit: Sequence[tuple[Part, Pose]]) -> np.ndarray:
     """(k, 3): for each stud connection of the unit (world poses) with the structure, the direction
-    the unit moves in to seat it. Connections are found as `check._unit_connections` finds them."""
+    the unit moves in to seat it. Connections are found as `check_call._unit_connections` finds them."""
     sp, sa, _ = structure.studs
     kp, ka, _ = structure.sockets
     out = []
@@ -138,7 +138,7 @@ def seating_directions(structure: Structure, unit: Sequence[tuple[Part, Pose]]) 
 
 def seating_from_connections(connections, n_structure: int) -> np.ndarray:
     """(k, 3): `seating_directions` read off the unit's stud connections with the structure, as
-    `check._unit_connections` gives them (stud part, socket part, stud base, stud axis; parts below
+    `check_call._unit_connections` gives them (stud part, socket part, stud base, stud axis; parts below
     `n_structure` are the structure's), without matching connectors again."""
     return np.array([-axis if stud < n_structure else axis
                      for stud, _, _, axis in connections]).reshape(-1, 3)
@@ -151,7 +151,7 @@ def approach(structure: Structure, unit: Sequence[tuple[Part, Pose]]) -> Approac
 
 def approach_from(dirs: np.ndarray) -> Approach:
     """`approach` from the seating directions (k, 3) of the unit's stud connections (as
-    `seating_directions` gives them, or as read off `check._unit_connections`)."""
+    `seating_directions` gives them, or as read off `check_call._unit_connections`)."""
     return approaches_from([dirs])[0]
 
 

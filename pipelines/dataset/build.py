@@ -31,7 +31,7 @@ from factory.atomic import write_atomic
 from factory.dataset.info import Counts, DatasetInfo, json_bytes, write_info
 from factory.dataset.tasks import FEEDBACK_IMAGES, SPLITS
 from factory.errors import LDrawError
-from factory.physics.geometry import COACD_SECONDS_ENV
+from factory.physics.decompose import COACD_SECONDS_ENV
 from factory.sampler.config import RUN_SETTINGS
 from factory.sampler.sampler import target_steps
 from pipelines.dataset.config import (ConfigMismatchError, DatasetConfig, diff_configs, record_hash, started_hash,

@@ -1,0 +1,287 @@
+"""One call of the checks walked through its rules (`_Call`): each candidate's connections, then
+collision, the cheap rules after it (unsupported, no connection, clutch), the sweep, and the queue
+for the loads (`check_loads`); the seconds spent per stage (`STAGE_SECONDS`), and the last
+collision scene and load base kept for the calls after (`KeepLast`).
+
+`check.py` runs calls: the reference's (backend 'cpu') go through every rule as they are made; the
+batched backend's ('jax') give each stage of many calls to the device together.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from dataclasses import replace
+from typing import Callable, Sequence
+
+import numpy as np
+
+from factory.parts import Part
+from factory.physics.clutch import holds_alone_many
+from factory.physics.collide import CollisionScene, Penetration
+from factory.physics.keep_last import KeepLast
+from factory.physics.load_model import Link, LoadBase, LoadConfig, support_points
+from factory.physics.mass import part_mass_properties
+from factory.physics.structure import Placed, Structure, connections_at, lowest_point
+from factory.physics.sweep import seating_from_connections, sweep
+from factory.physics.unmodelled import bar_joints, may_hold
+from factory.physics.verdict import CheckConfig, Verdict
+from factory.pose import Pose
+
+STAGE_SECONDS: Counter = Counter()
+"""Seconds spent in this process by stage of `check_units`/`check_many`: 'rules' (connection,
+clutch, and for the reference collision and the CPU sweep), 'collide' (the batched collision
+rule, `collide_jax`), 'clutch' (for 'jax': the clutch rule of every call at once), 'sweep' (the
+batched sweeps), 'loads'."""
+
+
+def _unit_connections(structure: Structure, unit: Sequence[tuple[Part, Pose]]) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+    """Stud connections of a unit with the structure and among its own parts, as
+    (stud part, socket part, stud base, stud axis); the unit's parts are numbered after the
+    structure's."""
+    out = []
+    base = len(structure)
+    for j, (part, pose) in enumerate(unit):
+        out += connections_at(structure, part, pose.R[None], pose.t[None], base + j)[0]
+    if len(unit) > 1:
+        inner = Structure([Placed(part, 16, pose) for part, pose in unit])
+        out += [(base + a, base + b, p, n) for a, b, p, n in inner.connections]
+    return out
+
+
+class _Call:
+    """One `check_units` call: each candidate's connections at construction, then collision (the
+    scene's contacts for the reference; for 'jax' `collide_group`/`collided`, where many calls share
+    the device), the cheap rules after it (and the CPU sweep for the reference), then its sweeps
+    (`sweep_group`, `swept`) and loads (`check_loads._judge_loads`)."""
+
+    def __init__(self, structure: Structure, units: Sequence[Sequence[Placed]], backend: str, config: CheckConfig,
+                 require_connection: bool = True, floor_y: float | None = None, standing: bool = True,
+                 unit_links: Sequence[Link] = (), explain: bool = True, judge_first: int | None = None,
+                 order: Callable[[list[int]], list[int]] | None = None):
+        t0 = time.perf_counter()
+        if judge_first is not None and judge_first < 1:
+            raise ValueError(f"judge_first must be None or >= 1, got {judge_first}")
+        self.judge_first, self.order = judge_first, order
+        self.structure, self.config, self.floor_y, self.backend = structure, config, floor_y, backend
+        self.standing, self.unit_links, self.explain = standing, unit_links, explain
+        self.require_connection = require_connection
+        first = units[0]
+        anchor = first[0].pose
+        self.rel = [(p.part, anchor.inverse() @ p.pose) for p in first]
+        self._scene: CollisionScene | None = None
+        self.base_n = base_n = len(structure)
+        self.verdicts: list[Verdict | None] = [None] * len(units)
+        self.pending: list[tuple[int, list[Placed], list]] = []
+        self.to_sweep: list[tuple] = []
+        self.to_collide: list[tuple] = []
+        self.to_clutch: list[tuple] = []
+        if len(first) == 1:  # one part at many poses: every candidate's connections in one query
+            each = connections_at(structure, first[0].part, np.array([u[0].pose.R for u in units]),
+                                  np.array([u[0].pose.t for u in units]))
+        for k, unit in enumerate(units):
+            world = [(p.part, p.pose) for p in unit]
+            conns = each[k] if len(first) == 1 else _unit_connections(structure, world)
+            outer = [c for c in conns if min(c[0], c[1]) < base_n]
+            self.to_collide.append((k, unit, world, conns, outer, {min(c[0], c[1]) for c in outer}))
+        STAGE_SECONDS["rules"] += time.perf_counter() - t0
+        if backend != "jax":
+            # The reference: MuJoCo's contacts, one candidate pose at a time.
+            t0 = time.perf_counter()
+            found = []
+            for _, unit, *_, touched in self.to_collide:
+                depth, near = self.scene.penetration(unit[0].pose, touched)
+                found.append(Penetration(depth, frozenset(near)))
+            STAGE_SECONDS["rules"] += time.perf_counter() - t0
+            self.collided(found)
+
+    @property
+    def scene(self) -> CollisionScene:
+        """The MuJoCo collision scene (the reference's; for 'jax' built only if a sweep is referred
+        to the CPU)."""
+        if self._scene is None:
+            self._scene = _collision_scene(self.structure, self.rel, self.floor_y if self.floor_y is not None else 1e6)
+        return self._scene
+
+    def collide_group(self):
+        """This call's candidates for `collide_jax.penetrations`."""
+        return (self.structure, self.rel, [unit[0].pose for _, unit, *_ in self.to_collide],
+                [touched for *_, touched in self.to_collide], self.floor_y, self.config.max_penetration_ldu)
+
+    def collided(self, found: Sequence[Penetration]) -> None:
+        """The rules after collision, given each candidate's `Penetration`: verdicts for those
+        that collide or connect to nothing; the rest queued for the clutch rule (`clutch_cases`,
+        `clutched`: for 'jax' the programs of every call go to the device together)."""
+        t0 = time.perf_counter()
+        structure, config, base_n = self.structure, self.config, self.base_n
+        self.to_clutch = []
+        for (k, unit, world, conns, outer, touched), pen in zip(self.to_collide, found):
+            depth, near = pen.depth, pen.near
+            pose = unit[0].pose
+            connected = bool(outer) or (not self.require_connection) or base_n == 0
+            collision = depth > config.max_penetration_ldu
+            base = dict(pose=pose, connected=bool(outer), connections=len(outer), collision=collision,
+                        max_penetration_ldu=round(depth, 4), touching=bool(near))
+            # Joints matter only to a candidate that collides or has no stud connection.
+            joints = self._joints(unit, near) if collision or not outer else {}
+            if joints and collision and self.scene.penetration(pose, touched, joints)[0] > config.max_penetration_ldu:
+                joints = {}  # it overlaps beyond the joints too: judged on that overlap
+            if not outer and near:
+                holders = tuple(sorted(set(joints) | {i for i in near if any(
+                    may_hold(p.part, p.pose, structure.placed[i].part, structure.placed[i].pose) for p in unit)}))
+                if holders:
+                    # Held by a connection we do not model (Technic, clip, hinge, tyre): not judged here.
+                    self.verdicts[k] = Verdict(**base, held_by=holders, reason="unsupported-connection")
+                    continue
+            if collision and joints:
+                # On studs, and overlapping only where it is joined to a part by a clip, bar or
+                # hinge (a hinge roof's fingers between its holder's): held by that joint too.
+                self.verdicts[k] = Verdict(**base, held_by=tuple(sorted(joints)), reason="unsupported-connection")
+                continue
+            if collision:
+                self.verdicts[k] = Verdict(**base, reason="collision")
+                continue
+            if not connected:
+                self.verdicts[k] = Verdict(**base, reason="no-connection")
+                continue
+            self.to_clutch.append((k, base, unit, world, conns, outer, touched))
+        self.to_collide = []
+        STAGE_SECONDS["rules"] += time.perf_counter() - t0
+        if self.backend != "jax":
+            self.clutched(holds_alone_many(self.clutch_cases(), config.loads))
+
+    def _joints(self, unit: Sequence[Placed], near) -> dict[int, np.ndarray]:
+        """The structure parts among `near` that a part of the unit meets at a clip, bar, hinge or
+        pin joint, with where (`unmodelled.bar_joints`: stretches of axis, world frame)."""
+        if not any(len(p.part.flat.bars) + len(p.part.flat.bores) for p in unit):
+            return {}  # nothing to be joined by (every part of the sampler's library)
+        placed = self.structure.placed
+        out = {}
+        for i in sorted(near):
+            found = [z for p in unit if len(z := bar_joints(p.part, p.pose, placed[i].part, placed[i].pose))]
+            if found:
+                out[i] = np.concatenate(found)
+        return out
+
+    def clutch_cases(self) -> list[tuple]:
+        """`clutch.holds_alone_many`'s cases for the connected candidates (mass, centre, the
+        connections with the structure, ground support points)."""
+        t0 = time.perf_counter()
+        cfg, base_n = self.config.loads, self.base_n
+        floor = None
+        cases = []
+        for k, base, unit, world, conns, outer, touched in self.to_clutch:
+            if not outer:
+                continue
+            ground_y = None
+            if self.standing:
+                if self.floor_y is not None:
+                    ground_y = self.floor_y
+                else:
+                    floor = self.structure.floor_y() if floor is None else floor
+                    ground_y = max(floor, lowest_point(unit))
+            cases.append(_alone_case(unit, outer, base_n, ground_y, cfg))
+        STAGE_SECONDS["rules"] += time.perf_counter() - t0
+        return cases
+
+    def clutched(self, holds: Sequence[bool]) -> None:
+        """The verdicts after the clutch rule (`holds`: one per candidate with a connection, in
+        `clutch_cases`' order), then the CPU sweep for the reference or the queue for the batched
+        sweeps."""
+        t0 = time.perf_counter()
+        structure, config = self.structure, self.config
+        held = iter(holds)
+        judged = 0
+        for k, base, unit, world, conns, outer, touched in self.to_clutch:
+            if outer and not next(held):
+                self.verdicts[k] = Verdict(**base, clutch=False, reason="clutch")
+                continue
+            if self.judge_first is not None and judged >= self.judge_first:
+                continue  # not judged: its verdict stays None (`check.CheckRequest.judge_first`)
+            judged += 1
+            dirs = seating_from_connections(outer, self.base_n)
+            if outer and self.backend == "jax":
+                # Swept later, with every call's candidates at once on the device (`sweep_jax`).
+                self.to_sweep.append((k, base, unit, conns, world, touched, dirs))
+                continue
+            built = sweep(self.scene, structure, world, touched, config.max_penetration_ldu, directions=dirs) if outer else None
+            self._after_sweep(k, base, built, unit, conns, outer)
+        self.to_clutch = []
+        STAGE_SECONDS["rules"] += time.perf_counter() - t0
+
+    def sweep_group(self):
+        """This call's sweeps for `sweep_jax.sweep_groups`, None if it has none."""
+        if not self.to_sweep:
+            return None
+        return (lambda: self.scene, self.structure, [x[4] for x in self.to_sweep], [x[5] for x in self.to_sweep],
+                self.config.max_penetration_ldu, [x[6] for x in self.to_sweep])
+
+    def swept(self, built_all) -> None:
+        for (k, base, unit, conns, *_), built in zip(self.to_sweep, built_all):
+            self._after_sweep(k, base, built, unit, conns, True)
+        self.to_sweep = []
+
+    def _after_sweep(self, k, base, built, unit, conns, outer) -> None:
+        """The verdict after buildability (`built`: None where not swept), or the candidate queued
+        for the load check."""
+        if built is not None:
+            base.update(buildable=built.buildable, approach=built.reason, blocked_by=built.blocked_by)
+            if built.buildable is False:
+                self.verdicts[k] = Verdict(**base, clutch=True, reason=built.reason)
+                return
+        if self.standing and (outer or self.base_n == 0):
+            self.verdicts[k] = Verdict(**base, clutch=True if outer else None)
+            self.pending.append((k, list(unit), conns))
+        else:
+            # Held in hand (a sub-assembly), or laid on the table beside the structure with no
+            # connection yet: nothing joins it to the structure to fall with.
+            self.verdicts[k] = Verdict(**base, clutch=True if outer else None, stable=True)
+
+    def loaded(self, results) -> None:
+        """The verdicts after the loads (`results`: one per pending candidate, in order); pending
+        candidates past the end of `results` are left unjudged (None: `check_loads._until_standing`)."""
+        for (k, *_), lv in zip(self.pending, results):
+            v = self.verdicts[k]
+            self.verdicts[k] = replace(v, stable=lv.stands, load=None if lv.load is None else round(lv.load, 6),
+                                       failing=lv.failing, reason=lv.reason)
+        for k, *_ in self.pending[len(results):]:
+            self.verdicts[k] = None
+        self.pending = []
+
+
+def _alone_case(unit: Sequence[Placed], outer, base_n: int, ground_y: float | None, cfg: LoadConfig) -> tuple:
+    """(mass, centre of mass, connections, ground support points) of a unit for `holds_alone_many`."""
+    mass, weighted = 0.0, np.zeros(3)
+    for p in unit:
+        m, com, _ = part_mass_properties(p.part)
+        mass += m
+        weighted += m * p.pose.apply(com)
+    conns = [(a >= base_n, pos, axis) for a, b, pos, axis in outer]
+    ground = np.zeros((0, 3))
+    if ground_y is not None:
+        pts = [support_points(p, ground_y, cfg) for p in unit]
+        ground = np.concatenate(pts) if pts else ground
+    return mass, weighted / mass, conns, ground
+
+
+_SCENE = KeepLast()
+"""The last collision scene. The sampler checks one part against one structure in several calls
+per step (batches, redraws of the same part); building the scene is most of a call's time."""
+_LOADS = KeepLast()
+"""The last structure's `LoadBase`, for the same reason."""
+
+
+def _placed_key(structure: Structure, rel) -> tuple:
+    return (tuple(id(p) for p in structure.placed),
+            tuple((id(part), pose.R.tobytes(), pose.t.tobytes()) for part, pose in rel))
+
+
+def _collision_scene(structure: Structure, rel, floor: float) -> CollisionScene:
+    return _SCENE.get((_placed_key(structure, rel), float(floor)),
+                      (list(structure.placed), [part for part, _ in rel]),
+                      lambda: CollisionScene(structure, rel, floor))
+
+
+def _load_base(structure: Structure, floor_y: float | None, cfg) -> LoadBase:
+    return _LOADS.get((_placed_key(structure, ()), len(structure.links), floor_y, cfg), list(structure.placed),
+                      lambda: LoadBase(structure.placed, structure.connections, floor_y, structure.links, cfg))

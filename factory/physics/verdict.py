@@ -1,0 +1,55 @@
+"""What the physics checks take and give: their thresholds (`CheckConfig`) and one candidate's
+`Verdict` (which checks ran, what they found, and the rule that failed, `check.py` lists them)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from factory.physics.load_model import LoadConfig
+from factory.physics.statics import Failure
+from factory.pose import Pose
+
+
+@dataclass(frozen=True)
+class CheckConfig:
+    """Thresholds of the checks."""
+
+    max_penetration_ldu: float = 0.5
+    """Deepest overlap accepted (LDU); the collision pieces are inset by half of it each."""
+    loads: LoadConfig = field(default_factory=LoadConfig)
+    """The whole-structure load model's constants (clutch per stud, shear, ground friction)."""
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The checks of one candidate placement; a field is None where its check did not run."""
+
+    pose: Pose
+    connected: bool
+    connections: int
+    collision: bool | None = None
+    max_penetration_ldu: float | None = None
+    touching: bool | None = None
+    clutch: bool | None = None
+    """Whether the candidate's own connections hold it with the rest of the structure fixed."""
+    stable: bool | None = None
+    """Whether the whole structure stands with it: nothing tips, no connection overloaded."""
+    buildable: bool | None = None
+    """Whether it reaches its pose along its connection axis from clear space (`sweep.py`); None
+    where that is not judged: connections on two axes (`approach` says so) or no stud connection."""
+    approach: str | None = None
+    """Why buildability was not judged, or 'clamped'/'blocked' when it failed."""
+    blocked_by: tuple[int, ...] = ()
+    """Structure parts in the way of the approach."""
+    load: float | None = None
+    """The largest share of any connection's capacity used in the whole structure (<= 1 stands)."""
+    failing: tuple[Failure, ...] = ()
+    """The connections at that load, when it is over capacity."""
+    held_by: tuple[int, ...] = ()
+    """For 'unsupported-connection': the structure parts that may hold it by a connection the
+    checker does not model (they become rigid links once it is placed)."""
+    reason: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.reason is None
