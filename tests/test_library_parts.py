@@ -20,10 +20,9 @@ from factory.symmetry import find_symmetry, symmetry_cached
 from pipelines.prepare import pack, survey, unpack
 from pipelines.realism import compare, coverage, read_collection
 
-from conftest import LDRAW
+from conftest import LDRAW, needs_ldraw
 
 ROOT = Path(__file__).resolve().parents[1]
-needs_ldraw = pytest.mark.skipif(not (LDRAW / "parts").is_dir(), reason=f"the real LDraw subset is not at {LDRAW}")
 
 
 def _run(*args, env=None):
