@@ -41,6 +41,7 @@ from eval.data import SPLITS, DatasetError, info, load_targets
 from eval.metrics import MODES, score, score_step
 from factory.cli import ArgumentParser, run_guarded
 from factory.dataset.tasks import TASKS
+from factory.jsonl import json_objects
 
 SCORE_MODES = (*MODES, BC_MODE)
 """Every scoring mode: ours (`eval.metrics`: strict, paper) and BC-Bench's released scorer (`eval.bc`)."""
@@ -64,46 +65,34 @@ def read_predictions(path, step_ids) -> tuple[dict, dict]:
     known = set(step_ids)
     answers: dict[tuple[str, str], str] = {}
     revised: dict[str, str] = {}
-    revised_line: dict[str, int] = {}
-    with path.open(encoding="utf-8", errors="replace") as f:
-        for n, line in enumerate(f, 1):
-            if not line.strip():
-                continue
-            where = f"{path}:{n}"
-            try:
-                rec = json.loads(line)
-            except json.JSONDecodeError as exc:
-                raise PredictionsError(f"{where}: not JSON ({exc.msg})") from None
-            if not isinstance(rec, dict):
-                raise PredictionsError(f"{where}: expected a JSON object with id, task and text")
-            missing = [k for k in ("id", "task", "text") if k not in rec]
-            if missing:
-                raise PredictionsError(f"{where}: missing key(s) {', '.join(missing)}")
-            sid, task, text = rec["id"], rec["task"], rec["text"]
-            if not isinstance(sid, str):
-                raise PredictionsError(f"{where}: id must be a string, got {sid!r}")
-            if task not in TASKS:
-                raise PredictionsError(f"{where}: unknown task {task!r}; valid: {', '.join(TASKS)}")
-            if not isinstance(text, str):
-                raise PredictionsError(f"{where}: text must be a string, got {type(text).__name__}")
-            if sid not in known:
-                raise PredictionsError(f"{where}: step id {sid!r} is not in the split")
-            is_revised = rec.get("revised", False)
-            if is_revised not in (True, False):
-                raise PredictionsError(f"{where}: revised must be true or false, got {is_revised!r}")
-            if is_revised:
-                if task != "pose":
-                    raise PredictionsError(f"{where}: only pose answers are revised, got task {task!r}")
-                if sid in revised:
-                    raise PredictionsError(f"{where}: second revised pose for {sid!r}")
-                revised[sid], revised_line[sid] = text, n
-            else:
-                if (sid, task) in answers:
-                    raise PredictionsError(f"{where}: second {task} answer for {sid!r}")
-                answers[(sid, task)] = text
-    for sid, n in revised_line.items():
+    revised_line: dict[str, str] = {}
+    for where, rec in json_objects(path, PredictionsError, ("id", "task", "text"),
+                                   "a JSON object with id, task and text"):
+        sid, task, text = rec["id"], rec["task"], rec["text"]
+        if not isinstance(sid, str):
+            raise PredictionsError(f"{where}: id must be a string, got {sid!r}")
+        if task not in TASKS:
+            raise PredictionsError(f"{where}: unknown task {task!r}; valid: {', '.join(TASKS)}")
+        if not isinstance(text, str):
+            raise PredictionsError(f"{where}: text must be a string, got {type(text).__name__}")
+        if sid not in known:
+            raise PredictionsError(f"{where}: step id {sid!r} is not in the split")
+        is_revised = rec.get("revised", False)
+        if is_revised not in (True, False):
+            raise PredictionsError(f"{where}: revised must be true or false, got {is_revised!r}")
+        if is_revised:
+            if task != "pose":
+                raise PredictionsError(f"{where}: only pose answers are revised, got task {task!r}")
+            if sid in revised:
+                raise PredictionsError(f"{where}: second revised pose for {sid!r}")
+            revised[sid], revised_line[sid] = text, where
+        else:
+            if (sid, task) in answers:
+                raise PredictionsError(f"{where}: second {task} answer for {sid!r}")
+            answers[(sid, task)] = text
+    for sid, where in revised_line.items():
         if (sid, "pose") not in answers:
-            raise PredictionsError(f"{path}:{n}: revised pose for {sid!r} without an original pose answer")
+            raise PredictionsError(f"{where}: revised pose for {sid!r} without an original pose answer")
     return answers, revised
 
 

@@ -14,12 +14,12 @@ what is true now and point here for figures.
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
 from factory.atomic import write_atomic
 from factory.cli import ArgumentParser, run_guarded
+from factory.jsonl import json_objects
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
@@ -51,19 +51,7 @@ def figures(row: dict) -> dict[str, int | float]:
 def read_rows(path: Path) -> list[dict]:
     """The rows of one file, each checked: an object with the required keys and a figure."""
     rows = []
-    for n, line in enumerate(path.read_text().splitlines(), 1):
-        if not line.strip():
-            continue
-        where = f"{path}:{n}"
-        try:
-            row = json.loads(line)
-        except json.JSONDecodeError as e:
-            raise ResultsError(f"{where}: not JSON ({e.msg})") from None
-        if not isinstance(row, dict):
-            raise ResultsError(f"{where}: a row is a JSON object")
-        missing = [k for k in REQUIRED if k not in row]
-        if missing:
-            raise ResultsError(f"{where}: missing {', '.join(missing)}")
+    for where, row in json_objects(path, ResultsError, REQUIRED, "a JSON object (a row)"):
         if not figures(row):
             raise ResultsError(f"{where}: no numeric figure")
         rows.append(row)

@@ -129,3 +129,8 @@ def test_results_keep_the_latest_row_per_measurement_and_machine(tmp_path):
                                                   "what": "w"}) + "\n")
     with pytest.raises(results.ResultsError, match="no numeric figure"):
         results.render(tmp_path)
+    for bad, message in [('{"date": "2026-01-01"', "y.jsonl:2: not JSON"), ("[1]", "y.jsonl:2: expected a JSON object"),
+                         ('{"date": "2026-01-01", "wall_s": 1}', "y.jsonl:2: missing key(s) machine, revision, what")]:
+        (tmp_path / "y.jsonl").write_text(json.dumps(rows[0]) + "\n" + bad + "\n")
+        with pytest.raises(results.ResultsError, match=re.escape(message)):
+            results.render(tmp_path)
