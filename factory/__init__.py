@@ -1,6 +1,14 @@
 """Brick Factory: physics-verified synthetic data for LEGO-style assembly, from real LDraw parts.
 
-The public API is the names below; modules not listed here are internal.
+    import factory
+    objects = factory.grow(8, factory.SamplerConfig(seed=7))         # grow objects: Assemblies
+    objects[0].to_ldr("object_00000.ldr")
+    found = factory.verify("model.mpd", ldraw="complete.zip", faults=True)   # verify a design
+    found.summary["stud_fidelity"], found.rejected, found.to_json()
+
+Building a dataset from them is `pipelines.dataset.build` (the builder sits above the dataset
+contract, `factory.dataset`). The public API is the names below; modules not listed here are
+internal.
 """
 
 from factory import _startup  # noqa: F401  (first, before anything heavy: Ctrl-C while a command starts)
@@ -27,7 +35,8 @@ from factory.ldraw import (
 )
 from factory.parts import Part, load_part
 from factory.pose import LDU_M, Pose
-from factory.sampler import Assembly, AssemblyStep, Sampler, SamplerConfig, SamplerConfigError
+from factory.replay import Verification, verify
+from factory.sampler import Assembly, AssemblyStep, Sampler, SamplerConfig, SamplerConfigError, grow
 from factory.symmetry import Symmetry
 
 __all__ = [
@@ -54,8 +63,11 @@ __all__ = [
     "SamplerConfig",
     "SamplerConfigError",
     "Symmetry",
+    "Verification",
     "build_steps",
     "get_reader",
+    "grow",
     "load_part",
     "read_steps",
+    "verify",
 ]

@@ -17,6 +17,8 @@ One JSON object per placed part, and one with `"unit": true` per sub-assembly at
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -339,6 +341,45 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
 
 RIGHT_REASONS = {"shift": {"collision", "no-connection"}, "lift": {"no-connection"},
                  "turn": {"collision", "no-connection"}, TURN_FINISHED: {"collision", "no-connection"}}
+
+
+@dataclass(frozen=True)
+class Verification:
+    """What `verify` found in one design: a record per placed part, sub-assembly attachment and
+    (with faults) injected fault, in build order (`verify_model`'s), and their summary."""
+
+    model: str
+    records: tuple[dict, ...]
+
+    @property
+    def summary(self) -> dict:
+        """`summarize` of the records: acceptance, stud-connected fidelity, faults rejected."""
+        return summarize(list(self.records))
+
+    @property
+    def placements(self) -> list[dict]:
+        """The records of the design's own placements (no injected faults)."""
+        return [r for r in self.records if "fault" not in r]
+
+    @property
+    def rejected(self) -> list[dict]:
+        """The placements the checks reject (a reason other than an unmodelled connection or no volume)."""
+        return [r for r in self.placements if r["reason"] not in (None, "unsupported-connection", NO_VOLUME)]
+
+    def to_json(self) -> dict:
+        return {"model": self.model, "summary": self.summary, "records": list(self.records)}
+
+
+def verify(model_path, ldraw=None, backend: str = "cpu", faults: bool = False, config: CheckConfig = CheckConfig(),
+           on_record: Callable[[dict], None] | None = None) -> Verification:
+    """Replay a design through the physics checks (`verify_model`): its `Verification`.
+    `on_record` sees each record as it is made (a long replay's progress)."""
+    records = []
+    for record in verify_model(model_path, ldraw, backend, config, faults):
+        records.append(record)
+        if on_record is not None:
+            on_record(record)
+    return Verification(str(model_path), tuple(records))
 
 
 def summarize(records: list[dict]) -> dict:

@@ -2,7 +2,7 @@
 
 `python -m pipelines.verify MODEL [--ldraw DIR] [--check-backend cpu|jax] --json`
 
-The replay is `factory.replay.verify_model` (see its module docstring for how parts and
+The replay is `factory.verify` (`factory.replay`: see its module docstring for how parts and
 sub-assemblies are judged). One JSON object per placed part, and one with `"unit": true` per
 sub-assembly attachment; with `--faults`, also the injected faults and a summary line.
 """
@@ -15,7 +15,7 @@ import sys
 
 from factory.cli import ArgumentParser, renamed_flag, run_guarded
 from factory.physics.check import BACKENDS, backend_arg
-from factory.replay import summarize, verify_model
+from factory.replay import verify
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -33,12 +33,10 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     def body() -> None:
-        records = []
-        for record in verify_model(args.model, args.ldraw, args.backend, faults=args.faults):
-            records.append(record)
-            print(json.dumps(record), flush=True)
+        found = verify(args.model, args.ldraw, args.backend, faults=args.faults,
+                       on_record=lambda r: print(json.dumps(r), flush=True))
         if args.faults:
-            print(json.dumps({"summary": summarize(records)}), flush=True)
+            print(json.dumps({"summary": found.summary}), flush=True)
 
     return run_guarded(body)
 

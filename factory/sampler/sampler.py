@@ -346,3 +346,13 @@ def _check_colours(reader: Reader, codes: list[int]) -> None:
 def _probabilities(weights: list[float]) -> np.ndarray:
     w = np.asarray(weights, dtype=np.float64)
     return w / w.sum()
+
+
+def grow(n: int, config: SamplerConfig | None = None, ldraw: str | os.PathLike | None = None, start: int = 0,
+         batch: int = 1) -> list[Assembly]:
+    """Objects `start` .. `start + n - 1` of `config` (default settings), grown from the LDraw
+    library `ldraw` (a folder or LDraw's complete.zip; default `$LDRAWDIR`, else the embedded
+    library), `batch` of them in lockstep (the same objects whatever `batch`), in index order."""
+    if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+        raise ValueError(f"n must be an integer >= 0, got {n!r}")
+    return list(Sampler(config or SamplerConfig(), ldraw).sample_many(range(start, start + n), batch))
