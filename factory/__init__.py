@@ -5,10 +5,12 @@
     objects[0].to_ldr("object_00000.ldr")
     found = factory.verify("model.mpd", ldraw="complete.zip", faults=True)   # verify a design
     found.summary["stud_fidelity"], found.rejected, found.to_json()
+    factory.build_dataset(factory.DatasetConfig.synthetic(8, seed=0), "out/synth")  # build a dataset
 
-Building a dataset from them is `pipelines.dataset.build` (the builder sits above the dataset
-contract, `factory.dataset`). The public API is the names below; modules not listed here are
-internal.
+`build_dataset` and `DatasetConfig` are the dataset builder's (`pipelines.dataset.build` and
+its config), loaded on first use: the builder sits above the dataset contract (`factory.dataset`),
+and no module of `factory` imports it. The public API is the names below; modules not listed here
+are internal.
 """
 
 from factory import _startup  # noqa: F401  (first, before anything heavy: Ctrl-C while a command starts)
@@ -39,6 +41,17 @@ from factory.replay import Verification, verify
 from factory.sampler import Assembly, AssemblyStep, Sampler, SamplerConfig, SamplerConfigError, grow
 from factory.symmetry import Symmetry
 
+def __getattr__(name: str):
+    """The dataset builder's names (`build_dataset`, `DatasetConfig`), imported on first use."""
+    if name in ("build_dataset", "DatasetConfig"):
+        # The one import up the layers, and only here: a facade over pipelines.dataset, loaded when
+        # asked for (tests/test_imports.py allows it in this file only).
+        from pipelines.dataset import DatasetConfig, build
+
+        return build if name == "build_dataset" else DatasetConfig
+    raise AttributeError(f"module 'factory' has no attribute {name!r}")
+
+
 __all__ = [
     "LDU_M",
     "Assembly",
@@ -47,6 +60,7 @@ __all__ = [
     "Colour",
     "ColourTable",
     "Connector",
+    "DatasetConfig",
     "LDrawCycleError",
     "LDrawError",
     "LDrawLimitError",
@@ -64,6 +78,7 @@ __all__ = [
     "SamplerConfigError",
     "Symmetry",
     "Verification",
+    "build_dataset",
     "build_steps",
     "get_reader",
     "grow",

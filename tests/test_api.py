@@ -1,5 +1,5 @@
-"""The verbs at the top of `factory`: grow objects and verify a design, typed results with
-`to_json`, the command lines calling the same functions."""
+"""The verbs at the top of `factory`: grow objects, verify a design (a typed result with
+`to_json`), build a dataset; the command lines call the same functions."""
 
 from __future__ import annotations
 
@@ -31,7 +31,8 @@ DESIGN = """0 FILE held.ldr
 def test_help_shows_the_verbs():
     text = pydoc.render_doc(factory)
     assert "factory.grow(8, factory.SamplerConfig(seed=7))" in text and "factory.verify(" in text
-    assert {"grow", "verify", "Verification"} <= set(factory.__all__)
+    assert "factory.build_dataset(" in text
+    assert {"grow", "verify", "Verification", "build_dataset", "DatasetConfig"} <= set(factory.__all__)
 
 
 def test_grow_gives_the_samplers_objects_in_index_order():
@@ -65,3 +66,14 @@ def test_verify_gives_a_typed_result_and_the_command_prints_its_records(tmp_path
     assert out.returncode == 0, out.stderr
     lines = [json.loads(x) for x in out.stdout.splitlines()]
     assert lines == [*found.records, {"summary": found.summary}]
+
+
+def test_build_dataset_is_the_builders_and_builds(tmp_path):
+    from conftest import tiny_dataset_config
+    from pipelines.dataset import DatasetConfig, build
+
+    assert factory.build_dataset is build and factory.DatasetConfig is DatasetConfig
+    summary = factory.build_dataset(tiny_dataset_config(n_objects=1), tmp_path / "synth", progress=False)
+    assert summary["shards_built"] == 1 and (tmp_path / "synth" / "meta" / "info.json").is_file()
+    with pytest.raises(AttributeError, match="no attribute 'build'"):
+        factory.build
