@@ -25,10 +25,8 @@ needs_ldraw = pytest.mark.needs_ldraw
 
 
 def pytest_collection_modifyitems(config, items):
-    if (LDRAW / "parts").is_dir():
-        return
-    skip = pytest.mark.skip(reason=f"the real LDraw subset is not at {LDRAW} (CI has it; a user's clone may not; "
-                            "set BRICK_FACTORY_SHARED)")
+    skip = pytest.mark.skipif(not (LDRAW / "parts").is_dir(), reason=f"the real LDraw subset is not at {LDRAW} "
+                              "(CI has it; a user's clone may not; set BRICK_FACTORY_SHARED)")
     for item in items:
         if item.get_closest_marker("needs_ldraw"):
             item.add_marker(skip)
