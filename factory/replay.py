@@ -182,25 +182,23 @@ def _held_by(structure: Structure, later: list[Placed]) -> Structure | None:
     return held
 
 
-def _without(structure: Structure, drop: set[int]) -> tuple[Structure, list[int]]:
-    """`structure` without the parts at indices `drop`, and each kept part's index in the original."""
-    keep = [k for k in range(len(structure)) if k not in drop]
-    new = {k: i for i, k in enumerate(keep)}
-    out = Structure([structure.placed[k] for k in keep])
-    out.links.extend(Link(new[l.a], new[l.b], l.point) for l in structure.links if l.a in new and l.b in new)
-    return out, keep
+def _first(structure: Structure, n: int) -> Structure:
+    """A new structure of the first `n` parts of `structure`, with the links among them."""
+    out = Structure(structure.placed[:n])
+    out.links.extend(l for l in structure.links if l.a < n and l.b < n)
+    return out
 
 
 def _going_first(structure: Structure, start: int, local: Placed, backend, config, standing: bool):
     """(verdict, structure judged on) of `local` going in before the parts of its step already
     placed (`structure.placed[start:]`), when it is accepted there and each of those parts is
     still accepted after it, in their order; else None."""
-    before, _ = _without(structure, set(range(start, len(structure))))
+    before = _first(structure, start)
     (w,) = check_units(before, [[local]], backend, config, require_connection=not _on_table(before, [local]),
                        standing=standing)
     if not w.ok:
         return None
-    after, _ = _without(structure, set(range(start, len(structure))))
+    after = _first(structure, start)
     after.add(local, _links(len(after), w))
     for q in structure.placed[start:]:
         (u,) = check_units(after, [[q]], backend, config, require_connection=not _on_table(after, [q]),
