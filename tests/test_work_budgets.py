@@ -178,6 +178,6 @@ def test_collision_geometry_refuses_a_part_past_its_triangle_budget(monkeypatch,
 
     part = load_part(Reader(Library.embedded()), "3001.dat")
     monkeypatch.setattr(geometry, "MAX_COLLISION_TRIANGLES", 10)
-    with pytest.raises(LDrawLimitError, match=r"part 3001.dat has [\d,]+ triangles; .* at most 10"):
+    with pytest.raises(LDrawLimitError, match=r"part 3001.dat has [\d,]+ triangles outside its studs; .* at most 10"):
         geometry.collision_shape(part, geometry.DecompositionConfig(inset_ldu=0.25 + 1e-9))  # not memoised
 

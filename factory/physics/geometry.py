@@ -61,12 +61,15 @@ class CollisionShape:
     """Each stud piece's base centre and axis, in the order of `studs`."""
 
 
-MAX_COLLISION_TRIANGLES = 50_000
-"""Triangles of a part the collision decomposition takes. The real subset's largest part has
-10,089 (74323.dat); the decomposition's cost follows the surface's shape more than its size, and
-its worst case measured here, a soup of random triangles, took 141 s and 1.5 GB at 48,000
-triangles, more than 300 s and 7.5 GB at 240,000, and was killed for memory at 24 GB at 1.2
-million (in this process, before coacd). Renders and `factory.ldraw` take larger parts."""
+MAX_COLLISION_TRIANGLES = 150_000
+"""Triangles of a part's body (outside its studs, which become stud pieces without decomposition)
+the collision decomposition takes. LDraw's library of the construction categories has at most
+110,352 (39369, a Technic beam baseplate 19x11: its holes); its baseplates have tens of thousands
+of triangles, all but about 80 in their studs. The decomposition's cost follows the surface's
+shape more than its size, and its worst case measured here, a soup of random triangles, took 141 s
+and 1.5 GB at 48,000 triangles, more than 300 s and 7.5 GB at 240,000, and was killed for memory at
+24 GB at 1.2 million (in this process, before coacd). Renders and `factory.ldraw` take larger
+parts."""
 
 
 def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()) -> CollisionShape:
@@ -78,8 +81,9 @@ def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()
     memo = part.__dict__.setdefault("_collision_shapes", {})
     if cfg in memo:
         return memo[cfg]
-    if len(part.flat.triangles) > MAX_COLLISION_TRIANGLES:
-        raise LDrawLimitError(f"part {part.name} has {len(part.flat.triangles):,} triangles; the physics checks "
+    body = int((~part.flat.in_stud).sum())
+    if body > MAX_COLLISION_TRIANGLES:
+        raise LDrawLimitError(f"part {part.name} has {body:,} triangles outside its studs; the physics checks "
                               f"decompose parts of at most {MAX_COLLISION_TRIANGLES:,}", getattr(part, "file", None))
     verts, faces = _body_mesh(part)
     settings = asdict(cfg)
