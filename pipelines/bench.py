@@ -1,6 +1,6 @@
 """`make bench`: one report of what the factory does per second and how the baselines score.
 
-`python -m pipelines.bench [--out bench] [--ldraw DIR] [--models FILE ...] [--quick]`
+`python -m pipelines.bench [--out bench] [--ldraw DIR] [--models FILE ...] [--quick] [--results DIR] [--no-rows]`
 
 Sections, each timed and written as soon as it ends (a later failure loses nothing before it):
 
@@ -21,7 +21,9 @@ Sections, each timed and written as soon as it ends (a later failure loses nothi
 
 Outputs: `OUT/report.json`, `OUT/report.md`, `OUT/physics.png`, `OUT/render.png`, `OUT/eval.png`, and
 the work folders under `OUT/work/` (the datasets and prediction files, reused by a re-run: the
-dataset builder resumes). The defaults took 258 s on a 2-core CPU with the six designs of
+dataset builder resumes). A finished run appends its figures to bench/results/*.jsonl and re-renders
+docs/results.md (`pipelines.report_rows`; `--results DIR`: to DIR/*.jsonl instead; `--quick`: only
+there; `--no-rows`: none). The defaults took 258 s on a 2-core CPU with the six designs of
 `../shared/ldraw_models` (2026-11-26, the parts' decompositions already cached): physics 89 s,
 renders 14 s, synth 28 s, designs 81 s, evaluation 43 s.
 """
@@ -53,6 +55,7 @@ from pipelines.bench_processes import in_own_process
 from pipelines.dataset import ConfigMismatchError, DatasetConfig, build, usage
 from pipelines.designs import design_config
 from pipelines.realism import Collection, compare, read_collection
+from pipelines.report_rows import append_bench, revision
 from pipelines.render import view_rates
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -504,7 +507,8 @@ def run(args) -> int:
     work = out / "work"
     work.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    report: dict = {"schema_version": 1, "quick": bool(args.quick), "machine": machine(), "section_s": {}}
+    report: dict = {"schema_version": 1, "quick": bool(args.quick), "machine": machine(), "section_s": {},
+                    "revision": revision()}  # the code measured: taken at the start
     gpu = report["machine"]["gpu"] is not None
     ldraw = args.ldraw or (str(SHARED / "ldraw") if (SHARED / "ldraw" / "parts").is_dir() else None)
     models = [Path(m) for m in args.models] if args.models is not None else sorted(
@@ -567,6 +571,7 @@ def run(args) -> int:
     save()
     write_atomic(out / "report.md", markdown(report).encode())
     print(f"bench: wrote {out / 'report.md'} and {out / 'report.json'} in {report['wall_s']:.0f} s")
+    append_bench(report, args.results, args.quick, skip=args.no_rows)
     return 0
 
 
@@ -583,6 +588,8 @@ def main(argv: list[str] | None = None) -> int:
                          "same --quick, and run the rest (a bench cut short goes on where it stopped)")
     ap.add_argument("--backends", default="auto",
                     help="physics backends to time: comma-separated cpu,jax, or auto (default: every one installed)")
+    ap.add_argument("--results", metavar="DIR", help="add rows to DIR/*.jsonl (default bench/results; --quick: none)")
+    ap.add_argument("--no-rows", action="store_true", help="append no result rows (and leave docs/results.md)")
     args = ap.parse_args(argv)
     return run_guarded(lambda: run(args), {DatasetError: 2, ConfigMismatchError: 2, SamplerConfigError: 2,
                                            OSError: 2, ValueError: 2})

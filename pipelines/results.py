@@ -9,7 +9,8 @@ null where it is not known), `what` (the measurement, short), optional `note` (t
 figures: numbers under keys that name their unit (`wall_s`, `steps_per_s`, `gpu_mem_max_mib`).
 The page has one table per file holding the latest row of each (`what`, `machine`): the latest
 date, and of one date the row further down the file. Older rows stay in the files; the docs say
-what is true now and point here for figures.
+what is true now and point here for figures. Programs append rows through
+`pipelines.result_rows.append_rows` (`make bench`, `pipelines.synth --results DIR`).
 """
 
 from __future__ import annotations

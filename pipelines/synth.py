@@ -3,7 +3,9 @@
 Samples N physics-verified objects (`factory.sampler`), renders every step and writes sharded
 Parquet under OUT (see docs/guides/build-a-dataset.md). Re-running the same command resumes: finished shards are
 kept, the rest are built, and the result is byte-identical to an uninterrupted run. A different
-config for an existing OUT is refused. Ends with a one-line summary on stdout.
+config for an existing OUT is refused. Ends with a one-line summary on stdout. `--results DIR`
+(off by default): also append the build's time as one row to DIR/builds.jsonl
+(`pipelines.report_rows.build_row`; `--results bench/results` for the project's figures).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from pipelines.dataset import (ConfigMismatchError, FolderBusyError, ShardFailed
 from pipelines.dataset.build import growers_of
 from pipelines.dataset.config import DatasetConfig
 from pipelines.prior_flag import add_prior_flag, apply_prior
+from pipelines.report_rows import append_build, revision
 
 
 def _ldraw(arg):
@@ -97,9 +100,18 @@ def run(config, args) -> int:
     if synthetic:
         print(f"physics: {config.sampler.backend} ({checks_backend(args)[1]}; --check-backend cpu|jax|auto); renders: "
               f"{gpus.render_path()}", file=sys.stderr, flush=True)
+    results = getattr(args, "results", None)  # pipelines.synth's flag (not pipelines.designs')
+    if results and os.path.exists(results) and not os.path.isdir(results):
+        print(f"error: --results {results}: not a folder", file=sys.stderr)
+        return 2
+    rev = revision() if results and synthetic else None  # the code measured: taken at the start
     summary = build(config, args.out, runner=args.runner, workers=args.workers,
                     progress=not args.no_progress, batch=args.batch, growers=args.growers, mps_mode=args.mps)
     print(summary_line(summary), flush=True)
+    if results and synthetic:
+        auto = checks_backend(args)[1] if getattr(args, "sampler.backend", AUTO) == AUTO else None
+        append_build(summary, results, rev, config=config, runner=args.runner, workers=args.workers,
+                     backend=config.sampler.backend, auto=auto, batch=args.batch, growers=args.growers)
     return 0
 
 
@@ -115,6 +127,9 @@ def parser() -> argparse.ArgumentParser:
     add_auto_backend(ap)
     add_run_args(ap)
     add_prior_flag(ap)
+    ap.add_argument("--results", metavar="DIR",
+                    help="append the build's time as one row to DIR/builds.jsonl (e.g. bench/results; default none; "
+                         "not for a build that resumed)")
     return ap
 
 

@@ -14,9 +14,15 @@ from pipelines import bench
 
 
 @pytest.mark.slow
-def test_quick_bench_writes_report_and_plots(tmp_path):
-    out = tmp_path / "bench"
-    assert bench.main(["--out", str(out), "--quick", "--backends", "cpu", "--models"]) == 0
+def test_quick_bench_writes_report_and_plots(tmp_path, monkeypatch):
+    from pipelines import results
+
+    out, rows = tmp_path / "bench", tmp_path / "rows"
+    # the repository's rows and page stand in a temporary folder: a quick run must not touch them
+    monkeypatch.setattr(results, "RESULTS", tmp_path / "repo-rows")
+    monkeypatch.setattr(results, "PAGE", tmp_path / "results.md")
+    monkeypatch.setattr(bench, "revision", lambda: "abc1234")
+    assert bench.main(["--out", str(out), "--quick", "--backends", "cpu", "--models", "--results", str(rows)]) == 0
     report = json.loads((out / "report.json").read_text())
     for name in ("report.md", "physics.png", "render.png", "eval.png"):
         assert (out / name).stat().st_size > 0, name
@@ -43,17 +49,37 @@ def test_quick_bench_writes_report_and_plots(tmp_path):
     md = (out / "report.md").read_text()
     assert "| oracle | 1.000 | 1.000 | 0.0 | 0.0 | 1.000 | 1.000 | 1.000 | 0 |" in md
     assert "random + feedback" in md
-    # a re-run reuses the finished dataset (the builder resumes) and rewrites the report
+    # --results: the figures appended as result rows (pipelines.report_rows), which render into a page
+    appended = {p.stem: results.read_rows(p) for p in rows.glob("*.jsonl")}
+    assert set(appended) == {"bench", "physics", "render"}
+    whole, synth_row = appended["bench"][:2]
+    assert whole["what"] == "make bench --quick, whole report" and whole["wall_s"] > 0
+    assert whole["revision"] == "abc1234"
+    assert synth_row["what"] == "make bench --quick synth: 5 objects of 6-10 bricks"
+    assert synth_row["steps"] == synth["steps"]
+    (oracle_row,) = [r for r in appended["bench"]
+                     if r["what"] == "baseline oracle, synthetic test split, make bench --quick"]
+    assert oracle_row["selection_accuracy"] == oracle_row["step_success_strict"] == 1.0
+    (loads_row,) = [r for r in appended["physics"]
+                    if r["what"].startswith("loads, 30 bricks, CPU reference, 1 process")]
+    assert loads_row["per_s"] == loads["cpu_per_s"] and loads_row["date"] and loads_row["machine"]
+    assert "| make bench --quick, whole report | wall_s" in results.render(rows)
+    assert not (tmp_path / "results.md").exists()  # the page shows the repository's rows only
+    # a re-run reuses the finished dataset (the builder resumes) and rewrites the report; --quick
+    # without --results appends nothing
     assert bench.main(["--out", str(out), "--quick", "--backends", "cpu", "--models"]) == 0
     again = json.loads((out / "report.json").read_text())
     assert again["synth"]["resumed"] is True and again["kept"] == []
+    assert not (tmp_path / "repo-rows").exists() and not (tmp_path / "results.md").exists()
 
     # --resume keeps the sections a run cut short had finished, and runs the rest
     # (the physics section keeps the parts it had finished)
     cut = {k: v for k, v in again.items() if k not in ("synth", "evaluation")}
     cut["physics"] = {k: v for k, v in again["physics"].items() if k != "growth"}
     (out / "report.json").write_text(json.dumps(cut))
-    assert bench.main(["--out", str(out), "--quick", "--backends", "cpu", "--models", "--resume"]) == 0
+    assert bench.main(["--out", str(out), "--quick", "--backends", "cpu", "--models", "--resume",
+                       "--results", str(rows), "--no-rows"]) == 0
+    assert {p.stem: results.read_rows(p) for p in rows.glob("*.jsonl")} == appended  # --no-rows: none
     resumed = json.loads((out / "report.json").read_text())
     assert resumed["kept"] == ["render", "physics (rows, loads, sweeps, whole)"]
     for key in ("rows", "loads", "sweeps", "whole"):
