@@ -16,11 +16,9 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from factory import Pose, get_reader, load_part
-from factory.physics import check as check_mod
-from factory.physics import pair_kernels, sweep_jax
+from factory.physics import Checker, pair_kernels, sweep_jax
 from factory.physics.check import CheckConfig, _unit_connections, backend_name, check
 from factory.physics.collide import CollisionScene
-from factory.physics.clutch import ALONE
 from factory.physics.load_model import LoadBase
 from factory.physics.statics import judge_many, judge_on_base
 from factory.physics.structure import Placed, Structure
@@ -171,7 +169,7 @@ def _shared_run(span: tuple[int, int], barrier) -> tuple[float, float, list]:
     _batched_answers(a, b)
     gc.collect()
     gc.freeze()
-    ALONE.clear()  # the warm-up's clutch answers: the timed call finds its own
+    Checker.shared().clear(["alone"])  # the warm-up's clutch answers: the timed call finds its own
     barrier.wait()
     t = time.time()
     got = _batched_answers(a, b)
@@ -300,19 +298,20 @@ def measure_whole(sizes, batches, log=None, cpu_max: int = 256, cpu_workers: int
                            accepted=sum(ok for ok, _ in answers),
                            reasons=dict(Counter(r for _, r in answers if r)))
             elif batched:
+                checker = Checker(config, "jax")
                 t = time.perf_counter()
-                check(s, brick, poses, backend="jax", config=config, floor_y=24.0, explain=False)  # compiles
+                checker.check(s, brick, poses, floor_y=24.0, explain=False)  # compiles
                 first_s = time.perf_counter() - t
                 # A process that has compiled with JAX holds many long-lived objects (a sampler
                 # process: 661K, a full collection 0.29 s); moved out of the collector's view.
                 gc.collect()
                 gc.freeze()
-                ALONE.clear()  # the warm-up's clutch answers: the timed call finds its own
-                before = check_mod.STAGE_SECONDS.copy()
+                checker.clear(["alone"])  # the warm-up's clutch answers: the timed call finds its own
+                checker.reset_counters()
                 t = time.perf_counter()
-                got = check(s, brick, poses, backend="jax", config=config, floor_y=24.0, explain=False)
+                got = checker.check(s, brick, poses, floor_y=24.0, explain=False)
                 gpu_s = time.perf_counter() - t
-                stages = check_mod.STAGE_SECONDS - before
+                stages = checker.counters()["stage_seconds"]
                 row.update(gpu_per_s=round(batch / gpu_s, 1), first_call_s=round(first_s, 2),
                            stage_s={k: round(v, 3) for k, v in sorted(stages.items())},
                            accepted=sum(v.ok for v in got),
@@ -359,11 +358,12 @@ def measure_sweep(sizes=(30, 60, 90), batches=(1024, 2048, 4096, 8192, 16384), c
             t = time.perf_counter()
             sweep_jax.sweep_many(scene, s, *args, directions=[c[2] for c in cases])  # compiles this batch's shapes
             first_s = time.perf_counter() - t
-            before = sweep_jax.COUNTS.copy()
+            # sweep_many asked without a checker counts on the process's default one (`Checker.shared`).
+            before = Counter(Checker.shared().counters()["sweep_counts"])
             t = time.perf_counter()
             got = sweep_jax.sweep_many(scene, s, *args, directions=[c[2] for c in cases])
             jax_s = time.perf_counter() - t
-            counts = sweep_jax.COUNTS - before
+            counts = Counter(Checker.shared().counters()["sweep_counts"]) - before
             row = {"bricks": n, "batch": batch, "distinct_candidates": len(pool),
                    "jax_per_s": round(batch / jax_s, 1),
                    "first_call_s": round(first_s, 2), "new_compiles": len(pair_kernels.COMPILES) - compiles,

@@ -11,9 +11,8 @@ import os
 import time
 from collections import Counter
 
-from factory.physics import collide as collide_mod
-from factory.physics.check import STAGE_SECONDS, backend_name
-from factory.physics.clutch import ALONE
+from factory.physics import Checker
+from factory.physics.check import backend_name
 from factory.sampler import Sampler, SamplerConfig
 from pipelines.bench_processes import _CTX, _emit, _say, _spans, _together, in_own_process
 
@@ -25,7 +24,7 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
     (the same objects whatever the batch, so rows compare on the same inputs). `WARM_OBJECTS` other
     objects are grown first, untimed (parts loaded, first kernels compiled); the compiles of
     shapes they did not meet fall in the rows, and each row starts without the answers cached by
-    geometry (`_forget_answers`). Seconds per check stage from `check.STAGE_SECONDS`.
+    geometry (`_forget_answers`). Seconds per check stage from the sampler's checker (`Checker.counters`).
 
     With `procs` > 1 the objects are split into `procs` contiguous slices, each grown in its own
     process at `batch // procs` objects a round (so `batch` objects grow at once in all), the
@@ -68,13 +67,14 @@ def measure_growth(backend: str, batches, steps: int, objects: int, log=None, pr
     warm_s = time.perf_counter() - t0
     _say(f"warm-up: {WARM_OBJECTS} objects in {warm_s:.1f} s")
     for batch in batches:
-        _forget_answers()
-        STAGE_SECONDS.clear()
+        _forget_answers(sampler)
+        sampler.checker.reset_counters()
         _JIT.clear()
         t0, c0 = time.perf_counter(), time.process_time()
         placed = sum(len(a.steps) for a in sampler.grow(range(objects), batch=batch))
         wall = time.perf_counter() - t0
-        _emit(rows, log, _growth_row(backend, batch, objects, placed, steps, wall, STAGE_SECONDS, jit=_JIT,
+        _emit(rows, log, _growth_row(backend, batch, objects, placed, steps, wall,
+                                     sampler.checker.counters()["stage_seconds"], jit=_JIT,
                                      warm_s=warm_s, used=used, cpu_s=time.process_time() - c0))
         warm_s = None  # the warm-up came before the first row only
     return rows
@@ -111,11 +111,10 @@ def _on_event(event: str, **_) -> None:
         _JIT["cache_misses"] += 1
 
 
-def _forget_answers() -> None:
-    """Drop the checker's answers cached by geometry (stud probes, clutch cases), so that a row
-    growing the same objects as an earlier row finds only what the warm-up object left."""
-    collide_mod._CROSSED.clear()
-    ALONE.clear()
+def _forget_answers(sampler: Sampler) -> None:
+    """Drop the sampler's checker's answers cached by geometry (stud probes, clutch cases), so that
+    a row growing the same objects as an earlier row finds only what the warm-up object left."""
+    sampler.checker.clear(("crossed", "alone"))
 
 
 def _growth_row(backend, batch, objects, placed, steps, wall, stages, procs=1, jit=None, warm_s=None,
@@ -176,12 +175,12 @@ def _warm_sampler(backend: str, steps: int, objects: int, knobs: dict | None = N
     `WARM_OBJECTS` warm-up objects (returned when `keep`)."""
     if backend == "jax":
         _count_compiles()
-    sampler = Sampler(SamplerConfig(seed=0, min_steps=steps, max_steps=steps, backend=backend, **(knobs or {})),
-                      None)
+    config = SamplerConfig(seed=0, min_steps=steps, max_steps=steps, backend=backend, **(knobs or {}))
+    sampler = Sampler(config, None, Checker(config.check, config.backend))
     for part in sampler.parts:  # found on a part's first use otherwise (0.1 s each), inside a row
         part.sockets
     list(sampler.grow(range(objects, objects + WARM_OBJECTS), batch=WARM_OBJECTS))
-    _forget_answers()
+    _forget_answers(sampler)
     return sampler if keep else None
 
 
@@ -194,7 +193,7 @@ def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, floa
     end, {steps placed, stage seconds, JAX compiles meanwhile, warm-up seconds, kernels compiled in
     the warm-up})."""
     gc.collect()
-    STAGE_SECONDS.clear()
+    _CTX["sampler"].checker.reset_counters()
     _JIT.clear()
     barrier.wait()
     t, c = time.time(), time.process_time()
@@ -206,5 +205,6 @@ def _growth_run(span: tuple[int, int], batch: int, barrier) -> tuple[float, floa
             said = time.time()
             _say(f"grower {os.getpid()}: {done} of {span[1] - span[0]} objects, {placed} parts, {said - t:.1f} s")
     end, cpu = time.time(), time.process_time() - c
-    return t, end, {"placed": placed, "stages": dict(STAGE_SECONDS), "jit": dict(_JIT), "cpu_s": cpu,
+    stages = _CTX["sampler"].checker.counters()["stage_seconds"]
+    return t, end, {"placed": placed, "stages": stages, "jit": dict(_JIT), "cpu_s": cpu,
                             "warm_s": _CTX["warm_s"], "warm_misses": _CTX["warm_misses"]}

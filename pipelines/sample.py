@@ -32,7 +32,7 @@ from factory import mps
 from factory.cli import (ArgumentParser, add_config_args, add_mps_flag, add_progress_flag, config_from_args,
                          renamed_flag, run_guarded)
 from factory.physics import pair_kernels
-from factory.physics.check import BACKENDS, STAGE_SECONDS, backend_arg
+from factory.physics.check import BACKENDS, backend_arg
 from factory.sampler import Sampler, SamplerConfig, SamplerConfigError
 from factory.atomic import write_atomic
 from pipelines import workers
@@ -193,7 +193,7 @@ def _run(args, config: SamplerConfig) -> int:
     summary = summarize(records, wall, config, _SAMPLER.reader.library.description, args.workers)
     summary["batch"] = args.batch
     if args.workers == 1:  # (worker processes keep their own counts)
-        summary["totals"]["check_stage_seconds"] = {k: round(v, 3) for k, v in sorted(STAGE_SECONDS.items())}
+        summary["totals"]["check_stage_seconds"] = {k: round(v, 3) for k, v in sorted(_SAMPLER.checker.counters()["stage_seconds"].items())}
         if config.backend == "jax":
             from factory.physics import lp_jax  # optional: JAX (the [jax] extra)
 

@@ -21,6 +21,8 @@ Here the checks are asked (`check`, `check_units`, `check_many` with its `CheckR
 calls run, stage by stage (`_run_calls`). One call's walk through the rules is `check_call._Call`;
 the loads stage, `check_loads`; the thresholds and verdicts, `verdict` (`CheckConfig`, `Verdict`);
 the backends' names, `backends` (`BACKENDS`, `backend_name`). All of these are importable from here.
+Called here, the checks keep their caches and counters in the process's default state; a
+`checker.Checker` runs them in its own (`check_state`).
 """
 
 from __future__ import annotations
@@ -31,7 +33,8 @@ from typing import Callable, Sequence
 
 from factory.parts import Part
 from factory.physics.backends import BACKENDS, OLD_BACKEND_NAMES, backend_arg, backend_name
-from factory.physics.check_call import STAGE_SECONDS, _Call
+from factory.physics.check_call import _Call
+from factory.physics.check_state import current
 from factory.physics.check_call import _unit_connections  # noqa: F401  (imported from here by tests and benchmarks)
 from factory.physics.check_loads import _judge_loads
 from factory.physics.clutch import holds_alone_many
@@ -42,7 +45,7 @@ from factory.physics.sweep_jax import sweep_groups
 from factory.physics.verdict import CheckConfig, Verdict
 from factory.pose import Pose
 
-__all__ = ["BACKENDS", "OLD_BACKEND_NAMES", "STAGE_SECONDS", "CheckConfig", "CheckRequest", "Verdict", "backend_arg",
+__all__ = ["BACKENDS", "OLD_BACKEND_NAMES", "CheckConfig", "CheckRequest", "Verdict", "backend_arg",
            "backend_name", "check", "check_many", "check_units"]
 
 
@@ -128,11 +131,12 @@ def _run_calls(calls: "Sequence[_Call]", backend: str) -> list[list[Verdict]]:
     """Collision (for 'jax'; the reference's ran at construction), the sweeps, then the load
     programs of every call: for 'jax' on the device, each stage of all calls together
     (`collide_jax.penetrations`, `sweep_jax.sweep_groups`, `_judge_loads`)."""
+    seconds = current().stage_seconds
     t0 = time.perf_counter()
     if backend == "jax":
         todo = [c for c in calls if c.to_collide]
         found_all = penetrations([c.collide_group() for c in todo])
-        STAGE_SECONDS["collide"] += time.perf_counter() - t0
+        seconds["collide"] += time.perf_counter() - t0
         for c, found in zip(todo, found_all):
             c.collided(found)  # counted as 'rules'
         # The clutch rule of every call: the closed form on the host, the programs in one launch.
@@ -141,7 +145,7 @@ def _run_calls(calls: "Sequence[_Call]", backend: str) -> list[list[Verdict]]:
         # One config for every call: check_many passes its own to each.
         holds = iter(holds_alone_many([x for cs in cases for x in cs], calls[0].config.loads,
                                       _lp_jax(backend).solve_batch))
-        STAGE_SECONDS["clutch"] += time.perf_counter() - t0
+        seconds["clutch"] += time.perf_counter() - t0
         for c, cs in zip(calls, cases):
             c.clutched([next(holds) for _ in cs])
         t0 = time.perf_counter()
@@ -150,9 +154,9 @@ def _run_calls(calls: "Sequence[_Call]", backend: str) -> list[list[Verdict]]:
         for (c, _), built in zip(todo, sweep_groups([g for _, g in todo])):
             c.swept(built)
     t1 = time.perf_counter()
-    STAGE_SECONDS["sweep"] += t1 - t0
+    seconds["sweep"] += t1 - t0
     _judge_loads(calls, _loads_jax(backend))
-    STAGE_SECONDS["loads"] += time.perf_counter() - t1
+    seconds["loads"] += time.perf_counter() - t1
     return [c.verdicts for c in calls]  # type: ignore[misc]
 
 

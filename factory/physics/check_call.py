@@ -1,7 +1,8 @@
 """One call of the checks walked through its rules (`_Call`): each candidate's connections, then
 collision, the cheap rules after it (unsupported, no connection, clutch), the sweep, and the queue
-for the loads (`check_loads`); the seconds spent per stage (`STAGE_SECONDS`), and the last
-collision scene and load base kept for the calls after (`KeepLast`).
+for the loads (`check_loads`); the seconds spent per stage, and the last collision scene and load
+base kept for the calls after, both in the checker's state (`check_state.current()`:
+`stage_seconds`, `scenes`, `load_bases`).
 
 `check.py` runs calls: the reference's (backend 'cpu') go through every rule as they are made; the
 batched backend's ('jax') give each stage of many calls to the device together.
@@ -10,7 +11,6 @@ batched backend's ('jax') give each stage of many calls to the device together.
 from __future__ import annotations
 
 import time
-from collections import Counter
 from dataclasses import replace
 from typing import Callable, Sequence
 
@@ -19,7 +19,7 @@ import numpy as np
 from factory.parts import Part
 from factory.physics.clutch import holds_alone_many
 from factory.physics.collide import CollisionScene, Penetration
-from factory.physics.keep_last import KeepLast
+from factory.physics.check_state import current
 from factory.physics.load_model import Link, LoadBase, LoadConfig, support_points
 from factory.physics.mass import part_mass_properties
 from factory.physics.structure import Placed, Structure, connections_at, lowest_point
@@ -28,11 +28,11 @@ from factory.physics.unmodelled import bar_joints, may_hold
 from factory.physics.verdict import CheckConfig, Verdict
 from factory.pose import Pose
 
-STAGE_SECONDS: Counter = Counter()
-"""Seconds spent in this process by stage of `check_units`/`check_many`: 'rules' (connection,
-clutch, and for the reference collision and the CPU sweep), 'collide' (the batched collision
-rule, `collide_jax`), 'clutch' (for 'jax': the clutch rule of every call at once), 'sweep' (the
-batched sweeps), 'loads'."""
+STAGES = ("rules", "collide", "clutch", "sweep", "loads")
+"""The stages whose seconds a checker counts (`CheckState.stage_seconds`) in `check_units`/`check_many`:
+'rules' (connection, clutch, and for the reference collision and the CPU sweep), 'collide' (the
+batched collision rule, `collide_jax`), 'clutch' (for 'jax': the clutch rule of every call at
+once), 'sweep' (the batched sweeps), 'loads'."""
 
 
 def _unit_connections(structure: Structure, unit: Sequence[tuple[Part, Pose]]) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
@@ -84,7 +84,7 @@ class _Call:
             conns = each[k] if len(first) == 1 else _unit_connections(structure, world)
             outer = [c for c in conns if min(c[0], c[1]) < base_n]
             self.to_collide.append((k, unit, world, conns, outer, {min(c[0], c[1]) for c in outer}))
-        STAGE_SECONDS["rules"] += time.perf_counter() - t0
+        current().stage_seconds["rules"] += time.perf_counter() - t0
         if backend != "jax":
             # The reference: MuJoCo's contacts, one candidate pose at a time.
             t0 = time.perf_counter()
@@ -92,7 +92,7 @@ class _Call:
             for _, unit, *_, touched in self.to_collide:
                 depth, near = self.scene.penetration(unit[0].pose, touched)
                 found.append(Penetration(depth, frozenset(near)))
-            STAGE_SECONDS["rules"] += time.perf_counter() - t0
+            current().stage_seconds["rules"] += time.perf_counter() - t0
             self.collided(found)
 
     @property
@@ -146,7 +146,7 @@ class _Call:
                 continue
             self.to_clutch.append((k, base, unit, world, conns, outer, touched))
         self.to_collide = []
-        STAGE_SECONDS["rules"] += time.perf_counter() - t0
+        current().stage_seconds["rules"] += time.perf_counter() - t0
         if self.backend != "jax":
             self.clutched(holds_alone_many(self.clutch_cases(), config.loads))
 
@@ -181,7 +181,7 @@ class _Call:
                     floor = self.structure.floor_y() if floor is None else floor
                     ground_y = max(floor, lowest_point(unit))
             cases.append(_alone_case(unit, outer, base_n, ground_y, cfg))
-        STAGE_SECONDS["rules"] += time.perf_counter() - t0
+        current().stage_seconds["rules"] += time.perf_counter() - t0
         return cases
 
     def clutched(self, holds: Sequence[bool]) -> None:
@@ -207,7 +207,7 @@ class _Call:
             built = sweep(self.scene, structure, world, touched, config.max_penetration_ldu, directions=dirs) if outer else None
             self._after_sweep(k, base, built, unit, conns, outer)
         self.to_clutch = []
-        STAGE_SECONDS["rules"] += time.perf_counter() - t0
+        current().stage_seconds["rules"] += time.perf_counter() - t0
 
     def sweep_group(self):
         """This call's sweeps for `sweep_jax.sweep_groups`, None if it has none."""
@@ -264,11 +264,9 @@ def _alone_case(unit: Sequence[Placed], outer, base_n: int, ground_y: float | No
     return mass, weighted / mass, conns, ground
 
 
-_SCENE = KeepLast()
-"""The last collision scene. The sampler checks one part against one structure in several calls
-per step (batches, redraws of the same part); building the scene is most of a call's time."""
-_LOADS = KeepLast()
-"""The last structure's `LoadBase`, for the same reason."""
+# The last collision scenes and `LoadBase`s are the checker's (`CheckState.scenes`, `load_bases`):
+# the sampler checks one part against one structure in several calls per step (batches, redraws
+# of the same part); building the scene is most of a call's time.
 
 
 def _placed_key(structure: Structure, rel) -> tuple:
@@ -277,11 +275,11 @@ def _placed_key(structure: Structure, rel) -> tuple:
 
 
 def _collision_scene(structure: Structure, rel, floor: float) -> CollisionScene:
-    return _SCENE.get((_placed_key(structure, rel), float(floor)),
+    return current().scenes.get((_placed_key(structure, rel), float(floor)),
                       (list(structure.placed), [part for part, _ in rel]),
                       lambda: CollisionScene(structure, rel, floor))
 
 
 def _load_base(structure: Structure, floor_y: float | None, cfg) -> LoadBase:
-    return _LOADS.get((_placed_key(structure, ()), len(structure.links), floor_y, cfg), list(structure.placed),
+    return current().load_bases.get((_placed_key(structure, ()), len(structure.links), floor_y, cfg), list(structure.placed),
                       lambda: LoadBase(structure.placed, structure.connections, floor_y, structure.links, cfg))

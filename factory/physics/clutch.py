@@ -10,6 +10,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from factory.connections import STUD_RADIUS
+from factory.physics.check_state import current
 from factory.physics.load_model import UP, LoadConfig, LoadModel, hull_xz, inside_polygon
 from factory.physics.load_program import to_lp
 from factory.physics.lp import LinearProgram, LPResult, solve_highs
@@ -43,11 +44,13 @@ def holds_alone_many(cases: Sequence[tuple], cfg: LoadConfig = LoadConfig(),
     checks pass `lp_jax.solve_batch`).
 
     The question does not depend on where the part is, so each case is asked about its centre of
-    mass (positions relative to it, rounded to 1e-6 LDU) and its answer kept (`ALONE`): the
+    mass (positions relative to it, rounded to 1e-6 LDU) and its answer kept (the checker's
+    `CheckState.alone`): the
     sampler's candidates of one part repeat configurations (2x4 bricks on a 30-brick wall: 819
     cases, 174 distinct), so most never reach a program."""
+    kept = current().alone
     keys = [(_alone_key(*case), cfg) for case in cases]
-    answers = {key: ALONE[key] for key in keys if key in ALONE}
+    answers = {key: kept[key] for key in keys if key in kept}
     programs: dict[tuple, LinearProgram] = {}
     for key in keys:
         if key in answers or key in programs:
@@ -62,16 +65,15 @@ def holds_alone_many(cases: Sequence[tuple], cfg: LoadConfig = LoadConfig(),
         results = (solve or (lambda lps: [solve_highs(lp) for lp in lps]))(list(programs.values()))
         for key, res in zip(programs, results):
             answers[key] = res.status == "optimal" and res.objective <= 1.0 + cfg.tolerance
-    if len(ALONE) + len(answers) > ALONE_KEPT:
-        ALONE.clear()
-    ALONE.update(answers)
+    if len(kept) + len(answers) > ALONE_KEPT:
+        kept.clear()
+    kept.update(answers)
     return [bool(answers[key]) for key in keys]
 
 
 ALONE_KEPT = 65536
-"""Most `holds_alone` answers kept (`ALONE`); past it they are dropped and found again."""
-ALONE: dict = {}
-"""`holds_alone` answers by (case relative to its centre of mass, config) (`holds_alone_many`)."""
+"""Most `holds_alone` answers a checker keeps (`CheckState.alone`, by case relative to its centre
+of mass and config); past it they are dropped and found again."""
 
 
 def _alone_key(mass_kg, com, conns, ground) -> tuple:

@@ -21,6 +21,7 @@ from scipy.spatial import ConvexHull
 
 from factory.connections import STUD_HEIGHT, STUD_RADIUS
 from factory.parts import Part
+from factory.physics.check_state import DEFAULT, current
 from factory.physics.geometry import INSET_LDU, CollisionShape, collision_shape
 from factory.physics.structure import Structure
 from factory.physics.unmodelled import in_zone
@@ -80,9 +81,8 @@ def _fmt(a: np.ndarray) -> str:
     return " ".join(f"{v:.7g}" for v in np.asarray(a).ravel())
 
 
-_PLACED: dict[tuple[int, str], tuple] = {}
-"""Per (shape, piece kind): the shape (kept so that its id is not reused) and each piece as (mesh
-name, vertices text, geom position text)."""
+# The checker's `CheckState.meshes`: per (shape, piece kind), the shape (kept so that its id is
+# not reused) and each piece as (mesh name, vertices text, geom position text).
 
 
 def _placed_pieces(shape: CollisionShape, kind: str) -> tuple:
@@ -90,7 +90,8 @@ def _placed_pieces(shape: CollisionShape, kind: str) -> tuple:
     position. Pieces equal up to a translation (every stud of a part, the studs of different parts)
     share one mesh: compiling a scene's meshes (a hull and inertia each) cost ~7x more than the
     rest of the model with one mesh per stud (0.084 s against 0.011 s for a 60-part scene)."""
-    hit = _PLACED.get((id(shape), kind))
+    kept = current().meshes
+    hit = kept.get((id(shape), kind))
     if hit is None or hit[0] is not shape:
         rows = []
         for verts in (shape.body if kind == "b" else shape.studs):
@@ -98,7 +99,7 @@ def _placed_pieces(shape: CollisionShape, kind: str) -> tuple:
             local = points_to_mujoco(verts - centre)
             digest = hashlib.sha1((np.round(local, 9) + 0.0).tobytes()).hexdigest()[:16]
             rows.append((f"p{digest}", _fmt(local), _fmt(points_to_mujoco(centre))))
-        hit = _PLACED[(id(shape), kind)] = (shape, tuple(rows))
+        hit = kept[(id(shape), kind)] = (shape, tuple(rows))
     return hit[1]
 
 
@@ -177,8 +178,9 @@ PROBE_PAIRS = 1 << 16
 segments' vectors, about 3 kB in float64)."""
 
 
-_CROSSED: dict[tuple, tuple[Surface, bool]] = {}
-"""Probe answers by (surface, the stud's base and axis as exact bytes); the surface is kept with
+_CROSSED: dict[tuple, tuple[Surface, bool]] = DEFAULT.crossed
+"""The default checker's store of `studs_cross` answers (each checker keeps its own,
+`CheckState.crossed`; the name is kept for tests that empty it). Probe answers by (surface, the stud's base and axis as exact bytes); the surface is kept with
 the answer so that its id is not reused. A sampled object asks the same probe again about three
 times in four (5,043 probes, 1,220 distinct, one 40-part object): candidates sit on a lattice, so
 a stud often lands at exactly the same place relative to a part."""
@@ -193,24 +195,25 @@ def studs_cross(pos: np.ndarray, axis: np.ndarray, surface: Surface) -> np.ndarr
     standing in that part's hollow. Probed by segments just inside the stud (its axis, 8 lines
     along its side, 8 radii of its top) and by any vertex of the surface inside it, against the
     triangles near the stud. Each stud's answer depends on it alone, so answers asked before
-    (exactly the same inputs) are taken from `_CROSSED`."""
+    (exactly the same inputs) are taken from the checker's store (`CheckState.crossed`)."""
+    crossed_kept = current().crossed
     pos, axis = np.asarray(pos, float).reshape(-1, 3), np.asarray(axis, float).reshape(-1, 3)
     keys = [(id(surface), p.tobytes(), a.tobytes()) for p, a in zip(pos, axis)]
     out = np.zeros(len(pos), bool)
     miss = []
     for i, k in enumerate(keys):
-        hit = _CROSSED.get(k)
+        hit = crossed_kept.get(k)
         if hit is not None and hit[0] is surface:
             out[i] = hit[1]
         else:
             miss.append(i)
     if miss:
         found = _studs_cross(pos[miss], axis[miss], surface)
-        if len(_CROSSED) > CROSSED_KEPT:
-            _CROSSED.clear()
+        if len(crossed_kept) > CROSSED_KEPT:
+            crossed_kept.clear()
         for i, crossed in zip(miss, found):
             out[i] = crossed
-            _CROSSED[keys[i]] = (surface, bool(crossed))
+            crossed_kept[keys[i]] = (surface, bool(crossed))
     return out
 
 
@@ -295,8 +298,9 @@ filled hollow under a part reaches that far into whatever its sockets hold (a wh
 raised stud base, a plate's recessed top), and stud mating already fixes their relative place."""
 
 
-_BODIES: dict[int, tuple] = {}
-"""Per placed structure part (by id; the `Placed` is kept so that its id is not reused): its index,
+_BODIES: dict[int, tuple] = DEFAULT.bodies
+"""The default checker's (each checker keeps its own, `CheckState.bodies`; the name is kept for
+tests that read it). Per placed structure part (by id; the `Placed` is kept so that its id is not reused): its index,
 its MJCF body, the meshes its geoms name, their `_GeomInfo`s and its body pieces' faces (`_pieces`).
 A growing structure keeps its parts, so each step's scene writes and hulls only the new part's.
 Before, every scene did it for every part again: 8.8 s of 44 s of checks in a 3-object build (20-90
@@ -304,12 +308,13 @@ parts, 226 steps, one process, cProfile) on the 2-core machine; 5.2 s after, of 
 compile 2.4 s and the candidate's pieces 2.0 s (kept since: `_UNIT_PIECES`)."""
 
 BODIES_KEPT = 8192
-"""Placed parts kept before `_BODIES` is emptied (a few kB each)."""
+"""Placed parts kept before a checker's `bodies` is emptied (a few kB each)."""
 
 
 def _structure_body(placed, idx: int) -> tuple:
     """(body MJCF, ((mesh name, vertices text), ...), geom infos, pieces) of structure part `idx`."""
-    hit = _BODIES.get(id(placed))
+    kept = current().bodies
+    hit = kept.get(id(placed))
     if hit is None or hit[0] is not placed or hit[1] != idx:
         shape = collision_shape(placed.part)
         meshes: dict[str, str] = {}
@@ -317,15 +322,16 @@ def _structure_body(placed, idx: int) -> tuple:
         pos, quat = placed.pose.to_mujoco_quat()
         geoms = CollisionScene._geoms(shape, meshes, idx, info)
         body = f'<body name="s{idx}" pos="{_fmt(pos)}" quat="{_fmt(quat)}">{geoms}</body>'
-        if len(_BODIES) >= BODIES_KEPT:
-            _BODIES.clear()
-        hit = _BODIES[id(placed)] = (placed, idx, body, tuple(meshes.items()), tuple(info),
+        if len(kept) >= BODIES_KEPT:
+            kept.clear()
+        hit = kept[id(placed)] = (placed, idx, body, tuple(meshes.items()), tuple(info),
                                      _pieces([(placed.pose, shape, idx)]))
     return hit[2:]
 
 
-_UNIT_PIECES: dict[tuple, tuple] = {}
-"""`_pieces` of a candidate unit by its shapes and their poses in the unit (the shapes are kept so
+_UNIT_PIECES: dict[tuple, tuple] = DEFAULT.unit_pieces
+"""The default checker's (each checker keeps its own, `CheckState.unit_pieces`; the name is kept
+for tests that empty it). `_pieces` of a candidate unit by its shapes and their poses in the unit (the shapes are kept so
 that their ids are not reused): the sampler builds a scene per structure and part type, and the
 part's pieces, in the unit's frame, are the same in every one."""
 
@@ -333,11 +339,12 @@ part's pieces, in the unit's frame, are the same in every one."""
 def _unit_pieces(unit) -> tuple:
     shapes = [collision_shape(part) for part, _ in unit]
     key = tuple((id(shape), rel.R.tobytes(), rel.t.tobytes()) for shape, (_, rel) in zip(shapes, unit))
-    hit = _UNIT_PIECES.get(key)
+    kept = current().unit_pieces
+    hit = kept.get(key)
     if hit is None or any(a is not b for a, b in zip(hit[0], shapes)):
-        if len(_UNIT_PIECES) >= BODIES_KEPT:
-            _UNIT_PIECES.clear()
-        hit = _UNIT_PIECES[key] = (shapes, _pieces([(rel, shape, -1) for shape, (_, rel) in zip(shapes, unit)]))
+        if len(kept) >= BODIES_KEPT:
+            kept.clear()
+        hit = kept[key] = (shapes, _pieces([(rel, shape, -1) for shape, (_, rel) in zip(shapes, unit)]))
     return hit[1]
 
 

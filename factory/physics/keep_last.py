@@ -2,16 +2,13 @@
 
 One object grown at a time asks about one structure in a row (batches, redraws of one part), so
 one entry is enough. Objects grown in lockstep (`factory.sampler.lockstep`) ask about each of
-theirs in turn, so the grower widens these caches to its batch for as long as it runs
-(`widened`)."""
+theirs in turn, so the grower has its checker hold as many (`checker.Checker.holding`) for as long
+as it runs. Each checker owns its own caches (`check_state.CheckState`); nothing here is shared."""
 
 from __future__ import annotations
 
 from collections import OrderedDict
-from contextlib import contextmanager
 from typing import Any, Callable
-
-_ALL: list["KeepLast"] = []
 
 
 class KeepLast:
@@ -22,31 +19,24 @@ class KeepLast:
     def __init__(self, capacity: int = 1) -> None:
         self.capacity = capacity
         self._entries: OrderedDict[Any, tuple[Any, Any]] = OrderedDict()
-        _ALL.append(self)
+
+    def __len__(self) -> int:
+        return len(self._entries)
 
     def get(self, key, held, build: Callable[[], Any]):
         entry = self._entries.get(key)
         if entry is None:
             entry = (held, build())
             self._entries[key] = entry
-            while len(self._entries) > self.capacity:
-                self._entries.popitem(last=False)
+            self.trim()
         else:
             self._entries.move_to_end(key)
         return entry[1]
 
+    def trim(self) -> None:
+        """Drop the oldest entries past `capacity`."""
+        while len(self._entries) > self.capacity:
+            self._entries.popitem(last=False)
 
-@contextmanager
-def widened(capacity: int):
-    """Every cache keeps at least `capacity` entries inside the block; back to its own size (and
-    its newest entries) after."""
-    old = [(c, c.capacity) for c in _ALL]
-    for c, cap in old:
-        c.capacity = max(cap, capacity)
-    try:
-        yield
-    finally:
-        for c, cap in old:
-            c.capacity = cap
-            while len(c._entries) > cap:
-                c._entries.popitem(last=False)
+    def clear(self) -> None:
+        self._entries.clear()

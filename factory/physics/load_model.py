@@ -28,6 +28,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from factory.connections import STUD_RADIUS
+from factory.physics.check_state import current
 from factory.physics.geometry import collision_shape
 from factory.physics.mass import part_mass_properties
 from factory.physics.structure import Placed, lowest_point
@@ -100,13 +101,11 @@ class LoadModel:
         return len(self.mass)
 
 
-_SUPPORT_CACHE: dict = {}
-
-
 def support_points(placed: Placed, floor_y: float, cfg: LoadConfig) -> np.ndarray:
     """(k, 3) support points of a part on the ground at LDraw height floor_y (may be empty)."""
     key = (id(placed), round(floor_y, 6), cfg.ground_tol_ldu, cfg.support_points)
-    hit = _SUPPORT_CACHE.get(key)
+    kept = current().supports  # the checker's (`CheckState.supports`)
+    hit = kept.get(key)
     if hit is not None and hit[0] is placed:
         return hit[1]
     shape = collision_shape(placed.part)
@@ -120,9 +119,9 @@ def support_points(placed: Placed, floor_y: float, cfg: LoadConfig) -> np.ndarra
         out = np.column_stack([xz[:, 0], np.full(len(xz), floor_y), xz[:, 1]])
     else:
         out = np.zeros((0, 3))
-    if len(_SUPPORT_CACHE) > 4096:
-        _SUPPORT_CACHE.clear()
-    _SUPPORT_CACHE[key] = (placed, out)
+    if len(kept) > 4096:
+        kept.clear()
+    kept[key] = (placed, out)
     return out
 
 

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import math
 import os
-import weakref
 from concurrent.futures import ThreadPoolExecutor
+from contextvars import copy_context
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -24,8 +24,8 @@ from scipy.spatial import ConvexHull
 
 from factory.parts import Part
 from factory.physics.geometry import INSET_LDU, collision_shape
-from factory.physics.keep_last import KeepLast
-from factory.physics.structure import Placed, Structure
+from factory.physics.check_state import current
+from factory.physics.structure import Structure
 from factory.physics.sweep import _boxes, box_interval
 from factory.pose import Pose
 
@@ -217,10 +217,9 @@ def _part_pieces(part: Part, pose: Pose) -> _PartPieces:
                        _piece_boxes(len(tp.stud), rows))
 
 
-_PLACED: "weakref.WeakKeyDictionary[Placed, _PartPieces]" = weakref.WeakKeyDictionary()
-"""A structure's parts' pieces, by part placed: a structure grown by one part turns and moves only
-that part's (it was a whole rebuild at every step, about 7 ms for 80 parts on the development
-machine)."""
+# A structure's parts' pieces are kept by part placed (the checker's `CheckState.placed_pieces`):
+# a structure grown by one part turns and moves only that part's (it was a whole rebuild at every
+# step, about 7 ms for 80 parts on the development machine).
 
 
 def _joined(pieces: Sequence[_PartPieces]) -> PieceSet:
@@ -244,28 +243,30 @@ def _set_of(items: Sequence[tuple[Part, Pose]]) -> PieceSet:
     return _joined([_part_pieces(part, pose) for part, pose in items])
 
 
-_STRUCTURE, _UNIT = KeepLast(), KeepLast()
-"""The last structure's and unit's pieces: the sampler checks one part against one structure in
-several calls per step."""
+# The last structures' and units' pieces are the checker's (`CheckState.structure_pieces`,
+# `unit_sets`): the sampler checks one part against one structure in several calls per step.
 
 
 def unit_set(rel: Sequence[tuple[Part, Pose]]) -> PieceSet:
     """The unit's pieces in its own frame, kept for the last unit."""
     key = tuple((id(part), pose.R.tobytes(), pose.t.tobytes()) for part, pose in rel)
-    return _UNIT.get(key, [part for part, _ in rel], lambda: _set_of(rel))
+    return current().unit_sets.get(key, [part for part, _ in rel], lambda: _set_of(rel))
 
 
 def structure_set(structure: Structure) -> tuple[PieceSet, np.ndarray]:
     """The structure's pieces in the world and its parts' boxes, kept for the last structure."""
+    state = current()
+
     def build():
+        kept = state.placed_pieces
         pieces = []
         for p in structure.placed:
-            if p not in _PLACED:
-                _PLACED[p] = _part_pieces(p.part, p.pose)
-            pieces.append(_PLACED[p])
+            if p not in kept:
+                kept[p] = _part_pieces(p.part, p.pose)
+            pieces.append(kept[p])
         return _joined(pieces), _boxes([(p.part, p.pose) for p in structure.placed])
 
-    return _STRUCTURE.get(tuple(id(p) for p in structure.placed), list(structure.placed), build)
+    return state.structure_pieces.get(tuple(id(p) for p in structure.placed), list(structure.placed), build)
 
 
 # --- Pairs near each candidate --------------------------------------------------------------------
@@ -334,8 +335,10 @@ def in_chunks(fn, count: int) -> tuple:
     if len(spans) <= 1 or PAIR_THREADS <= 1:
         parts = [fn(a, b) for a, b in spans]
     else:
+        # Each chunk in a copy of this thread's context: the checker's state (`check_state`) too.
+        runs = [(copy_context(), span) for span in spans]
         with ThreadPoolExecutor(min(PAIR_THREADS, len(spans))) as pool:
-            parts = list(pool.map(lambda span: fn(*span), spans))
+            parts = list(pool.map(lambda run: run[0].run(fn, *run[1]), runs))
     return tuple(np.concatenate(x) for x in zip(*parts))
 
 

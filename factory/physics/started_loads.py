@@ -18,6 +18,7 @@ from functools import cached_property
 
 import numpy as np
 
+from factory.physics.check_state import DEFAULT, current
 from factory.physics.load_model import LoadConfig, LoadModel
 from factory.physics.load_program import PER_CONNECTION, PER_LINK, PER_SUPPORT, capacity_rows, to_lp
 from factory.physics.lp import BASIS_STATUS, Basis, LPResult, solve_highs_from
@@ -26,9 +27,10 @@ WARM_START = True
 """Whether the reference starts a candidate's program from the structure's solved one (`check_loads.py`);
 off, every program starts from nothing (as tests compare)."""
 
-WARM_COUNTS: dict[str, int] = {"started": 0, "cold": 0, "iterations": 0}
-"""Programs of this process solved by `solve_from`: started from a basis, started from nothing, and
-their simplex iterations."""
+WARM_COUNTS: dict[str, int] = DEFAULT.warm_counts
+"""The default checker's count of programs solved by `solve_from`: started from a basis, started
+from nothing, and their simplex iterations (each checker counts its own, `CheckState.warm_counts`,
+read with `Checker.counters()`; the name is kept for tests that read and reset it)."""
 
 _ROUND = 1e4  # keys of stud bases and support points, to 1e-4 LDU
 
@@ -133,6 +135,7 @@ def solve_from(model: LoadModel, cfg: LoadConfig = LoadConfig(),
     keys = ProgramKeys.of(model)
     basis = start_basis(start, model, cfg, keys) if start is not None and WARM_START else None
     result, final, iterations = solve_highs_from(to_lp(model, cfg), basis)
-    WARM_COUNTS["started" if basis is not None else "cold"] += 1
-    WARM_COUNTS["iterations"] += max(iterations, 0)
+    counts = current().warm_counts
+    counts["started" if basis is not None else "cold"] += 1
+    counts["iterations"] += max(iterations, 0)
     return result, None if final is None else Solved(final, keys)

@@ -23,7 +23,7 @@ whole call is swept on the CPU instead.
 - not connected, stud-body: the scene ignores a stud standing in the other part's hollow
   (`collide.stud_crosses`, a probe of the real surface at each pose), which is not written here.
   Such a pair is **undecided**: a candidate blocked by a decided pair is blocked whatever it does;
-  one that only an undecided pair could block is swept by `sweep.sweep` on the CPU (`COUNTS`).
+  one that only an undecided pair could block is swept by `sweep.sweep` on the CPU (counted: `COUNTS`).
 
 A unit is blocked when a counted interval meets s > 0 (s = 0, the final pose, is the collision
 check's). One blocked only further out than `sweep.PRESS_LDU` is swept by `sweep.sweep` on the
@@ -58,6 +58,7 @@ from typing import Sequence
 import numpy as np
 
 from factory.parts import Part
+from factory.physics.check_state import DEFAULT, current
 from factory.physics.collide import CONNECTED_SLACK_LDU, CollisionScene
 from factory.physics.geometry import INSET_LDU
 from factory.physics.pair_kernels import intervals_many
@@ -69,8 +70,9 @@ from factory.pose import Pose
 
 _CLEAR, _BLOCKED, _UNDECIDED = 0, 1, 2
 """States of a side sweep's unit (`_SweepJob.states`)."""
-COUNTS: Counter = Counter()
-"""Candidates by how they were judged: 'device', 'referred' (swept on the CPU: only an undecided
+COUNTS: Counter = DEFAULT.sweep_counts
+"""The default checker's count (each checker counts its own, `CheckState.sweep_counts`, read with
+`Checker.counters()`; the name is kept for tests that read it) of candidates by how they were judged: 'device', 'referred' (swept on the CPU: only an undecided
 stud-body pair could block them), 'not-judged' (no approach), 'cpu' (tolerance below the insets)."""
 
 
@@ -155,7 +157,7 @@ class _SweepJob:
                                          for i, unit in enumerate(units)])
             for i, found in enumerate(found_all):
                 if found.direction is None:
-                    COUNTS["not-judged"] += 1
+                    current().sweep_counts["not-judged"] += 1
                     self.results[i] = SweepResult(False if found.reason == "clamped" else None, found.reason, (), 0.0,
                                                   0.0, 0)
                 else:
@@ -175,7 +177,7 @@ class _SweepJob:
             self.states[:] = _UNDECIDED
             if not self.side_of:
                 for i, _ in dirs:
-                    COUNTS["cpu"] += 1
+                    current().sweep_counts["cpu"] += 1
                     self.results[i] = self.cpu(i)
             return
         idx = self.idx
@@ -210,12 +212,12 @@ class _SweepJob:
         for row, st in zip(self.pending, states):
             i = self.idx[row]
             if (st == _CLEAR).any():
-                COUNTS["device"] += 1
+                current().sweep_counts["device"] += 1
                 self.results[i] = SweepResult(True, None, (), float("nan"), PRESS_LDU, 0)
             elif (st == _BLOCKED).all():
-                COUNTS["device"] += 1
+                current().sweep_counts["device"] += 1
             else:
-                COUNTS["referred"] += 1
+                current().sweep_counts["referred"] += 1
                 self.results[i] = self.cpu(i)
         self.pending = []
 
@@ -289,22 +291,22 @@ class _SweepJob:
                 # (`sweep._pressed_last`) is asked of the device too (`sides`), unless an undecided
                 # pair may block it, when the CPU sweeps it.
                 if maybe_near[row]:
-                    COUNTS["referred"] += 1
+                    current().sweep_counts["referred"] += 1
                     results[i] = self.cpu(i)
                 else:
                     self.pending.append(row)
                     results[i] = SweepResult(False, "blocked", tuple(sorted(blockers.get(row, ()))), float("nan"),
                                              round(float(top[row]), 4), 0)
             elif np.isfinite(top[row]) and not pressed_min[row]:
-                COUNTS["referred"] += 1
+                current().sweep_counts["referred"] += 1
                 results[i] = self.cpu(i)
             elif np.isfinite(top[row]):
-                COUNTS["device"] += 1
+                current().sweep_counts["device"] += 1
                 results[i] = SweepResult(False, "blocked", tuple(sorted(blockers.get(row, ()))), float("nan"),
                                          round(float(top[row]), 4), 0)
             elif maybe[row]:
-                COUNTS["referred"] += 1
+                current().sweep_counts["referred"] += 1
                 results[i] = self.cpu(i)
             else:
-                COUNTS["device"] += 1
+                current().sweep_counts["device"] += 1
                 results[i] = SweepResult(True, None, (), float("nan"), 0.0, 0)

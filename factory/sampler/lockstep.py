@@ -5,7 +5,7 @@ their verdicts back; its random choices come from its own stream, so it grows th
 objects share its rounds. A round asks every live object's pending batch at once; an object that
 ends leaves and the next index takes its slot, so the batch stays full until the indices run out.
 With the 'jax' backend the round's collision tests and sweeps go to the device together
-(`check.check_many`); each object's load programs are solved on the host, up to its first
+(`Checker.check_many`, the sampler's checker, which holds its caches for the whole batch); each object's load programs are solved on the host, up to its first
 candidate that stands.
 """
 
@@ -15,8 +15,6 @@ import time
 from dataclasses import replace
 from typing import TYPE_CHECKING, Iterable, Iterator
 
-from factory.physics.check import check_many
-from factory.physics.keep_last import widened
 
 if TYPE_CHECKING:
     from factory.sampler.assembly import Assembly
@@ -29,7 +27,7 @@ def grow_together(sampler: "Sampler", indices: Iterable[int], batch: int = 1) ->
     round's checking time, by its candidates' count."""
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
         raise ValueError(f"batch must be an integer >= 1, got {batch!r}")
-    cfg = sampler.config
+    checker = sampler.checker
     todo = iter(indices)
     live: list[list] = []  # [coroutine, pending request, check seconds]
 
@@ -47,11 +45,11 @@ def grow_together(sampler: "Sampler", indices: Iterable[int], batch: int = 1) ->
                 yield end.value
 
     # Each object's collision scene, load base and sweep pieces stay cached between its rounds.
-    with widened(batch):
+    with checker.holding(batch):
         yield from admit()
         while live:
             t0 = time.perf_counter()
-            answers = check_many([slot[1] for slot in live], cfg.backend, cfg.check, explain=False)
+            answers = checker.check_many([slot[1] for slot in live], explain=False)
             seconds = time.perf_counter() - t0
             total = sum(len(slot[1].poses) for slot in live) or 1
             still = []

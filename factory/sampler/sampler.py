@@ -39,6 +39,7 @@ from factory.ldraw import ColourTable, Reader, get_reader
 from factory.ldraw.colours import EDGE, MAIN
 from factory.parts import Part, load_part
 from factory.physics.check import CheckRequest, Verdict
+from factory.physics.checker import Checker
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
 from factory.sampler.assembly import Assembly, AssemblyStep
@@ -52,10 +53,19 @@ LIST_LIMIT = 80
 
 
 class Sampler:
-    """Grows objects under one configuration and library (`ldraw`: see `get_reader`)."""
+    """Grows objects under one configuration and library (`ldraw`: see `get_reader`), checked by
+    `checker` (a `Checker` of the config's `check` and `backend`; default one on the process's
+    default state, `Checker.shared`, whose caches and counters the module-level checks share)."""
 
-    def __init__(self, config: SamplerConfig = SamplerConfig(), ldraw: str | os.PathLike | None = None):
+    def __init__(self, config: SamplerConfig = SamplerConfig(), ldraw: str | os.PathLike | None = None,
+                 checker: Checker | None = None):
         self.config = config
+        if checker is None:
+            checker = Checker.shared(config.check, config.backend)
+        elif (checker.config, checker.backend) != (config.check, config.backend):
+            raise ValueError(f"the checker's config and backend ({checker.backend!r}) are not the sampler config's "
+                             f"check and backend ({config.backend!r}): objects would not be those of the config")
+        self.checker = checker
         self.reader = get_reader(ldraw)
         self.parts: list[Part] = _load_parts(self.reader, config)
         self.part_p = _probabilities([w for _, w in config.parts])
