@@ -1,0 +1,257 @@
+"""What physics does with a predicted placement: the part released at its pose and settled.
+
+The scene is the structure as it stands (its parts' collision pieces, as the checks use them,
+fixed), the floor plane at the table and the predicted part on a free joint with its real mass and
+inertia (`mass.part_mass_properties`), gravity along MuJoCo's -Z (LDraw -Y is up). `settle`:
+
+1. **Overlap first.** The checks' own overlap measure (`CollisionScene.penetration`, the floor
+   included) at the predicted pose; deeper than `SettleConfig.collides_ldu` → `collides`, nothing
+   simulated (a part that deep inside another cannot be told which way out it would go).
+2. **Snapping** (`snap.py` states the rule: 3 LDU across a stud axis, 4.5 LDU along it, 10 degrees,
+   up to the part's symmetry): before and during the simulation (every `snap_every` steps), a part
+   within tolerance of a valid stud connection is moved to that connection's pose and judged by
+   the checks (`check.check`, the floor fixed); the nearest one accepted → `rests-connected` at
+   exactly that pose. A candidate the checks reject is not snapped to (it would not hold).
+3. **Simulation** with `mujoco.mj_step` for at most `SettleConfig.seconds`, stopped once the part
+   has been at rest (`rest_speed_ldu_s`, `rest_spin_rad_s`) for `rest_seconds`. The end state:
+   - `pushed-out`: the predicted pose overlapped beyond the checks' tolerance
+     (`CheckConfig.max_penetration_ldu`, 0.5 LDU) and the end pose does not (still overlapping
+     beyond it: `collides`);
+   - `fell-off`: the part ends touching no structure part (the floor or nothing), and its lowest
+     point at the predicted pose was at least `fell_ldu` above the floor (it dropped to the table);
+   - `rests-unconnected`: anything else (on the structure without a connection, or on the table
+     where it was predicted near the table).
+
+`moved_ldu` is how far the part's centre of mass moved (symmetry-safe: a snapped pose may be
+the candidate turned by a symmetry). Same inputs, same result: MuJoCo C is deterministic and the
+snapping order is fixed. The collision pieces are inset by 0.25 LDU: the floor plane lies one
+inset above the table, so a part rests with its real surface on the table, but a part resting on
+another sits 0.5 LDU (two insets) lower than its real surfaces would (a contact margin of 0.5 LDU
+would lift it, but MuJoCo's margin made resting parts float and jitter).
+
+`settle_model` builds the scene's `MjModel` alone (the later batched MJX version puts it on the
+device with `mjx.put_model`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from factory.parts import Part
+from factory.physics.check import CheckConfig, check
+from factory.physics.collide import CollisionScene, _fmt, _structure_body, _template
+from factory.physics.geometry import INSET_LDU, collision_shape
+from factory.physics.mass import part_mass_properties
+from factory.physics.snap import SnapRule, SnapTargets
+from factory.physics.structure import Structure
+from factory.pose import LDRAW_TO_MUJOCO, LDU_M, Pose, points_to_mujoco
+
+OUTCOMES = ("rests-connected", "rests-unconnected", "fell-off", "pushed-out", "collides")
+
+
+@dataclass(frozen=True)
+class SettleConfig:
+    """Rules and MuJoCo constants of `settle`.
+
+    Contact parameters: the parts are a few grams and millimetres, so MuJoCo's default soft
+    contact (solref 0.02 s) lets a resting brick sink about a millimetre (2.5 LDU, more than a
+    plate's tolerance). A time constant of 4 ms (twice the 2 ms step, the least MuJoCo keeps
+    stable) with critical damping and a stiff impedance (0.95-0.99 over 1 LDU) keeps a resting
+    part within a few tenths of an LDU of its contact surface. Friction 0.5 (ABS on ABS is about
+    0.3-0.5; the load model's ground uses 0.8 for the table), elliptic cones, condim 3 (sliding
+    friction only: a brick on a brick does not roll).
+    """
+
+    collides_ldu: float = 4.0
+    """Deeper overlap at the predicted pose → `collides` without simulating (a stud's height: the
+    deepest a part can sit on studs it does not fit; deeper, it is inside the other part)."""
+    snap: SnapRule = field(default_factory=SnapRule)
+    seconds: float = 1.0
+    """Simulated at most (a brick dropped 30 LDU lands in 0.05 s; one tipping off a tower edge
+    reaches the table well within 0.5 s)."""
+    timestep: float = 0.001
+    snap_every: int = 10
+    """Steps between snapping tests while settling (10 ms: a falling brick moves at most a few LDU)."""
+    rest_ldu: float = 0.1
+    rest_degrees: float = 0.5
+    rest_seconds: float = 0.1
+    """At rest: the part's centre of mass moved at most `rest_ldu` and it turned at most
+    `rest_degrees` over the last `rest_seconds`. Measured over a window, not as a speed: a part on
+    several stiff contacts (a brick upside down on its 8 studs) keeps a tiny bounce (0.02 LDU, speeds
+    up to 6 LDU/s) that never lets its instantaneous speed settle."""
+    fell_ldu: float = 8.0
+    """`fell-off` needs the part's lowest point at least this high above the floor at first (a
+    plate's height: a part predicted on the table and sliding on it did not fall off anything)."""
+    friction: float = 0.5
+    solref: tuple[float, float] = (0.002, 1.0)
+    solimp: tuple[float, float, float] = (0.95, 0.99, 0.0004)
+    check: CheckConfig = field(default_factory=CheckConfig)
+    """The checks that judge a snapped pose (and the overlap tolerance of `pushed-out`)."""
+
+
+@dataclass(frozen=True)
+class Settled:
+    """Where a released part ends and how (`settle`)."""
+
+    outcome: str
+    """One of `OUTCOMES`."""
+    pose: Pose
+    """The settled pose (LDraw frame, LDU); the predicted pose for `collides` before simulating."""
+    moved_ldu: float
+    """How far the part's centre of mass moved from the predicted pose."""
+    connections: int
+    """Stud connections at the settled pose."""
+    seconds: float
+    """Simulated time (0.0 when decided before simulating)."""
+    at_rest: bool = True
+    """False when the simulation ran out of time with the part still moving."""
+
+
+@dataclass
+class SettleScene:
+    """A compiled settling scene of one (structure, part): `model` and what `settle` reads of it."""
+
+    model: mujoco.MjModel
+    part_body: int
+    floor_geom: int
+    owner: np.ndarray
+    """Per geom: structure part index, -1 for the part's own geoms, -2 for the floor."""
+
+
+def settle_model(structure: Structure, part: Part, floor_y: float, config: "SettleConfig" = SettleConfig(),
+                 pose: Pose | None = None) -> SettleScene:
+    """The settling scene of `part` on `structure` (the floor at LDraw height `floor_y`), the part's
+    free joint at `pose` in `qpos0` (identity when None; `settle` sets qpos itself). One model per
+    (structure, part type): a batch of predicted poses of one part only changes qpos."""
+    meshes: dict[str, str] = {}
+    bodies, owners = [], []
+    for idx, placed in enumerate(structure.placed):
+        body, body_meshes, body_info, _ = _structure_body(placed, idx)
+        bodies.append(body)
+        for name, verts in body_meshes:
+            meshes.setdefault(name, verts)
+        owners.extend(gi.owner for gi in body_info)
+    info: list = []
+    part_geoms = CollisionScene._geoms(collision_shape(part), meshes, -1, info)
+    owners.extend(gi.owner for gi in info)
+    mass, com, inertia = part_mass_properties(part)
+    i_mj = LDRAW_TO_MUJOCO @ inertia @ LDRAW_TO_MUJOCO.T
+    full = [i_mj[0, 0], i_mj[1, 1], i_mj[2, 2], i_mj[0, 1], i_mj[0, 2], i_mj[1, 2]]
+    inertial = f'<inertial pos="{_fmt(points_to_mujoco(com))}" mass="{mass:.7g}" fullinertia="{_fmt(full)}"/>'
+    pos, quat = (pose or Pose.identity()).to_mujoco_quat()
+    xml = _template("settle.xml").format(
+        timestep=f"{config.timestep:.7g}", condim=3, friction=f"{config.friction:.7g} 0.005 0.0001",
+        solref=_fmt(config.solref), solimp=_fmt(config.solimp),
+        assets="".join(f'<mesh name="{n}" vertex="{v}"/>' for n, v in meshes.items()),
+        floor_z=f"{-(floor_y - INSET_LDU) * LDU_M:.7g}", structure="".join(bodies), pos=_fmt(pos), quat=_fmt(quat),
+        inertial=inertial, part=part_geoms)
+    model = mujoco.MjModel.from_xml_string(xml)
+    floor = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+    owner = np.full(model.ngeom, -2, np.int64)
+    order = [g for g in range(model.ngeom) if g != floor]  # geoms in the order written, floor first
+    owner[order] = owners
+    return SettleScene(model, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "part"), floor, owner)
+
+
+class _Judge:
+    """Snapping with the checks: candidates near a pose, judged once each."""
+
+    def __init__(self, structure: Structure, part: Part, floor_y: float, config: SettleConfig):
+        self.structure, self.part, self.floor_y, self.config = structure, part, floor_y, config
+        self.targets = SnapTargets.of(structure, part)
+        self.judged: dict[int, int | None] = {}  # candidate -> connections when accepted, else None
+
+    def snap(self, pose: Pose) -> tuple[Pose, int] | None:
+        for c, snapped, _ in self.targets.near(pose, self.config.snap):
+            if c not in self.judged:
+                (v,) = check(self.structure, self.part, [snapped], config=self.config.check, floor_y=self.floor_y)
+                self.judged[c] = v.connections if v.ok else None
+            if self.judged[c] is not None:
+                return snapped, self.judged[c]
+        return None
+
+
+def _pose_of(data: mujoco.MjData, body: int) -> Pose:
+    return Pose.from_mujoco(data.xpos[body], data.xmat[body].reshape(3, 3))
+
+
+def settle(structure: Structure, part: Part, pose: Pose, floor_y: float | None = None,
+           config: SettleConfig = SettleConfig()) -> Settled:
+    """Release `part` at `pose` (LDraw frame) on `structure` and let it settle (module docstring).
+    `floor_y`: the table's LDraw height, by default the structure's lowest point."""
+    if floor_y is None:
+        floor_y = structure.floor_y() if len(structure) else float(pose.apply(part.hull_points)[:, 1].max())
+    _, com, _ = part_mass_properties(part)
+    moved = lambda p: float(np.linalg.norm(p.apply(com) - pose.apply(com)))  # noqa: E731
+    conns = lambda p: len(structure.connections_with(part, p))  # noqa: E731
+    overlap = CollisionScene(structure, [(part, Pose.identity())], floor_y)
+    connected = lambda p: {i for i, _ in structure.connections_with(part, p)}  # noqa: E731
+    depth0, _ = overlap.penetration(pose, connected(pose))
+    if depth0 > config.collides_ldu:
+        return Settled("collides", pose, 0.0, conns(pose), 0.0)
+    judge = _Judge(structure, part, floor_y, config)
+    hit = judge.snap(pose)
+    if hit is not None:
+        return Settled("rests-connected", hit[0], moved(hit[0]), hit[1], 0.0)
+
+    scene = settle_model(structure, part, floor_y, config)
+    model, data = scene.model, mujoco.MjData(scene.model)
+    pos, quat = pose.to_mujoco_quat()
+    data.qpos[:3], data.qpos[3:7] = pos, quat
+    mujoco.mj_forward(model, data)
+    steps = int(round(config.seconds / config.timestep))
+    window = max(1, int(np.ceil(config.rest_seconds / (config.timestep * config.snap_every))))
+    history: list[Pose] = [pose]  # the pose after every chunk of `snap_every` steps
+    done, at_rest = 0, False
+    while done < steps:
+        n = min(config.snap_every, steps - done)
+        mujoco.mj_step(model, data, nstep=n)
+        done += n
+        now = _pose_of(data, scene.part_body)
+        hit = judge.snap(now)
+        if hit is not None:
+            return Settled("rests-connected", hit[0], moved(hit[0]), hit[1], done * config.timestep)
+        history.append(now)
+        if len(history) > window and _still(history[-window - 1:], com, config):
+            at_rest = True
+            break
+    mujoco.mj_forward(model, data)
+    end = _pose_of(data, scene.part_body)
+    seconds = done * config.timestep
+    tolerance = config.check.max_penetration_ldu
+    if depth0 > tolerance:
+        depth, _ = overlap.penetration(end, connected(end))
+        outcome = "pushed-out" if depth <= tolerance else "collides"
+        return Settled(outcome, end, moved(end), conns(end), seconds, at_rest)
+    touched = _touched(data, scene)
+    dropped = floor_y - float(pose.apply(part.hull_points)[:, 1].max())
+    fell = len(structure) and not (touched - {-2}) and dropped >= config.fell_ldu
+    outcome = "fell-off" if fell else "rests-unconnected"
+    return Settled(outcome, end, moved(end), conns(end), seconds, at_rest)
+
+
+def _still(poses: list[Pose], com: np.ndarray, config: SettleConfig) -> bool:
+    """Whether every pose of the window lies within the rest bounds of the last one."""
+    last = poses[-1]
+    for p in poses[:-1]:
+        if np.linalg.norm(p.apply(com) - last.apply(com)) > config.rest_ldu:
+            return False
+        cos = np.clip((np.trace(p.R.T @ last.R) - 1.0) / 2.0, -1.0, 1.0)
+        if np.degrees(np.arccos(cos)) > config.rest_degrees:
+            return False
+    return True
+
+
+def _touched(data: mujoco.MjData, scene: SettleScene) -> set[int]:
+    """Structure parts (and -2 for the floor) in contact with the part."""
+    n = data.ncon
+    if not n:
+        return set()
+    g1 = np.asarray(data.contact.geom1[:n], np.int64)
+    g2 = np.asarray(data.contact.geom2[:n], np.int64)
+    o1, o2 = scene.owner[g1], scene.owner[g2]
+    other = np.where(o1 == -1, o2, o1)
+    return {int(o) for o in other[(o1 == -1) | (o2 == -1)] if o != -1}
