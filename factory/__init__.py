@@ -6,6 +6,8 @@
     found = factory.verify("model.mpd", ldraw="complete.zip", faults=True)   # verify a design
     found.summary["stud_fidelity"], found.rejected, found.to_json()
     factory.build_dataset(factory.DatasetConfig.synthetic(8, seed=0), "out/synth")  # build a dataset
+    checker = factory.Checker(factory.CheckConfig(), "cpu")            # check placements yourself
+    checker.check(structure, part, poses)                               # -> [Verdict]
 
 `build_dataset` and `DatasetConfig` are the dataset builder's (`pipelines.dataset.build` and
 its config), loaded on first use: the builder sits above the dataset contract (`factory.dataset`),
@@ -36,6 +38,9 @@ from factory.ldraw import (
     read_steps,
 )
 from factory.parts import Part, load_part
+from factory.physics import Checker
+from factory.physics.structure import Placed, Structure
+from factory.physics.verdict import CheckConfig, Verdict
 from factory.pose import LDU_M, Pose
 from factory.replay import Verification, verify
 from factory.sampler import Assembly, AssemblyStep, Sampler, SamplerConfig, SamplerConfigError, grow
@@ -57,6 +62,8 @@ __all__ = [
     "Assembly",
     "AssemblyStep",
     "BuildStep",
+    "CheckConfig",
+    "Checker",
     "Colour",
     "ColourTable",
     "Connector",
@@ -70,13 +77,16 @@ __all__ = [
     "LDrawUnsafePathError",
     "Library",
     "Part",
+    "Placed",
     "PlacedPart",
     "Pose",
     "Reader",
     "Sampler",
     "SamplerConfig",
     "SamplerConfigError",
+    "Structure",
     "Symmetry",
+    "Verdict",
     "Verification",
     "build_dataset",
     "build_steps",

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from pipelines import results
+from pipelines import apiref, results
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -70,7 +70,8 @@ def test_no_dated_or_measured_heading(path):
     assert not bad, f"{path.relative_to(ROOT)}: dated or 'Measured' headings {bad}; measurements go to bench/results"
 
 
-@pytest.mark.parametrize("path", [p for p in PAGES if p != GENERATED], ids=lambda p: str(p.relative_to(ROOT)))
+@pytest.mark.parametrize("path", [p for p in PAGES if p not in (GENERATED, apiref.PAGE)],
+                         ids=lambda p: str(p.relative_to(ROOT)))
 def test_pages_are_short(path):
     n = len(path.read_text().splitlines())
     assert n <= MAX_LINES, f"{path.relative_to(ROOT)} has {n} lines (at most {MAX_LINES}): split it"
@@ -96,6 +97,18 @@ def test_relative_links_resolve(path):
 def test_slug_is_githubs():
     assert slug("## The staged recipe: `make train RECIPE=staged`") == "the-staged-recipe-make-train-recipestaged"
     assert slug("### FSDP: full fine-tuning (`--shard fsdp`)") == "fsdp-full-fine-tuning---shard-fsdp"
+
+
+def test_api_reference_is_the_docstrings():
+    """docs/reference/api.md is what `python -m pipelines.apiref` writes from `factory`'s public
+    names: one section each, dataclass fields with the docstrings under them."""
+    text = apiref.render()
+    assert apiref.PAGE.read_text() == text, "docs/reference/api.md is stale: run python -m pipelines.apiref"
+    assert apiref.main(["--check"]) == 0
+    import factory
+
+    assert all(f"### `{name}` (" in text for name in factory.__all__)
+    assert "| `max_penetration_ldu` | `float` | `0.5` | Deepest overlap accepted (LDU)" in text
 
 
 def test_results_page_is_not_stale():
