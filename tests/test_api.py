@@ -69,7 +69,7 @@ def test_verify_gives_a_typed_result_and_the_command_prints_its_records(tmp_path
 
 
 def test_build_dataset_is_the_builders_and_builds(tmp_path):
-    from conftest import tiny_dataset_config
+    from dataset_support import tiny_dataset_config
     from pipelines.dataset import DatasetConfig, build
 
     assert factory.build_dataset is build and factory.DatasetConfig is DatasetConfig

@@ -20,10 +20,10 @@ import pyarrow.parquet as pq
 import pytest
 from PIL import Image
 
-from conftest import LDRAW, needs_ldraw
 from eval.data import iter_rows, load_targets
 from eval.predict import predict_file
 from eval.score import score_file
+from ldraw_support import LDRAW, needs_ldraw
 from pipelines.bcbench import (
     EXTENSION,
     VIEW_NAMES,

@@ -13,7 +13,7 @@ from factory.physics.check import CheckConfig, check
 from factory.physics.check_state import CheckState
 from factory.physics.structure import Structure
 from factory.sampler import Sampler, SamplerConfig
-from conftest import at
+from ldraw_support import at
 
 PARTS = {"3001": 1.0, "3003": 1.0, "3004": 1.0, "3020": 1.0, "3022": 0.5, "3039": 0.5, "3068b": 0.3}
 TINY = dict(parts=PARTS, colours=[4, 1, 15], min_steps=2, max_steps=4, candidates_per_step=8, check_batch=4)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import LDRAW, MODELS, needs_ldraw
+from ldraw_support import LDRAW, MODELS, needs_ldraw
 
 ROOT = Path(__file__).resolve().parents[1]
 

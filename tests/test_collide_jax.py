@@ -7,7 +7,6 @@ import pytest
 
 pytest.importorskip("jax")
 
-from conftest import part  # noqa: E402
 from factory.physics import collide_jax  # noqa: E402
 from factory.physics.attach import attachment_arrays  # noqa: E402
 from factory.physics.check import _unit_connections  # noqa: E402
@@ -15,6 +14,7 @@ from factory.physics.collide import CollisionScene  # noqa: E402
 from factory.physics.structure import Placed, Structure  # noqa: E402
 from factory.pose import Pose  # noqa: E402
 from factory.sampler import Sampler, SamplerConfig  # noqa: E402
+from ldraw_support import part  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conftest import tiny_dataset_config
+from dataset_support import tiny_dataset_config
 from factory.dataset.tasks import TASKS
 from factory.cli import config_from_args
 from factory.config import ConfigError, config_from_dict, config_to_dict, field_docs

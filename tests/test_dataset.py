@@ -35,7 +35,8 @@ from pipelines.dataset import (
     summary_line,
 )
 from factory.dataset.schema import IMAGE_COLUMNS, SCHEMA, features_json
-from conftest import assert_workers_end_with_killed_parent, tiny_dataset_config
+from dataset_support import tiny_dataset_config
+from process_support import assert_workers_end_with_killed_parent
 
 ROOT = Path(__file__).resolve().parents[1]
 CLI_ARGS = ["--n", "3", "--seed", "0", "--min-steps", "2", "--max-steps", "3", "--candidates", "16",

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import tiny_dataset_config
+from dataset_support import tiny_dataset_config
 from factory.dataset.info import json_bytes
 from factory.physics.check import BACKENDS, backend_name, check
 from factory.sampler import SamplerConfig, SamplerConfigError

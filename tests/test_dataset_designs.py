@@ -17,7 +17,7 @@ import pytest
 from factory import read_steps
 from pipelines.dataset.sources import manual_steps
 
-from conftest import SHARED
+from ldraw_support import SHARED
 
 ROOT = Path(__file__).resolve().parents[1]
 TOWER = ROOT / "factory" / "data" / "examples" / "tower.mpd"

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import LDRAW, SHARED, needs_ldraw
+from ldraw_support import LDRAW, SHARED, needs_ldraw
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = [ROOT / "README.md", ROOT / "docs" / "quickstart.md", *sorted((ROOT / "docs" / "guides").glob("*.md"))]

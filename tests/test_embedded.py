@@ -9,7 +9,7 @@ from factory.embedded import generate_library
 from factory.ldraw import ColourTable, get_reader
 from factory.parts import load_part
 
-from conftest import LDRAW, LIBRARY_ZIP, needs_ldraw
+from ldraw_support import LDRAW, LIBRARY_ZIP, needs_ldraw
 
 EMBEDDED_PARTS = sorted(
     k.rsplit("/", 1)[-1] for k in generate_library() if k.startswith("parts/") and k.count("/") == 1

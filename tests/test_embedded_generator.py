@@ -20,7 +20,7 @@ from factory.ldraw import Library, Reader
 from factory.ldraw.library import MemorySource
 from factory.ldraw.parse import parse_lines
 
-from conftest import SHARED
+from ldraw_support import SHARED
 
 REAL = SHARED / "ldraw"
 needs_real = pytest.mark.skipif(

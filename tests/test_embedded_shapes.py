@@ -21,7 +21,7 @@ from factory.embedded.geometry import Mesh, bored_prism, lathe, prism
 from factory.ldraw import Library, Reader
 from factory.parts import load_part
 
-from conftest import LIBRARY_ZIP
+from ldraw_support import LIBRARY_ZIP
 
 REAL_ZIP = LIBRARY_ZIP
 

@@ -10,7 +10,7 @@ import shutil
 import pytest
 
 from factory.dataset.info import INFO_SOURCES
-from conftest import LDRAW as SHARED_LDRAW
+from ldraw_support import LDRAW as SHARED_LDRAW
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ from factory.errors import LDrawError, LDrawMissingFileError, LDrawUnsafePathErr
 from factory.ldraw import Library, Reader, build_steps, get_reader
 from factory.ldraw.library import check_reference
 
-from conftest import BOX, LDRAW, needs_ldraw
+from ldraw_support import BOX, LDRAW, needs_ldraw
 
 
 def model(write, text, name="m.ldr"):
@@ -153,7 +153,7 @@ def test_a_zip_library_is_read_in_place_like_its_folder(tmp_path, top):
 
     from factory.ldraw import read_steps
     from factory.parts import load_part
-    from conftest import MODELS
+    from ldraw_support import MODELS
 
     zipped = Reader(Library.from_path(_zip_of(LDRAW, tmp_path / "complete.zip", top)))
     folder = Reader(Library.from_path(LDRAW))

@@ -20,7 +20,7 @@ from factory.symmetry import find_symmetry, symmetry_cached
 from pipelines.prepare import pack, survey, unpack
 from pipelines.realism import compare, coverage, read_collection
 
-from conftest import LDRAW, needs_ldraw
+from ldraw_support import LDRAW, needs_ldraw
 
 ROOT = Path(__file__).resolve().parents[1]
 

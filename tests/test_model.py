@@ -11,7 +11,7 @@ from factory.ldraw.model import is_submodel
 from factory.ldraw.reader import Resolved
 from factory.pose import Pose
 
-from conftest import MODELS, needs_ldraw
+from ldraw_support import MODELS, needs_ldraw
 
 
 def flattened_part_count(reader: Reader, res: Resolved) -> int:

@@ -8,7 +8,7 @@ import pytest
 from factory.parts import load_part
 from factory.symmetry import find_symmetry, rotation_about
 
-from conftest import LDRAW, needs_ldraw
+from ldraw_support import LDRAW, needs_ldraw
 
 pytestmark = needs_ldraw
 

@@ -19,7 +19,7 @@ from factory.physics import attach, collide
 from factory.physics.attach import attachment_arrays, feasible_poses
 from factory.physics.structure import Placed, Structure, align, canonical_key, match
 from factory.symmetry import rotation_about
-from conftest import at, part
+from ldraw_support import at, part
 
 ROOT = Path(__file__).resolve().parents[1]
 I3 = np.eye(3)

@@ -288,7 +288,7 @@ def test_candidate_density_is_the_hull_volume_convex_hull_gives(twelve_parts):
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc; the parent-death signal is Linux's")
 def test_sample_workers_end_with_a_killed_command(tmp_path):
     """`kill -9` of `pipelines.sample --workers 2` ends its worker processes too."""
-    from conftest import assert_workers_end_with_killed_parent
+    from process_support import assert_workers_end_with_killed_parent
 
     env = {k: v for k, v in os.environ.items() if k != "LDRAWDIR"}
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")

@@ -16,7 +16,7 @@ from factory.physics.settle import OUTCOMES, SettleConfig, settle, settle_model
 from factory.physics.snap import SnapRule, SnapTargets
 from factory.physics.structure import Structure
 from factory.symmetry import rotation_about
-from conftest import at, part
+from ldraw_support import at, part
 
 I3 = np.eye(3)
 SEATED = Pose(I3, [0, -24, 0])

@@ -9,7 +9,7 @@ import pytest
 from factory.physics.attach import feasible_poses
 from factory.physics.structure import Structure
 from factory.physics.sweep import PRESS_MIN_LDU, approach
-from conftest import at, part
+from ldraw_support import at, part
 from test_sweep import swept
 
 pytestmark = pytest.mark.usefixtures("isolated_cache")

@@ -14,7 +14,7 @@ from factory.errors import LDrawLimitError
 from factory.ldraw import get_reader
 from factory.parts import load_part
 
-from conftest import LIBRARY_ZIP, needs_ldraw
+from ldraw_support import LIBRARY_ZIP, needs_ldraw
 
 
 

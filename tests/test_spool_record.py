@@ -13,7 +13,7 @@ import pytest
 
 from factory.sampler import Sampler, record
 from pipelines.dataset import build, spool
-from conftest import tiny_dataset_config
+from dataset_support import tiny_dataset_config
 from test_dataset import _assert_identical
 
 

@@ -16,7 +16,7 @@ from factory.physics.load_program import to_lp
 from factory.physics.started_loads import Solved, solve_from, start_basis
 from factory.physics.structure import Structure
 from factory.sampler import Sampler, SamplerConfig
-from conftest import at
+from ldraw_support import at
 
 pytestmark = pytest.mark.usefixtures("isolated_cache")
 

@@ -17,7 +17,7 @@ from factory.physics.load_program import to_lp
 from factory.physics.statics import judge
 from factory.physics.lp import solve_highs
 from factory.physics.structure import Structure
-from conftest import at, part
+from ldraw_support import at, part
 
 I3 = np.eye(3)
 

@@ -13,7 +13,7 @@ from factory.ldraw.subassembly import PartsStep, UnitDone, frame_inverse, walk
 from factory.pose import Pose
 from factory.replay import verify_model
 from pipelines.dataset.sources import manual_steps
-from tests.conftest import LDRAW, MODELS, needs_ldraw
+from ldraw_support import LDRAW, MODELS, needs_ldraw
 
 DESIGNS = ["car.ldr", "4915-1-MiniConstruction.mpd", "6716-1 - Covered Wagon.mpd", "40448 - Vintage Car.mpd",
            "10156-1 - LEGO Truck.mpd", "6861-1 - X1 Patrol Craft.mpd"]

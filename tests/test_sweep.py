@@ -18,7 +18,7 @@ from factory.physics.collide import CollisionScene
 from factory.physics.structure import Placed, Structure
 from factory.physics.sweep import PRESS_LDU, SweepResult, approach, sweep
 from factory.symmetry import rotation_about
-from conftest import at, part
+from ldraw_support import at, part
 
 I3 = np.eye(3)
 TOL = CheckConfig().max_penetration_ldu

@@ -12,7 +12,6 @@ from scipy.spatial import ConvexHull
 
 pytest.importorskip("jax")
 
-from conftest import LDRAW  # noqa: E402
 from factory import Pose, get_reader, load_part  # noqa: E402
 from factory.ldraw import Library, Reader  # noqa: E402
 from factory.physics import pair_kernels, piece_sets, sweep_jax  # noqa: E402
@@ -24,6 +23,7 @@ from factory.physics.geometry import stud_prism  # noqa: E402
 from factory.physics.structure import Placed, Structure  # noqa: E402
 from factory.physics.sweep import sweep  # noqa: E402
 from factory.symmetry import rotation_about  # noqa: E402
+from ldraw_support import LDRAW  # noqa: E402
 from test_sweep import (COLUMN, DIAMOND, GAP_BRICK, GAP_WALLS, HANGING, ROOF, SLOT, TOPS, TOWER,  # noqa: E402
                         at, scene_for)
 

@@ -7,7 +7,7 @@ import json
 import shutil
 
 import pytest
-from conftest import assert_resumed_run_is_the_same, run_weights, train_log
+from training_support import assert_resumed_run_is_the_same, run_weights, train_log
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")

@@ -10,7 +10,8 @@ from __future__ import annotations
 import json
 
 import pytest
-from conftest import assert_resumed_run_is_the_same, interrupted_copy, run_weights, torchrun, train_argv, train_log
+from process_support import torchrun
+from training_support import assert_resumed_run_is_the_same, interrupted_copy, run_weights, train_argv, train_log
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")

@@ -10,7 +10,7 @@ import math
 import re
 
 import pytest
-from conftest import torchrun
+from process_support import torchrun
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")

@@ -11,9 +11,9 @@ import sys
 import textwrap
 import time
 
-from conftest import assert_workers_end_with_killed_parent
 from factory import gpus
 from pipelines.dataset import usage
+from process_support import assert_workers_end_with_killed_parent
 
 
 def test_the_cpu_model_is_the_first_model_name_the_kernel_lists(tmp_path):
