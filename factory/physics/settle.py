@@ -29,8 +29,10 @@ inset above the table, so a part rests with its real surface on the table, but a
 another sits 0.5 LDU (two insets) lower than its real surfaces would (a contact margin of 0.5 LDU
 would lift it, but MuJoCo's margin made resting parts float and jitter).
 
-`settle_model` builds the scene's `MjModel` alone (the later batched MJX version puts it on the
-device with `mjx.put_model`).
+`settle_model` builds the scene's `MjModel` alone, and `Release` holds the rules without the
+simulation (before simulating, after every `snap_every` steps, at the end): the batched MJX version
+(`settle_mjx.settle_many`) puts the model on the device with `mjx.put_model` and applies the same
+`Release` to its trajectories.
 """
 
 from __future__ import annotations
@@ -178,59 +180,98 @@ def _pose_of(data: mujoco.MjData, body: int) -> Pose:
     return Pose.from_mujoco(data.xpos[body], data.xmat[body].reshape(3, 3))
 
 
+class Release:
+    """One predicted placement as `settle` judges it, the simulation left to the caller (MuJoCo C in
+    `settle`, MJX in `settle_mjx`): the checks before simulating (`result` set when they decide),
+    `after_chunk` with the part's pose after every `snap_every` steps (snapping, the at-rest
+    window), and `finish` with the end pose and the geoms' owners it touches. `judge` may be shared
+    by the releases of one (structure, part): a candidate's verdict does not depend on the pose."""
+
+    def __init__(self, structure: Structure, part: Part, pose: Pose, floor_y: float, config: SettleConfig,
+                 judge: "_Judge | None" = None):
+        self.structure, self.part, self.pose, self.floor_y, self.config = structure, part, pose, floor_y, config
+        _, self.com, _ = part_mass_properties(part)
+        self.overlap = CollisionScene(structure, [(part, Pose.identity())], floor_y)
+        self.depth0, _ = self.overlap.penetration(pose, self._connected(pose))
+        self.result: Settled | None = None
+        self.history: list[Pose] = [pose]  # the pose after every chunk of `snap_every` steps
+        self.window = max(1, int(np.ceil(config.rest_seconds / (config.timestep * config.snap_every))))
+        self.at_rest = False
+        if self.depth0 > config.collides_ldu:
+            self.result = Settled("collides", pose, 0.0, self._conns(pose), 0.0)
+            return
+        self.judge = judge or _Judge(structure, part, floor_y, config)
+        hit = self.judge.snap(pose)
+        if hit is not None:
+            self.result = Settled("rests-connected", hit[0], self._moved(hit[0]), hit[1], 0.0)
+
+    def _moved(self, p: Pose) -> float:
+        return float(np.linalg.norm(p.apply(self.com) - self.pose.apply(self.com)))
+
+    def _conns(self, p: Pose) -> int:
+        return len(self.structure.connections_with(self.part, p))
+
+    def _connected(self, p: Pose) -> set[int]:
+        return {i for i, _ in self.structure.connections_with(self.part, p)}
+
+    def after_chunk(self, now: Pose, done: int) -> bool:
+        """The part at `now` after `done` steps: True when settling stops here (snapped: `result`
+        set; or at rest: `at_rest`)."""
+        hit = self.judge.snap(now)
+        if hit is not None:
+            self.result = Settled("rests-connected", hit[0], self._moved(hit[0]), hit[1], done * self.config.timestep)
+            return True
+        self.history.append(now)
+        if len(self.history) > self.window and _still(self.history[-self.window - 1:], self.com, self.config):
+            self.at_rest = True
+        return self.at_rest
+
+    def finish(self, end: Pose, touched: set[int], done: int) -> Settled:
+        """The outcome of a simulation that ended at `end` after `done` steps, touching `touched`
+        (`_touched`: structure part indices, -2 for the floor)."""
+        config, seconds = self.config, done * self.config.timestep
+        tolerance = config.check.max_penetration_ldu
+        if self.depth0 > tolerance:
+            depth, _ = self.overlap.penetration(end, self._connected(end))
+            outcome = "pushed-out" if depth <= tolerance else "collides"
+            return Settled(outcome, end, self._moved(end), self._conns(end), seconds, self.at_rest)
+        dropped = self.floor_y - float(self.pose.apply(self.part.hull_points)[:, 1].max())
+        fell = len(self.structure) and not (touched - {-2}) and dropped >= config.fell_ldu
+        outcome = "fell-off" if fell else "rests-unconnected"
+        return Settled(outcome, end, self._moved(end), self._conns(end), seconds, self.at_rest)
+
+
+def default_floor_y(structure: Structure, part: Part, pose: Pose) -> float:
+    """`settle`'s table height when none is given: the structure's lowest point (the part's, alone)."""
+    return structure.floor_y() if len(structure) else float(pose.apply(part.hull_points)[:, 1].max())
+
+
 def settle(structure: Structure, part: Part, pose: Pose, floor_y: float | None = None,
            config: SettleConfig = SettleConfig()) -> Settled:
     """Release `part` at `pose` (LDraw frame) on `structure` and let it settle (module docstring).
     `floor_y`: the table's LDraw height, by default the structure's lowest point."""
     if floor_y is None:
-        floor_y = structure.floor_y() if len(structure) else float(pose.apply(part.hull_points)[:, 1].max())
-    _, com, _ = part_mass_properties(part)
-    moved = lambda p: float(np.linalg.norm(p.apply(com) - pose.apply(com)))  # noqa: E731
-    conns = lambda p: len(structure.connections_with(part, p))  # noqa: E731
-    overlap = CollisionScene(structure, [(part, Pose.identity())], floor_y)
-    connected = lambda p: {i for i, _ in structure.connections_with(part, p)}  # noqa: E731
-    depth0, _ = overlap.penetration(pose, connected(pose))
-    if depth0 > config.collides_ldu:
-        return Settled("collides", pose, 0.0, conns(pose), 0.0)
-    judge = _Judge(structure, part, floor_y, config)
-    hit = judge.snap(pose)
-    if hit is not None:
-        return Settled("rests-connected", hit[0], moved(hit[0]), hit[1], 0.0)
-
+        floor_y = default_floor_y(structure, part, pose)
+    release = Release(structure, part, pose, floor_y, config)
+    if release.result is not None:
+        return release.result
     scene = settle_model(structure, part, floor_y, config)
     model, data = scene.model, mujoco.MjData(scene.model)
     pos, quat = pose.to_mujoco_quat()
     data.qpos[:3], data.qpos[3:7] = pos, quat
     mujoco.mj_forward(model, data)
     steps = int(round(config.seconds / config.timestep))
-    window = max(1, int(np.ceil(config.rest_seconds / (config.timestep * config.snap_every))))
-    history: list[Pose] = [pose]  # the pose after every chunk of `snap_every` steps
-    done, at_rest = 0, False
+    done = 0
     while done < steps:
         n = min(config.snap_every, steps - done)
         mujoco.mj_step(model, data, nstep=n)
         done += n
-        now = _pose_of(data, scene.part_body)
-        hit = judge.snap(now)
-        if hit is not None:
-            return Settled("rests-connected", hit[0], moved(hit[0]), hit[1], done * config.timestep)
-        history.append(now)
-        if len(history) > window and _still(history[-window - 1:], com, config):
-            at_rest = True
+        if release.after_chunk(_pose_of(data, scene.part_body), done):
             break
+    if release.result is not None:
+        return release.result
     mujoco.mj_forward(model, data)
-    end = _pose_of(data, scene.part_body)
-    seconds = done * config.timestep
-    tolerance = config.check.max_penetration_ldu
-    if depth0 > tolerance:
-        depth, _ = overlap.penetration(end, connected(end))
-        outcome = "pushed-out" if depth <= tolerance else "collides"
-        return Settled(outcome, end, moved(end), conns(end), seconds, at_rest)
-    touched = _touched(data, scene)
-    dropped = floor_y - float(pose.apply(part.hull_points)[:, 1].max())
-    fell = len(structure) and not (touched - {-2}) and dropped >= config.fell_ldu
-    outcome = "fell-off" if fell else "rests-unconnected"
-    return Settled(outcome, end, moved(end), conns(end), seconds, at_rest)
+    return release.finish(_pose_of(data, scene.part_body), _touched(data, scene), done)
 
 
 def _still(poses: list[Pose], com: np.ndarray, config: SettleConfig) -> bool:

@@ -1,0 +1,163 @@
+"""Parity of the batched MJX settling (`settle_mjx.settle_many`) with the MuJoCo C reference
+(`settle.settle`) on predictions like the baselines' and perturbed true placements.
+
+    python -m pipelines.bench_settle --n 500 --out settle_parity.json
+
+Structures and true next parts come from the sampler (`factory.grow`, embedded library): object
+`i`'s first `k` parts are a structure, its part `k + 1` the true next one. Per (structure, part)
+scene, `--per-scene` predictions of that part (so that a scene compiles once in MJX): the true
+pose; shifted 1-3 LDU across (near a connection: snaps); lifted 5-40 LDU (falls, then snaps or
+rests); shifted 8-12 LDU and lifted (between stud positions); moved out past the structure's edge by
+0-20 LDU and lifted (near the edge: rests on it or falls); turned 15-60 degrees about the vertical
+and lifted; the heuristic baseline's pose (24 LDU above the last part, unturned); the random
+baseline's (a 20 LDU grid translation within 200 LDU, one of the 24 axis rotations). Writes the
+share of equal outcomes (all, and those both simulated), the pose differences of equal outcomes,
+per-outcome counts, every disagreement with its case, and both throughputs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections import Counter
+
+import numpy as np
+
+from factory import SamplerConfig, get_reader, grow, load_part
+from factory.physics.settle import SettleConfig, settle
+from factory.physics.settle_mjx import MjxStats, settle_many
+from factory.physics.structure import Placed, Structure
+from factory.pose import Pose
+from factory.symmetry import axis_rotations, rotation_about
+
+KINDS = ("true", "shift", "lift", "between", "edge", "turn", "heuristic", "random")
+
+
+def _predictions(structure: Structure, true: Pose, rng: np.random.Generator, n: int) -> list[tuple[str, Pose]]:
+    up = np.array([0.0, -1.0, 0.0])
+    rots = axis_rotations()
+    pts = np.concatenate([p.pose.apply(p.part.hull_points) for p in structure.placed])
+    centre = pts.mean(axis=0)
+    out = []
+    for j in range(n):
+        kind = KINDS[j % len(KINDS)]
+        d = rng.normal(size=3)
+        d[1] = 0.0
+        d /= np.linalg.norm(d) or 1.0
+        if kind == "true":
+            pose = true if j < len(KINDS) else Pose(true.R, true.t + d * rng.uniform(0, 0.5))
+        elif kind == "shift":
+            pose = Pose(true.R, true.t + d * rng.uniform(1, 3))
+        elif kind == "lift":
+            pose = Pose(true.R, true.t + up * rng.uniform(5, 40))
+        elif kind == "between":
+            pose = Pose(true.R, true.t + d * rng.uniform(8, 12) + up * rng.uniform(0, 6))
+        elif kind == "edge":
+            out_dir = true.t - centre
+            out_dir[1] = 0.0
+            out_dir = out_dir / (np.linalg.norm(out_dir) or 1.0) if np.linalg.norm(out_dir) > 1 else d
+            reach = float(np.max((pts - true.t) @ out_dir))
+            pose = Pose(true.R, true.t + out_dir * (reach * rng.uniform(0.3, 1.0) + rng.uniform(0, 20))
+                        + up * rng.uniform(2, 10))
+        elif kind == "turn":
+            pose = Pose(rotation_about((0, 1, 0), float(rng.uniform(15, 60))) @ true.R, true.t + up * rng.uniform(0, 10))
+        elif kind == "heuristic":
+            last = structure.placed[-1].pose
+            pose = Pose(np.eye(3), last.t + np.array([0.0, -24.0, 0.0]))
+        else:
+            t = rng.integers(-10, 11, size=3) * 20.0
+            pose = Pose(rots[int(rng.integers(len(rots)))], t)
+        out.append((kind, pose))
+    return out
+
+
+def cases(n: int, per_scene: int, seed: int, parts_range=(2, 4)) -> list[dict]:
+    """`n` prediction cases (dicts: scene, kind, structure, part, pose, floor_y), `per_scene` per
+    (structure, part) scene, from objects grown with `seed`."""
+    rng = np.random.default_rng(seed)
+    reader = get_reader()
+    want = -(-n // per_scene)
+    out: list[dict] = []
+    index = 0
+    while len(out) < n and index < 20 * want + 20:
+        (assembly,) = grow(1, SamplerConfig(seed=seed), start=index)
+        index += 1
+        steps = assembly.steps
+        if len(steps) < parts_range[0] + 1:
+            continue
+        k = int(rng.integers(parts_range[0], min(parts_range[1], len(steps) - 1) + 1))
+        structure = Structure([Placed(load_part(reader, s.part), s.colour, s.pose) for s in steps[:k]])
+        part = load_part(reader, steps[k].part)
+        floor_y = structure.floor_y()
+        scene = len({c["scene"] for c in out})
+        for kind, pose in _predictions(structure, steps[k].pose, rng, min(per_scene, n - len(out))):
+            out.append(dict(scene=scene, kind=kind, structure=structure, part=part, pose=pose, floor_y=floor_y))
+    return out
+
+
+def _pose_diff(a: Pose, b: Pose) -> tuple[float, float]:
+    cos = np.clip((np.trace(a.R.T @ b.R) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.linalg.norm(a.t - b.t)), float(np.degrees(np.arccos(cos)))
+
+
+def run(n: int, per_scene: int, seed: int, config: SettleConfig = SettleConfig()) -> dict:
+    cs = cases(n, per_scene, seed)
+    t0 = time.perf_counter()
+    ref = [settle(c["structure"], c["part"], c["pose"], c["floor_y"], config) for c in cs]
+    cpu_s = time.perf_counter() - t0
+    stats = MjxStats()
+    t0 = time.perf_counter()
+    got = settle_many([(c["structure"], c["part"], c["pose"], c["floor_y"]) for c in cs], config, stats=stats)
+    mjx_s = time.perf_counter() - t0
+    simulated = [i for i, r in enumerate(ref) if r.seconds > 0 or got[i].seconds > 0]
+    same = [a.outcome == b.outcome for a, b in zip(ref, got)]
+    diffs = [_pose_diff(a.pose, b.pose) for a, b, s in zip(ref, got, same) if s]
+    disagreements = [dict(index=i, scene=c["scene"], kind=c["kind"], part=c["part"].name,
+                          structure=[p.part.name for p in c["structure"].placed],
+                          pose_t=c["pose"].t.tolist(), pose_R=c["pose"].R.tolist(), floor_y=c["floor_y"],
+                          cpu=dict(outcome=a.outcome, t=a.pose.t.tolist(), seconds=a.seconds, at_rest=a.at_rest),
+                          mjx=dict(outcome=b.outcome, t=b.pose.t.tolist(), seconds=b.seconds, at_rest=b.at_rest))
+                     for i, (c, a, b) in enumerate(zip(cs, ref, got)) if a.outcome != b.outcome]
+    import jax  # optional: the [jax] extra (settle_many needs it)
+
+    return dict(
+        n=len(cs), scenes=len({c["scene"] for c in cs}), seed=seed, per_scene=per_scene,
+        agreement=float(np.mean(same)) if cs else None,
+        simulated=len(simulated),
+        agreement_simulated=float(np.mean([same[i] for i in simulated])) if simulated else None,
+        pose_diff_ldu=dict(mean=float(np.mean([d[0] for d in diffs])) if diffs else None,
+                           max=float(np.max([d[0] for d in diffs])) if diffs else None),
+        pose_diff_degrees=dict(mean=float(np.mean([d[1] for d in diffs])) if diffs else None,
+                               max=float(np.max([d[1] for d in diffs])) if diffs else None),
+        outcomes=dict(cpu=dict(Counter(r.outcome for r in ref)), mjx=dict(Counter(r.outcome for r in got))),
+        kinds=dict(Counter(c["kind"] for c in cs)),
+        disagreements=disagreements,
+        throughput=dict(cpu_per_s=len(cs) / cpu_s, mjx_per_s=len(cs) / mjx_s, cpu_s=cpu_s, mjx_s=mjx_s,
+                        mjx_compile_s=stats.compile_s, mjx_run_s=stats.run_s, jax_backend=jax.default_backend()),
+        mjx=dict(scenes=stats.scenes, simulated=stats.simulated, compiles=stats.compiles, fallbacks=stats.fallbacks,
+                 refused=stats.refused),
+    )
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--n", type=int, default=500, help="predictions")
+    ap.add_argument("--per-scene", type=int, default=50, help="predictions per (structure, part) scene")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", required=True, help="JSON file to write")
+    args = ap.parse_args(argv)
+    from factory.physics import jax_cache  # lazy: enables JAX's persistent cache before the first compile
+
+    jax_cache.enable()
+    result = run(args.n, args.per_scene, args.seed)
+    with open(args.out, "w", encoding="utf-8") as f:
+        json.dump(result, f, indent=1)
+    brief = {k: result[k] for k in ("n", "scenes", "agreement", "simulated", "agreement_simulated", "outcomes",
+                                    "throughput", "mjx")}
+    print(json.dumps(brief, indent=1))
+    print(f"{len(result['disagreements'])} disagreements; written to {args.out}")
+
+
+if __name__ == "__main__":
+    main()
