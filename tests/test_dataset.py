@@ -743,7 +743,8 @@ def test_a_shard_with_batched_checks_grows_its_objects_together(tmp_path, monkey
     lockstep, so each round of device calls serves all of them (one at a time it made a round per
     object), and writes the same data files as the reference's checks."""
     pytest.importorskip("jax")
-    from factory.sampler import SamplerConfig, lockstep
+    from factory.physics import checker
+    from factory.sampler import SamplerConfig
     from pipelines.dataset.shards import build_shard
 
     def config(backend):
@@ -751,8 +752,8 @@ def test_a_shard_with_batched_checks_grows_its_objects_together(tmp_path, monkey
         return DatasetConfig.synthetic(3, seed=0, sampler=sampler, size=128, tile=64, objects_per_shard=3)
 
     asked = []
-    real = lockstep.check_many
-    monkeypatch.setattr(lockstep, "check_many", lambda requests, *a, **k: asked.append(len(requests)) or
+    real = checker.check_many  # what the sampler's Checker calls
+    monkeypatch.setattr(checker, "check_many", lambda requests, *a, **k: asked.append(len(requests)) or
                         real(requests, *a, **k))
     build_shard(config("jax"), 0, tmp_path / "jax")
     assert max(asked) == 3  # the shard's three objects in one call

@@ -251,8 +251,11 @@ def check_make(args: list[str], where: str) -> None:
     unread = [v for v in variables if f"$({v})" not in MAKEFILE]
     assert not unread, f"{where}: the Makefile reads no variable(s) {unread}"
     # -n: print the commands, run none; -o: take the installed venv's stamp as made (no `setup` run)
-    out = subprocess.run(["make", "-n", "-o", ".venv/.installed", *args], cwd=ROOT, capture_output=True, text=True,
-                         timeout=60)
+    # Under `make test` the suite inherits make's variables: without them (and --no-print-directory)
+    # the nested make prints "Entering directory" lines among the commands.
+    env = {k: v for k, v in os.environ.items() if k not in ("MAKEFLAGS", "MAKELEVEL", "MFLAGS")}
+    out = subprocess.run(["make", "--no-print-directory", "-n", "-o", ".venv/.installed", *args], cwd=ROOT,
+                         capture_output=True, text=True, timeout=60, env=env)
     assert out.returncode == 0, f"{where}: make -n {shlex.join(args)}: {out.stderr.strip()}"
     lines = [shlex.split(line) for line in out.stdout.splitlines() if line.strip()]
     assert lines, f"{where}: make {shlex.join(args)} runs nothing"
