@@ -477,7 +477,9 @@ def examples_out(tmp_path_factory):
 @pytest.mark.parametrize("script", [pytest.param(p, marks=[pytest.mark.slow] if p.name in SLOW_EXAMPLES else [],
                                                  id=p.name) for p in EXAMPLES])
 def test_example_runs(script, examples_out):
-    env = {**os.environ, "BRICK_FACTORY_CACHE": str(examples_out / ".cache"), "MPLBACKEND": "Agg",
+    # The session's part cache (content-keyed, written atomically): a fresh one made each example
+    # decompose the embedded parts again.
+    env = {**os.environ, "MPLBACKEND": "Agg",
            "HF_DATASETS_CACHE": str(examples_out / ".hf"),
            "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
     env.pop("LDRAWDIR", None)
