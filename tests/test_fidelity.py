@@ -16,6 +16,7 @@ from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
 from factory.symmetry import rotation_about
 from factory.replay import _on_table
+from factory.physics.check_state import DEFAULT
 
 I3 = np.eye(3)
 TURN = np.diag([-1.0, 1.0, -1.0])  # half a turn about the stud axis
@@ -209,7 +210,7 @@ def test_kept_stud_probe_answers_are_the_computed_ones(real_reader):
     axis = np.repeat(up[None], len(pos), axis=0)
     computed = collide._studs_cross(pos, axis, body)
     assert computed.any() and not computed.all()
-    collide._CROSSED.clear()
+    DEFAULT.crossed.clear()
     first = collide.studs_cross(pos[::2], axis[::2], body)
     assert np.array_equal(first, computed[::2])
     assert np.array_equal(collide.studs_cross(pos, axis, body), computed)  # half from the store

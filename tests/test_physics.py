@@ -19,6 +19,7 @@ from factory.physics import attach, collide
 from factory.physics.attach import attachment_arrays, feasible_poses
 from factory.physics.structure import Placed, Structure, align, canonical_key, match
 from factory.symmetry import rotation_about
+from factory.physics.check_state import DEFAULT
 from ldraw_support import at, part
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -463,7 +464,7 @@ def test_an_unwritable_cache_is_worked_without(tmp_path, monkeypatch, capsys):
 
 def test_a_scene_built_from_kept_bodies_is_the_scene_built_afresh():
     """Structure parts' MJCF bodies and piece faces are kept as a structure grows
-    (`collide._BODIES`), and a candidate unit's pieces (`collide._UNIT_PIECES`); a scene built
+    (`DEFAULT.bodies`), and a candidate unit's pieces (`DEFAULT.unit_pieces`); a scene built
     from them has the same model, geom owners, piece faces and answers as one built with nothing
     kept."""
     from factory.physics import collide
@@ -474,12 +475,12 @@ def test_a_scene_built_from_kept_bodies_is_the_scene_built_afresh():
     unit = [(part("3003"), Pose.identity())]
     poses = [Pose(I3, np.array([x, -56.0, z])) for x in (-20, 0, 10) for z in (-10, 0, 20)]
     poses.append(Pose(I3, np.array([200.0, -24.0, 200.0])))  # clear of everything
-    collide._BODIES.clear()
+    DEFAULT.bodies.clear()
     for n in range(1, len(placed) + 1):  # one scene a step, as the sampler builds them
         kept = CollisionScene(Structure(placed[:n]), unit, floor_y=0.0)
-    assert len(collide._BODIES) == len(placed)
-    collide._BODIES.clear()
-    collide._UNIT_PIECES.clear()
+    assert len(DEFAULT.bodies) == len(placed)
+    DEFAULT.bodies.clear()
+    DEFAULT.unit_pieces.clear()
     fresh = CollisionScene(Structure(placed), unit, floor_y=0.0)
     for name in ("geom_pos", "geom_quat", "geom_dataid", "body_pos", "body_quat", "mesh_vert", "geom_size"):
         assert np.array_equal(getattr(kept.model, name), getattr(fresh.model, name)), name

@@ -16,6 +16,7 @@ from factory.physics.load_program import to_lp
 from factory.physics.started_loads import Solved, solve_from, start_basis
 from factory.physics.structure import Structure
 from factory.sampler import Sampler, SamplerConfig
+from factory.physics.check_state import DEFAULT
 from ldraw_support import at
 
 pytestmark = pytest.mark.usefixtures("isolated_cache")
@@ -76,8 +77,8 @@ def test_each_structures_program_started_from_the_one_before_has_its_optimum_in_
                 started += start_basis(before, model, cfg) is not None
                 assert abs(got.objective - want.objective) <= 1e-9 * max(1.0, abs(want.objective))
                 cold += n_cold
-                warm += started_loads.WARM_COUNTS["iterations"]
-            started_loads.WARM_COUNTS["iterations"] = 0
+                warm += DEFAULT.warm_counts["iterations"]
+            DEFAULT.warm_counts["iterations"] = 0
             before = solved
     assert started >= 40
     assert warm * 3 < cold, (warm, cold)
@@ -121,15 +122,15 @@ def _digest(objects) -> str:
 
 
 def test_sampled_objects_and_their_loads_are_the_same_with_started_programs_as_without(monkeypatch):
-    started_loads.WARM_COUNTS.update(started=0, cold=0, iterations=0)
+    DEFAULT.warm_counts.update(started=0, cold=0, iterations=0)
     started = _digest(_grown(2, 20)[2])
-    counts = dict(started_loads.WARM_COUNTS)
+    counts = dict(DEFAULT.warm_counts)
     monkeypatch.setattr(started_loads, "WARM_START", False)
-    started_loads.WARM_COUNTS.update(started=0, cold=0, iterations=0)
+    DEFAULT.warm_counts.update(started=0, cold=0, iterations=0)
     cold = _digest(_grown(2, 20)[2])
-    assert started_loads.WARM_COUNTS["started"] == 0
+    assert DEFAULT.warm_counts["started"] == 0
     assert counts["started"] >= 30 and counts["cold"] <= 4, counts
-    assert counts["iterations"] * 3 < started_loads.WARM_COUNTS["iterations"], (counts, started_loads.WARM_COUNTS)
+    assert counts["iterations"] * 3 < DEFAULT.warm_counts["iterations"], (counts, DEFAULT.warm_counts)
     assert started == cold
 
 
@@ -138,20 +139,20 @@ def test_a_structure_starts_only_from_the_program_of_the_part_it_placed_last():
     part's program starts the next candidates' programs."""
     s = Structure([at("3001", 0, 0, 0)])
     floor = s.floor_y()
-    started_loads.WARM_COUNTS.update(started=0, cold=0, iterations=0)
+    DEFAULT.warm_counts.update(started=0, cold=0, iterations=0)
     top = at("3001", 0, -24, 0)
     assert check(s, top.part, [top.pose], floor_y=floor)[0].ok
-    assert (started_loads.WARM_COUNTS["started"], started_loads.WARM_COUNTS["cold"]) == (0, 1)
+    assert (DEFAULT.warm_counts["started"], DEFAULT.warm_counts["cold"]) == (0, 1)
     s.add(top)
     asked = at("3001", 0, -48, 0)
     assert check(s, asked.part, [asked.pose], floor_y=floor)[0].ok
-    assert (started_loads.WARM_COUNTS["started"], started_loads.WARM_COUNTS["cold"]) == (1, 1)
+    assert (DEFAULT.warm_counts["started"], DEFAULT.warm_counts["cold"]) == (1, 1)
     # A part placed one stud along from the one asked: its program was never solved, so the
     # candidates on top of it start from nothing.
     s.add(at("3001", 20, -48, 0))
     nxt = at("3001", 20, -72, 0)
     assert check(s, nxt.part, [nxt.pose], floor_y=floor)[0].ok
-    assert (started_loads.WARM_COUNTS["started"], started_loads.WARM_COUNTS["cold"]) == (1, 2)
+    assert (DEFAULT.warm_counts["started"], DEFAULT.warm_counts["cold"]) == (1, 2)
 
 
 def test_a_structure_keeps_the_bases_of_its_first_candidates_only(monkeypatch):
@@ -179,9 +180,9 @@ def test_the_batched_path_solves_the_samplers_load_programs_one_by_one_started_t
     for name in ("solve_on_bases", "solve_loads"):
         real = getattr(loads_jax, name)
         monkeypatch.setattr(loads_jax, name, lambda *a, real=real, name=name, **k: sent.append(name) or real(*a, **k))
-    started_loads.WARM_COUNTS.update(started=0, cold=0, iterations=0)
+    DEFAULT.warm_counts.update(started=0, cold=0, iterations=0)
     sampler = Sampler(SamplerConfig(seed=3, min_steps=20, max_steps=20, backend="jax"), None)
     batched = _digest(sorted(sampler.grow(range(2), batch=2), key=lambda a: a.index))
     assert sent == []
-    assert started_loads.WARM_COUNTS["started"] >= 30, started_loads.WARM_COUNTS
+    assert DEFAULT.warm_counts["started"] >= 30, DEFAULT.warm_counts
     assert batched == _digest(_grown(2, 20)[2])

@@ -23,6 +23,7 @@ from factory.physics.geometry import stud_prism  # noqa: E402
 from factory.physics.structure import Placed, Structure  # noqa: E402
 from factory.physics.sweep import sweep  # noqa: E402
 from factory.symmetry import rotation_about  # noqa: E402
+from factory.physics.check_state import DEFAULT
 from ldraw_support import LDRAW  # noqa: E402
 from test_sweep import (COLUMN, DIAMOND, GAP_BRICK, GAP_WALLS, HANGING, ROOF, SLOT, TOPS, TOWER,  # noqa: E402
                         at, scene_for)
@@ -66,9 +67,9 @@ def test_the_hand_built_cases_give_the_reference_verdicts():
     for top in TOPS.values():
         # Blocked on its axis only 140 LDU up: whether it comes in from the side (it does) is
         # asked of the device too, in a second launch.
-        before = sweep_jax.COUNTS.copy()
+        before = DEFAULT.sweep_counts.copy()
         assert exact(COLUMN + [top], [at("3003", 0, -24, 0)]).buildable
-        assert sweep_jax.COUNTS - before == {"device": 1}
+        assert DEFAULT.sweep_counts - before == {"device": 1}
     assert exact(COLUMN, [at("3003", 0, -24, 0)]).buildable
     # The same, with 1x1 bricks beside the brick's way up at the height it would come in from the
     # side (2 LDU clear of its straight path): every side is blocked, so the straight verdict
@@ -77,9 +78,9 @@ def test_the_hand_built_cases_give_the_reference_verdicts():
     unit = [at("3003", 0, -24, 0)]
     scene, world, touched = scene_for(Structure(walled), unit)
     reference = sweep(scene, Structure(walled), world, touched, max_penetration_ldu=TOL)
-    before = sweep_jax.COUNTS.copy()
+    before = DEFAULT.sweep_counts.copy()
     r = exact(walled, unit)
-    assert sweep_jax.COUNTS - before == {"device": 1}
+    assert DEFAULT.sweep_counts - before == {"device": 1}
     assert reference.buildable is False and reference.reason == "blocked"
     assert (r.buildable, r.reason, r.blocked_by) == (False, "blocked", reference.blocked_by)
     side = rotation_about((0, 0, 1), 90)
@@ -169,7 +170,7 @@ def test_verdicts_agree_with_the_stepped_reference_on_over_a_thousand_candidates
         real = Reader(Library.from_dir(LDRAW))
         round_ = {n: load_part(real, n) for n in ["6141", "3062b", "98138", "3941"]}
     rng = np.random.default_rng(0)
-    before = sweep_jax.COUNTS.copy()
+    before = DEFAULT.sweep_counts.copy()
     rows = []
     grown = _grow({**emb, **round_}, load_part(reader, "3958"), 30, seed=1)
     for name in ["3001", "3003", "3022", "3068b", "3039", "3660", "3024", *round_]:
@@ -184,7 +185,7 @@ def test_verdicts_agree_with_the_stepped_reference_on_over_a_thousand_candidates
     judged = [r for r in rows if r[2].buildable is not None]
     agree = sum(a.buildable == b.buildable for _, _, a, b in rows)
     near = [r for r in rows[near_start:] if abs(r[2].depth_ldu - TOL) <= 0.25]
-    counts = sweep_jax.COUNTS - before
+    counts = DEFAULT.sweep_counts - before
     with capsys.disabled():
         print(f"\n{len(rows)} candidates ({len(judged)} judged, {sum(r[2].buildable is False for r in rows)} "
               f"blocked), {agree} same verdict; {len(near)} with the reference's depth within 0.25 LDU "
@@ -271,9 +272,9 @@ def test_a_stud_reaching_into_the_path_is_referred_to_the_reference():
     structure = Structure(parts)
     scene, world, touched = scene_for(structure, [at("3003", 0, -24, 0)])
     ref = sweep(scene, structure, world, touched, TOL)
-    before = sweep_jax.COUNTS["referred"]
+    before = DEFAULT.sweep_counts["referred"]
     got = sweep_jax.sweep_many(scene, structure, [world], [touched], TOL)[0]
-    assert sweep_jax.COUNTS["referred"] == before + 1
+    assert DEFAULT.sweep_counts["referred"] == before + 1
     assert ref.buildable is False and ref.blocked_by == (1,)
     assert got == ref
 

@@ -21,7 +21,7 @@ from scipy.spatial import ConvexHull
 
 from factory.connections import STUD_HEIGHT, STUD_RADIUS
 from factory.parts import Part
-from factory.physics.check_state import DEFAULT, current
+from factory.physics.check_state import current
 from factory.physics.geometry import INSET_LDU, CollisionShape, collision_shape
 from factory.physics.structure import Structure
 from factory.physics.unmodelled import in_zone
@@ -178,12 +178,11 @@ PROBE_PAIRS = 1 << 16
 segments' vectors, about 3 kB in float64)."""
 
 
-_CROSSED: dict[tuple, tuple[Surface, bool]] = DEFAULT.crossed
-"""The default checker's store of `studs_cross` answers (each checker keeps its own,
-`CheckState.crossed`; the name is kept for tests that empty it). Probe answers by (surface, the stud's base and axis as exact bytes); the surface is kept with
-the answer so that its id is not reused. A sampled object asks the same probe again about three
-times in four (5,043 probes, 1,220 distinct, one 40-part object): candidates sit on a lattice, so
-a stud often lands at exactly the same place relative to a part."""
+# `studs_cross` answers are kept in the current checker's `CheckState.crossed`, by (surface, the
+# stud's base and axis as exact bytes); the surface is kept with the answer so that its id is not
+# reused. A sampled object asks the same probe again about three times in four (5,043 probes,
+# 1,220 distinct, one 40-part object): candidates sit on a lattice, so a stud often lands at
+# exactly the same place relative to a part.
 
 CROSSED_KEPT = 1 << 18
 """Answers kept before the store is emptied (each a few hundred bytes)."""
@@ -298,14 +297,13 @@ filled hollow under a part reaches that far into whatever its sockets hold (a wh
 raised stud base, a plate's recessed top), and stud mating already fixes their relative place."""
 
 
-_BODIES: dict[int, tuple] = DEFAULT.bodies
-"""The default checker's (each checker keeps its own, `CheckState.bodies`; the name is kept for
-tests that read it). Per placed structure part (by id; the `Placed` is kept so that its id is not reused): its index,
-its MJCF body, the meshes its geoms name, their `_GeomInfo`s and its body pieces' faces (`_pieces`).
-A growing structure keeps its parts, so each step's scene writes and hulls only the new part's.
-Before, every scene did it for every part again: 8.8 s of 44 s of checks in a 3-object build (20-90
-parts, 226 steps, one process, cProfile) on the 2-core machine; 5.2 s after, of which MuJoCo's
-compile 2.4 s and the candidate's pieces 2.0 s (kept since: `_UNIT_PIECES`)."""
+# The current checker's `CheckState.bodies`: per placed structure part (by id; the `Placed` is
+# kept so that its id is not reused): its index, its MJCF body, the meshes its geoms name, their
+# `_GeomInfo`s and its body pieces' faces (`_pieces`). A growing structure keeps its parts, so
+# each step's scene writes and hulls only the new part's. Before, every scene did it for every
+# part again: 8.8 s of 44 s of checks in a 3-object build (20-90 parts, 226 steps, one process,
+# cProfile) on the 2-core machine; 5.2 s after, of which MuJoCo's compile 2.4 s and the
+# candidate's pieces 2.0 s (kept since: `unit_pieces`).
 
 BODIES_KEPT = 8192
 """Placed parts kept before a checker's `bodies` is emptied (a few kB each)."""
@@ -329,11 +327,10 @@ def _structure_body(placed, idx: int) -> tuple:
     return hit[2:]
 
 
-_UNIT_PIECES: dict[tuple, tuple] = DEFAULT.unit_pieces
-"""The default checker's (each checker keeps its own, `CheckState.unit_pieces`; the name is kept
-for tests that empty it). `_pieces` of a candidate unit by its shapes and their poses in the unit (the shapes are kept so
-that their ids are not reused): the sampler builds a scene per structure and part type, and the
-part's pieces, in the unit's frame, are the same in every one."""
+# The current checker's `CheckState.unit_pieces`: `_pieces` of a candidate unit by its shapes and
+# their poses in the unit (the shapes are kept so that their ids are not reused): the sampler
+# builds a scene per structure and part type, and the part's pieces, in the unit's frame, are the
+# same in every one.
 
 
 def _unit_pieces(unit) -> tuple:

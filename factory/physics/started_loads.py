@@ -18,7 +18,7 @@ from functools import cached_property
 
 import numpy as np
 
-from factory.physics.check_state import DEFAULT, current
+from factory.physics.check_state import current
 from factory.physics.load_model import LoadConfig, LoadModel
 from factory.physics.load_program import PER_CONNECTION, PER_LINK, PER_SUPPORT, capacity_rows, to_lp
 from factory.physics.lp import BASIS_STATUS, Basis, LPResult, solve_highs_from
@@ -27,10 +27,8 @@ WARM_START = True
 """Whether the reference starts a candidate's program from the structure's solved one (`check_loads.py`);
 off, every program starts from nothing (as tests compare)."""
 
-WARM_COUNTS: dict[str, int] = DEFAULT.warm_counts
-"""The default checker's count of programs solved by `solve_from`: started from a basis, started
-from nothing, and their simplex iterations (each checker counts its own, `CheckState.warm_counts`,
-read with `Checker.counters()`; the name is kept for tests that read and reset it)."""
+# Programs solved by `solve_from` (started from a basis, from nothing, their simplex iterations)
+# are counted in the current checker's `CheckState.warm_counts`, read with `Checker.counters()`.
 
 _ROUND = 1e4  # keys of stud bases and support points, to 1e-4 LDU
 

@@ -23,7 +23,7 @@ whole call is swept on the CPU instead.
 - not connected, stud-body: the scene ignores a stud standing in the other part's hollow
   (`collide.stud_crosses`, a probe of the real surface at each pose), which is not written here.
   Such a pair is **undecided**: a candidate blocked by a decided pair is blocked whatever it does;
-  one that only an undecided pair could block is swept by `sweep.sweep` on the CPU (counted: `COUNTS`).
+  one that only an undecided pair could block is swept by `sweep.sweep` on the CPU (counted: `CheckState.sweep_counts`).
 
 A unit is blocked when a counted interval meets s > 0 (s = 0, the final pose, is the collision
 check's). One blocked only further out than `sweep.PRESS_LDU` is swept by `sweep.sweep` on the
@@ -52,13 +52,12 @@ launch: so a run compiles once per shape met, `pair_kernels.COMPILES`, never per
 
 from __future__ import annotations
 
-from collections import Counter
 from typing import Sequence
 
 import numpy as np
 
 from factory.parts import Part
-from factory.physics.check_state import DEFAULT, current
+from factory.physics.check_state import current
 from factory.physics.collide import CONNECTED_SLACK_LDU, CollisionScene
 from factory.physics.geometry import INSET_LDU
 from factory.physics.pair_kernels import intervals_many
@@ -70,10 +69,9 @@ from factory.pose import Pose
 
 _CLEAR, _BLOCKED, _UNDECIDED = 0, 1, 2
 """States of a side sweep's unit (`_SweepJob.states`)."""
-COUNTS: Counter = DEFAULT.sweep_counts
-"""The default checker's count (each checker counts its own, `CheckState.sweep_counts`, read with
-`Checker.counters()`; the name is kept for tests that read it) of candidates by how they were judged: 'device', 'referred' (swept on the CPU: only an undecided
-stud-body pair could block them), 'not-judged' (no approach), 'cpu' (tolerance below the insets)."""
+# Candidates are counted by how they were judged in the current checker's
+# `CheckState.sweep_counts` ('device', 'referred': swept on the CPU, only an undecided stud-body
+# pair could block them; 'not-judged': no approach; 'cpu': tolerance below the insets).
 
 
 def _pairs(uset: PieceSet, sset: PieceSet, sboxes, rel, R, t, d, conn, tol: float, margin: float, a: int, b: int):
