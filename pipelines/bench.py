@@ -55,7 +55,8 @@ from pipelines.bench_processes import in_own_process
 from pipelines.dataset import ConfigMismatchError, DatasetConfig, build, usage
 from pipelines.designs import design_config
 from pipelines.realism import Collection, compare, read_collection
-from pipelines.report_rows import append_bench, revision
+from pipelines.report_rows import append_bench
+from pipelines.result_rows import revision
 from pipelines.render import view_rates
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -30,7 +30,6 @@ from pathlib import Path
 from factory import gpus
 from pipelines import result_rows, results
 from pipelines.dataset.config import DatasetConfig
-from pipelines.result_rows import revision  # noqa: F401  (pipelines.bench takes it from here)
 
 QUICK = ", make bench --quick"
 BATCHED = "batched (jax)"
