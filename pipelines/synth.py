@@ -23,7 +23,8 @@ from pipelines.dataset import (ConfigMismatchError, FolderBusyError, ShardFailed
 from pipelines.dataset.build import growers_of
 from pipelines.dataset.config import DatasetConfig
 from pipelines.prior_flag import add_prior_flag, apply_prior
-from pipelines.report_rows import append_build, revision
+from pipelines.report_rows import append_build
+from pipelines.result_rows import revision
 
 
 def _ldraw(arg):
