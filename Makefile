@@ -31,7 +31,7 @@ setup: $(STAMP)
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet -c constraints.txt --upgrade pip
-	$(PY) -m pip install --quiet -c constraints.txt -e '.[jax,ray,train,bench,dev]'
+	$(PY) -m pip install --quiet -c constraints.txt -e '.[jax,warp,ray,train,bench,dev]'
 	touch $(STAMP)
 
 # The main job: sample N physics-verified objects, render every step, write sharded Parquet to OUT

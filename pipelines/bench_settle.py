@@ -1,5 +1,5 @@
-"""Parity of the batched MJX settling (`settle_mjx.settle_many`) with the MuJoCo C reference
-(`settle.settle`) on predictions like the baselines' and perturbed true placements.
+"""Parity of the batched settling on MuJoCo Warp (`settle_mjx.settle_many`) with the MuJoCo C
+reference (`settle.settle_all`) on predictions like the baselines' and perturbed true placements.
 
     python -m pipelines.bench_settle --n 500 --out settle_parity.json
 
@@ -19,13 +19,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from collections import Counter
 
 import numpy as np
 
 from factory import SamplerConfig, get_reader, grow, load_part
-from factory.physics.settle import SettleConfig, settle
+from factory.physics.settle import SettleConfig, settle_all
 from factory.physics.settle_mjx import MjxStats, settle_many
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
@@ -81,7 +82,9 @@ def cases(n: int, per_scene: int, seed: int, parts_range=(2, 4)) -> list[dict]:
     out: list[dict] = []
     index = 0
     while len(out) < n and index < 20 * want + 20:
-        (assembly,) = grow(1, SamplerConfig(seed=seed), start=index)
+        # Grown only as far as the scenes need: a whole object (20-90 parts) costs seconds each.
+        (assembly,) = grow(1, SamplerConfig(seed=seed, min_steps=parts_range[1] + 1, max_steps=parts_range[1] + 1),
+                           start=index)
         index += 1
         steps = assembly.steps
         if len(steps) < parts_range[0] + 1:
@@ -101,14 +104,19 @@ def _pose_diff(a: Pose, b: Pose) -> tuple[float, float]:
     return float(np.linalg.norm(a.t - b.t)), float(np.degrees(np.arccos(cos)))
 
 
-def run(n: int, per_scene: int, seed: int, config: SettleConfig = SettleConfig()) -> dict:
-    cs = cases(n, per_scene, seed)
+def run(n: int, per_scene: int, seed: int, config: SettleConfig = SettleConfig(), device: str | None = None) -> dict:
     t0 = time.perf_counter()
-    ref = [settle(c["structure"], c["part"], c["pose"], c["floor_y"], config) for c in cs]
+    cs = cases(n, per_scene, seed)
+    print(f"{len(cs)} predictions in {len({c['scene'] for c in cs})} scenes made in {time.perf_counter() - t0:.1f} s",
+          file=sys.stderr, flush=True)
+    t0 = time.perf_counter()
+    ref = settle_all([(c["structure"], c["part"], c["pose"], c["floor_y"]) for c in cs], config)
     cpu_s = time.perf_counter() - t0
+    print(f"MuJoCo C: {cpu_s:.1f} s", file=sys.stderr, flush=True)
     stats = MjxStats()
     t0 = time.perf_counter()
-    got = settle_many([(c["structure"], c["part"], c["pose"], c["floor_y"]) for c in cs], config, stats=stats)
+    got = settle_many([(c["structure"], c["part"], c["pose"], c["floor_y"]) for c in cs], config, device=device,
+                      stats=stats)
     mjx_s = time.perf_counter() - t0
     simulated = [i for i, r in enumerate(ref) if r.seconds > 0 or got[i].seconds > 0]
     same = [a.outcome == b.outcome for a, b in zip(ref, got)]
@@ -119,8 +127,6 @@ def run(n: int, per_scene: int, seed: int, config: SettleConfig = SettleConfig()
                           cpu=dict(outcome=a.outcome, t=a.pose.t.tolist(), seconds=a.seconds, at_rest=a.at_rest),
                           mjx=dict(outcome=b.outcome, t=b.pose.t.tolist(), seconds=b.seconds, at_rest=b.at_rest))
                      for i, (c, a, b) in enumerate(zip(cs, ref, got)) if a.outcome != b.outcome]
-    import jax  # optional: the [jax] extra (settle_many needs it)
-
     return dict(
         n=len(cs), scenes=len({c["scene"] for c in cs}), seed=seed, per_scene=per_scene,
         agreement=float(np.mean(same)) if cs else None,
@@ -134,9 +140,10 @@ def run(n: int, per_scene: int, seed: int, config: SettleConfig = SettleConfig()
         kinds=dict(Counter(c["kind"] for c in cs)),
         disagreements=disagreements,
         throughput=dict(cpu_per_s=len(cs) / cpu_s, mjx_per_s=len(cs) / mjx_s, cpu_s=cpu_s, mjx_s=mjx_s,
-                        mjx_compile_s=stats.compile_s, mjx_run_s=stats.run_s, jax_backend=jax.default_backend()),
-        mjx=dict(scenes=stats.scenes, simulated=stats.simulated, compiles=stats.compiles, fallbacks=stats.fallbacks,
-                 refused=stats.refused),
+                        mjx_first_chunk_s=stats.first_chunk_s, mjx_run_s=stats.run_s, mjx_prepare_s=stats.prepare_s,
+                        device=stats.device),
+        mjx=dict(batches=stats.batches, simulated=stats.simulated, fallbacks=stats.fallbacks,
+                 contacts_dropped=stats.contacts_dropped, refused=stats.refused),
     )
 
 
@@ -145,12 +152,10 @@ def main(argv=None) -> None:
     ap.add_argument("--n", type=int, default=500, help="predictions")
     ap.add_argument("--per-scene", type=int, default=50, help="predictions per (structure, part) scene")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--device", default=None, help="Warp device ('cpu', 'cuda:0'; default: the GPU if any)")
     ap.add_argument("--out", required=True, help="JSON file to write")
     args = ap.parse_args(argv)
-    from factory.physics import jax_cache  # lazy: enables JAX's persistent cache before the first compile
-
-    jax_cache.enable()
-    result = run(args.n, args.per_scene, args.seed)
+    result = run(args.n, args.per_scene, args.seed, device=args.device)
     with open(args.out, "w", encoding="utf-8") as f:
         json.dump(result, f, indent=1)
     brief = {k: result[k] for k in ("n", "scenes", "agreement", "simulated", "agreement_simulated", "outcomes",

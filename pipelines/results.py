@@ -33,6 +33,7 @@ TITLES = {
     "physics": "Physics checks per second (`pipelines.bench_physics`)",
     "verify": "Real designs through the checks (`pipelines.verify --faults`)",
     "render": "Renders (`pipelines.render --bench`)",
+    "feedback": "World feedback: predictions settled per second, MuJoCo Warp against MuJoCo C (`pipelines.bench_settle`)",
     "training": "Training (`python -m train`, `train.speed`, `train.recipe`)",
     "bench": "`make bench` reports and baseline scores",
 }

@@ -30,9 +30,10 @@ another sits 0.5 LDU (two insets) lower than its real surfaces would (a contact 
 would lift it, but MuJoCo's margin made resting parts float and jitter).
 
 `settle_model` builds the scene's `MjModel` alone, and `Release` holds the rules without the
-simulation (before simulating, after every `snap_every` steps, at the end): the batched MJX version
-(`settle_mjx.settle_many`) puts the model on the device with `mjx.put_model` and applies the same
-`Release` to its trajectories.
+simulation (before simulating, after every `snap_every` steps, at the end). `settle_all` runs many
+cases on MuJoCo C, a scene's model, overlap measure and snapping verdicts made once; the batched
+version (`settle_mjx.settle_many`) simulates them on MuJoCo Warp and applies the same `Release`.
+Snapping after a chunk sweeps the chunk's path (`_path`), not only its end pose.
 """
 
 from __future__ import annotations
@@ -121,6 +122,9 @@ class SettleScene:
     floor_geom: int
     owner: np.ndarray
     """Per geom: structure part index, -1 for the part's own geoms, -2 for the floor."""
+    meshes: dict[str, str] = field(default_factory=dict)
+    """The scene's mesh assets: name → vertex text as written (`settle_mjx` compiles the same text
+    into its shared mesh pool, so that MuJoCo centres each mesh the same way)."""
 
 
 def settle_model(structure: Structure, part: Part, floor_y: float, config: "SettleConfig" = SettleConfig(),
@@ -155,7 +159,7 @@ def settle_model(structure: Structure, part: Part, floor_y: float, config: "Sett
     owner = np.full(model.ngeom, -2, np.int64)
     order = [g for g in range(model.ngeom) if g != floor]  # geoms in the order written, floor first
     owner[order] = owners
-    return SettleScene(model, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "part"), floor, owner)
+    return SettleScene(model, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "part"), floor, owner, meshes)
 
 
 class _Judge:
@@ -164,6 +168,8 @@ class _Judge:
     def __init__(self, structure: Structure, part: Part, floor_y: float, config: SettleConfig):
         self.structure, self.part, self.floor_y, self.config = structure, part, floor_y, config
         self.targets = SnapTargets.of(structure, part)
+        self.overlap = CollisionScene(structure, [(part, Pose.identity())], floor_y)
+        """The checks' overlap measure of the part in this scene (compiled once per scene)."""
         self.judged: dict[int, int | None] = {}  # candidate -> connections when accepted, else None
 
     def snap(self, pose: Pose) -> tuple[Pose, int] | None:
@@ -182,7 +188,7 @@ def _pose_of(data: mujoco.MjData, body: int) -> Pose:
 
 class Release:
     """One predicted placement as `settle` judges it, the simulation left to the caller (MuJoCo C in
-    `settle`, MJX in `settle_mjx`): the checks before simulating (`result` set when they decide),
+    `settle_all`, MuJoCo Warp in `settle_mjx`): the checks before simulating (`result` set when they decide),
     `after_chunk` with the part's pose after every `snap_every` steps (snapping, the at-rest
     window), and `finish` with the end pose and the geoms' owners it touches. `judge` may be shared
     by the releases of one (structure, part): a candidate's verdict does not depend on the pose."""
@@ -191,7 +197,8 @@ class Release:
                  judge: "_Judge | None" = None):
         self.structure, self.part, self.pose, self.floor_y, self.config = structure, part, pose, floor_y, config
         _, self.com, _ = part_mass_properties(part)
-        self.overlap = CollisionScene(structure, [(part, Pose.identity())], floor_y)
+        self.judge = judge or _Judge(structure, part, floor_y, config)
+        self.overlap = self.judge.overlap
         self.depth0, _ = self.overlap.penetration(pose, self._connected(pose))
         self.result: Settled | None = None
         self.history: list[Pose] = [pose]  # the pose after every chunk of `snap_every` steps
@@ -200,7 +207,6 @@ class Release:
         if self.depth0 > config.collides_ldu:
             self.result = Settled("collides", pose, 0.0, self._conns(pose), 0.0)
             return
-        self.judge = judge or _Judge(structure, part, floor_y, config)
         hit = self.judge.snap(pose)
         if hit is not None:
             self.result = Settled("rests-connected", hit[0], self._moved(hit[0]), hit[1], 0.0)
@@ -217,10 +223,12 @@ class Release:
     def after_chunk(self, now: Pose, done: int) -> bool:
         """The part at `now` after `done` steps: True when settling stops here (snapped: `result`
         set; or at rest: `at_rest`)."""
-        hit = self.judge.snap(now)
-        if hit is not None:
-            self.result = Settled("rests-connected", hit[0], self._moved(hit[0]), hit[1], done * self.config.timestep)
-            return True
+        for pose in _path(self.history[-1], now, self.config.snap.plane_ldu):
+            hit = self.judge.snap(pose)
+            if hit is not None:
+                self.result = Settled("rests-connected", hit[0], self._moved(hit[0]), hit[1],
+                                      done * self.config.timestep)
+                return True
         self.history.append(now)
         if len(self.history) > self.window and _still(self.history[-self.window - 1:], self.com, self.config):
             self.at_rest = True
@@ -250,14 +258,35 @@ def settle(structure: Structure, part: Part, pose: Pose, floor_y: float | None =
            config: SettleConfig = SettleConfig()) -> Settled:
     """Release `part` at `pose` (LDraw frame) on `structure` and let it settle (module docstring).
     `floor_y`: the table's LDraw height, by default the structure's lowest point."""
-    if floor_y is None:
-        floor_y = default_floor_y(structure, part, pose)
-    release = Release(structure, part, pose, floor_y, config)
-    if release.result is not None:
-        return release.result
-    scene = settle_model(structure, part, floor_y, config)
+    (out,) = settle_all([(structure, part, pose, floor_y)], config)
+    return out
+
+
+def settle_all(cases, config: SettleConfig = SettleConfig()) -> list[Settled]:
+    """`settle` of every case (structure, part, pose, floor_y) on MuJoCo C, one after another; a
+    scene's model, overlap measure and snapping verdicts are made once for all its cases (a scene:
+    the same `Structure` and `Part` objects and floor), as `settle_mjx.settle_many` makes them."""
+    scenes: dict[tuple, list] = {}
+    out = []
+    for structure, part, pose, floor_y in cases:
+        floor = default_floor_y(structure, part, pose) if floor_y is None else float(floor_y)
+        key = (id(structure), id(part), floor)
+        if key not in scenes:
+            scenes[key] = [_Judge(structure, part, floor, config), None]
+        release = Release(structure, part, pose, floor, config, scenes[key][0])
+        if release.result is not None:
+            out.append(release.result)
+            continue
+        if scenes[key][1] is None:
+            scenes[key][1] = settle_model(structure, part, floor, config)
+        out.append(_simulate(release, scenes[key][1], config))
+    return out
+
+
+def _simulate(release: Release, scene: SettleScene, config: SettleConfig) -> Settled:
+    """One undecided release simulated with `mujoco.mj_step`, the rules after every chunk."""
     model, data = scene.model, mujoco.MjData(scene.model)
-    pos, quat = pose.to_mujoco_quat()
+    pos, quat = release.pose.to_mujoco_quat()
     data.qpos[:3], data.qpos[3:7] = pos, quat
     mujoco.mj_forward(model, data)
     steps = int(round(config.seconds / config.timestep))
@@ -272,6 +301,33 @@ def settle(structure: Structure, part: Part, pose: Pose, floor_y: float | None =
         return release.result
     mujoco.mj_forward(model, data)
     return release.finish(_pose_of(data, scene.part_body), _touched(data, scene), done)
+
+
+def _path(a: Pose, b: Pose, spacing: float) -> list[Pose]:
+    """Poses from `a` (excluded) to `b` (included), at most `spacing` LDU apart: the snapping test
+    sweeps the path of a chunk. A part falling onto studs moves up to about 14 LDU in a chunk of
+    10 ms, more than the snapping window along a stud's axis; tested only at the chunk's end it
+    could pass the window and bounce off the studs, and whether it did would hang on where the
+    chunk boundaries fell."""
+    steps = max(1, int(np.ceil(np.linalg.norm(b.t - a.t) / spacing)))
+    if steps == 1:
+        return [b]
+    rel = a.R.T @ b.R
+    angle = np.arccos(np.clip((np.trace(rel) - 1.0) / 2.0, -1.0, 1.0))
+    axis = np.array([rel[2, 1] - rel[1, 2], rel[0, 2] - rel[2, 0], rel[1, 0] - rel[0, 1]])
+    norm = np.linalg.norm(axis)
+    out = []
+    for k in range(1, steps + 1):
+        f = k / steps
+        if k == steps or angle < 1e-9 or norm < 1e-12:
+            R = b.R if k == steps or angle < 1e-9 else a.R
+        else:
+            u = axis / norm
+            K = np.array([[0, -u[2], u[1]], [u[2], 0, -u[0]], [-u[1], u[0], 0]])
+            th = f * angle
+            R = a.R @ (np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * K @ K)
+        out.append(Pose(R, a.t + f * (b.t - a.t)))
+    return out
 
 
 def _still(poses: list[Pose], com: np.ndarray, config: SettleConfig) -> bool:

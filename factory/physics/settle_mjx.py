@@ -1,38 +1,31 @@
-"""`settle` batched in MuJoCo XLA (MJX on JAX): many predicted placements released at once.
+"""`settle` batched on a GPU: many predicted placements, of any scenes, released at once in
+MuJoCo Warp (the GPU implementation of MuJoCo that MJX ships, `mujoco.mjx.third_party.mujoco_warp`).
 
-`settle_many(cases)` gives, per case (structure, part, pose, floor_y), what `settle.settle` gives,
-with the simulation run by `mujoco.mjx` instead of `mujoco.mj_step`; everything else is the
-reference's own code (`settle.Release`): the overlap check and snapping before simulating, then
-after every `snap_every` steps, on the host, snapping (the checks judge each candidate once per
-scene: the judge is shared) and the at-rest window, and at the end the outcome from the end pose
-and the contacts MuJoCo C finds there (`mj_forward` on the scene's `MjModel` at the MJX end state).
+`settle_many(cases)` gives, per case (structure, part, pose, floor_y), what `settle.settle` gives.
+Everything but the simulation is the reference's own code (`settle.Release`): the overlap check
+and snapping before simulating, then after every `snap_every` steps, on the host, snapping (the
+checks judge each candidate once per scene: the judge is shared) and the at-rest window, and at the
+end the outcome from the end pose and the contacts MuJoCo C finds there (`mj_forward` on the scene's
+own `MjModel`, `settle.settle_model`).
 
-Batching and compiles. Cases are grouped by scene: the same `Structure` and `Part` objects (by
-identity) and floor. A scene's `MjModel` (`settle_model`) is put on the device once
-(`mjx.put_model`) and its undecided cases run together: a batch of `mjx.Data` whose qpos holds the
-predicted poses, `jax.vmap` over the batch of a `jax.lax.fori_loop` of `snap_every` `mjx.step`s,
-one jitted call per chunk, the model passed as an argument. A case that stops (snapped, at rest)
-keeps its end state and rides along idle until the batch's last case stops. The batch is padded to
-a power of two (`BATCH_SIZES`), so a scene compiles at most once per batch size it meets; JAX's
-jit cache is keyed by the model's static part, and MJX makes a scene's collision functions static
-per distinct pair of meshes (`collision_driver._geom_groups`: one convex-convex function per
-(part mesh, structure mesh) pair), so two scenes share a compile only when they have the same geoms
-and meshes (the same structure and part up to placement). Bucketing across scenes would need every
-convex piece padded to a few fixed vertex counts with its vertices as data rather than as the
-model's static mesh, and the structure's geoms padded to a fixed count: not done. With
-`jax_cache.enable()` the compiles persist across processes (a scene met again loads its kernel).
+One world per case, one model per batch. Feedback data is one wrong prediction per scene (a
+structure at some step and the part predicted next), so worlds cannot share a model as robot
+simulations do. A batch's model is a template of slots: the floor, `S` mesh geoms of a static body
+(the structure's collision pieces) and `P` mesh geoms of the free part, every geom pointing at a
+pool holding the meshes of all the batch's scenes. Per world (MuJoCo Warp's batched model fields)
+each slot gets its scene's mesh (`geom_dataid`), placement, bounds, and the part its mass and
+inertia; the slots a scene does not fill hold a tiny mesh far below the floor (structure) or at the
+part's origin with a contact margin of -1 m (part), so they never make a contact. Each world is
+shifted so that its floor is at the template's (z = 0). `S` and `P` are rounded up to a power of two
+(`STRUCTURE_SLOTS`, `PART_SLOTS`): Warp compiles its kernels once per machine (its kernel cache), a
+process loads them once, and a batch's model only changes the arrays they read. The geoms of
+a static body are placed once, when the data is made (Warp does not move them again), so their
+world poses are written into the data's `geom_xpos`/`geom_xmat` directly.
 
-On JAX's CPU backend a compile is slow (about 1-4 minutes for a 3-brick scene: the convex
-collision functions unrolled per mesh pair); `settle_many` is for GPUs, and for the parity
-measurement (`pipelines.bench_settle`) on the CPU.
-
-MJX support: the scene is mesh geoms (convex hulls of the collision pieces, `margin` 0) on fixed
-bodies, a plane and one free body, elliptic cones, condim 3, the Newton solver: all supported by
-MJX (JAX implementation) of MuJoCo 3.3+. A scene `mjx.put_model` refuses (`NotImplementedError`)
-falls back to MuJoCo C (`settle.settle`), counted in `MjxStats.fallbacks`. MJX computes in float32
-(MuJoCo C in float64) and its convex collision (GJK/EPA, up to 4 contacts per mesh pair) is not
-MuJoCo C's (libccd / MuJoCo's own convex collider), so trajectories differ slightly; how often the outcomes agree is what `pipelines.bench_settle`
-measures (run so far on 2 simulated cases only: both agreed).
+MuJoCo Warp computes in float32 (MuJoCo C in float64) and its convex collision (GJK/EPA with
+multi-contact) is not MuJoCo C's, so trajectories differ slightly; how often the outcomes agree
+is what `pipelines.bench_settle` measures. On a machine without a GPU Warp runs its kernels on the
+CPU (slowly: the tests use it); with CUDA each chunk of `snap_every` steps is one captured graph.
 """
 
 from __future__ import annotations
@@ -44,158 +37,275 @@ from functools import cache
 import mujoco
 import numpy as np
 
-from factory.physics.settle import (Release, SettleConfig, Settled, _Judge, _pose_of, _touched, default_floor_y,
-                                    settle, settle_model)
+from factory.physics.collide import _fmt, _template
+from factory.physics.settle import (Release, SettleConfig, SettleScene, Settled, _Judge, _pose_of, _touched,
+                                    default_floor_y, settle, settle_model)
 from factory.pose import Pose
 
-BATCH_SIZES = tuple(2 ** k for k in range(13))
-"""Batch sizes a scene's cases are padded to (the least that holds them; larger batches split)."""
+PART_SLOTS = (4, 8, 16, 32, 64, 128)
+"""Mesh geoms of the free part per batch: the least of these that holds the batch's largest part."""
+STRUCTURE_SLOTS = tuple(2 ** k for k in range(4, 15))
+"""Mesh geoms of the structure per batch: the least of these that holds its largest structure."""
+CONTACTS_PER_WORLD = 160
+"""Contacts kept per world (MuJoCo Warp allocates them up front); more are dropped and counted."""
+BATCH = 4096
+"""Worlds per batch at most."""
+
+_PARK = "-1e-4 -1e-4 -1e-4 1e-4 -1e-4 -1e-4 0 1e-4 -1e-4 0 0 1e-4"  # a 0.2 mm tetrahedron
+_BATCHED = ("geom_dataid", "geom_pos", "geom_quat", "geom_aabb", "geom_rbound", "geom_size", "geom_margin",
+            "body_mass", "body_inertia", "body_ipos", "body_iquat", "body_invweight0", "body_subtreemass",
+            "dof_invweight0")
 
 
 @dataclass
 class MjxStats:
     """What `settle_many` did (filled in when passed)."""
 
-    scenes: int = 0
-    """Scenes simulated with MJX."""
+    device: str = ""
+    """The Warp device the batches ran on."""
+    batches: int = 0
+    """Batches simulated (one model each)."""
     simulated: int = 0
-    """Cases simulated with MJX (the others were decided before simulating or fell back)."""
+    """Cases simulated (the others were decided before simulating or fell back)."""
     fallbacks: int = 0
-    """Cases run on MuJoCo C because MJX refused their scene."""
-    compiles: int = 0
-    """Chunk functions compiled (new entries in the jit cache)."""
-    compile_s: float = 0.0
-    """Seconds of the first call of each new (scene, batch size): compiling, mostly."""
+    """Cases run on MuJoCo C because MuJoCo Warp refused their scene."""
+    first_chunk_s: float = 0.0
+    """Seconds of each batch's first chunk (compiling Warp's kernels, the first time in a process)."""
     run_s: float = 0.0
-    """Seconds of the other chunk calls."""
+    """Seconds of the other chunks, the host's rules included."""
+    prepare_s: float = 0.0
+    """Seconds building batches: the scenes' models, the template, putting them on the device."""
+    contacts_dropped: int = 0
+    """Chunks after which a batch had used all its contacts (`CONTACTS_PER_WORLD` per world)."""
     refused: list[str] = field(default_factory=list)
-    """Why MJX refused each scene it refused."""
-
-
-def _bucket(n: int) -> int:
-    return next(b for b in BATCH_SIZES if b >= n)
+    """Why MuJoCo Warp refused each scene it refused."""
 
 
 @cache
-def _chunk_fn(steps: int):
-    """The jitted chunk: `steps` `mjx.step`s of every member of a batch of `mjx.Data`."""
-    import jax
-    from mujoco import mjx  # lazy: mujoco.mjx imports JAX, an optional extra
+def _warp():
+    """(warp, mujoco_warp), imported once and quiet. Warp keeps its compiled kernels in its own
+    per-user cache (`WARP_CACHE_PATH`, else ~/.cache/warp): they depend on Warp's version and the
+    device, not on anything of the factory's."""
+    import warp as wp  # optional: the [warp] extra
+    from mujoco.mjx.third_party import mujoco_warp as mjw
 
-    def chunk(m, d):
-        return jax.vmap(lambda one: jax.lax.fori_loop(0, steps, lambda _, x: mjx.step(m, x), one))(d)
-
-    return jax.jit(chunk)
-
-
-def _device(backend: str | None):
-    import jax
-
-    return jax.devices(backend)[0] if backend else jax.devices()[0]
+    wp.config.quiet = True
+    wp.init()
+    return wp, mjw
 
 
-def settle_many(cases, config: SettleConfig = SettleConfig(), backend: str | None = None,
-                stats: MjxStats | None = None) -> list[Settled]:
+def default_device() -> str:
+    """A GPU when Warp sees one (worker k of a pool: GPU k mod G, as `factory.gpus` spreads the
+    checks), else 'cpu'."""
+    wp, _ = _warp()
+    if wp.get_cuda_device_count() == 0:
+        return "cpu"
+    from factory import gpus
+
+    k = gpus.slot()
+    return f"cuda:{k % wp.get_cuda_device_count() if k is not None else 0}"
+
+
+def _bucket(n: int, sizes: tuple[int, ...]) -> int:
+    for b in sizes:
+        if b >= n:
+            return b
+    raise ValueError(f"{n} geoms is more than the largest slot count {sizes[-1]}")
+
+
+@dataclass
+class _SceneSlots:
+    """A scene's geoms as the template's slots take them (floor-shifted, LDraw-independent)."""
+
+    scene: SettleScene
+    floor: np.ndarray  # the floor geom's position (the world's shift)
+    structure: list[tuple]  # (mesh name, world pos, quat, aabb, rbound, size)
+    part: list[tuple]  # (mesh name, body pos, quat, aabb, rbound, size)
+    body: dict  # the part body's inertial fields and the dofs' invweight0
+
+
+def _slots(scene: SettleScene) -> _SceneSlots:
+    m = scene.model
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    floor = m.geom_pos[scene.floor_geom].copy()
+    structure, part = [], []
+    for g in range(m.ngeom):
+        if scene.owner[g] == -2:
+            continue
+        name = m.mesh(int(m.geom_dataid[g])).name
+        bounds = (m.geom_aabb[g].reshape(2, 3).copy(), float(m.geom_rbound[g]), m.geom_size[g].copy())
+        if scene.owner[g] >= 0:
+            q = np.zeros(4)
+            mujoco.mju_mat2Quat(q, d.geom_xmat[g])
+            structure.append((name, d.geom_xpos[g] - floor, q) + bounds)
+        else:
+            part.append((name, m.geom_pos[g].copy(), m.geom_quat[g].copy()) + bounds)
+    b = scene.part_body
+    body = {k: getattr(m, k)[b].copy() for k in ("body_mass", "body_inertia", "body_ipos", "body_iquat",
+                                                   "body_invweight0", "body_subtreemass")}
+    body["dof_invweight0"] = m.dof_invweight0.copy()
+    return _SceneSlots(scene, floor, structure, part, body)
+
+
+def _template_model(pool: dict[str, str], n_structure: int, n_part: int, config: SettleConfig) -> mujoco.MjModel:
+    assets = "".join(f'<mesh name="{n}" vertex="{v}"/>' for n, v in pool.items()) + f'<mesh name="park" vertex="{_PARK}"/>'
+    structure = ('<body name="structure"><inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/>'
+                 + '<geom mesh="park" pos="0 0 -100"/>' * n_structure + "</body>")
+    xml = _template("settle.xml").format(
+        timestep=f"{config.timestep:.7g}", condim=3, friction=f"{config.friction:.7g} 0.005 0.0001",
+        solref=_fmt(config.solref), solimp=_fmt(config.solimp), assets=assets, floor_z="0", structure=structure,
+        pos="0 0 1", quat="1 0 0 0", inertial='<inertial pos="0 0 0" mass="0.001" diaginertia="1e-9 1e-9 1e-9"/>',
+        part='<geom mesh="park"/>' * n_part)
+    return mujoco.MjModel.from_xml_string(xml)
+
+
+def settle_many(cases, config: SettleConfig = SettleConfig(), device: str | None = None,
+                stats: MjxStats | None = None, batch: int = BATCH) -> list[Settled]:
     """`settle` of every case (structure, part, pose, floor_y; floor_y None for the structure's
-    lowest point), the simulations batched in MJX per scene on JAX's `backend` (its default when
-    None). Results in the cases' order."""
+    lowest point), the simulations batched in MuJoCo Warp on `device` ('cpu', 'cuda:0'; the GPU
+    when there is one). Results in the cases' order."""
     stats = stats if stats is not None else MjxStats()
     out: list[Settled | None] = [None] * len(cases)
-    groups: dict[tuple, list[int]] = {}
-    floors = []
+    scenes: dict[tuple, tuple] = {}  # scene key -> (judge, scene slots or None)
+    pending: list[tuple[int, tuple, Release]] = []
+    t0 = time.perf_counter()
     for i, (structure, part, pose, floor_y) in enumerate(cases):
         floor = default_floor_y(structure, part, pose) if floor_y is None else float(floor_y)
-        floors.append(floor)
-        groups.setdefault((id(structure), id(part), floor), []).append(i)
-    for (_, _, floor), idx in groups.items():
-        structure, part = cases[idx[0]][0], cases[idx[0]][1]
-        judge = _Judge(structure, part, floor, config)
-        releases = {i: Release(structure, part, cases[i][2], floor, config, judge) for i in idx}
-        pending = []
-        for i, r in releases.items():
-            if r.result is not None:
-                out[i] = r.result
-            else:
-                pending.append(i)
-        if not pending:
-            continue
-        scene = settle_model(structure, part, floor, config)
+        key = (id(structure), id(part), floor)
+        if key not in scenes:
+            scenes[key] = [_Judge(structure, part, floor, config), None]
+        release = Release(structure, part, pose, floor, config, scenes[key][0])
+        if release.result is not None:
+            out[i] = release.result
+        else:
+            pending.append((i, key, release))
+    for i, key, _ in pending:
+        if scenes[key][1] is None:
+            scenes[key][1] = _slots(settle_model(cases[i][0], cases[i][1], scenes[key][0].floor_y, config))
+    stats.prepare_s += time.perf_counter() - t0
+    if not pending:
+        return out  # type: ignore[return-value]
+    device = device or default_device()
+    stats.device = device
+    for start in range(0, len(pending), batch):
+        chunk = pending[start:start + batch]
         try:
-            from mujoco import mjx  # lazy: mujoco.mjx imports JAX, an optional extra
-
-            model = mjx.put_model(scene.model, device=_device(backend))
-        except NotImplementedError as e:
+            ends = _simulate([scenes[k][1] for _, k, _ in chunk], [r for _, _, r in chunk], config, device, stats)
+        except NotImplementedError as e:  # a model MuJoCo Warp cannot run: the reference runs it
             stats.refused.append(str(e))
-            stats.fallbacks += len(pending)
-            for i in pending:
-                out[i] = settle(structure, part, cases[i][2], floor, config)
-            continue
-        stats.scenes += 1
-        big = BATCH_SIZES[-1]
-        for start in range(0, len(pending), big):
-            part_idx = pending[start:start + big]
-            ends = _simulate(model, scene, [releases[i] for i in part_idx], config, backend, stats)
-            for i, settled in zip(part_idx, ends):
-                out[i] = settled
+            stats.fallbacks += len(chunk)
+            ends = [settle(r.structure, r.part, r.pose, r.floor_y, config) for _, _, r in chunk]
+        for (i, _, _), settled in zip(chunk, ends):
+            out[i] = settled
     return out  # type: ignore[return-value]
 
 
-def _simulate(model, scene, releases: list[Release], config: SettleConfig, backend: str | None,
+def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleConfig, device: str,
               stats: MjxStats) -> list[Settled]:
-    """One scene's batch of undecided releases, simulated in MJX with the host's rules per chunk."""
-    import jax
-    import jax.numpy as jnp
-    from mujoco import mjx  # lazy: mujoco.mjx imports JAX, an optional extra
-
+    """One batch of undecided releases (world w: `slots[w]`, `releases[w]`) simulated in MuJoCo
+    Warp with the host's rules after every chunk."""
+    wp, mjw = _warp()
+    t0 = time.perf_counter()
     n = len(releases)
-    size = _bucket(n)
-    qpos = np.zeros((size, 7))
-    for k in range(size):
-        pos, quat = releases[min(k, n - 1)].pose.to_mujoco_quat()
-        qpos[k, :3], qpos[k, 3:7] = pos, quat
-    one = mjx.make_data(model, device=_device(backend))
-    data = jax.vmap(lambda q: one.replace(qpos=q))(jnp.asarray(qpos, one.qpos.dtype))
-    # Strong types throughout, as the chunk's output has them: else the second call compiles again.
-    data = jax.tree_util.tree_map(lambda x: jnp.array(x, dtype=x.dtype) if hasattr(x, "dtype") else x, data)
-    stats.simulated += n
-    steps = int(round(config.seconds / config.timestep))
-    body = scene.part_body
-    active = list(range(n))
-    end_qpos = np.zeros((n, 7))
-    stopped = np.zeros(n, np.int64)
-    done = 0
-    while done < steps and active:
-        k = min(config.snap_every, steps - done)
-        fn = _chunk_fn(k)
-        before = fn._cache_size()
-        t0 = time.perf_counter()
-        data = fn(model, data)
-        xpos, xmat, q = (np.asarray(a, np.float64) for a in (data.xpos[:, body], data.xmat[:, body], data.qpos))
-        dt = time.perf_counter() - t0
-        if fn._cache_size() > before:
-            stats.compiles += 1
-            stats.compile_s += dt
-        else:
-            stats.run_s += dt
-        done += k
-        still = []
-        for i in active:
-            end_qpos[i], stopped[i] = q[i], done
-            now = Pose.from_mujoco(xpos[i], xmat[i].reshape(3, 3))
-            if not releases[i].after_chunk(now, done):
-                still.append(i)
-        active = still
+    pool: dict[str, str] = {}
+    for s in {id(s): s for s in slots}.values():
+        for name, verts in s.scene.meshes.items():
+            pool.setdefault(name, verts)
+    n_structure = _bucket(max(len(s.structure) for s in slots), STRUCTURE_SLOTS)
+    n_part = _bucket(max(len(s.part) for s in slots), PART_SLOTS)
+    tm = _template_model(pool, n_structure, n_part, config)
+    mesh_id = {tm.mesh(i).name: i for i in range(tm.nmesh)}
+    body_part = mujoco.mj_name2id(tm, mujoco.mjtObj.mjOBJ_BODY, "part")
+    body_structure = mujoco.mj_name2id(tm, mujoco.mjtObj.mjOBJ_BODY, "structure")
+    s_slots = np.flatnonzero(tm.geom_bodyid == body_structure)
+    p_slots = np.flatnonzero(tm.geom_bodyid == body_part)
+    arr = {k: np.repeat(np.asarray(getattr(tm, k))[None], n, 0) for k in _BATCHED}
+    arr["geom_aabb"] = arr["geom_aabb"].reshape(n, tm.ngeom, 2, 3)
+    arr["geom_margin"][:, p_slots] = -1.0
+    xmat = np.repeat(np.eye(3)[None, None], n, 0).repeat(tm.ngeom, 1)
+    xpos = np.zeros((n, tm.ngeom, 3))
+    xpos[:, s_slots] = (0.0, 0.0, -100.0)
+    qpos = np.zeros((n, 7))
+    for w, (s, r) in enumerate(zip(slots, releases)):
+        for geoms, ids in ((s.structure, s_slots), (s.part, p_slots)):
+            for slot, (name, pos, quat, aabb, rbound, size) in zip(ids, geoms):
+                arr["geom_dataid"][w, slot] = mesh_id[name]
+                arr["geom_pos"][w, slot], arr["geom_quat"][w, slot] = pos, quat
+                arr["geom_aabb"][w, slot], arr["geom_rbound"][w, slot], arr["geom_size"][w, slot] = aabb, rbound, size
+                arr["geom_margin"][w, slot] = 0.0
+        for slot, (_, pos, quat, *_rest) in zip(s_slots, s.structure):
+            xpos[w, slot] = pos
+            mat = np.zeros(9)
+            mujoco.mju_quat2Mat(mat, quat)
+            xmat[w, slot] = mat.reshape(3, 3)
+        for k in ("body_mass", "body_inertia", "body_ipos", "body_iquat", "body_invweight0", "body_subtreemass"):
+            arr[k][w, body_part] = s.body[k]
+        arr["dof_invweight0"][w] = s.body["dof_invweight0"]
+        pos, quat = r.pose.to_mujoco_quat()
+        qpos[w, :3], qpos[w, 3:] = pos - s.floor, quat
+    shift = np.array([s.floor for s in slots])
+    with wp.ScopedDevice(device):
+        mw = mjw.put_model(tm, batch_sizes={k: n for k in _BATCHED})
+        for k, v in arr.items():
+            a = getattr(mw, k)
+            a.assign(wp.array(v.astype(np.int32 if a.dtype == wp.int32 else np.float32), dtype=a.dtype))
+        naconmax = n * CONTACTS_PER_WORLD
+        dw = mjw.make_data(tm, nworld=n, naconmax=naconmax, njmax=CONTACTS_PER_WORLD * 3)
+        for a, v in ((dw.geom_xpos, xpos), (dw.geom_xmat, xmat), (dw.qpos, qpos)):
+            a.assign(wp.array(v.astype(np.float32), dtype=a.dtype))
+        stats.prepare_s += time.perf_counter() - t0
+        stats.batches += 1
+        stats.simulated += n
+        graph = None
+        steps = int(round(config.seconds / config.timestep))
+        active = list(range(n))
+        end_qpos = np.zeros((n, 7))
+        stopped = np.zeros(n, np.int64)
+        done, first = 0, True
+        while done < steps and active:
+            k = min(config.snap_every, steps - done)
+            t1 = time.perf_counter()
+            if graph is None and k == config.snap_every and wp.get_device(device).is_cuda and not first:
+                with wp.ScopedCapture() as capture:
+                    for _ in range(k):
+                        mjw.step(mw, dw)
+                graph = capture.graph
+            if graph is not None and k == config.snap_every:
+                wp.capture_launch(graph)
+            else:
+                for _ in range(k):
+                    mjw.step(mw, dw)
+            pos_b, mat_b, q = dw.xpos.numpy()[:, body_part], dw.xmat.numpy()[:, body_part], dw.qpos.numpy()
+            if int(dw.nacon.numpy()[0]) >= naconmax:
+                stats.contacts_dropped += 1
+            done += k
+            still = []
+            for w in active:
+                end_qpos[w], stopped[w] = q[w], done
+                now = Pose.from_mujoco(pos_b[w] + shift[w], mat_b[w].astype(np.float64))
+                if not releases[w].after_chunk(now, done):
+                    still.append(w)
+            active = still
+            dt = time.perf_counter() - t1
+            if first:
+                stats.first_chunk_s += dt
+                first = False
+            else:
+                stats.run_s += dt
     out = []
-    host = mujoco.MjData(scene.model)
-    for i, r in enumerate(releases):
+    for w, (s, r) in enumerate(zip(slots, releases)):
         if r.result is not None:
             out.append(r.result)
             continue
-        host.qpos[:] = end_qpos[i]
-        host.qvel[:] = 0.0
-        mujoco.mj_forward(scene.model, host)
-        out.append(r.finish(_pose_of(host, body), _touched(host, scene), int(stopped[i])))
+        model = s.scene.model
+        host = mujoco.MjData(model)
+        host.qpos[:] = end_qpos[w]
+        host.qpos[:3] += s.floor
+        mujoco.mj_forward(model, host)
+        out.append(r.finish(_pose_of(host, s.scene.part_body), _touched(host, s.scene), int(stopped[w])))
     return out
 
 
-__all__ = ["BATCH_SIZES", "MjxStats", "settle_many"]
+__all__ = ["BATCH", "CONTACTS_PER_WORLD", "MjxStats", "PART_SLOTS", "STRUCTURE_SLOTS", "default_device",
+           "settle_many"]

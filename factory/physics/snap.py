@@ -20,6 +20,7 @@ then the sampler's order); the asker judges them with the checks and takes the f
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -86,10 +87,22 @@ class SnapTargets:
     def __len__(self) -> int:
         return len(self.t)
 
+    @cached_property
+    def _radius(self) -> float:
+        """The farthest connection point from the part's origin (LDU)."""
+        return float(np.linalg.norm(self.local, axis=-1).max()) if len(self.local) else 0.0
+
     def near(self, pose: Pose, rule: SnapRule) -> list[tuple[int, Pose, float]]:
         """(candidate, its pose turned by the symmetry nearest `pose`, largest connection point
         distance) of every candidate within the rule's tolerance of `pose`, nearest first."""
         if not len(self.owner):
+            return []
+        # A candidate within tolerance has its translation within `reach` of the pose's (its
+        # connection points lie within the tolerance box of theirs, turned by at most `degrees`
+        # about the part's origin): the others are dropped before the full test.
+        reach = self._radius * 2.0 * np.sin(np.radians(rule.degrees) / 2.0) + np.hypot(rule.axis_ldu, rule.plane_ldu)
+        close = np.linalg.norm(self.t - pose.t, axis=1) <= reach + 1e-6
+        if not close.any():
             return []
         trace = np.einsum("ij,nsij->ns", pose.R, self.rotations)
         best = trace.argmax(axis=1)
