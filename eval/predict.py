@@ -19,8 +19,10 @@ object is reached); score them with `eval.score --only-predicted`. The file is w
 beside it and renamed into place, so an interrupted run never leaves a half file under the name.
 
 `--feedback` (the paper's world feedback, `eval.feedback`): a pose answer that parses and fails the
-step in paper mode is drawn in red on the before-assembly, and the model is asked again with that
-image and its per-brick errors; the second answer is written as an extra line with
+step in paper mode is executed in the simulator (each brick released where it was put and settled on
+the before-assembly), drawn as a red outline with where it ended up in solid red, and the model is
+asked again with that image, what happened to each brick and its errors (`--static-feedback`: drawn
+in red where it was put, errors only); the second answer is written as an extra line with
 ``"revised": true``. One revision per step. The baselines under feedback: the oracle is never
 wrong; random answers afresh (a new draw, seeded by (seed, step id, 1)); the heuristic sees nothing
 it uses in the feedback, so it gives the same answer again.
@@ -169,9 +171,10 @@ def parse_tasks(value: str) -> tuple[str, ...]:
 
 def iter_predictions(data, predictor: Predictor, split: str | None = "test", tasks=TASKS,
                      limit: int | None = None, feedback: bool = False, progress: bool = False,
-                     ldraw=None) -> Iterator[dict]:
+                     ldraw=None, physics: bool = True) -> Iterator[dict]:
     """The answer records of the split's steps (`split` None: every split), in dataset order;
-    feedback renders draw parts from `ldraw` (default: the dataset's library, `eval.data.library`)."""
+    feedback renders draw parts from `ldraw` (default: the dataset's library, `eval.data.library`);
+    `physics` False: the static feedback (`eval.feedback.feedback_example`)."""
     tasks = tuple(tasks)
     columns = list(TARGET_COLUMNS)
     if predictor.needs_chat:
@@ -211,7 +214,7 @@ def iter_predictions(data, predictor: Predictor, split: str | None = "test", tas
                         yield {"id": row["step_id"], "task": task, "text": text}
                         if task == "pose" and reader is not None:
                             fb = feedback_example(row, text, before_rows(rows, row), renderer, size,
-                                                  scene=assembly_rows(rows, row))
+                                                  scene=assembly_rows(rows, row), physics=physics)
                             if fb is not None:
                                 yield {"id": row["step_id"], "task": "pose", "text": predictor.revise(ctx, fb, text),
                                        "revised": True}
@@ -223,7 +226,7 @@ def iter_predictions(data, predictor: Predictor, split: str | None = "test", tas
 
 def write_predictions(data, predictor: Predictor, out, split: str | None = "test", tasks=TASKS,
                       limit: int | None = None, feedback: bool = False, progress: bool = False,
-                      ldraw=None) -> dict:
+                      ldraw=None, physics: bool = True) -> dict:
     """Write `iter_predictions` to `out` atomically; returns {"lines", "steps", "revised", "path"}."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -233,7 +236,7 @@ def write_predictions(data, predictor: Predictor, out, split: str | None = "test
     try:
         os.fchmod(fd, 0o666 & ~umask())  # readable as a plain open would leave it, not mkstemp's 0600
         with os.fdopen(fd, "w", encoding="utf-8") as f:
-            for rec in iter_predictions(data, predictor, split, tasks, limit, feedback, progress, ldraw):
+            for rec in iter_predictions(data, predictor, split, tasks, limit, feedback, progress, ldraw, physics):
                 f.write(json.dumps(rec, ensure_ascii=False) + "\n")
                 summary["lines"] += 1
                 summary["revised"] += bool(rec.get("revised"))
@@ -266,7 +269,8 @@ def run(args) -> int:
         library(args.data, args.ldraw, src)
     predictor = make_predictor(args.model, args.seed, args.max_new_tokens, args.device)
     summary = write_predictions(args.data, predictor, args.out, args.split, tasks, args.limit, args.feedback,
-                                progress=not args.no_progress, ldraw=args.ldraw)
+                                progress=not args.no_progress, ldraw=args.ldraw,
+                                physics=not args.static_feedback)
     print(f"wrote {summary['lines']} answers for {summary['steps']} steps"
           + (f" ({summary['revised']} revised after feedback)" if args.feedback else "")
           + f" to {summary['path']}", file=sys.stderr)
@@ -286,6 +290,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--feedback", action="store_true", help="revise failed pose answers with world feedback")
     ap.add_argument("--ldraw", help="with --feedback: the LDraw library the feedback renders draw parts from "
                     "(default: the one the dataset was built with)")
+    ap.add_argument("--static-feedback", action="store_true",
+                    help="with --feedback: draw the prediction where it was put, without executing it in the simulator")
     ap.add_argument("--max-new-tokens", type=int, default=256, help="hf: longest answer in tokens (default 256)")
     ap.add_argument("--device", help="hf: torch device (default: cuda when available, else cpu)")
     add_progress_flag(ap)

@@ -4,8 +4,9 @@
     python -m train.feedback ...            (the same command)
 
 For each pose answer in `preds.jsonl` (`eval.predict` output on `--split` of OUT) that parses and
-fails its step in paper mode, `eval.feedback.feedback_example` renders the predicted placement in
-red and writes the revision prompt; the row goes to OUT_FB with `pose_messages` = the pose prompt,
+fails its step in paper mode, `eval.feedback.feedback_example` executes it in the simulator, renders
+the predicted placement (red outline) and where each brick ended up (solid red) and writes the
+revision prompt (`--static-feedback`: the placement drawn in red where it was put, errors only); the row goes to OUT_FB with `pose_messages` = the pose prompt,
 the wrong answer (assistant), the feedback turn (user, with the `feedback` image) and the right
 answer (assistant), and `pose_images` = the pose images then `feedback`. The trainer learns the
 last turn only, so the model is taught to revise a wrong pose given what the simulator showed.
@@ -84,10 +85,11 @@ def split_objects(data, split: str, step_ids: list | None = None) -> dict[str, l
     return where
 
 
-def feedback_config(data, pred, split: str = "train", objects_per_shard: int = 4, ldraw=None) -> DatasetConfig:
+def feedback_config(data, pred, split: str = "train", objects_per_shard: int = 4, ldraw=None,
+                    physics: bool = True) -> DatasetConfig:
     """The `DatasetConfig` of the correction rows of predictions `pred` on `split` of `data`: the
     source dataset's view size, library (or `ldraw`: the same library in another folder,
-    `eval.data.library`) and PNG level, its objects in order."""
+    `eval.data.library`) and PNG level, its objects in order; `physics` False: static feedback."""
     data, pred = Path(data), Path(pred)
     if split not in SPLITS:
         raise DatasetError(f"unknown split {split!r}; valid: {', '.join(SPLITS)}")
@@ -102,7 +104,7 @@ def feedback_config(data, pred, split: str = "train", objects_per_shard: int = 4
         raise DatasetError(f"{data}: meta/info.json's config has no view size (size): the feedback renders need it")
     spec = FeedbackSpec(dataset=str(data.resolve()), dataset_id=src.dataset_id, config_hash=src.config_hash,
                         split=split, predictions=str(pred.resolve()), predictions_sha256=file_sha256(pred),
-                        objects=objects)
+                        objects=objects, physics=physics)
     seed = src.seed if src.seed is not None else int(config.get("seed", 0))
     ldraw = library(data, ldraw, src)
     return DatasetConfig("feedback", len(objects), seed=seed, dataset_id=f"{src.dataset_id}-feedback",
@@ -117,6 +119,7 @@ class FeedbackSource:
 
     def __init__(self, config: DatasetConfig):
         spec = config.feedback
+        self.physics = spec.physics
         self.dataset_id, self.ldraw, self.size, self.level = (config.dataset_id, config.ldraw, config.size,
                                                               config.png_compress_level)
         ids: list[str] = []
@@ -145,7 +148,7 @@ class FeedbackSource:
                 t = time.perf_counter()
                 try:
                     fb = feedback_example(row, text, before_rows(rows, row), renderer, self.size,
-                                          scene=assembly_rows(rows, row))
+                                          scene=assembly_rows(rows, row), physics=self.physics)
                 except Exception as exc:  # a pose the renderer cannot draw: count it, go on
                     counts["failed"] += 1
                     counts[f"failed:{type(exc).__name__}"] += 1
@@ -171,11 +174,11 @@ class FeedbackSource:
 
 
 def build_feedback(data, pred, out, split: str = "train", progress: bool = False, workers: int = 1,
-                   objects_per_shard: int = 4, ldraw=None) -> dict:
+                   objects_per_shard: int = 4, ldraw=None, physics: bool = True) -> dict:
     """Build (or resume) the correction dataset `out` from predictions `pred` on `split` of
     `data` with the dataset builder; returns its `meta/info.json` as a dict (`reasons` counts the
     pose answers by what became of them)."""
-    config = feedback_config(data, pred, split, objects_per_shard, ldraw)
+    config = feedback_config(data, pred, split, objects_per_shard, ldraw, physics)
     build(config, out, workers=workers, progress=progress, desc="feedback", source=FeedbackSource(config))
     return read_info(out).to_dict()
 
@@ -196,6 +199,8 @@ def parser(prog: str = "python -m pipelines.feedback") -> argparse.ArgumentParse
     ap.add_argument("--objects-per-shard", type=int, default=4, help="objects of the split per shard (default 4)")
     ap.add_argument("--ldraw", help="the LDraw library the feedback renders draw parts from (default: the one "
                     "the dataset was built with)")
+    ap.add_argument("--static-feedback", action="store_true",
+                    help="draw each prediction where it was put, without executing it in the simulator")
     add_progress_flag(ap)
     return ap
 
@@ -205,7 +210,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m pipelines.feedbac
 
     def run() -> int:
         meta = build_feedback(args.data, args.pred, args.out, args.split, progress=not args.no_progress,
-                              workers=args.workers, objects_per_shard=args.objects_per_shard, ldraw=args.ldraw)
+                              workers=args.workers, objects_per_shard=args.objects_per_shard, ldraw=args.ldraw,
+                              physics=not args.static_feedback)
         print(summary_text(args.out, meta), flush=True)
         return 0
 

@@ -121,6 +121,27 @@ def test_feedback_prompt():
     assert "23.4 LDU" in text and "90.0 degrees" in text and "[1.0, 0.0, 0.0]" in text
     assert "R p + T" in text  # the convention is restated
     assert "x=" not in text  # no per-axis offsets
+    assert "red outline" not in text and "Brick 1: translation error 23.4 LDU" in text  # static feedback
+
+
+def test_feedback_prompt_says_what_physics_did_with_each_brick():
+    from factory.dataset.prompts import settle_sentence
+
+    base = {"translation_error": 48.0, "rotation_error": 0.0, "R": np.eye(3)}
+    fell = {**base, "outcome": "fell-off", "moved_ldu": 48.2, "connections": 0}
+    held = {**base, "outcome": "rests-connected", "moved_ldu": 2.4, "connections": 4}
+    stays = {**base, "outcome": "rests-connected", "moved_ldu": 0.0, "connections": 1}
+    assert settle_sentence(fell) == "It fell off the assembly: it moved 48 LDU and lies on the table"
+    assert settle_sentence(held) == "It snapped 2 LDU onto a connection on 4 studs and stays there"
+    assert settle_sentence(stays) == "It stays where you put it, connected on 1 stud"
+    for outcome in ("rests-unconnected", "pushed-out", "collides"):
+        assert settle_sentence({**base, "outcome": outcome, "moved_ldu": 3.0, "connections": 0})
+    with pytest.raises(ValueError, match="unknown settle outcome"):
+        settle_sentence({**base, "outcome": "floats", "moved_ldu": 0.0, "connections": 0})
+    text = feedback_prompt([fell, held])
+    assert "red outline" in text and "solid red" in text
+    assert "Brick 1: It fell off the assembly: it moved 48 LDU and lies on the table. Translation error 48.0 LDU" in text
+    assert "Brick 2: It snapped 2 LDU onto a connection on 4 studs and stays there. Translation error" in text
 
 
 # -- the built dataset ------------------------------------------------------------------------------

@@ -273,7 +273,18 @@ def test_feedback_example_renders_the_prediction_in_red(tiny_dataset):
     assert n_image_parts == len(images) == 5 and messages[-1]["content"][0] == {"type": "image"}
     assert len(errors) == len(target.bricks)
     assert errors[0]["translation_error"] == pytest.approx(40.0) and errors[0]["rotation_error"] < 1e-6
-    assert "translation error 40.0 LDU" in messages[-1]["content"][1]["text"]
+    # Executed: each brick's outcome and settled pose, said in one sentence.
+    from factory.dataset.prompts import settle_sentence
+    from factory.physics.settle import OUTCOMES
+
+    assert errors[0]["outcome"] in OUTCOMES and len(errors[0]["settled_T"]) == 3
+    text = messages[-1]["content"][1]["text"]
+    assert f"Brick 1: {settle_sentence(errors[0])}. Translation error 40.0 LDU" in text
+    assert "red outline" in text
+    static = feedback_example(row, wrong, before_rows(rows, row), renderer, 96, scene=assembly_rows(rows, row),
+                              physics=False)
+    assert "outcome" not in static.errors[0]
+    assert "Brick 1: translation error 40.0 LDU" in static.messages[-1]["content"][1]["text"]
     render = images[-1]
     assert isinstance(render, Image.Image) and render.mode == "RGB"
     a = np.asarray(render).astype(int)

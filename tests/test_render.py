@@ -380,6 +380,26 @@ def test_feedback_draws_the_prediction_in_red(reader, renderer):
     assert abs(np.argwhere(red)[:, 1].mean() - cx) < 4
 
 
+def test_feedback_draws_the_settled_part_solid_and_the_prediction_as_an_outline(reader, renderer):
+    before = [placed("3001", 1, (0, 0, 0))]
+    predicted = [placed("3003", 14, (60, -60, 0))]  # in the air beside the brick
+    settled = [placed("3003", 14, (60, 0, 0))]  # where it fell: on the table
+    img = np.asarray(render_feedback(renderer, before, predicted, 128, settled=settled)).astype(int)
+    strip = compose.label_strip_height(128)
+    view = ALL_VIEWS.index("Front")
+    row, col = divmod(view, 4)
+    y0, x0 = row * (128 + strip + 2) + strip, col * (128 + 2)  # compose.grid's 2-pixel gaps
+    front = img[y0 : y0 + 128, x0 : x0 + 128]
+    red = (front[..., 0] > 180) & (front[..., 1] < 60) & (front[..., 2] < 60)  # solid red only
+    f = Framing.from_bounds(bounds_of(before + predicted + settled, reader))
+    _, y_settled = project("Front", (60, 0, 0), f, 128)
+    _, y_predicted = project("Front", (60, -60, 0), f, 128)
+    assert red.sum() > 50
+    rows = np.argwhere(red)[:, 0]
+    # The solid red is at the settled brick, not at the outlined prediction 60 LDU above it.
+    assert abs(rows.mean() - y_settled) < abs(rows.mean() - y_predicted)
+
+
 # -- determinism ------------------------------------------------------------------------------------
 def _png(img) -> bytes:
     buf = io.BytesIO()

@@ -143,22 +143,50 @@ def _row(v) -> str:
     return "[" + ", ".join(repr(round(float(x), 4) + 0.0) for x in v) + "]"
 
 
+def settle_sentence(e: dict) -> str:
+    """What physics did with a predicted brick, in one sentence without its full stop, from the
+    feedback errors' "outcome", "moved_ldu" and "connections" (`eval.feedback.feedback_example`)."""
+    moved, n = float(e["moved_ldu"]), int(e["connections"])
+    studs = f"{n} stud{'s' if n != 1 else ''}"
+    outcome = e["outcome"]
+    if outcome == "rests-connected":
+        if moved < 0.5:
+            return f"It stays where you put it, connected on {studs}"
+        return f"It snapped {moved:.0f} LDU onto a connection on {studs} and stays there"
+    if outcome == "rests-unconnected":
+        return f"It moved {moved:.0f} LDU and rests without a stud connection"
+    if outcome == "fell-off":
+        return f"It fell off the assembly: it moved {moved:.0f} LDU and lies on the table"
+    if outcome == "pushed-out":
+        return f"It overlapped another part and was pushed {moved:.0f} LDU out of it; it rests without a connection"
+    if outcome == "collides":
+        return "It lies deep inside another part: the overlap is too deep to push it out"
+    raise ValueError(f"unknown settle outcome {outcome!r}")
+
+
 def feedback_prompt(errors: Sequence[dict]) -> str:
     """The revision prompt after a wrong pose was executed in the simulator (the paper's world
     feedback): per brick its translation error (LDU), geodesic rotation error (degrees) and the
     rotation matrix it was drawn with; never the per-axis offsets.
 
-    `errors`: per brick, {"translation_error": float, "rotation_error": float, "R": 3x3}.
+    `errors`: per brick, {"translation_error": float, "rotation_error": float, "R": 3x3}, and when
+    the prediction was executed "outcome", "moved_ldu" and "connections" (`settle_sentence`).
     The image to show with it (`factory.dataset.tasks.FEEDBACK_IMAGES`) is `render_feedback` of the prediction.
     """
+    physics = any("outcome" in e for e in errors)
     lines = [
         "Your previous answer was executed in the simulator. The image shows the assembly in muted "
         "colours and your predicted placement in bright red, in seven views (six orthographic and "
-        "one isometric).",
+        "one isometric)." if not physics else
+        "Your previous answer was executed in the simulator: each brick was released where you put it "
+        "and physics moved it. The image shows the assembly in muted colours, your predicted placement "
+        "as a red outline and where the brick ended up in solid red, in seven views (six orthographic "
+        "and one isometric).",
     ]
     for k, e in enumerate(errors, 1):
         r = np.asarray(e["R"], dtype=np.float64).reshape(3, 3)
-        lines.append(f"Brick {k}: translation error {float(e['translation_error']):.1f} LDU, rotation error "
+        head = f"Brick {k}: {settle_sentence(e)}. Translation error" if "outcome" in e else f"Brick {k}: translation error"
+        lines.append(f"{head} {float(e['translation_error']):.1f} LDU, rotation error "
                      f"{float(e['rotation_error']):.1f} degrees; your rotation matrix was "
                      + " ".join(_row(x) for x in r) + ".")
     lines.append("The placement is not right. Look at the images again and give the pose of every added "

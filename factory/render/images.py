@@ -37,6 +37,8 @@ BOX_PAD = 2
 """Pixels between a part's segmentation bounds and its red dashed box."""
 FEEDBACK_RGBA = (0.93, 0.06, 0.06, 1.0)
 FEEDBACK_EDGE = (0.35, 0.0, 0.0, 1.0)
+FEEDBACK_OUTLINE_RGBA = (0.93, 0.06, 0.06, 0.3)
+"""The predicted placement when the settled one is drawn too: translucent red, its edges dark red."""
 
 
 def _reader(reader: Reader | None) -> Reader:
@@ -364,8 +366,13 @@ def _muted(colours, code: int) -> tuple[float, float, float, float]:
 
 def render_feedback(renderer: Renderer, before: Sequence[PlacedPart], predicted: Sequence[PlacedPart],
                     size: int = 256, *, bounds=None,
-                    scene_parts: Sequence[PlacedPart] | None = None) -> Image.Image:
+                    scene_parts: Sequence[PlacedPart] | None = None,
+                    settled: Sequence[PlacedPart] | None = None) -> Image.Image:
     """The assembly with predicted (possibly wrong) placements drawn in red: 7 labelled views.
+
+    With `settled` (where the predicted parts ended up when the prediction was executed,
+    `factory.physics.settle`) the predicted placements are drawn as a red outline (translucent,
+    dark red edges) and the settled ones in solid red.
 
     The assembly is drawn in muted colours so the bright red prediction stands out whatever the
     assembly's colours. Framed on `bounds` grown to include the predicted parts, so a far-off
@@ -379,8 +386,12 @@ def render_feedback(renderer: Renderer, before: Sequence[PlacedPart], predicted:
     reached = [within_reach(p.pose, centre) for p in predicted]
     far = any(r is not p.pose for r, p in zip(reached, predicted))
     predicted = [replace(p, pose=r) for p, r in zip(predicted, reached)]
-    p_items = [Item(load_part(reader, p), FEEDBACK_RGBA, p.pose, FEEDBACK_EDGE) for p in predicted]
-    bb = bounds_of([*before, *predicted], reader)
+    ended = [replace(p, pose=within_reach(p.pose, centre)) for p in settled or ()]
+    far = far or any(e.pose is not p.pose for e, p in zip(ended, settled or ()))
+    outline = FEEDBACK_OUTLINE_RGBA if settled is not None else FEEDBACK_RGBA
+    p_items = [Item(load_part(reader, p), outline, p.pose, FEEDBACK_EDGE) for p in predicted]
+    p_items += [Item(load_part(reader, p), FEEDBACK_RGBA, p.pose, FEEDBACK_EDGE) for p in ended]
+    bb = bounds_of([*before, *predicted, *ended], reader)
     if bounds is not None:
         b = np.asarray(bounds, float)
         bb = np.stack([np.minimum(bb[0], b[0]), np.maximum(bb[1], b[1])])
@@ -389,7 +400,8 @@ def render_feedback(renderer: Renderer, before: Sequence[PlacedPart], predicted:
     arrs = _views(scene, b_items + p_items, colours, framing, size, ALL_VIEWS)
     tiles = [compose.labelled(Image.fromarray(a), v) for a, v in zip(arrs, ALL_VIEWS)]
     fs = max(9, compose.font_size(size) - 3)
-    lines = ["Predicted placement: bright red", "Assembly: muted colours"]
+    lines = (["Predicted placement: red outline", "Where it ended up: solid red", "Assembly: muted colours"]
+             if settled is not None else ["Predicted placement: bright red", "Assembly: muted colours"])
     if far:
         lines.append(f"(beyond {FEEDBACK_REACH_LDU:,.0f} LDU: drawn there)")
     tiles.append(compose.text_tile(lines, tiles[0].size, bg=compose.WHITE, fs=fs))

@@ -58,6 +58,11 @@ class FeedbackSpec:
     """sha256 of the predictions file: other answers make another dataset."""
     objects: tuple[str, ...]
     """The object ids of the split, in the dataset's order (its files, then its row groups)."""
+    physics: bool = True
+    """Execute each wrong prediction in the simulator (`eval.feedback.settle_answer`): the feedback
+    shows and says where each brick ended up. False: the static feedback, the prediction drawn where
+    it was put (what every feedback folder written before this field holds: a record without the
+    key reads as False, and False is left out of the record, so such folders keep their hash)."""
 
     def __post_init__(self):
         if self.split not in SPLITS:
@@ -176,6 +181,8 @@ class DatasetConfig:
         out["sampler"] = {k: v for k, v in (out["sampler"] or {}).items() if k not in RUN_SETTINGS}
         if out["feedback"] is None:
             del out["feedback"]
+        elif not out["feedback"].get("physics", True):
+            del out["feedback"]["physics"]
         out["schema_version"] = SCHEMA_VERSION
         return json.loads(_canonical(out))
 
@@ -190,6 +197,8 @@ class DatasetConfig:
         if version not in SCHEMA_VERSIONS:
             raise ConfigError(f"config of row schema version {version!r}; this code reads versions "
                               f"{', '.join(map(str, SCHEMA_VERSIONS))}")
+        if isinstance(data.get("feedback"), dict) and "physics" not in data["feedback"]:
+            data["feedback"] = {**data["feedback"], "physics": False}
         if data.get("sampler") == {}:
             data["sampler"] = None
         elif version == 1 and isinstance(data.get("sampler"), dict):
