@@ -56,9 +56,10 @@ from pipelines.synth import guarded
 (FEEDBACK_COLUMN,) = FEEDBACK_IMAGES
 
 
-def feedback_schema():
-    """The dataset's Arrow schema plus the `feedback` image column (HF `Image` in the metadata)."""
-    return arrow_schema(FEEDBACK_IMAGES)
+def feedback_schema(physics: bool = True):
+    """The dataset's Arrow schema plus the `feedback` image column (HF `Image` in the metadata) and,
+    when the predictions are executed, the `settled` column (`factory.dataset.schema.EXTRA_FIELDS`)."""
+    return arrow_schema(FEEDBACK_IMAGES, ("settled",) if physics else ())
 
 
 def correction_messages(row: dict, predicted: str, errors: list[dict]) -> list[dict]:
@@ -165,6 +166,10 @@ class FeedbackSource:
                 new["pose_messages"] = correction_messages(row, text, fb.errors)
                 new["pose_images"] = [*row["pose_images"], FEEDBACK_COLUMN]
                 new[FEEDBACK_COLUMN] = {"bytes": png_bytes(fb.images[-1], self.level), "path": None}
+                if self.physics:
+                    new["settled"] = [{"outcome": e["outcome"], "moved_ldu": e["moved_ldu"],
+                                       "connections": e["connections"], "R": e["settled_R"], "T": e["settled_T"]}
+                                      for e in fb.errors]
                 built.append(new)
                 counts["built"] += 1
                 seconds["encode"] += time.perf_counter() - t

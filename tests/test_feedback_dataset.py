@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import shutil
 
+import numpy as np
 import pytest
 
 from factory.dataset.info import INFO_SOURCES
@@ -56,6 +57,16 @@ def test_feedback_rows_are_built_by_the_builder_and_resume(tiny_dataset, random_
     assert sum(meta["reasons"].get(k, 0) for k in ("built", "right", "unparseable", "missing", "failed")) == 6
     assert meta["source_dataset"] == str(tiny_dataset.resolve()) and meta["source_split"] == "train"
     assert (out / "README.md").is_file() and (out / "meta" / "shards" / "00001.json").is_file()
+    # Each wrong prediction was executed: per brick its outcome and settled pose, said in the turn too.
+    from factory.dataset.prompts import settle_sentence
+    from factory.physics.settle import OUTCOMES
+
+    for r in rows:
+        assert len(r["settled"]) == len(r["bricks"])
+        for k, s in enumerate(r["settled"], 1):
+            assert s["outcome"] in OUTCOMES and len(s["T"]) == 3 and np.asarray(s["R"]).shape == (3, 3)
+            turn = r["pose_messages"][-2]["content"][-1]["text"]
+            assert f"Brick {k}: {settle_sentence(s)}." in turn
     before = _data_bytes(out)
 
     # a killed build: one shard's marker and file gone, a temporary file left; the re-run builds that shard again
@@ -69,6 +80,25 @@ def test_feedback_rows_are_built_by_the_builder_and_resume(tiny_dataset, random_
     other.write_text(random_preds.read_text().replace('"text": "Brick 1', '"text": "Brick  1', 1))
     with pytest.raises(ConfigMismatchError, match="feedback.predictions_sha256"):
         build_feedback(tiny_dataset, other, out, objects_per_shard=1)
+
+
+def test_static_feedback_rows_have_no_settled_column_and_its_config_hashes_as_before(tiny_dataset, random_preds,
+                                                                                      tmp_path):
+    import pyarrow.parquet as pq
+
+    from pipelines.dataset.config import DatasetConfig
+    from pipelines.feedback import build_feedback, feedback_config
+
+    static = feedback_config(tiny_dataset, random_preds, physics=False)
+    record = static.to_json()
+    assert "physics" not in record["feedback"]  # as every feedback folder before the field recorded it
+    assert DatasetConfig.from_json(record) == static and DatasetConfig.from_json(record).hash == static.hash
+    executed = feedback_config(tiny_dataset, random_preds)
+    assert executed.to_json()["feedback"]["physics"] is True and executed.hash != static.hash
+    out = tmp_path / "static"
+    build_feedback(tiny_dataset, random_preds, out, objects_per_shard=1, physics=False)
+    names = pq.read_schema(next((out / "data").glob("train-*"))).names
+    assert "feedback" in names and "settled" not in names
 
 
 def test_the_command_and_its_errors(tiny_dataset, random_preds, tmp_path, capsys):

@@ -79,6 +79,20 @@ FIELDS = [
 ]
 
 
+SETTLED = pa.struct([
+    ("outcome", pa.string()),
+    ("moved_ldu", pa.float64()),
+    ("connections", pa.int32()),
+    ("R", MATRIX),
+    ("T", pa.list_(pa.float64())),
+])
+EXTRA_FIELDS = {"settled": pa.list_(SETTLED)}
+"""Columns beyond `FIELDS` that a dataset may have, by name. `settled`: a world-feedback dataset whose
+predictions were executed (`pipelines.feedback`): per target brick, what physics did with the
+predicted brick (`factory.physics.settle.OUTCOMES`), how far it moved, its stud connections and
+its settled pose (LDraw frame, LDU), in the order of `bricks`."""
+
+
 def _feature(t: pa.DataType, image: bool = False) -> dict:
     if image:
         return {"_type": "Image"}
@@ -91,21 +105,29 @@ def _feature(t: pa.DataType, image: bool = False) -> dict:
     return {"dtype": names[t], "_type": "Value"}
 
 
-def features_json(extra_images: tuple[str, ...] = ()) -> dict:
-    """The Hugging Face `Features.to_dict()` of the rows (with `extra_images` image columns last)."""
+def features_json(extra_images: tuple[str, ...] = (), extra_fields: tuple[str, ...] = ()) -> dict:
+    """The Hugging Face `Features.to_dict()` of the rows (with `extra_images` image columns, then
+    `extra_fields` (`EXTRA_FIELDS`), last)."""
     out = {name: _feature(t, name in IMAGE_COLUMNS) for name, t in FIELDS}
     out.update({name: _feature(IMAGE, True) for name in extra_images})
+    out.update({name: _feature(EXTRA_FIELDS[name]) for name in extra_fields})
     return out
 
 
-def arrow_schema(extra_images: tuple[str, ...] = ()) -> pa.Schema:
+def arrow_schema(extra_images: tuple[str, ...] = (), extra_fields: tuple[str, ...] = ()) -> pa.Schema:
     """The rows' Arrow schema; `extra_images`: image columns added after the others (a world-feedback
-    dataset's `feedback`), declared as HF `Image` features too."""
-    clash = [n for n in extra_images if n in dict(FIELDS)]
+    dataset's `feedback`), declared as HF `Image` features too; `extra_fields`: columns of
+    `EXTRA_FIELDS` after those."""
+    clash = [n for n in (*extra_images, *extra_fields) if n in dict(FIELDS)]
     if clash:
-        raise ValueError(f"extra image column {clash[0]!r} is already a row column")
-    meta = {"huggingface": json.dumps({"info": {"features": features_json(extra_images)}}, sort_keys=False)}
-    fields = [pa.field(n, t) for n, t in FIELDS] + [pa.field(n, IMAGE) for n in extra_images]
+        raise ValueError(f"extra column {clash[0]!r} is already a row column")
+    unknown = [n for n in extra_fields if n not in EXTRA_FIELDS]
+    if unknown:
+        raise ValueError(f"unknown extra column {unknown[0]!r}; known: {', '.join(EXTRA_FIELDS)}")
+    meta = {"huggingface": json.dumps({"info": {"features": features_json(extra_images, extra_fields)}},
+                                      sort_keys=False)}
+    fields = ([pa.field(n, t) for n, t in FIELDS] + [pa.field(n, IMAGE) for n in extra_images]
+              + [pa.field(n, EXTRA_FIELDS[n]) for n in extra_fields])
     return pa.schema(fields, metadata=meta)
 
 

@@ -233,6 +233,12 @@ class DatasetConfig:
         dataset's `feedback` render."""
         return FEEDBACK_IMAGES if self.source == "feedback" else ()
 
+    @property
+    def extra_fields(self) -> tuple[str, ...]:
+        """Columns of `factory.dataset.schema.EXTRA_FIELDS` the rows carry: `settled` for a feedback
+        dataset whose predictions are executed (`FeedbackSpec.physics`)."""
+        return ("settled",) if self.source == "feedback" and self.feedback is not None and self.feedback.physics else ()
+
     def split(self, index: int) -> str:
         """The split of object `index` (see `split_of`); a feedback dataset's rows are all train."""
         if self.source == "feedback":

@@ -225,7 +225,7 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
     _remove_stale(out, [p.name for p in finals.values()])
     finals["train"].parent.mkdir(parents=True, exist_ok=True)
     tmps = {s: p.with_name(f".{p.name}.{os.getpid()}.tmp") for s, p in finals.items()}
-    schema = arrow_schema(config.extra_images)
+    schema = arrow_schema(config.extra_images, config.extra_fields)
     writers = {s: pq.ParquetWriter(str(tmps[s]), schema, **WRITER_OPTIONS) for s in SPLITS}
     timings = {"sample": 0.0, "check": 0.0, "render": 0.0, "encode": 0.0, "write": 0.0}
     counts = {s: {"objects": 0, "steps": 0} for s in SPLITS}
