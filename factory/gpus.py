@@ -1,13 +1,18 @@
 """Which GPU a worker process uses (the factory's worker processes spread over every GPU), and
 whether the batched checks run on one (`checks_backend`).
 
-A build's pool numbers its workers (`SLOT_ENV`, set by `pipelines.dataset.build`). On a machine
-with several NVIDIA GPUs, worker k renders on EGL device k mod G (`MUJOCO_EGL_DEVICE_ID`, read by
-MuJoCo's EGL backend when the process's context is made) and runs its JAX kernels on JAX's GPU
-k mod G, the only GPU JAX opens in that process (`jax_cuda_visible_devices`); with one GPU, none
-or no slot, nothing is chosen. A user's own `MUJOCO_EGL_DEVICE_ID` wins. `CUDA_VISIBLE_DEVICES`
-is not set: NVIDIA's EGL remaps its devices by it (google-deepmind/mujoco#3245), so setting it for
-JAX could move the renders too.
+A build's pool numbers its workers (`SLOT_ENV`, set by `pipelines.workers.start_worker`). On a
+machine with several NVIDIA GPUs, worker k is given GPU k mod G when it starts, before anything in
+it starts CUDA (`pin_worker`): `CUDA_VISIBLE_DEVICES` = k mod G, so JAX (and Warp) see that GPU
+alone, as device 0, and `MUJOCO_EGL_DEVICE_ID` = 0, the only device NVIDIA's EGL then lists. EGL
+may number its devices in another order than CUDA (google-deepmind/mujoco#3245), so a worker's
+renders can land on another GPU than its kernels; one GPU per worker either way, spread evenly.
+A user's own `CUDA_VISIBLE_DEVICES` or `MUJOCO_EGL_DEVICE_ID` wins. With one GPU, none or no
+slot, nothing is chosen.
+
+Why not JAX's own `jax_cuda_visible_devices`: a process shown GPU 1 alone that way keeps calling it
+device id 1, and its kernels failed to run ("Device id 1 is out of range [0, 1)": 37 and then 64 of
+80 shards of a 2-GPU H200 build, 2026-11-29, GPU 1 idle).
 """
 
 from __future__ import annotations
@@ -55,9 +60,22 @@ def slot() -> int | None:
     return int(value) if value.isdigit() else None
 
 
+def pin_worker() -> int | None:
+    """Give this numbered worker GPU k mod G (module docstring), unless the user chose
+    `CUDA_VISIBLE_DEVICES`; call before anything in the process starts CUDA. Returns the GPU, or
+    None."""
+    k, gpus = slot(), count()
+    if k is None or gpus < 2 or "CUDA_VISIBLE_DEVICES" in os.environ:
+        return None
+    os.environ["CUDA_VISIBLE_DEVICES"] = str(k % gpus)
+    os.environ.setdefault("MUJOCO_EGL_DEVICE_ID", "0")
+    return k % gpus
+
+
 def choose_egl_device() -> int | None:
     """Set `MUJOCO_EGL_DEVICE_ID` for this worker (before its GL context exists) unless the user
-    did; returns the device chosen, or None."""
+    did or `pin_worker` did; returns the device chosen, or None. For a numbered process that was
+    not pinned (its `CUDA_VISIBLE_DEVICES` the user's): EGL device k mod G."""
     k, gpus = slot(), count()
     if k is None or gpus < 2 or "MUJOCO_EGL_DEVICE_ID" in os.environ:
         return None
@@ -71,17 +89,15 @@ class CudaStartError(RuntimeError):
 
 
 def choose_jax_device(jax) -> object | None:
-    """Make this worker's JAX default device its share of the GPUs; returns it, or None.
+    """This worker's JAX GPU; returns it, or None.
 
-    Worker k of a pool on a machine with G >= 2 NVIDIA GPUs lets JAX open GPU k mod G only
-    (`jax_cuda_visible_devices`, set before JAX starts its CUDA backend; unlike
-    `CUDA_VISIBLE_DEVICES` it leaves EGL's devices alone). A process that opened every GPU held a
-    CUDA context, and an MPS client, on each: 64 workers of a 4-GPU machine asked the MPS daemons
-    for 256 clients and a quarter of them failed to start CUDA. Where JAX's CUDA build is installed
-    and GPUs are there but JAX starts without one, `CudaStartError` says so."""
+    A pinned worker (`pin_worker`) sees its GPU alone: JAX opens that one only. A process that
+    opened every GPU held a CUDA context, and an MPS client, on each: 64 workers of a 4-GPU machine
+    asked the MPS daemons for 256 clients and a quarter of them failed to start CUDA. A numbered
+    worker that was not pinned (the user set `CUDA_VISIBLE_DEVICES` to several GPUs) gets GPU k mod
+    G of those as its default device. Where JAX's CUDA build is installed and GPUs are there but
+    JAX starts without one, `CudaStartError` says so."""
     k, gpus = slot(), count()
-    if k is not None and gpus >= 2:
-        jax.config.update("jax_cuda_visible_devices", str(k % gpus))
     if gpus and cuda_jax() is not None and jax.default_backend() != "gpu":
         raise CudaStartError(
             f"JAX did not start CUDA in this process (worker {k if k is not None else '-'}; {gpus} NVIDIA GPU(s), "
@@ -91,8 +107,9 @@ def choose_jax_device(jax) -> object | None:
     devices = [d for d in jax.devices() if d.platform == "gpu"]
     if k is None or gpus < 2 or not devices:
         return None
-    jax.config.update("jax_default_device", devices[0])
-    return devices[0]
+    device = devices[k % len(devices)]
+    jax.config.update("jax_default_device", device)
+    return device
 
 
 def render_path() -> str:

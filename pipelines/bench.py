@@ -15,6 +15,8 @@ Sections, each timed and written as soon as it ends (a later failure loses nothi
 - realism: how far that build's objects are from real designs (`pipelines.distance`: coverage of
   the designs' placements, one distance per table), against ../shared/designs read with
   ../shared/ldraw_library.zip where present (`--quick`: the human designs given, if any);
+- feedback: world-feedback simulations per second (`pipelines.bench_settle`'s predictions):
+  MuJoCo C, and MuJoCo Warp on the same predictions where a GPU is;
 - evaluation: the baselines (`oracle`, `heuristic`, `random`, and `random` revised under world
   feedback) scored on that build's test split and on the human designs, in the three modes
   (strict, paper, and bc: BC-Bench's released scorer, `eval.bc`).
@@ -247,6 +249,39 @@ def synth_section(work: Path, quick: bool) -> dict:
     }
 
 
+def feedback_section(gpu: bool, quick: bool) -> dict:
+    """World-feedback simulations per second (`pipelines.bench_settle`'s predictions): MuJoCo C one
+    after another (`settle_all`), and where a GPU is, MuJoCo Warp batched (`settle_mjx.settle_many`)
+    on the same predictions with the share of equal outcomes. Warp on a CPU is left out (it runs,
+    slowly: `bench_settle --device cpu`)."""
+    from pipelines.bench_settle import cases
+    from factory.physics.settle import settle_all
+
+    n, seed = (48, 1) if quick else (500, 1)
+    cs = cases(n, 8, seed)
+    batch = [(c["structure"], c["part"], c["pose"], c["floor_y"]) for c in cs]
+    t = time.perf_counter()
+    ref = settle_all(batch)
+    cpu_s = time.perf_counter() - t
+    out = {"predictions": len(cs), "scenes": len({c["scene"] for c in cs}), "seed": seed,
+           "simulated": sum(r.seconds > 0 for r in ref), "cpu_s": round(cpu_s, 2),
+           "cpu_per_s": round(len(cs) / cpu_s, 1), "warp": None}
+    if gpu:
+        try:
+            from factory.physics.settle_mjx import MjxStats, settle_many
+
+            settle_many(batch[:8])  # the kernels compiled (or loaded) outside the timing
+            stats = MjxStats()
+            t = time.perf_counter()
+            got = settle_many(batch, stats=stats)
+            warp_s = time.perf_counter() - t
+            out["warp"] = {"device": stats.device, "warp_s": round(warp_s, 2), "warp_per_s": round(len(cs) / warp_s, 1),
+                           "agreement": round(sum(a.outcome == b.outcome for a, b in zip(ref, got)) / len(cs), 4)}
+        except ImportError as e:  # the [warp] extra is not installed
+            out["warp"] = {"error": f"MuJoCo Warp not available: {e}"}
+    return out
+
+
 def designs_section(work: Path, models: list[Path], ldraw: str) -> dict:
     # No physics replay: the baselines need the targets and images only, and the replay would first
     # decompose every real part with coacd (minutes on a new machine; docs/concepts/collision.md, pipelines.verify).
@@ -476,11 +511,20 @@ def markdown(report: dict) -> str:
                              "success paper", "success strict", "success bc", "unparseable"], rows)
             lines.append("")
         lines += ["![baselines](eval.png)", ""]
+    if "feedback" in report:
+        f = report["feedback"]
+        w = f.get("warp") or {}
+        warp = (f"MuJoCo Warp on {w['device']}: {w['warp_per_s']} per s, {w['agreement']:.1%} of outcomes equal "
+                "to MuJoCo C's" if "warp_per_s" in w else w.get("error", "MuJoCo Warp: no GPU here, not measured"))
+        lines += ["## World feedback (`factory.physics.settle`)", "",
+                  f"{f['predictions']} predicted placements in {f['scenes']} scenes (`pipelines.bench_settle`, seed "
+                  f"{f['seed']}; {f['simulated']} simulated, the others decided before simulating): MuJoCo C "
+                  f"{f['cpu_per_s']} per s in one process ({f['cpu_s']} s). {warp}.", ""]
     lines += ["Sections and their seconds: " + ", ".join(f"{k} {v:.0f}" for k, v in report["section_s"].items()), ""]
     return "\n".join(lines)
 
 
-SECTIONS = ("physics", "render", "synth", "realism", "designs", "evaluation")
+SECTIONS = ("physics", "render", "synth", "realism", "designs", "evaluation", "feedback")
 
 
 def _earlier_report(out: Path, report: dict, quick: bool) -> dict:
@@ -567,6 +611,7 @@ def run(args) -> int:
         section("designs", lambda: designs_section(work, models, ldraw))
         datasets["designs"] = (report["designs"]["out"], None)
     section("evaluation", lambda: evaluation_section(datasets, work))
+    section("feedback", lambda: feedback_section(gpu, args.quick))
     report["wall_s"] = round(time.perf_counter() - t0, 1)
     report["plots"] = plots(report, out)
     save()

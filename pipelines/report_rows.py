@@ -127,6 +127,12 @@ def bench_rows(report: dict) -> dict[str, list[dict]]:
                         **{f"{_key(t['table'])}_{_key(t['distance'])}": t["value"] for t in r["tables"]})
         bench.append({"what": f"make bench realism: synth objects against {len(r['designs'])} real designs", **figs})
     bench += _evaluation(report.get("evaluation") or {})
+    f = report.get("feedback")
+    if f and "feedback" not in kept:
+        w = f.get("warp") or {}
+        bench.append({"what": f"make bench feedback: {f['predictions']} predictions settled",
+                      **_figures(cpu_per_s=f["cpu_per_s"], warp_per_s=w.get("warp_per_s"),
+                                 agreement_share=w.get("agreement"))})
     render = [{"what": f"make bench render, {r['model']} ({r['parts']} parts)",
                **_figures(rgb_views_per_s_256=r.get("rgb_views_per_s"),
                           rgb_views_per_s_256_median=r.get("rgb_views_per_s_median"),

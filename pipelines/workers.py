@@ -37,6 +37,7 @@ def start_worker(counter, parent: int) -> None:
         number = counter.value
         counter.value += 1
     os.environ[gpus.SLOT_ENV] = str(number)
+    gpus.pin_worker()  # its GPU, before anything in it starts CUDA
     # Ctrl-C reaches the whole process group: a worker ends at once and quietly (its parent says
     # what happened once), instead of each printing a KeyboardInterrupt traceback. Where SIGINT is
     # ignored (a background job: so is it in the parent), the worker keeps ignoring it.

@@ -451,11 +451,15 @@ def _slot_after(seconds: float) -> str:
 
 
 JAX_SHARE = """
-import os, jax
+import os
 from factory import gpus
 gpus.count = lambda: 4  # a 4-GPU machine's driver listing; this process's JAX has only the CPU
 os.environ[gpus.SLOT_ENV] = "5"
-print(gpus.choose_jax_device(jax), jax.config.values["jax_cuda_visible_devices"])
+os.environ.pop("CUDA_VISIBLE_DEVICES", None)
+os.environ.pop("MUJOCO_EGL_DEVICE_ID", None)
+print(gpus.pin_worker(), os.environ["CUDA_VISIBLE_DEVICES"], os.environ["MUJOCO_EGL_DEVICE_ID"])
+import jax  # after the pin, as in a worker: CUDA starts later, on the pinned GPU only
+print(gpus.choose_jax_device(jax))
 gpus.cuda_jax = lambda: "jax-cuda13-plugin"  # JAX's CUDA build installed, yet JAX started without a GPU
 try:
     gpus.choose_jax_device(jax)
@@ -464,15 +468,29 @@ except gpus.CudaStartError as e:
 """
 
 
-def test_a_numbered_worker_lets_jax_open_its_own_gpu_only_and_a_cuda_that_did_not_start_is_an_error():
+def test_a_numbered_worker_sees_its_own_gpu_only_and_a_cuda_that_did_not_start_is_an_error():
     # 64 workers of a 4-GPU machine each opened all 4 GPUs (256 MPS clients; a quarter failed to
-    # start CUDA and ran their checks on JAX's CPU backend, silently)
+    # start CUDA and ran their checks on JAX's CPU backend, silently); then JAX's own
+    # jax_cuda_visible_devices left a worker's only GPU as device id 1, and its kernels failed.
     out = subprocess.run([sys.executable, "-c", JAX_SHARE], capture_output=True, text=True, cwd=ROOT)
     assert out.returncode == 0, out.stderr
-    first, refused = out.stdout.splitlines()
-    assert first == "None 1"  # worker 5 of 4 GPUs: GPU 1 only
+    pinned, chosen, refused = out.stdout.splitlines()
+    assert pinned == "1 1 0"  # worker 5 of 4 GPUs: GPU 1 alone, EGL's only device
+    assert chosen == "None"  # no GPU in this JAX: nothing to choose
     assert refused.startswith("refused: JAX did not start CUDA in this process (worker 5; 4 NVIDIA GPU(s)")
     assert "--check-backend cpu" in refused
+
+
+def test_a_users_cuda_visible_devices_is_kept(monkeypatch):
+    from factory import gpus
+
+    monkeypatch.setattr(gpus, "count", lambda: 2)
+    monkeypatch.setenv(gpus.SLOT_ENV, "3")
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "0")
+    assert gpus.pin_worker() is None and os.environ["CUDA_VISIBLE_DEVICES"] == "0"
+    monkeypatch.delenv("CUDA_VISIBLE_DEVICES")
+    monkeypatch.setattr(gpus, "count", lambda: 1)  # one GPU: nothing to pin
+    assert gpus.pin_worker() is None and "CUDA_VISIBLE_DEVICES" not in os.environ
 
 
 def test_gpu_share_of_a_numbered_worker(monkeypatch):
