@@ -72,6 +72,28 @@ def pin_worker() -> int | None:
     return k % gpus
 
 
+WORKERS_ENV = "BRICK_FACTORY_WORKERS"
+"""The size of a worker's pool (set by `pipelines.workers.pool` for its workers)."""
+
+GPU_MEMORY_SHARE = 0.85
+"""Of each GPU's memory, the share that the pool's workers on it split evenly for JAX; the rest is
+for their EGL renders, MPS and CUDA contexts."""
+
+
+def budget_worker_memory() -> float | None:
+    """Cap this numbered worker's JAX memory at its share of its GPU (`GPU_MEMORY_SHARE` over the
+    pool's workers per GPU), through `XLA_PYTHON_CLIENT_MEM_FRACTION` (JAX's allocator grows up to
+    it, preallocating nothing: `factory.physics`), unless the user set it; returns the fraction, or
+    None. Without it each worker's allocator kept what it had once needed and a GPU's 16 workers
+    filled its 143 GB (2-GPU H200, 32 workers: 5 of 80 shards out of memory, 2026-11-29)."""
+    k, gpus, n = slot(), count(), os.environ.get(WORKERS_ENV, "")
+    if k is None or not gpus or not n.isdigit() or int(n) < 1 or "XLA_PYTHON_CLIENT_MEM_FRACTION" in os.environ:
+        return None
+    share = GPU_MEMORY_SHARE / -(-int(n) // gpus)
+    os.environ["XLA_PYTHON_CLIENT_MEM_FRACTION"] = f"{share:.4f}"
+    return share
+
+
 def choose_egl_device() -> int | None:
     """Set `MUJOCO_EGL_DEVICE_ID` for this worker (before its GL context exists) unless the user
     did or `pin_worker` did; returns the device chosen, or None. For a numbered process that was

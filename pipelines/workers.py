@@ -38,6 +38,7 @@ def start_worker(counter, parent: int) -> None:
         counter.value += 1
     os.environ[gpus.SLOT_ENV] = str(number)
     gpus.pin_worker()  # its GPU, before anything in it starts CUDA
+    gpus.budget_worker_memory()
     # Ctrl-C reaches the whole process group: a worker ends at once and quietly (its parent says
     # what happened once), instead of each printing a KeyboardInterrupt traceback. Where SIGINT is
     # ignored (a background job: so is it in the parent), the worker keeps ignoring it.
@@ -52,6 +53,7 @@ def pool(workers: int) -> ProcessPoolExecutor:
     """Spawned worker processes (a fresh interpreter each: no GL, MuJoCo or JAX state copied from
     this process), set up by `start_worker`."""
     one_thread_each()
+    os.environ[gpus.WORKERS_ENV] = str(workers)  # read by each worker's memory budget
     ctx = multiprocessing.get_context("spawn")
     return ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=start_worker,
                                initargs=numbering(ctx))

@@ -26,7 +26,10 @@ def test_quick_bench_writes_report_and_plots(tmp_path, monkeypatch):
     report = json.loads((out / "report.json").read_text())
     for name in ("report.md", "physics.png", "render.png", "eval.png"):
         assert (out / name).stat().st_size > 0, name
-    assert set(report["section_s"]) == {"physics", "render", "synth", "evaluation"}
+    assert set(report["section_s"]) == {"physics", "render", "synth", "evaluation", "feedback"}
+    fb = report["feedback"]  # world-feedback simulations: MuJoCo C here, no GPU so no Warp figure
+    assert fb["predictions"] == 48 and fb["cpu_per_s"] > 0 and 0 < fb["simulated"] < 48 and fb["warp"] is None
+    assert "## World feedback" in (out / "report.md").read_text()
     (phys,) = report["physics"]["rows"]
     assert phys["backend"] == "cpu" and phys["checks_per_s"] > 0 and 0 < phys["accepted"] <= phys["batch"]
     (loads,), (sweeps,) = report["physics"]["loads"], report["physics"]["sweeps"]
@@ -74,7 +77,7 @@ def test_quick_bench_writes_report_and_plots(tmp_path, monkeypatch):
 
     # --resume keeps the sections a run cut short had finished, and runs the rest
     # (the physics section keeps the parts it had finished)
-    cut = {k: v for k, v in again.items() if k not in ("synth", "evaluation")}
+    cut = {k: v for k, v in again.items() if k not in ("synth", "evaluation", "feedback")}
     cut["physics"] = {k: v for k, v in again["physics"].items() if k != "growth"}
     (out / "report.json").write_text(json.dumps(cut))
     assert bench.main(["--out", str(out), "--quick", "--backends", "cpu", "--models", "--resume",

@@ -481,6 +481,23 @@ def test_a_numbered_worker_sees_its_own_gpu_only_and_a_cuda_that_did_not_start_i
     assert "--check-backend cpu" in refused
 
 
+def test_a_workers_jax_memory_is_its_share_of_its_gpu(monkeypatch):
+    from factory import gpus
+
+    monkeypatch.setenv("XLA_PYTHON_CLIENT_MEM_FRACTION", "unset")
+    monkeypatch.delenv("XLA_PYTHON_CLIENT_MEM_FRACTION")
+    monkeypatch.setattr(gpus, "count", lambda: 2)
+    monkeypatch.setenv(gpus.SLOT_ENV, "3")
+    monkeypatch.setenv(gpus.WORKERS_ENV, "32")  # 16 workers per GPU
+    assert gpus.budget_worker_memory() == pytest.approx(0.85 / 16)
+    assert float(os.environ["XLA_PYTHON_CLIENT_MEM_FRACTION"]) == pytest.approx(0.85 / 16, abs=1e-4)
+    monkeypatch.setenv("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.5")  # the user's choice wins
+    assert gpus.budget_worker_memory() is None and os.environ["XLA_PYTHON_CLIENT_MEM_FRACTION"] == "0.5"
+    monkeypatch.delenv("XLA_PYTHON_CLIENT_MEM_FRACTION")
+    monkeypatch.setattr(gpus, "count", lambda: 0)  # no GPU: nothing to budget
+    assert gpus.budget_worker_memory() is None and "XLA_PYTHON_CLIENT_MEM_FRACTION" not in os.environ
+
+
 def test_a_users_cuda_visible_devices_is_kept(monkeypatch):
     from factory import gpus
 
