@@ -4,11 +4,13 @@ whether the batched checks run on one (`checks_backend`).
 A build's pool numbers its workers (`SLOT_ENV`, set by `pipelines.workers.start_worker`). On a
 machine with several NVIDIA GPUs, worker k is given GPU k mod G when it starts, before anything in
 it starts CUDA (`pin_worker`): `CUDA_VISIBLE_DEVICES` = k mod G, so JAX (and Warp) see that GPU
-alone, as device 0, and `MUJOCO_EGL_DEVICE_ID` = 0, the only device NVIDIA's EGL then lists. EGL
-may number its devices in another order than CUDA (google-deepmind/mujoco#3245), so a worker's
-renders can land on another GPU than its kernels; one GPU per worker either way, spread evenly.
-A user's own `CUDA_VISIBLE_DEVICES` or `MUJOCO_EGL_DEVICE_ID` wins. With one GPU, none or no
-slot, nothing is chosen.
+alone, as device 0. Its renders go to EGL device k mod G (`choose_egl_device`, when its GL context
+is made): NVIDIA's EGL listed every GPU whatever `CUDA_VISIBLE_DEVICES` said on a 2-GPU H200
+machine (with EGL device 0 for all, GPU 0 was 64% busy and GPU 1 9%); where EGL lists only the
+visible GPU, `factory.render.gl` falls back to its default device. EGL may number GPUs in another
+order than CUDA (google-deepmind/mujoco#3245): a worker's renders can land on another GPU than its
+kernels, spread evenly either way. A user's own `CUDA_VISIBLE_DEVICES` or `MUJOCO_EGL_DEVICE_ID`
+wins. With one GPU, none or no slot, nothing is chosen.
 
 Why not JAX's own `jax_cuda_visible_devices`: a process shown GPU 1 alone that way keeps calling it
 device id 1, and its kernels failed to run ("Device id 1 is out of range [0, 1)": 37 and then 64 of
@@ -68,7 +70,6 @@ def pin_worker() -> int | None:
     if k is None or gpus < 2 or "CUDA_VISIBLE_DEVICES" in os.environ:
         return None
     os.environ["CUDA_VISIBLE_DEVICES"] = str(k % gpus)
-    os.environ.setdefault("MUJOCO_EGL_DEVICE_ID", "0")
     return k % gpus
 
 
@@ -96,8 +97,7 @@ def budget_worker_memory() -> float | None:
 
 def choose_egl_device() -> int | None:
     """Set `MUJOCO_EGL_DEVICE_ID` for this worker (before its GL context exists) unless the user
-    did or `pin_worker` did; returns the device chosen, or None. For a numbered process that was
-    not pinned (its `CUDA_VISIBLE_DEVICES` the user's): EGL device k mod G."""
+    did; returns the device chosen, or None: EGL device k mod G (module docstring)."""
     k, gpus = slot(), count()
     if k is None or gpus < 2 or "MUJOCO_EGL_DEVICE_ID" in os.environ:
         return None

@@ -457,7 +457,7 @@ gpus.count = lambda: 4  # a 4-GPU machine's driver listing; this process's JAX h
 os.environ[gpus.SLOT_ENV] = "5"
 os.environ.pop("CUDA_VISIBLE_DEVICES", None)
 os.environ.pop("MUJOCO_EGL_DEVICE_ID", None)
-print(gpus.pin_worker(), os.environ["CUDA_VISIBLE_DEVICES"], os.environ["MUJOCO_EGL_DEVICE_ID"])
+print(gpus.pin_worker(), os.environ["CUDA_VISIBLE_DEVICES"], gpus.choose_egl_device())
 import jax  # after the pin, as in a worker: CUDA starts later, on the pinned GPU only
 print(gpus.choose_jax_device(jax))
 gpus.cuda_jax = lambda: "jax-cuda13-plugin"  # JAX's CUDA build installed, yet JAX started without a GPU
@@ -475,7 +475,7 @@ def test_a_numbered_worker_sees_its_own_gpu_only_and_a_cuda_that_did_not_start_i
     out = subprocess.run([sys.executable, "-c", JAX_SHARE], capture_output=True, text=True, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     pinned, chosen, refused = out.stdout.splitlines()
-    assert pinned == "1 1 0"  # worker 5 of 4 GPUs: GPU 1 alone, EGL's only device
+    assert pinned == "1 1 1"  # worker 5 of 4 GPUs: CUDA's GPU 1 alone; EGL device 1 (EGL lists every GPU)
     assert chosen == "None"  # no GPU in this JAX: nothing to choose
     assert refused.startswith("refused: JAX did not start CUDA in this process (worker 5; 4 NVIDIA GPU(s)")
     assert "--check-backend cpu" in refused
