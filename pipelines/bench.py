@@ -50,10 +50,13 @@ from factory.atomic import write_atomic, write_figure
 from factory.cli import ArgumentParser, run_guarded
 from factory.ldraw import get_reader
 from factory.physics.check import BACKENDS, OLD_BACKEND_NAMES, backend_arg
+from factory.physics.settle import settle_all
+from factory.physics.settle_mjx import MjxStats, settle_many
 from factory.sampler import SamplerConfig, SamplerConfigError
 from pipelines.bench_checks import measure, measure_lp, measure_sweep, measure_whole
 from pipelines.bench_growth import measure_growth
 from pipelines.bench_processes import in_own_process
+from pipelines.bench_settle import cases
 from pipelines.dataset import ConfigMismatchError, DatasetConfig, build, usage
 from pipelines.designs import design_config
 from pipelines.realism import Collection, compare, read_collection
@@ -254,9 +257,6 @@ def feedback_section(gpu: bool, quick: bool) -> dict:
     after another (`settle_all`), and where a GPU is, MuJoCo Warp batched (`settle_mjx.settle_many`)
     on the same predictions with the share of equal outcomes. Warp on a CPU is left out (it runs,
     slowly: `bench_settle --device cpu`)."""
-    from pipelines.bench_settle import cases
-    from factory.physics.settle import settle_all
-
     n, seed = (48, 1) if quick else (500, 1)
     cs = cases(n, 8, seed)
     batch = [(c["structure"], c["part"], c["pose"], c["floor_y"]) for c in cs]
@@ -268,8 +268,6 @@ def feedback_section(gpu: bool, quick: bool) -> dict:
            "cpu_per_s": round(len(cs) / cpu_s, 1), "warp": None}
     if gpu:
         try:
-            from factory.physics.settle_mjx import MjxStats, settle_many
-
             settle_many(batch[:8])  # the kernels compiled (or loaded) outside the timing
             stats = MjxStats()
             t = time.perf_counter()

@@ -37,6 +37,7 @@ from functools import cache
 import mujoco
 import numpy as np
 
+from factory import gpus
 from factory.physics.collide import _fmt, _template
 from factory.physics.settle import (Release, SettleConfig, SettleScene, Settled, _Judge, _pose_of, _touched,
                                     default_floor_y, settle, settle_model)
@@ -100,8 +101,6 @@ def default_device() -> str:
     wp, _ = _warp()
     if wp.get_cuda_device_count() == 0:
         return "cpu"
-    from factory import gpus
-
     k = gpus.slot()
     return f"cuda:{k % wp.get_cuda_device_count() if k is not None else 0}"
 
