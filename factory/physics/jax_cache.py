@@ -23,23 +23,9 @@ def enable() -> str:
     A numbered worker also takes its share of the GPUs here (`factory.gpus`)."""
     import jax  # optional: the [jax] extra; the 'cpu' backend needs none
 
-    device = gpus.choose_jax_device(jax)
-    path = cache_folder(device)
+    gpus.choose_jax_device(jax)
+    path = os.environ.get("JAX_COMPILATION_CACHE_DIR") or str(cache_root() / "jax")
     jax.config.update("jax_compilation_cache_dir", path)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    return path
-
-
-def cache_folder(device=None) -> str:
-    """The compilation cache's folder: `JAX_COMPILATION_CACHE_DIR`, else the factory's cache / jax;
-    for a worker given one GPU of several (`gpus.choose_jax_device`), a sub-folder per GPU.
-
-    JAX leaves the device assignment out of a single-device kernel's cache key, but the kernel it
-    stores keeps it: a worker that sees only GPU 1 (device id 1) stores kernels for device 1, and a
-    worker that sees only GPU 0 loads them and fails ("Device id 1 is out of range [0, 1)": 37 of
-    80 shards of a 2-GPU build, 2026-11-29). Each GPU's workers share their own folder."""
-    path = os.environ.get("JAX_COMPILATION_CACHE_DIR") or str(cache_root() / "jax")
-    if device is not None:
-        path = os.path.join(path, f"gpu{device.id}")
     return path
