@@ -262,24 +262,40 @@ def settle(structure: Structure, part: Part, pose: Pose, floor_y: float | None =
     return out
 
 
-def settle_all(cases, config: SettleConfig = SettleConfig()) -> list[Settled]:
-    """`settle` of every case (structure, part, pose, floor_y) on MuJoCo C, one after another; a
-    scene's model, overlap measure and snapping verdicts are made once for all its cases (a scene:
-    the same `Structure` and `Part` objects and floor), as `settle_mjx.settle_many` makes them."""
-    scenes: dict[tuple, list] = {}
-    out = []
-    for structure, part, pose, floor_y in cases:
+class Scenes:
+    """The scenes of many cases (a scene: the same `Structure` and `Part` objects and floor): each
+    one's snapping verdicts and overlap measure (`_Judge`) made once, and its `settle_model` made
+    once when a case of it is simulated. `settle_all` and `settle_mjx.settle_many` share it."""
+
+    def __init__(self, config: SettleConfig):
+        self.config = config
+        self._judges: dict[tuple, _Judge] = {}
+        self._models: dict[tuple, SettleScene] = {}
+
+    def release(self, structure: Structure, part: Part, pose: Pose, floor_y: float | None) -> tuple[tuple, Release]:
+        """(the case's scene key, its `Release`); `floor_y` None: `default_floor_y`."""
         floor = default_floor_y(structure, part, pose) if floor_y is None else float(floor_y)
         key = (id(structure), id(part), floor)
-        if key not in scenes:
-            scenes[key] = [_Judge(structure, part, floor, config), None]
-        release = Release(structure, part, pose, floor, config, scenes[key][0])
-        if release.result is not None:
-            out.append(release.result)
-            continue
-        if scenes[key][1] is None:
-            scenes[key][1] = settle_model(structure, part, floor, config)
-        out.append(_simulate(release, scenes[key][1], config))
+        if key not in self._judges:
+            self._judges[key] = _Judge(structure, part, floor, self.config)
+        return key, Release(structure, part, pose, floor, self.config, self._judges[key])
+
+    def model(self, key: tuple, release: Release) -> SettleScene:
+        """The scene's model (`release` one of its cases)."""
+        if key not in self._models:
+            self._models[key] = settle_model(release.structure, release.part, release.floor_y, self.config)
+        return self._models[key]
+
+
+def settle_all(cases, config: SettleConfig = SettleConfig()) -> list[Settled]:
+    """`settle` of every case (structure, part, pose, floor_y) on MuJoCo C, one after another, a
+    scene's judge and model made once for all its cases (`Scenes`)."""
+    scenes = Scenes(config)
+    out = []
+    for case in cases:
+        key, release = scenes.release(*case)
+        out.append(release.result if release.result is not None
+                   else _simulate(release, scenes.model(key, release), config))
     return out
 
 

@@ -39,8 +39,8 @@ import numpy as np
 
 from factory import gpus
 from factory.physics.collide import _fmt, _template
-from factory.physics.settle import (Release, SettleConfig, SettleScene, Settled, _Judge, _pose_of, _touched,
-                                    default_floor_y, settle, settle_model)
+from factory.physics.settle import (Release, Scenes, SettleConfig, SettleScene, Settled, _pose_of, _touched,
+                                    settle_all)
 from factory.pose import Pose
 
 PART_SLOTS = (4, 8, 16, 32, 64, 128)
@@ -166,22 +166,19 @@ def settle_many(cases, config: SettleConfig = SettleConfig(), device: str | None
     when there is one). Results in the cases' order."""
     stats = stats if stats is not None else MjxStats()
     out: list[Settled | None] = [None] * len(cases)
-    scenes: dict[tuple, tuple] = {}  # scene key -> (judge, scene slots or None)
+    scenes = Scenes(config)
     pending: list[tuple[int, tuple, Release]] = []
     t0 = time.perf_counter()
-    for i, (structure, part, pose, floor_y) in enumerate(cases):
-        floor = default_floor_y(structure, part, pose) if floor_y is None else float(floor_y)
-        key = (id(structure), id(part), floor)
-        if key not in scenes:
-            scenes[key] = [_Judge(structure, part, floor, config), None]
-        release = Release(structure, part, pose, floor, config, scenes[key][0])
+    for i, case in enumerate(cases):
+        key, release = scenes.release(*case)
         if release.result is not None:
             out[i] = release.result
         else:
             pending.append((i, key, release))
-    for i, key, _ in pending:
-        if scenes[key][1] is None:
-            scenes[key][1] = _slots(settle_model(cases[i][0], cases[i][1], scenes[key][0].floor_y, config))
+    slots: dict[tuple, _SceneSlots] = {}
+    for _, key, release in pending:
+        if key not in slots:
+            slots[key] = _slots(scenes.model(key, release))
     stats.prepare_s += time.perf_counter() - t0
     if not pending:
         return out  # type: ignore[return-value]
@@ -190,11 +187,11 @@ def settle_many(cases, config: SettleConfig = SettleConfig(), device: str | None
     for start in range(0, len(pending), batch):
         chunk = pending[start:start + batch]
         try:
-            ends = _simulate([scenes[k][1] for _, k, _ in chunk], [r for _, _, r in chunk], config, device, stats)
+            ends = _simulate([slots[k] for _, k, _ in chunk], [r for _, _, r in chunk], config, device, stats)
         except NotImplementedError as e:  # a model MuJoCo Warp cannot run: the reference runs it
             stats.refused.append(str(e))
             stats.fallbacks += len(chunk)
-            ends = [settle(r.structure, r.part, r.pose, r.floor_y, config) for _, _, r in chunk]
+            ends = settle_all([(r.structure, r.part, r.pose, r.floor_y) for _, _, r in chunk], config)
         for (i, _, _), settled in zip(chunk, ends):
             out[i] = settled
     return out  # type: ignore[return-value]
