@@ -15,6 +15,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -307,19 +308,68 @@ def test_killed_run_resumes_to_identical_bytes(built, tmp_path):
     _assert_identical(built, out)
 
 
-@pytest.mark.slow
-def test_ray_runner_gives_the_same_bytes(built, tmp_path):
-    ray = pytest.importorskip("ray")
-    out = tmp_path / "ray"
-    ray.init(num_cpus=2, include_dashboard=False, runtime_env={"env_vars": {
-        "PYTHONPATH": _env()["PYTHONPATH"], "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
-        **({"BRICK_FACTORY_CACHE": os.environ["BRICK_FACTORY_CACHE"]} if "BRICK_FACTORY_CACHE" in os.environ
-           else {})}})
+def _parent_pid(pid: int) -> int | None:
     try:
-        s = build(_config(), out, runner="ray", workers=2, progress=False)
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+@pytest.mark.slow
+def test_ray_cluster_checks_its_nodes_and_survives_a_dead_one(built, tmp_path):
+    """A three-node Ray cluster on this machine (a head without CPUs, two workers of one CPU):
+    a library no node has is refused naming every node; a build over the cluster whose node
+    writing a shard is killed mid-build ends with the same bytes as a local build."""
+    ray = pytest.importorskip("ray")
+    from ray.cluster_utils import Cluster
+
+    from pipelines.dataset.cluster import ClusterError, check_nodes
+
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0, "include_dashboard": False})
+    workers = [cluster.add_node(num_cpus=1) for _ in range(2)]
+    try:
+        ray.init(address=cluster.address, runtime_env={"env_vars": {
+            "PYTHONPATH": _env()["PYTHONPATH"], "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
+            **({"BRICK_FACTORY_CACHE": os.environ["BRICK_FACTORY_CACHE"]} if "BRICK_FACTORY_CACHE" in os.environ
+               else {})}})
+        cluster.wait_for_nodes()
+        ids = {w.node_id for w in workers}
+        with pytest.raises(ClusterError) as err:
+            check_nodes(tmp_path / "probe", str(tmp_path / "no-such-library.zip"), timeout=60)
+        assert sum(f"node {i[:12]}" in str(err.value) for i in ids) == 2, str(err.value)
+        assert "no-such-library.zip" in str(err.value)
+        assert not list((tmp_path / "probe" / "meta").iterdir())  # the check leaves nothing behind
+
+        out = tmp_path / "cluster"
+        summary: dict = {}
+        thread = threading.Thread(target=lambda: summary.update(
+            build(_config(), out, runner="ray", workers=2, progress=False)))
+        thread.start()
+        raylets = {w.all_processes["raylet"][0].process.pid: w for w in workers}
+        victim, shard = None, None
+        deadline = time.monotonic() + 240
+        while victim is None and time.monotonic() < deadline and thread.is_alive():
+            for f in (out / "data").glob(".*.tmp") if (out / "data").is_dir() else ():
+                pid = int(f.name.rsplit(".", 2)[-2])
+                node = raylets.get(_parent_pid(pid))
+                if node is not None:
+                    victim, shard = node, f.name[1:].split(".parquet")[0]
+                    break
+            time.sleep(0.05)
+        assert victim is not None, "no shard was seen being written on a worker node"
+        cluster.remove_node(victim, allow_graceful=False)  # its raylet and workers are killed
+        thread.join(timeout=600)
+        assert not thread.is_alive()
     finally:
         ray.shutdown()
-    assert s["shards_built"] == 3
+        cluster.shutdown()
+    assert summary["shards_built"] == 3
+    # The shard being written on the dead node was written again on the other one.
+    markers = [json.loads(p.read_text()) for p in sorted((out / "meta" / "shards").glob("*.json"))]
+    redone = [m for m in markers if any(shard in f for f in m["files"].values())]
+    assert len(redone) == 1 and redone[0]["node"] != victim.node_id
+    assert set(summary["shards_by_node"]) <= ids
+    assert not list((out / "data").glob(".*.tmp"))
     _assert_identical(built, out)
 
 

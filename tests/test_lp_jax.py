@@ -257,15 +257,18 @@ def test_real_load_programs_and_their_verdicts_near_the_limit_match_highs(real_m
     assert near.sum() >= 500 and (np.abs(ref - 1) <= 2e-5).sum() >= 100
     assert ((got <= 1 + 1e-6) == (ref <= 1 + 1e-6)).all()
     assert iterations.max() <= 40
-    # The same programs written straight from the models (`solve_loads`), per load constants.
+    # The same programs written straight from the models (`solve_loads`), per load constants: the
+    # default's and those of the first 40 others (a call each; all 450 took 33 s for no more cover).
+    checked = [LoadConfig(), *[c for c in dict.fromkeys(c for _, c in programs) if c != LoadConfig()][:40]]
     direct = np.full(len(programs), np.nan)
-    for cfg in {cfg for _, cfg in programs}:
+    for cfg in checked:
         at = [i for i, (_, c) in enumerate(programs) if c == cfg]
         for i, r in zip(at, loads_jax.solve_loads([programs[i][0] for i in at], cfg, fallback=False)):
             direct[i] = r.objective if r.status == "optimal" else np.nan
-    assert np.all(np.isfinite(direct)), f"{np.isnan(direct).sum()} not solved"
-    assert np.abs(direct - ref).max() <= 1e-7 * max(1.0, np.abs(ref).max())
-    assert ((direct <= 1 + 1e-6) == (ref <= 1 + 1e-6)).all()
+    done = np.array([c in checked for _, c in programs])
+    assert done.sum() >= 300 and np.all(np.isfinite(direct[done])), f"{np.isnan(direct[done]).sum()} not solved"
+    assert np.abs(direct[done] - ref[done]).max() <= 1e-7 * max(1.0, np.abs(ref).max())
+    assert ((direct[done] <= 1 + 1e-6) == (ref[done] <= 1 + 1e-6)).all()
     # judge_many through either solver: every program at the default clutch (one call), and those
     # of the first model at its eight clutches around s = 1 (one call each: a kernel each).
     near_limit = [c for c in dict.fromkeys(c for _, c in programs) if c != LoadConfig()][:8]
@@ -280,8 +283,8 @@ def test_real_load_programs_and_their_verdicts_near_the_limit_match_highs(real_m
 def test_candidates_judged_on_the_structures_shared_columns_match_highs():
     """`judge_on_base` with `solve_on_base` (the structure's columns sent once, each candidate's
     own joined on the device) gives `judge_many`'s HiGHS verdicts, loads and failing connections
-    for the distinct attachments of a 2x4 brick to a grown 30-brick structure, those on the ground
-    included, at the default clutch and at a weak one that overloads many."""
+    for every other of the first 160 distinct attachments of a 2x4 brick to a grown 30-brick
+    structure, those on the ground included, at the default clutch and at a weak one that overloads many."""
     from pipelines.bench_structures import candidates, grown
 
     from factory.physics.check import _unit_connections
@@ -291,7 +294,7 @@ def test_candidates_judged_on_the_structures_shared_columns_match_highs():
 
     s = grown(30)
     brick = s.placed[0].part
-    poses = list({(p.R.round(6).tobytes(), p.t.round(6).tobytes()): p for p in candidates(s, 400)}.values())[:160]
+    poses = list({(p.R.round(6).tobytes(), p.t.round(6).tobytes()): p for p in candidates(s, 400)}.values())[:160:2]
     units = [[Placed(brick, 4, p)] for p in poses]
     conns = [_unit_connections(s, [(brick, p)]) for p in poses]
     # Some stand on the ground beside the first brick (their own supports widen the polygon).

@@ -36,7 +36,7 @@ from factory.sampler.config import RUN_SETTINGS
 from factory.sampler.sampler import target_steps
 from pipelines.dataset.config import (ConfigMismatchError, DatasetConfig, diff_configs, record_hash, started_hash,
                                       started_record)
-from pipelines.dataset import spool, usage
+from pipelines.dataset import cluster, spool, usage
 from pipelines.dataset.card import dataset_card
 from pipelines.dataset.gallery import write_gallery
 from pipelines.dataset.shards import (build_shard, folder_identity, marker_path, object_source, read_marker,
@@ -172,10 +172,12 @@ def _run_local(config, todo, out, workers, bar, source=None):
 
 
 @contextmanager
-def _ray_tasks(workers: int):
+def _ray_tasks(workers: int, config: DatasetConfig, out):
     """`build_shard` as a Ray task, on the running Ray, else on a local instance (`workers` CPUs) or
     the cluster at `$RAY_ADDRESS` (then `out` must be a folder every node sees, e.g. a shared
-    filesystem); a Ray started here is shut down after."""
+    filesystem); a Ray started here is shut down after. Every node is checked first
+    (`cluster.check_nodes`: it sees `out` and the library). A task whose node dies is run again
+    elsewhere (`max_retries`)."""
     import ray  # the optional `ray` extra, loaded only for --runner ray
 
     started = False
@@ -187,6 +189,8 @@ def _ray_tasks(workers: int):
         ray.init(address=address, **kwargs)
         started = True
     try:
+        nodes = cluster.check_nodes(out, config.ldraw)
+        print(cluster.describe(nodes), file=sys.stderr)
         yield ray.remote(num_cpus=1, max_retries=2)(build_shard)
     finally:
         if started:
@@ -197,7 +201,7 @@ def _run_ray(config, todo, out, workers, bar, source=None):
     """The same shard function as Ray tasks (`_ray_tasks`)."""
     import ray
 
-    with _ray_tasks(workers) as task:
+    with _ray_tasks(workers, config, out) as task:
         refs = {task.remote(config.to_dict(), k, str(out), None, source): k for k in todo}
         errors = []
         pending = list(refs)
@@ -241,7 +245,7 @@ def _run_grown(config, todo, out, workers, bar, batch: int, runner: str, growers
         if runner == "ray":
             import ray
 
-            task = stack.enter_context(_ray_tasks(workers))
+            task = stack.enter_context(_ray_tasks(workers, config, out))
             grow_task = ray.remote(num_cpus=1, max_retries=2)(spool.grow)
             submit = lambda k: task.remote(config.to_dict(), k, str(out), wait=True)  # noqa: E731
             submit_grow = lambda part: grow_task.remote(config.to_dict(), part, str(out), batch)  # noqa: E731
@@ -399,6 +403,7 @@ def build(config: DatasetConfig, out, runner: str = "local", workers: int = 1, p
             "peak_rss_mb_last_run": summary["peak_rss_mb"],
             "usage_last_run": summary["usage"],
             "stage_seconds_all_shards": summary["stage_seconds"],
+            "shards_by_node": summary["shards_by_node"],
             "note": "seconds are summed over worker processes; not part of the reproducible output",
         }))
         return summary
@@ -466,7 +471,10 @@ def finalize(config: DatasetConfig, out) -> dict:
     stats: dict[str, dict[str, int]] = {}
     stages: dict[str, float] = {}
     objects = []
+    built_on: dict[str, int] = {}
     for m in markers:
+        where = m.get("node") or m.get("host") or "?"
+        built_on[where] = built_on.get(where, 0) + 1
         for s in SPLITS:
             counts[s]["objects"] += m["counts"][s]["objects"]
             counts[s]["steps"] += m["counts"][s]["steps"]
@@ -510,6 +518,7 @@ def finalize(config: DatasetConfig, out) -> dict:
         "total": total,
         "statistics": info["statistics"],
         "stage_seconds": {k: round(v, 1) for k, v in sorted(stages.items())},
+        "shards_by_node": dict(sorted(built_on.items())),
     }
 
 
@@ -545,6 +554,9 @@ def summary_line(summary: dict) -> str:
     why = ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0]))) or "none"
     stages = ", ".join(f"{k} {v:.0f}" for k, v in summary["stage_seconds"].items())
     resumed = f", {summary['shards_skipped']} shard(s) already done" if summary.get("shards_skipped") else ""
+    nodes = summary.get("shards_by_node", {})
+    if len(nodes) > 1:  # a cluster's build: the shards each node wrote (Ray node ids, or hosts)
+        resumed += "; shards by node: " + ", ".join(f"{k[:12]} {v}" for k, v in nodes.items())
     return (f"{summary['dataset_id']}: {t['objects']} objects ({c['train']['objects']} train, "
             f"{c['test']['objects']} test), {t['steps']} steps ({c['train']['steps']} train, "
             f"{c['test']['steps']} test); {label}: {why}; wall {summary['wall_seconds']:.1f} s"

@@ -22,6 +22,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import socket
 import sys
 import time
 from pathlib import Path
@@ -33,7 +34,7 @@ from factory.atomic import write_atomic
 from factory.dataset.info import json_bytes
 from factory.dataset.schema import arrow_schema
 from factory.dataset.tasks import SPLITS
-from pipelines.dataset import spool
+from pipelines.dataset import cluster, spool
 from pipelines.dataset.config import DatasetConfig, started_hash
 from pipelines.dataset.sources import make_source
 
@@ -224,7 +225,8 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
     finals = {s: out / config.shard_file(s, shard) for s in SPLITS}
     _remove_stale(out, [p.name for p in finals.values()])
     finals["train"].parent.mkdir(parents=True, exist_ok=True)
-    tmps = {s: p.with_name(f".{p.name}.{os.getpid()}.tmp") for s, p in finals.items()}
+    # Host and pid: the writers of a cluster's nodes share the folder.
+    tmps = {s: p.with_name(f".{p.name}.{socket.gethostname()}.{os.getpid()}.tmp") for s, p in finals.items()}
     schema = arrow_schema(config.extra_images, config.extra_fields)
     writers = {s: pq.ParquetWriter(str(tmps[s]), schema, **WRITER_OPTIONS) for s in SPLITS}
     timings = {"sample": 0.0, "check": 0.0, "render": 0.0, "encode": 0.0, "write": 0.0}
@@ -298,7 +300,7 @@ def build_shard(config: DatasetConfig | dict, shard: int, out: str | os.PathLike
         "objects": objects,
         "seconds": {k: round(v, 3) for k, v in timings.items()},
         "wall_seconds": round(time.perf_counter() - t_start, 3),
-        "pid": os.getpid(),
+        **cluster.where(),
     }
     write_atomic(marker, json_bytes(record))
     if config.source == "synthetic":
