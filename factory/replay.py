@@ -31,6 +31,7 @@ from factory.physics.geometry import collision_shape
 from factory.physics.check import CheckConfig, Verdict, check_units
 from factory.physics.load_model import Link
 from factory.physics.structure import Placed, Structure, canonical_key, connectors, match
+from factory.physics.unmodelled import JOINTS, joint_kind
 from factory.pose import Pose
 from factory.symmetry import rotation_about
 
@@ -52,6 +53,14 @@ def _record(verdict: Verdict, **extra) -> dict:
         "blocked_by": list(verdict.blocked_by),
         "reason": verdict.reason,
     }
+
+
+def held_joints(structure: Structure, unit: list[Placed], verdict: Verdict) -> list[str]:
+    """The kinds of unmodelled connection (`unmodelled.JOINTS`, most specific first) by which the
+    parts of `verdict.held_by` may hold a part of `unit` (one part, or a sub-assembly's)."""
+    found = {joint_kind(p.part, p.pose, structure.placed[j].part, structure.placed[j].pose)
+             for j in verdict.held_by for p in unit}
+    return [j for j in JOINTS if j in found]
 
 
 NO_VOLUME = "no-volume"
@@ -286,9 +295,11 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 judged_on = Structure(parent.placed + along)
                 judged_on.links.extend(parent.links)
                 (v,) = check_units(judged_on, [unit], backend, config, standing=standing, unit_links=done.links)
+            joints = {"joints": held_joints(judged_on if along else parent, unit, v)} \
+                if v.reason == "unsupported-connection" else {}
             yield _record(v, step=event.last_step, index=0, part=event.tag.rsplit("/", 1)[-1],
                           color=unit[0].colour, unit=True, assembly=event.tag,
-                          stud_pairs=stud_pairs(judged_on if along else parent, unit))
+                          stud_pairs=stud_pairs(judged_on if along else parent, unit), **joints)
             _add_unit(parent, unit, done.links, v)
             continue
         step = event.step
@@ -327,8 +338,10 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 first = _going_first(structure, step_start, local, backend, config, standing)
                 if first is not None:
                     v, judged_on = first
+            joints = {"joints": held_joints(judged_on, [local], v)} if v.reason == "unsupported-connection" else {}
             yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour,
-                          stud_pairs=stud_pairs(judged_on, [local]), **({"first_in_step": True} if first else {}))
+                          stud_pairs=stud_pairs(judged_on, [local]), **({"first_in_step": True} if first else {}),
+                          **joints)
             if faults and v.ok and v.connected:
                 # Faults move the part off the connections it was accepted on: those of the
                 # structure it was judged against (with the later parts of its step, if it hangs).
@@ -388,6 +401,9 @@ def summarize(records: list[dict]) -> dict:
     out = {
         "placements": len(plain),
         "unsupported_connection": sum(r["reason"] == "unsupported-connection" for r in plain),
+        # ... by the most specific kind of joint that may hold each (`held_joints`)
+        "unsupported_by_joint": dict(Counter((r.get("joints") or ["?"])[0] for r in plain
+                                             if r["reason"] == "unsupported-connection")),
         "no_volume": sum(r["reason"] == NO_VOLUME for r in plain),
         "accepted": sum(r["reason"] is None for r in judged),
         "fidelity": (sum(r["reason"] is None for r in judged) / len(judged)) if judged else None,

@@ -120,7 +120,8 @@ def main(argv: list[str] | None = None) -> int:
             bar.update(1)
             if args.json:  # as each part finishes: a run cut short keeps what it learnt
                 print(json.dumps({"part": s.part, "category": s.category, "usable": s.reason is None,
-                                  "reason": s.reason, "seconds": round(s.seconds, 3)}), flush=True)
+                                  "reason": s.reason, "seconds": round(s.seconds, 3),
+                                  **({"joints": s.joints} if s.joints else {})}), flush=True)
 
         statuses = survey(ldraw, names, args.prepare, args.workers, done, own_parts=args.all,
                           every=bool(args.designs))

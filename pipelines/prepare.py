@@ -26,6 +26,7 @@ from pathlib import Path
 from factory.atomic import write_atomic
 from factory.cache import cache_root
 from factory.errors import LDrawError
+from factory.joints import summary as joint_summary
 from factory.ldraw import get_reader
 from factory.prior.choose import not_its_own_part, why_unusable
 from pipelines import workers
@@ -47,6 +48,9 @@ class PartStatus:
     reason: str | None
     """None: usable; else why it is left out."""
     seconds: float = 0.0
+    joints: dict[str, int] | None = None
+    """{kind: count} of its joint connectors (`factory.joints.summary`: pins, axles, holes, clips,
+    bars, hinges...), where it could be read."""
 
 
 _LDRAW: str | None = None
@@ -75,6 +79,12 @@ def part_status(ldraw: str | None, name: str, prepare: bool, own_parts: bool = F
     except LDrawError:
         category = "?"
     reason = (not_its_own_part(reader, name) if own_parts else None) or why_unusable(reader, name)
+    joints = None
+    if not (reason or "").startswith("cannot be read"):
+        try:
+            joints = joint_summary(load_part(reader, name))
+        except LDrawError:
+            pass
     if prepare and (reason is None or (every and not reason.startswith("cannot be read"))):
         try:
             part = load_part(reader, name)
@@ -82,7 +92,7 @@ def part_status(ldraw: str | None, name: str, prepare: bool, own_parts: bool = F
             collision_shape(part)
         except LDrawError as exc:
             reason = reason or f"collision pieces refused: {exc}"
-    return PartStatus(name, category, reason, time.perf_counter() - t0)
+    return PartStatus(name, category, reason, time.perf_counter() - t0, joints)
 
 
 def _one(args: tuple[str, bool, bool, bool]) -> PartStatus:

@@ -192,6 +192,9 @@ def test_minifig_pieces_join_by_joints_not_modelled(at):
     assert v.reason == "unsupported-connection" and v.held_by == (0,), v
     v = verdict([helmet, head], at("973p90", 0, 0, 0))
     assert v.reason == "unsupported-connection", v
+    from factory.physics.unmodelled import joint_kind
+
+    assert joint_kind(head.part, head.pose, helmet.part, helmet.pose) == "minifig"
     # A minifig head pushed into a brick is judged like any part.
     assert verdict([at("3001", 0, -20, 0)], head).reason == "collision"
 

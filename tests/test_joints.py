@@ -16,6 +16,7 @@ from factory.parts import load_part
 from factory.physics.check import check_units
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
+from factory.replay import held_joints
 
 I3 = np.eye(3)
 
@@ -80,6 +81,10 @@ def bar_unit(at, by=(0.0, 0.0, 0.0)):
 def test_a_bar_in_a_clip_is_a_connection_not_modelled(at):
     v = verdict(clip_on_brick(at), bar_unit(at))
     assert v.reason == "unsupported-connection" and v.held_by == (1,), v
+    # The replay names the joint: the clip is drawn with cylinders of a bar's radius, not a clip
+    # primitive, so the joint is known as a bar on the clip's axis.
+    structure = Structure(clip_on_brick(at))
+    assert held_joints(structure, bar_unit(at), v) == ["bar"]
     # Slid 4 LDU along the bar it is still in the clip.
     assert verdict(clip_on_brick(at), bar_unit(at, (0, 0, 4))).reason == "unsupported-connection"
 
@@ -99,6 +104,7 @@ def roof_holder(at):
 def test_hinge_fingers_between_fingers_are_a_connection_not_modelled(at):
     v = verdict(roof_holder(at), at("4213", 0, -96, 0))
     assert v.reason == "unsupported-connection" and v.held_by == (1,) and v.connections == 2, v
+    assert held_joints(Structure(roof_holder(at)), [at("4213", 0, -96, 0)], v) == ["bar"]
 
 
 @pytest.mark.parametrize("by", [(10, 0, 0), (0, 0, 10), (0, -8, 0), (0, 4, 0)])
@@ -123,6 +129,7 @@ def test_pins_in_hollow_side_studs_are_a_connection_not_modelled(at):
     board = at("90397", 30, -26, 68, [[0, 0, 1], [-1, 0, 0], [0, -1, 0]])
     v = verdict([plate], board)
     assert v.reason == "unsupported-connection" and v.held_by == (0,), v
+    assert held_joints(Structure([plate]), [board], v) == ["bar-in-stud"]
     # Off the studs' axes (across the board, or pulled off them) it is judged like any part.
     for by in [(0, 10, 0), (0, -10, 0), (0, 0, 8)]:
         assert verdict([plate], moved(board, by)).reason in {"collision", "no-connection"}, by

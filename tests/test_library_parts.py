@@ -15,7 +15,7 @@ import pytest
 
 from factory.ldraw import Library, Reader, get_reader
 from factory.parts import load_part
-from factory.prior.choose import NO_STUDS
+from factory.prior.choose import NO_CONNECTOR, NO_STUDS
 from factory.symmetry import find_symmetry, symmetry_cached
 from pipelines.prepare import pack, survey, unpack
 from pipelines.realism import compare, coverage, read_collection
@@ -38,6 +38,8 @@ def test_every_part_of_a_library_is_usable_or_listed_with_its_reason(real_reader
     assert by["3001"].reason is None and by["3001"].category == "Brick"
     assert by["3023"].reason.startswith("renumbered: moved to 3023b")  # a stub, not a part of its own
     assert by["3673"].reason == NO_STUDS  # a Technic pin: held by what the sampler does not connect yet
+    assert by["3673"].joints == {"pin": 2} and by["3700"].joints == {"bar": 1, "pin-hole": 2}
+    assert by["3641"].reason == NO_CONNECTOR and by["3641"].joints == {}  # a tyre: held by its shape
     assert by["3820"].reason.startswith("a minifigure piece")
     usable = [s for s in statuses if s.reason is None]
     assert 150 < len(usable) < 312

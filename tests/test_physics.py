@@ -337,6 +337,15 @@ def test_a_pin_is_excused_only_in_the_hole(real_reader):
     real, shifted, sideways = check(base, pin, [Pose(along_y, [0, -10, 0]), Pose(along_y, [10, -10, 0]),
                                                 Pose(along_y, [0, -10, 8])])
     assert real.reason == "unsupported-connection"
+    # ... a Technic pin joint (the pin's `connect` primitives on the hole's axis), which the
+    # shifted pin is not.
+    from factory.ldraw.other_connectors import CONNECTOR_KINDS
+    from factory.physics.unmodelled import joint_kind
+
+    assert {CONNECTOR_KINDS[k] for k in pin.flat.other_kinds} == {"pin"}
+    assert {CONNECTOR_KINDS[k] for k in beam.flat.other_kinds} == {"pin-hole"}
+    assert joint_kind(pin, real.pose, beam, Pose.identity()) == "technic-pin"
+    assert joint_kind(pin, shifted.pose, beam, Pose.identity()) is None
     # Both parts have Technic connectors, as before; but off the hole's axis the pin is judged like
     # any part: it runs into the beam.
     assert shifted.reason == "collision" and sideways.reason == "collision"

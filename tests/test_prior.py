@@ -12,7 +12,7 @@ import pytest
 
 from factory.ldraw import Library, Reader, get_reader
 from factory.prior import Prior, PriorError, family, fit_prior, load_prior, unprinted
-from factory.prior.choose import MINIFIGURE, NO_STUDS, NOT_IN_LIBRARY, choose_parts, embedded_choice
+from factory.prior.choose import MINIFIGURE, NO_CONNECTOR, NOT_IN_LIBRARY, choose_parts, embedded_choice
 from factory.prior.prior import DEFAULT_PRIOR, PartUse
 from factory.sampler import DEFAULT_PARTS, SamplerConfig
 from factory.sampler.from_prior import configure
@@ -119,15 +119,15 @@ def _prior(*uses) -> Prior:
 
 
 def test_parts_a_library_cannot_give_are_listed_with_their_reason(mini_library):
-    """A part the library lacks, a minifigure piece, and a part with no studs and no sockets (the
-    mini library's 'brick' is a solid cube) are left out, each with why; the colours the library
-    lacks too."""
+    """A part the library lacks, a minifigure piece, and a part with no studs, no sockets and no
+    joint connector (the mini library's 'brick' is a solid cube) are left out, each with why; the
+    colours the library lacks too."""
     reader = Reader(Library.from_dir(mini_library))
     have = reader.library.part_names()
     prior = _prior(("3001", 2.0, "studs"), ("973", 1.0, "minifigure"), (have[0], 1.0, "studs"))
     choice = choose_parts(prior, reader)
     reasons = {left.part: left.reason for left in choice.left_out}
-    assert reasons == {"3001": NOT_IN_LIBRARY, "973": MINIFIGURE, have[0]: NO_STUDS}
+    assert reasons == {"3001": NOT_IN_LIBRARY, "973": MINIFIGURE, have[0]: NO_CONNECTOR}
     assert choice.parts == () and choice.used_weight == 0
 
 

@@ -53,6 +53,36 @@ def is_other_connector(name: str) -> bool:
     return _OTHER_CONNECTOR.match(name) is not None
 
 
+CONNECTOR_KINDS = ("pin-hole", "axle-hole", "pin", "axle", "bush", "clip", "hinge", "wheel-pin", "wheel-pin-hole",
+                   "handle")
+"""What each connector primitive is (`connector_kind`), by LDraw's primitive names: pin holes
+(`peghole`, `npeghol*`, `connhole`, `beamhole`), axle holes (`axlho*`, `axl2ho*`, `axlehol*`),
+pins (`connect*`, `confric*`), axles (`axle*`, `axl*` without a hole), bushes (`bush*`), clips
+(`clip*`), click hinges (`clh*`), wheel pins (`wpin*`) and their holes (`wpinhol*`), bar handles
+(`phandle*`)."""
+
+_KIND_PATTERNS = (
+    (re.compile(r"^(?:.*/)?(?:wpinhol\w*)\.dat$"), "wheel-pin-hole"),
+    (re.compile(r"^(?:.*/)?(?:wpin\w*)\.dat$"), "wheel-pin"),
+    (re.compile(r"^(?:.*/)?(?:axl\d?ho\w*|axlehol\w*|axlho\w*)\.dat$"), "axle-hole"),
+    (re.compile(r"^(?:.*/)?(?:axle\w*|axl\d?\w*)\.dat$"), "axle"),
+    (re.compile(r"^(?:.*/)?(?:peghole|npeghol\w*|connhole|beamhole)\.dat$"), "pin-hole"),
+    (re.compile(r"^(?:.*/)?(?:connect\d*|confric\d*)\.dat$"), "pin"),
+    (re.compile(r"^(?:.*/)?bush\d?\w*\.dat$"), "bush"),
+    (re.compile(r"^(?:.*/)?clip\d\w*\.dat$"), "clip"),
+    (re.compile(r"^(?:.*/)?clh\d\w*\.dat$"), "hinge"),
+    (re.compile(r"^(?:.*/)?phandle\d*\.dat$"), "handle"),
+)
+
+
+def connector_kind(name: str) -> int:
+    """The index in `CONNECTOR_KINDS` of a connector primitive (`is_other_connector`)."""
+    for pattern, kind in _KIND_PATTERNS:
+        if pattern.match(name):
+            return CONNECTOR_KINDS.index(kind)
+    raise ValueError(f"{name!r} is not a connector primitive")
+
+
 def axis_segment(name: str, triangles: np.ndarray) -> np.ndarray:
     """(3, 3) in the primitive's own frame: the two ends of the stretch of the connector's axis
     that its geometry spans (its triangles projected on the axis), then the axis itself (kept

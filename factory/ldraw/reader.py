@@ -21,7 +21,7 @@ from factory.errors import (
 )
 from factory.ldraw.colours import ColourTable
 from factory.ldraw.library import LIBRARY_SEARCH, DirSource, Library, Located, _read_file, check_reference
-from factory.ldraw.other_connectors import (axis_segment, bar_cylinder, facing_out, is_other_connector,
+from factory.ldraw.other_connectors import (axis_segment, bar_cylinder, connector_kind, facing_out, is_other_connector,
                                              place_connectors)
 from factory.ldraw.parse import LDrawFile, Poly, Ref, decode, parse_lines, split_mpd
 
@@ -97,6 +97,9 @@ class Flat:
     clip, click hinge, wheel pin), the two ends of the stretch of its axis that it spans and the
     unit axis. Kept with positions, not as a count, so the checker can tell whether two parts'
     connectors meet."""
+    other_kinds: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
+    """(j,) int8 for `other_connectors`: what each is, an index in `other_connectors.CONNECTOR_KINDS`
+    (a pin hole, an axle, a click hinge...)."""
     bores: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
     """(b, 3, 3) float64, like `other_connectors`: the bore of each hollow stud (its stretch of the
     stud's axis). A bore holds a bar (a torch, an antenna, an exhaust pipe's pin), a connection
@@ -272,6 +275,7 @@ class Reader:
             return cached
         self._check_stack(res, stack)
         tris, cols, edges, studs, in_stud, others, bores = [], [], [], [], [], [], []
+        kinds = []
         bars, bar_out = [], []
         certified = res.file.certified
         for it in res.file.items:
@@ -300,8 +304,10 @@ class Reader:
                     # The connector as a whole; the primitives it is drawn with (a beam hole's peg
                     # holes) are parts of it, not connectors of their own.
                     others.append(place_connectors(axis_segment(it.name, child.triangles)[None], it.matrix, it.pos))
+                    kinds.append([connector_kind(it.name)])
                 elif len(child.other_connectors):
                     others.append(place_connectors(child.other_connectors, it.matrix, it.pos))
+                    kinds.append(child.other_kinds)
                 if is_hollow_stud(it.name):
                     bores.append(place_connectors(axis_segment(it.name, child.triangles)[None], it.matrix, it.pos))
                 elif len(child.bores):
@@ -334,12 +340,12 @@ class Reader:
             studs=_unique_studs(np.concatenate(studs)) if studs else np.zeros((0, 2, 3)),
             certified=certified,
             in_stud=np.concatenate(in_stud) if in_stud else np.zeros(0, bool),
-            other_connectors=_unique_connectors(np.concatenate(others)) if others else np.zeros((0, 3, 3)),
+            **_with_kinds(np.concatenate(others), np.concatenate(kinds).astype(np.int8)) if others else {},
             bores=_unique_connectors(np.concatenate(bores)) if bores else np.zeros((0, 3, 3)),
             **_bars(bars, bar_out, certified),
         )
         for arr in (flat.triangles, flat.colours, flat.edges, flat.studs, flat.in_stud,
-                    flat.other_connectors, flat.bores, flat.bars, flat.bar_out):
+                    flat.other_connectors, flat.other_kinds, flat.bores, flat.bars, flat.bar_out):
             arr.setflags(write=False)
         self._flat[res.key] = flat
         return flat
@@ -393,13 +399,23 @@ def _connector_key(conn: np.ndarray) -> tuple:
 def _unique_connectors(conns: np.ndarray) -> np.ndarray:
     """Drop connectors drawn twice at the same place (the same ends in either order, the same
     axis either way round)."""
+    return conns[_first_of_each(conns)]
+
+
+def _first_of_each(conns: np.ndarray) -> list[int]:
     seen, keep = set(), []
     for i, conn in enumerate(conns):
         key = _connector_key(conn)
         if key not in seen:
             seen.add(key)
             keep.append(i)
-    return conns[keep]
+    return keep
+
+
+def _with_kinds(conns: np.ndarray, kinds: np.ndarray) -> dict:
+    """`Flat`'s other connectors and their kinds, each drawn twice kept once (`_unique_connectors`)."""
+    keep = _first_of_each(conns)
+    return {"other_connectors": conns[keep], "other_kinds": kinds[keep]}
 
 
 def _unique_studs(studs: np.ndarray) -> np.ndarray:

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from factory.ldraw.other_connectors import place_connectors
+from factory.ldraw.other_connectors import CONNECTOR_KINDS, place_connectors
 from factory.parts import Part
 from factory.pose import Pose
 
@@ -87,6 +87,62 @@ def may_hold(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool
         return connectors_meet(place_connectors(a, new_pose.R, new_pose.t),
                                place_connectors(b, placed_pose.R, placed_pose.t))
     return held_otherwise(new) and offers_other(placed)
+
+
+JOINTS = ("minifig", "click-hinge", "clip-bar", "wheel-pin", "technic-axle", "technic-pin", "bar-in-stud", "bar",
+          "by-shape")
+"""The kinds of connection the checker does not model yet, as `joint_kind` names them, most specific
+first: minifigure joints; a click hinge, a clip on a bar or handle, a wheel pin, an axle (in an
+axle or pin hole), a Technic pin or bush, told by the connector primitives that meet; a bar or pin
+in a hollow stud's bore; a clip, bar or hinge told only by cylinders of a bar's radius on one axis
+(`bar_joints`); and parts drawn without any of these, held by their shapes (a tyre on a rim)."""
+
+
+def _joint_of(kinds: set[str]) -> str:
+    for joint, of in (("click-hinge", {"hinge"}), ("clip-bar", {"clip", "handle"}), ("wheel-pin", {"wheel-pin", "wheel-pin-hole"}),
+                      ("technic-axle", {"axle", "axle-hole"}), ("technic-pin", {"pin", "pin-hole", "bush"})):
+        if kinds & of:
+            return joint
+    return "bar-in-stud"
+
+
+def _kinded(part: Part) -> tuple[np.ndarray, list[str]]:
+    """`_connectors` with what each is (`CONNECTOR_KINDS`; a hollow stud's bore is 'bore')."""
+    kinds = [CONNECTOR_KINDS[k] for k in part.flat.other_kinds] + ["bore"] * len(part.flat.bores)
+    return _connectors(part), kinds
+
+
+def joint_kind(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> str | None:
+    """Which kind of connection (`JOINTS`) `placed` may hold `new` by, where `may_hold` or
+    `bar_joints` says it may; None where neither does."""
+    if is_minifig(new) and is_minifig(placed):
+        return "minifig"
+    (a, ka), (b, kb) = _kinded(new), _kinded(placed)
+    if len(a) and len(b):
+        pa, pb = place_connectors(a, new_pose.R, new_pose.t), place_connectors(b, placed_pose.R, placed_pose.t)
+        met = set()
+        for i, s in enumerate(pa):
+            for j, t in enumerate(pb):
+                angle, radial, gap = separation(s, t)
+                if angle <= PARALLEL_DEG and radial <= NEAR_LDU and gap <= NEAR_LDU:
+                    met |= {ka[i], kb[j]}
+        if met:
+            return _joint_of(met)
+    elif held_otherwise(new) and offers_other(placed):
+        return "by-shape"
+    if not len(bar_joints(new, new_pose, placed, placed_pose)):
+        return None
+    return "bar-in-stud" if _in_bore(new, new_pose, placed, placed_pose) else "bar"
+
+
+def _in_bore(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool:
+    """Whether a bar-size cylinder of one part lies in a hollow stud's bore of the other."""
+    for (a, pa), (b, pb) in (((new, new_pose), (placed, placed_pose)), ((placed, placed_pose), (new, new_pose))):
+        if len(a.flat.bars) and len(b.flat.bores) and len(bars_meet(
+                place_connectors(a.flat.bars, pa.R, pa.t), a.flat.bar_out,
+                place_connectors(b.flat.bores, pb.R, pb.t), -np.ones(len(b.flat.bores)))):
+            return True
+    return False
 
 
 def _rounds(part: Part) -> tuple[np.ndarray, np.ndarray]:

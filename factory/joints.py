@@ -1,0 +1,134 @@
+"""Connections beyond studs: a part's joint connectors as records, and what a mated pair keeps free.
+
+Found from the part's own drawing (`factory.ldraw.reader.Flat`): LDraw's connector primitives
+(Technic pin holes, axle holes, pins, axles, bushes, clips, click hinges, wheel pins and their
+holes, bar handles: `other_connectors`, with their kinds), the cylinders of a bar's radius it is
+drawn with (a bar, a clip's grip, a hinge finger's round end, the solid pin under a 1xN plate:
+`bars`, solid or hollow), and its hollow studs' bores (a bar or pin goes in). Each record has a
+kind, a gender (`male` goes into a `female`; `hinge` fingers sit between fingers), the stretch of
+its axis it spans and the axis, in the part's LDraw frame (LDU, -Y up).
+
+Which kinds mate, and what each joint leaves free (`FREEDOMS`): a pin turns in a pin hole and does
+not slide; an axle in an axle hole slides and does not turn; an axle in a pin hole does both; a
+wheel turns on its wheel pin; a clip turns about its bar and slides along it; a click hinge turns in
+steps. The checker does not judge these joints yet (`factory.physics.unmodelled` tells only that a
+part may be held by one, and by which kind: `joint_kind`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from factory.ldraw.other_connectors import CONNECTOR_KINDS
+
+GENDERS = {
+    "pin": "male", "axle": "male", "wheel-pin": "male", "handle": "male", "bar": "male",
+    "pin-hole": "female", "axle-hole": "female", "bush": "female", "wheel-pin-hole": "female",
+    "clip": "female", "grip": "female", "bore": "female",
+    "hinge": "hinge",
+}
+"""Each connector kind's gender. `bar` is a solid cylinder of a bar's radius (a bar, a hinge finger's
+round end, the pin under a 1xN plate), `grip` a hollow one (a clip drawn without a clip
+primitive), `bore` a hollow stud's bore; the others are `CONNECTOR_KINDS`."""
+
+@dataclass(frozen=True)
+class Freedom:
+    """What a mated pair of connectors leaves free about and along their shared axis."""
+
+    turns: bool
+    """It turns about the axis (a pin in a pin hole, a wheel on its pin, a clip on a bar)."""
+    slides: bool
+    """It slides along the axis (an axle in an axle hole, a clip along a bar)."""
+    stepped: bool = False
+    """It holds only at steps of its turn (a click hinge's detents; their angle is not read from
+    the parts yet)."""
+
+
+FREEDOMS: dict[frozenset[str], Freedom] = {
+    frozenset({"pin", "pin-hole"}): Freedom(turns=True, slides=False),
+    frozenset({"axle", "axle-hole"}): Freedom(turns=False, slides=True),
+    frozenset({"axle", "bush"}): Freedom(turns=False, slides=True),
+    frozenset({"axle", "pin-hole"}): Freedom(turns=True, slides=True),
+    frozenset({"wheel-pin", "wheel-pin-hole"}): Freedom(turns=True, slides=False),
+    frozenset({"bar", "clip"}): Freedom(turns=True, slides=True),
+    frozenset({"bar", "grip"}): Freedom(turns=True, slides=True),
+    frozenset({"handle", "clip"}): Freedom(turns=True, slides=True),
+    frozenset({"handle", "grip"}): Freedom(turns=True, slides=True),
+    frozenset({"bar", "bore"}): Freedom(turns=True, slides=True),
+    frozenset({"bar", "pin-hole"}): Freedom(turns=True, slides=True),
+    frozenset({"hinge"}): Freedom(turns=True, slides=False, stepped=True),
+}
+"""The pairs of kinds that make a joint, and what each leaves free. A pair not listed holds
+nothing (two pins end to end, a pin in an axle hole's cross)."""
+
+
+@dataclass(frozen=True)
+class JointConnector:
+    """One connector of a part (not a stud or socket), in the part's frame."""
+
+    kind: str
+    """A key of `GENDERS`."""
+    start: tuple[float, float, float]
+    end: tuple[float, float, float]
+    """The two ends of the stretch of the axis the connector spans (LDU)."""
+    axis: tuple[float, float, float]
+    """Its unit axis (the line a mating connector lies on)."""
+
+    @property
+    def gender(self) -> str:
+        return GENDERS[self.kind]
+
+    @property
+    def length(self) -> float:
+        return float(np.linalg.norm(np.subtract(self.end, self.start)))
+
+
+def _records(kind_of, segments: np.ndarray) -> list[JointConnector]:
+    return [JointConnector(kind_of(i), tuple(round(float(v), 4) for v in s[0]),
+                           tuple(round(float(v), 4) for v in s[1]), tuple(round(float(v), 6) for v in s[2]))
+            for i, s in enumerate(segments)]
+
+
+def joint_connectors(part) -> tuple[JointConnector, ...]:
+    """Every joint connector of a part (`factory.parts.Part` or anything with a `flat`): its
+    connector primitives, its bar-size cylinders that are not inside one of them, and its hollow
+    studs' bores."""
+    flat = part.flat
+    out = _records(lambda i: CONNECTOR_KINDS[int(flat.other_kinds[i])], flat.other_connectors)
+    # A bar-size cylinder inside a connector primitive (a hinge's finger, a clip's grip drawn with
+    # `clip*`) is that connector, not another.
+    prims = flat.other_connectors
+    for i, bar in enumerate(flat.bars):
+        if any(_within(bar, p) for p in prims):
+            continue
+        out += _records(lambda _: "grip" if flat.bar_out[i] < 0 else "bar", bar[None])
+    out += _records(lambda _: "bore", flat.bores)
+    return tuple(out)
+
+
+def _within(s: np.ndarray, t: np.ndarray, tol: float = 1.0) -> bool:
+    """Whether the stretch `s` lies on `t`'s axis line and within its stretch (to `tol` LDU)."""
+    u = t[2]
+    if abs(float(s[2] @ u)) < 0.98:
+        return False
+    d = s[:2] - t[0]
+    radial = np.linalg.norm(d - np.outer(d @ u, u), axis=1)
+    lo, hi = sorted([0.0, float((t[1] - t[0]) @ u)])
+    along = d @ u
+    return bool(np.all(radial <= tol) and along.min() >= lo - tol and along.max() <= hi + tol)
+
+
+def mates(a: str, b: str) -> Freedom | None:
+    """What a joint of connector kinds `a` and `b` leaves free, or None where they make none."""
+    return FREEDOMS.get(frozenset({a, b}))
+
+
+def summary(part) -> dict[str, int]:
+    """{kind: count} of a part's joint connectors, bores left out (every round stud has one)."""
+    counts: dict[str, int] = {}
+    for c in joint_connectors(part):
+        if c.kind != "bore":
+            counts[c.kind] = counts.get(c.kind, 0) + 1
+    return dict(sorted(counts.items()))
