@@ -12,6 +12,8 @@ Sections, each timed and written as soon as it ends (a later failure loses nothi
   reference one object at a time);
 - render: views per second of the embedded example model and, where given, of human designs;
 - synth: a small `make synth` build end to end (steps per second, per-stage seconds, bytes);
+- scale: steps per second of the same objects at 1, 2, 4, ... workers up to every core, with the
+  speed-up, efficiency and each stage's worker-seconds per step (`pipelines.bench_scale`);
 - realism: how far that build's objects are from real designs (`pipelines.distance`: coverage of
   the designs' placements, one distance per table), against ../shared/designs read with
   ../shared/ldraw_library.zip where present (`--quick`: the human designs given, if any);
@@ -56,6 +58,7 @@ from factory.sampler import SamplerConfig, SamplerConfigError
 from pipelines.bench_checks import measure, measure_lp, measure_sweep, measure_whole
 from pipelines.bench_growth import measure_growth
 from pipelines.bench_processes import in_own_process
+from pipelines.bench_scale import markdown as scale_markdown, scale_section
 from pipelines.bench_settle import cases
 from pipelines.dataset import ConfigMismatchError, DatasetConfig, build, usage
 from pipelines.designs import design_config
@@ -478,6 +481,8 @@ def markdown(report: dict) -> str:
                   f"({s['counts']['train']['steps']} train, {s['counts']['test']['steps']} test), "
                   f"{s['bytes'] / 1e6:.1f} MB, wall {s['wall_s']} s, {rate}. Stage seconds summed over "
                   f"workers: {stages}." + (f" Used: {usage.describe(s['usage'])}." if s.get("usage") else ""), ""]
+    if "scale" in report:
+        lines += scale_markdown(report["scale"])
     if "designs" in report:
         d = report["designs"]
         lines += [f"Human designs: {d['objects']} models, {d['steps']} steps, built in {d['wall_s']} s "
@@ -522,7 +527,7 @@ def markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
-SECTIONS = ("physics", "render", "synth", "realism", "designs", "evaluation", "feedback")
+SECTIONS = ("physics", "render", "synth", "scale", "realism", "designs", "evaluation", "feedback")
 
 
 def _earlier_report(out: Path, report: dict, quick: bool) -> dict:
@@ -601,6 +606,7 @@ def run(args) -> int:
     section("render", lambda: render_section(render_models))
     report["machine"]["mujoco_gl"] = os.environ.get("MUJOCO_GL", report["machine"]["mujoco_gl"])
     section("synth", lambda: synth_section(work, args.quick))
+    section("scale", lambda: scale_section(work, args.quick))
     real, real_ldraw = _real_designs(models, ldraw) if not args.quick else (models, ldraw)
     if real:
         section("realism", lambda: realism_section(report["synth"]["out"], real, real_ldraw))

@@ -120,6 +120,11 @@ def bench_rows(report: dict) -> dict[str, list[dict]]:
         bench.append({"what": f"make bench synth: {s['objects']} objects of 6-10 bricks",
                       "wall_s": s["wall_s"], "steps_per_s": s["steps_per_s"], "steps": s["steps"],
                       "data_mb": round(s["bytes"] / 1e6, 1)})
+    sc = report.get("scale")
+    if sc and "scale" not in kept:
+        bench += [{"what": f"make bench scale: {sc['objects']} objects, {row['workers']} workers of {sc['cores']} cores, "
+                           f"{sc['gpus']} GPU(s)", "steps_per_s": row["steps_per_s"], "wall_s": row["wall_s"],
+                   "speedup": row["speedup"], "efficiency": row["efficiency"]} for row in sc["rows"]]
     bench += _growth(report.get("physics") or {})
     r = report.get("realism")
     if r and r.get("tables"):

@@ -26,7 +26,11 @@ def test_quick_bench_writes_report_and_plots(tmp_path, monkeypatch):
     report = json.loads((out / "report.json").read_text())
     for name in ("report.md", "physics.png", "render.png", "eval.png"):
         assert (out / name).stat().st_size > 0, name
-    assert set(report["section_s"]) == {"physics", "render", "synth", "evaluation", "feedback"}
+    assert set(report["section_s"]) == {"physics", "render", "synth", "scale", "evaluation", "feedback"}
+    scale = report["scale"]  # the same objects at 1 and 2 workers
+    assert [r["workers"] for r in scale["rows"]] == [1, 2] and scale["rows"][0]["speedup"] == 1.0
+    assert scale["rows"][0]["steps"] == scale["rows"][1]["steps"] > 0 and scale["rows"][1]["steps_per_s"] > 0
+    assert "## Scale: steps/s against workers" in (out / "report.md").read_text()
     fb = report["feedback"]  # world-feedback simulations: MuJoCo C here, no GPU so no Warp figure
     assert fb["predictions"] == 48 and fb["cpu_per_s"] > 0 and 0 < fb["simulated"] < 48 and fb["warp"] is None
     assert "## World feedback" in (out / "report.md").read_text()
@@ -84,14 +88,14 @@ def test_quick_bench_writes_report_and_plots(tmp_path, monkeypatch):
                        "--results", str(rows), "--no-rows"]) == 0
     assert {p.stem: results.read_rows(p) for p in rows.glob("*.jsonl")} == appended  # --no-rows: none
     resumed = json.loads((out / "report.json").read_text())
-    assert resumed["kept"] == ["render", "physics (rows, loads, sweeps, whole)"]
+    assert resumed["kept"] == ["render", "scale", "physics (rows, loads, sweeps, whole)"]
     for key in ("rows", "loads", "sweeps", "whole"):
         assert resumed["physics"][key] == again["physics"][key]
     assert resumed["render"] == again["render"]
     assert [g["batch"] for g in resumed["physics"]["growth"]] == [1, 2]
     assert resumed["physics"]["growth"] != again["physics"]["growth"]  # measured again: other seconds
     assert resumed["evaluation"]["synthetic"]["baselines"]["oracle"]["scores"]["strict"]["overall"]["step_success"] == 1.0
-    assert "kept from an earlier run on this machine: render, physics (rows, loads, sweeps, whole)" in (
+    assert "kept from an earlier run on this machine: render, scale, physics (rows, loads, sweeps, whole)" in (
         out / "report.md").read_text()
 
     # ... but not those of a report made on another machine
@@ -266,3 +270,15 @@ def test_the_solver_benchmark_compares_the_batched_solver_with_highs(capsys):
     (row,) = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert row["size"] == 120 and row["problems"] == 8 and row["variables"] >= 120
     assert row["not_optimal"] == 0 and row["verdicts_differing"] == 0 and row["max_objective_error"] < 1e-4
+
+
+def test_scale_counts_double_up_to_every_core_and_bad_flags_are_refused(tmp_path, capsys):
+    from pipelines import bench_scale
+
+    assert bench_scale.worker_counts(16) == [1, 2, 4, 8, 16] and bench_scale.worker_counts(6) == [1, 2, 4, 6]
+    assert bench_scale.worker_counts(1) == [1]
+    for bad in (["--workers", "2,x"], ["--workers", "0"], ["--n", "0"]):
+        with pytest.raises(SystemExit) as e:
+            bench_scale.main(["--out", str(tmp_path), *bad])
+        assert e.value.code == 2
+    assert "--workers" in capsys.readouterr().err
