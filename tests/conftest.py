@@ -20,6 +20,12 @@ from training_support import tiny_model  # noqa: F401
 
 
 def pytest_collection_modifyitems(config, items):
+    # Files with the most `slow` tests first (stable otherwise): `make test` hands whole files to
+    # its workers in collection order, and a long file started last keeps one worker busy alone.
+    slow: dict = {}
+    for item in items:
+        slow[item.path] = slow.get(item.path, 0) + bool(item.get_closest_marker("slow"))
+    items.sort(key=lambda item: -slow[item.path])
     skip = pytest.mark.skipif(not (LDRAW / "parts").is_dir(), reason=f"the real LDraw subset is not at {LDRAW} "
                               "(CI has it; a user's clone may not; set BRICK_FACTORY_SHARED)")
     for item in items:

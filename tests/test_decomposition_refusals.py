@@ -58,8 +58,26 @@ def test_a_decomposition_past_its_time_limit_is_tried_again_at_coarser_settings(
     assert tried == [50, 30] and len(shape.body) >= 1
     monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", "0.01")  # real coacd, too slow both times
     monkeypatch.setattr(decompose, "_decompose", real)
-    with pytest.raises(LDrawLimitError, match=r"more than 0.01 s; .*again at coarser settings: .*more than 0.01 s"):
+    with pytest.raises(LDrawLimitError, match=r"more than 0.01 s of CPU time; .*again at coarser settings: "
+                                              r".*more than 0.01 s of CPU time"):
         geometry.collision_shape(load_part(Reader(Library.embedded()), "3003"))
+
+
+def test_the_limit_is_cpu_time_not_wall_time(tmp_path):
+    """A child waiting (a busy machine: it is not run) is not stopped at the limit, only at
+    `WALL_FACTOR` times it; a child computing is stopped once its CPU time passes the limit."""
+    import sys
+    import time
+
+    from factory.physics import decompose
+
+    with open(tmp_path / "err", "w") as err:
+        t = time.monotonic()
+        assert decompose._run_limited([sys.executable, "-c", "import time; time.sleep(1.0)"], err, 0.6) == 0
+        assert time.monotonic() - t >= 1.0
+        t = time.monotonic()
+        assert decompose._run_limited([sys.executable, "-c", "while True: pass"], err, 0.6) is None
+        assert time.monotonic() - t < decompose.WALL_FACTOR * 0.6
 
 
 def test_the_faithfulness_test_walks_its_sample_grid_in_chunks_with_the_same_answers(monkeypatch, real_reader):

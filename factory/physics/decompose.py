@@ -15,6 +15,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import time
 import zipfile
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -70,12 +71,17 @@ def cache_dir() -> Path:
 
 
 COACD_SECONDS = 300
-"""Wall time one part's coacd decomposition may take, unless `COACD_SECONDS_ENV` says otherwise.
+"""CPU time one part's coacd decomposition may take, unless `COACD_SECONDS_ENV` says otherwise.
 Most real parts take 0.1-15 s here, but 11208.dat (a 2,288-triangle part of 40448) took more than
 300 s on this project's 2-core machine; a soup of 12,000 random triangles ran past 200 s at
 2.4 GB, and one of 1.2 million was killed for memory at 24 GB after 96 s. coacd is native code
 that cannot be stopped from Python, so it runs in a child process under this limit and
-`COACD_MEMORY_BYTES`."""
+`COACD_MEMORY_BYTES`. CPU time, not wall time: measured as wall time, the same part was refused on
+a busy machine and accepted on an idle one (LDraw's 6032 and 49309 at coarse settings: 271 s and
+175 s on a free core, past 300 s of wall time beside other work)."""
+WALL_FACTOR = 4
+"""A child that has not ended after this many times the limit in wall time is stopped whatever CPU
+time it used (a machine so busy that it hardly runs)."""
 COACD_SECONDS_ENV = "BRICK_FACTORY_COACD_SECONDS"
 """Environment variable: seconds one decomposition may take (a slow machine meeting a slow part)."""
 COACD_MEMORY_BYTES = 8 << 30
@@ -126,6 +132,38 @@ np.savez(sys.argv[2], *[np.asarray(v, dtype=np.float64) for v, _ in pieces])
 """
 
 
+def _cpu_seconds(pid: int) -> float | None:
+    """CPU time (user and system, every thread) a running process has used; None where the system
+    does not say (no /proc)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def _run_limited(argv: list[str], err, limit: float) -> int | None:
+    """Run `argv` (stderr to the file `err`) until it ends: its return code, or None once it has used
+    more than `limit` seconds of CPU time (wall time where the CPU time is not known), or run
+    `WALL_FACTOR` times that in wall time; then it is killed."""
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err)
+    t0 = time.monotonic()
+    try:
+        while True:
+            try:
+                return proc.wait(timeout=min(0.05, limit / 4))
+            except subprocess.TimeoutExpired:
+                pass
+            wall = time.monotonic() - t0
+            used = _cpu_seconds(proc.pid)
+            if (wall if used is None else used) > limit or wall > WALL_FACTOR * limit:
+                return None
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 def _decompose(vertices: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig, name: str = "") -> list[np.ndarray]:
     """coacd's convex pieces of the mesh, computed in a child process bounded by `coacd_seconds()`
     and `COACD_MEMORY_BYTES`; past either, an `LDrawLimitError` naming the part."""
@@ -137,14 +175,15 @@ def _decompose(vertices: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig
                  mcts_nodes=cfg.mcts_nodes, mcts_max_depth=cfg.mcts_max_depth, seed=cfg.seed)
         what = f"decomposing {name or 'a part'} ({len(faces):,} triangles) into convex pieces"
         limit = coacd_seconds()
-        try:
-            done = subprocess.run([sys.executable, "-c", _COACD_CHILD, src, out, str(int(COACD_MEMORY_BYTES))],
-                                  capture_output=True, text=True, timeout=limit)
-        except subprocess.TimeoutExpired:
-            raise DecompositionTooSlow(f"{what} took more than {limit:g} s; refusing the part (on a slow machine, "
-                                  f"{COACD_SECONDS_ENV}=SECONDS allows longer)", name or None) from None
-        if done.returncode != 0 or not os.path.exists(out):
-            tail = (done.stderr.strip().splitlines() or ["no message"])[-1]
+        with open(os.path.join(tmp, "stderr.txt"), "w+") as err:
+            code = _run_limited([sys.executable, "-c", _COACD_CHILD, src, out, str(int(COACD_MEMORY_BYTES))], err, limit)
+            err.seek(0)
+            stderr = err.read()
+        if code is None:
+            raise DecompositionTooSlow(f"{what} took more than {limit:g} s of CPU time; refusing the part (on a slow "
+                                       f"machine, {COACD_SECONDS_ENV}=SECONDS allows longer)", name or None)
+        if code != 0 or not os.path.exists(out):
+            tail = (stderr.strip().splitlines() or ["no message"])[-1]
             raise LDrawLimitError(f"{what} failed within {COACD_MEMORY_BYTES >> 20:,} MB of memory ({tail}); "
                                   "refusing the part", name or None)
         with np.load(out) as pieces:
@@ -217,7 +256,7 @@ def _refusal_path(raw_key: str) -> Path:
 def _remember_refusal(raw_key: str, exc: LDrawLimitError) -> None:
     """Keep a refused decomposition's reason with the limits it ran under: the next process gives
     up at once instead of spending them again (a part that took more than 300 s, every run)."""
-    keep(_refusal_path(raw_key), json.dumps({"seconds": coacd_seconds(), "memory": COACD_MEMORY_BYTES,
+    keep(_refusal_path(raw_key), json.dumps({"seconds": coacd_seconds(), "clock": "cpu", "memory": COACD_MEMORY_BYTES,
                                              "coarse": COARSE, "message": exc.message}).encode())
 
 
@@ -229,7 +268,7 @@ def _refused_before(raw_key: str, file) -> None:
     try:
         kept_ = json.loads(_refusal_path(raw_key).read_bytes())
         wide = float(kept_["seconds"]) >= coacd_seconds() and int(kept_["memory"]) >= COACD_MEMORY_BYTES \
-            and kept_.get("coarse") == COARSE
+            and kept_.get("coarse") == COARSE and kept_.get("clock") == "cpu"  # (a wall-time refusal: tried again)
         message = str(kept_["message"])
     except (OSError, ValueError, KeyError, TypeError):
         return
