@@ -335,7 +335,7 @@ def test_ray_cluster_checks_its_nodes_and_survives_a_dead_one(built, tmp_path):
         cluster.wait_for_nodes()
         ids = {w.node_id for w in workers}
         with pytest.raises(ClusterError) as err:
-            check_nodes(tmp_path / "probe", str(tmp_path / "no-such-library.zip"), timeout=60)
+            check_nodes(tmp_path / "probe", str(tmp_path / "no-such-library.zip"))
         assert sum(f"node {i[:12]}" in str(err.value) for i in ids) == 2, str(err.value)
         assert "no-such-library.zip" in str(err.value)
         assert not list((tmp_path / "probe" / "meta").iterdir())  # the check leaves nothing behind

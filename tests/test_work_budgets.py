@@ -156,7 +156,7 @@ def test_coacd_runs_bounded_in_a_child_and_gives_its_own_pieces(monkeypatch):
     # The environment's limit wins over the module's, and is named in the refusal.
     monkeypatch.setattr(decompose, "COACD_SECONDS", 60)
     monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", "0.02")
-    with pytest.raises(LDrawLimitError, match=r"more than 0.02 s; .*BRICK_FACTORY_COACD_SECONDS=SECONDS"):
+    with pytest.raises(LDrawLimitError, match=r"more than 0.02 s of CPU time; .*BRICK_FACTORY_COACD_SECONDS=SECONDS"):
         decompose._decompose(v, f, cfg, "box.dat")
     for bad in ("soon", "0", "-5", "inf", "nan"):
         monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", bad)
