@@ -120,6 +120,8 @@ import sys
 try:  # set before numpy and coacd load (a preexec_fn is unsafe in threaded workers); POSIX only
     import resource
     resource.setrlimit(resource.RLIMIT_AS, (int(sys.argv[3]), int(sys.argv[3])))
+    # The parent stops it at the CPU limit; this ends it if the parent died first (a killed run).
+    resource.setrlimit(resource.RLIMIT_CPU, (int(sys.argv[4]), int(sys.argv[4])))
 except ImportError:
     pass
 import numpy as np
@@ -176,7 +178,8 @@ def _decompose(vertices: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig
         what = f"decomposing {name or 'a part'} ({len(faces):,} triangles) into convex pieces"
         limit = coacd_seconds()
         with open(os.path.join(tmp, "stderr.txt"), "w+") as err:
-            code = _run_limited([sys.executable, "-c", _COACD_CHILD, src, out, str(int(COACD_MEMORY_BYTES))], err, limit)
+            code = _run_limited([sys.executable, "-c", _COACD_CHILD, src, out, str(int(COACD_MEMORY_BYTES)),
+                                 str(int(2 * limit) + 10)], err, limit)
             err.seek(0)
             stderr = err.read()
         if code is None:
