@@ -63,11 +63,14 @@ def scale_section(work: Path, quick: bool) -> dict:
     """The bench's scale section: 32 objects of 6-10 bricks at 1, 2, 4, ... workers up to every
     core (quick: 2 objects of 3-4 bricks at 1 and 2 workers)."""
     if quick:
-        n, counts, lo, hi = 2, worker_counts(min(2, os.cpu_count() or 1)), 3, 4
-    else:
-        n, counts, lo, hi = 32, worker_counts(), 6, 10
+        return _section(work, 2, worker_counts(min(2, os.cpu_count() or 1)), 3, 4)
+    return _section(work, 32, worker_counts(), 6, 10)
+
+
+def _section(work: Path, n: int, counts: list[int], lo: int = 6, hi: int = 10, check_backend: str = "auto") -> dict:
     return {"objects": n, "config": f"objects of {lo}-{hi} bricks, seed 0, one object a shard",
-            "gpus": gpus.count(), "cores": os.cpu_count(), "rows": scale_rows(work, n, counts, lo, hi)}
+            "gpus": gpus.count(), "cores": os.cpu_count(),
+            "rows": scale_rows(work, n, counts, lo, hi, check_backend=check_backend)}
 
 
 def markdown(section: dict) -> list[str]:
@@ -98,9 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--workers and --n must be at least 1")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = scale_rows(out, args.n, counts, check_backend=args.check_backend)
-    section = {"objects": args.n, "config": "objects of 6-10 bricks, seed 0, one object a shard",
-               "gpus": gpus.count(), "cores": os.cpu_count(), "rows": rows}
+    section = _section(out, args.n, counts, check_backend=args.check_backend)
     write_atomic(out / "scale.json", json.dumps(section, indent=1).encode())
     print("\n".join(markdown(section)), file=sys.stdout)
     return 0

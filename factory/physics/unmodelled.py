@@ -120,12 +120,7 @@ def joint_kind(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> st
     (a, ka), (b, kb) = _kinded(new), _kinded(placed)
     if len(a) and len(b):
         pa, pb = place_connectors(a, new_pose.R, new_pose.t), place_connectors(b, placed_pose.R, placed_pose.t)
-        met = set()
-        for i, s in enumerate(pa):
-            for j, t in enumerate(pb):
-                angle, radial, gap = separation(s, t)
-                if angle <= PARALLEL_DEG and radial <= NEAR_LDU and gap <= NEAR_LDU:
-                    met |= {ka[i], kb[j]}
+        met = {k for i, j in _meeting(pa, pb) for k in (ka[i], kb[j])}
         if met:
             return _joint_of(met)
     elif held_otherwise(new) and offers_other(placed):
@@ -233,12 +228,17 @@ def separation(s: np.ndarray, t: np.ndarray) -> tuple[float, float, float]:
     return angle, radial, float(gap)
 
 
+def _meeting(a: np.ndarray, b: np.ndarray):
+    """(i, j) for each connector `a[i]` that lies on the axis of `b[j]` (both in one frame),
+    within the tolerances above."""
+    for i, s in enumerate(a):
+        for j, t in enumerate(b):
+            angle, radial, gap = separation(s, t)
+            if angle <= PARALLEL_DEG and radial <= NEAR_LDU and gap <= NEAR_LDU:
+                yield i, j
+
+
 def connectors_meet(a: np.ndarray, b: np.ndarray) -> bool:
     """Whether any connector of `a` (j, 3, 3) lies on the axis of one of `b` (k, 3, 3), both in
     one frame, within the tolerances above."""
-    for s in a:
-        for t in b:
-            angle, radial, gap = separation(s, t)
-            if angle <= PARALLEL_DEG and radial <= NEAR_LDU and gap <= NEAR_LDU:
-                return True
-    return False
+    return next(_meeting(a, b), None) is not None
