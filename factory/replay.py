@@ -63,6 +63,15 @@ def held_joints(structure: Structure, unit: list[Placed], verdict: Verdict) -> l
     return [j for j in JOINTS if j in found]
 
 
+def _joint_record(structure: Structure, unit: list[Placed], verdict: Verdict) -> dict:
+    """A record's `joints`: the kinds of joint that hold the unit (`verdict.joints`), or for an
+    unsupported connection the kinds that may (`held_joints`), most specific first; none: {}."""
+    if verdict.reason == "unsupported-connection":
+        return {"joints": held_joints(structure, unit, verdict)}
+    kinds = {l.kind for l in verdict.joints}
+    return {"joints": [j for j in JOINTS if j in kinds]} if kinds else {}
+
+
 NO_VOLUME = "no-volume"
 """The reason of a part with no volume (faces in one plane, e.g. a sticker): not checked."""
 
@@ -123,11 +132,15 @@ def _faults(structure, local: Placed, backend, config, standing, step, index, fi
                           fault=TURN_FINISHED)
 
 
-def _links(index: int, verdict: Verdict) -> list[Link]:
-    """Rigid links of a part placed at `index` that is held by connections the checker does not
-    model (its verdict's `held_by`), so the whole-structure loads carry it through them. A holder
-    not placed yet (a later part of its step it hangs from) links to it when that part comes."""
-    return [Link(index, j, tuple(float(v) for v in verdict.pose.t)) for j in verdict.held_by if j < index]
+def _links(index: int, verdict: Verdict, part: int = 0) -> list[Link]:
+    """The links of a part placed at `index` (part `part` of its verdict's unit) to the parts
+    before it: the joints that hold it (its verdict's `joints`), and rigid links to the parts that
+    may hold it by a connection the checker cannot place (`held_by`), so that the
+    whole-structure loads carry it through them. A holder not placed yet (a later part of its
+    step it hangs from) is not linked."""
+    rigid = [Link(index, j, tuple(float(v) for v in verdict.pose.t)) for j in verdict.held_by if j < index] \
+        if part == 0 else []
+    return rigid + [Link(index, l.b, l.point, l.kind, l.axis) for l in verdict.joints if l.a == part and l.b < index]
 
 
 def _add_unit(structure: Structure, unit: list[Placed], inner_links, verdict: Verdict) -> None:
@@ -135,7 +148,7 @@ def _add_unit(structure: Structure, unit: list[Placed], inner_links, verdict: Ve
     if the unit is held by an unmodelled connection, a link from its first part."""
     base = len(structure)
     for k, p in enumerate(unit):
-        structure.add(p, _links(base, verdict) if k == 0 else ())
+        structure.add(p, _links(base + k, verdict, k))
     structure.links.extend(Link(l.a + base, l.b + base, l.point) for l in inner_links)
 
 
@@ -295,8 +308,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 judged_on = Structure(parent.placed + along)
                 judged_on.links.extend(parent.links)
                 (v,) = check_units(judged_on, [unit], backend, config, standing=standing, unit_links=done.links)
-            joints = {"joints": held_joints(judged_on if along else parent, unit, v)} \
-                if v.reason == "unsupported-connection" else {}
+            joints = _joint_record(judged_on if along else parent, unit, v)
             yield _record(v, step=event.last_step, index=0, part=event.tag.rsplit("/", 1)[-1],
                           color=unit[0].colour, unit=True, assembly=event.tag,
                           stud_pairs=stud_pairs(judged_on if along else parent, unit), **joints)
@@ -338,11 +350,11 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 first = _going_first(structure, step_start, local, backend, config, standing)
                 if first is not None:
                     v, judged_on = first
-            joints = {"joints": held_joints(judged_on, [local], v)} if v.reason == "unsupported-connection" else {}
+            joints = _joint_record(judged_on, [local], v)
             yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour,
                           stud_pairs=stud_pairs(judged_on, [local]), **({"first_in_step": True} if first else {}),
                           **joints)
-            if faults and v.ok and v.connected:
+            if faults and v.ok and v.connections:
                 # Faults move the part off the connections it was accepted on: those of the
                 # structure it was judged against (with the later parts of its step, if it hangs).
                 yield from _faults(judged_on, local, backend, config, standing, step.index, index,
@@ -404,6 +416,9 @@ def summarize(records: list[dict]) -> dict:
         # ... by the most specific kind of joint that may hold each (`held_joints`)
         "unsupported_by_joint": dict(Counter((r.get("joints") or ["?"])[0] for r in plain
                                              if r["reason"] == "unsupported-connection")),
+        # Placements held by joints (not only studs), accepted or not, by their most specific kind.
+        "by_joint": dict(Counter(r["joints"][0] for r in judged if r.get("joints"))),
+        "by_joint_accepted": dict(Counter(r["joints"][0] for r in judged if r.get("joints") and r["reason"] is None)),
         "no_volume": sum(r["reason"] == NO_VOLUME for r in plain),
         "accepted": sum(r["reason"] is None for r in judged),
         "fidelity": (sum(r["reason"] is None for r in judged) / len(judged)) if judged else None,

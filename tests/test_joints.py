@@ -1,7 +1,7 @@
-"""Clips, bars and hinges, joints the checker does not model: recognised by the cylinders of a
+"""Clips, bars and hinges drawn without connector primitives: recognised by the cylinders of a
 bar's radius (4 LDU) that both parts are drawn with, on one axis, so that a part held by one is
-reported `unsupported-connection` (left out of the fidelity rate, a rigid link for the loads)
-instead of `collision`, and the same part moved off the joint is still rejected. Poses are those
+a connection through that joint (its overlap round the joint's axis left out, a joint for the
+loads) instead of a `collision`, and the same part moved off the joint is still rejected. Poses are those
 of the real designs in `../shared/ldraw_models` (the step is named)."""
 
 from __future__ import annotations
@@ -16,7 +16,13 @@ from factory.parts import load_part
 from factory.physics.check import check_units
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
-from factory.replay import held_joints
+
+def kinds(v):
+    return sorted({l.kind for l in v.joints})
+
+
+def holders(v):
+    return tuple(sorted({l.b for l in v.joints}))
 
 I3 = np.eye(3)
 
@@ -78,15 +84,14 @@ def bar_unit(at, by=(0.0, 0.0, 0.0)):
     return [moved(at("32828", 48, -70, 70, r), by), moved(at("98138", 40, -70, 70, r), by)]
 
 
-def test_a_bar_in_a_clip_is_a_connection_not_modelled(at):
+def test_a_bar_in_a_clip_is_a_joint(at):
     v = verdict(clip_on_brick(at), bar_unit(at))
-    assert v.reason == "unsupported-connection" and v.held_by == (1,), v
-    # The replay names the joint: the clip is drawn with cylinders of a bar's radius, not a clip
-    # primitive, so the joint is known as a bar on the clip's axis.
-    structure = Structure(clip_on_brick(at))
-    assert held_joints(structure, bar_unit(at), v) == ["bar"]
+    # The clip is drawn with cylinders of a bar's radius, not a clip primitive, so the joint is
+    # known as a bar on the clip's axis; it holds the unit's round plate (part 0).
+    assert v.ok and v.connected and v.connections == 0 and holders(v) == (1,) and kinds(v) == ["bar"], v
+    assert {l.a for l in v.joints} == {0} and all(abs(l.axis[2]) == 1.0 for l in v.joints)
     # Slid 4 LDU along the bar it is still in the clip.
-    assert verdict(clip_on_brick(at), bar_unit(at, (0, 0, 4))).reason == "unsupported-connection"
+    assert kinds(verdict(clip_on_brick(at), bar_unit(at, (0, 0, 4)))) == ["bar"]
 
 
 @pytest.mark.parametrize("by", [(0, 4, 0), (0, -8, 0), (4, 0, 0), (10, 0, 0)])
@@ -101,10 +106,9 @@ def roof_holder(at):
     return [at("3823", 0, -88, -30), at("4214", 0, -88, 30)]
 
 
-def test_hinge_fingers_between_fingers_are_a_connection_not_modelled(at):
+def test_hinge_fingers_between_fingers_are_a_joint(at):
     v = verdict(roof_holder(at), at("4213", 0, -96, 0))
-    assert v.reason == "unsupported-connection" and v.held_by == (1,) and v.connections == 2, v
-    assert held_joints(Structure(roof_holder(at)), [at("4213", 0, -96, 0)], v) == ["bar"]
+    assert v.ok and holders(v) == (1,) and kinds(v) == ["bar"] and v.connections == 2, v
 
 
 @pytest.mark.parametrize("by", [(10, 0, 0), (0, 0, 10), (0, -8, 0), (0, 4, 0)])
@@ -124,12 +128,11 @@ def test_a_collision_beside_a_joint_is_still_a_collision(at):
 # Vintage Car, main model: surf boards 90397 as running boards, their underside pins in the
 # hollow side studs of plates 99206 (no stud connection: 4.0 LDU where the studs' solid
 # collision prisms stand in the pins).
-def test_pins_in_hollow_side_studs_are_a_connection_not_modelled(at):
+def test_pins_in_hollow_side_studs_are_a_joint(at):
     plate = at("99206", 60, -32, 50, [[-1, 0, 0], [0, 1, 0], [0, 0, -1]])
     board = at("90397", 30, -26, 68, [[0, 0, 1], [-1, 0, 0], [0, -1, 0]])
     v = verdict([plate], board)
-    assert v.reason == "unsupported-connection" and v.held_by == (0,), v
-    assert held_joints(Structure([plate]), [board], v) == ["bar-in-stud"]
+    assert v.ok and holders(v) == (0,) and kinds(v) == ["bar-in-stud"], v
     # Off the studs' axes (across the board, or pulled off them) it is judged like any part.
     for by in [(0, 10, 0), (0, -10, 0), (0, 0, 8)]:
         assert verdict([plate], moved(board, by)).reason in {"collision", "no-connection"}, by
@@ -149,11 +152,11 @@ def test_two_pins_end_to_end_hold_nothing(at):
     assert verdict([hitch], at("3004", 0, -39, -138)).reason == "no-connection"
 
 
-def test_a_plates_pin_in_a_hollow_stud_is_a_connection_not_modelled(at):
+def test_a_plates_pin_in_a_hollow_stud_is_a_joint(at):
     # A 1x2 plate centred on a round brick: its underside pin in the brick's hollow stud, its two
     # ends free. Nothing else overlaps.
     v = verdict([at("3062b", 0, 0, 0)], at("3023", 0, -8, 0))
-    assert v.reason == "unsupported-connection" and v.held_by == (0,), v
+    assert v.ok and holders(v) == (0,) and kinds(v) == ["bar-in-stud"], v
 
 
 @pytest.mark.parametrize("case", ["plate onto the open studs", "open studs under the plate"])
@@ -173,7 +176,8 @@ def test_both_backends_judge_joints_alike(at, backend):
     # The batched collision rule finds the overlap; the joint's zone is left out on the CPU scene.
     if backend == "jax":
         pytest.importorskip("jax")
-    assert verdict(roof_holder(at), at("4213", 0, -96, 0), backend).reason == "unsupported-connection"
+    assert kinds(verdict(roof_holder(at), at("4213", 0, -96, 0), backend)) == ["bar"]
     assert verdict(roof_holder(at), at("4213", 10, -96, 0), backend).reason == "collision"
-    assert verdict(clip_on_brick(at), bar_unit(at), backend).reason == "unsupported-connection"
+    v = verdict(clip_on_brick(at), bar_unit(at), backend)
+    assert v.ok and kinds(v) == ["bar"], v
     assert verdict([at("35480", -40, 8, 0)], at("3023", -50, 0, 0), backend).reason == "collision"

@@ -244,7 +244,9 @@ def test_real_load_programs_and_their_verdicts_near_the_limit_match_highs(real_m
         programs.append((m, LoadConfig()))
         if s1 > 0.05:
             programs += [(m, LoadConfig(clutch_n=s1 * u)) for u in (0.9, 0.95, 0.99, 1 - 1e-5, 1 + 1e-5, 1.01, 1.05, 1.1)]
-        linked = replace(m, link_a=np.array([m.n_bodies - 1]), link_b=np.array([0]), link_pos=m.com[[0]])
+        linked = replace(m, link_a=np.array([m.n_bodies - 1]), link_b=np.array([0]), link_pos=m.com[[0]],
+                         link_axis=np.array([[0.0, -1.0, 0.0]]), link_cap=np.full((1, 6), np.inf),
+                         link_kind=np.array(["rigid"], dtype=object))
         programs.append((linked, LoadConfig()))
     lps = [to_lp(m, cfg) for m, cfg in programs]
     assert len(lps) >= 1000

@@ -327,7 +327,7 @@ def test_which_parts_may_be_held_by_connections_not_modelled(real_reader, name, 
 
 
 @pytest.mark.slow
-def test_a_pin_is_excused_only_in_the_hole(real_reader):
+def test_a_pin_is_a_joint_only_in_the_hole(real_reader):
     # A Technic beam 1 (18654: one pin hole along Y through its centre, 20 LDU long) and a friction
     # pin (2780: two 20 LDU halves along X from its collar) turned to run along Y, half in the hole.
     # Parts chosen for cheap collision pieces (a few seconds of coacd each).
@@ -336,9 +336,10 @@ def test_a_pin_is_excused_only_in_the_hole(real_reader):
     along_y = rotation_about((0, 0, 1), 90)
     real, shifted, sideways = check(base, pin, [Pose(along_y, [0, -10, 0]), Pose(along_y, [10, -10, 0]),
                                                 Pose(along_y, [0, -10, 8])])
-    assert real.reason == "unsupported-connection"
-    # ... a Technic pin joint (the pin's `connect` primitives on the hole's axis), which the
-    # shifted pin is not.
+    # A Technic pin joint (the pin's `connect` primitives on the hole's axis: the half in the
+    # hole, not the half ending at its mouth), which the shifted pin is not.
+    assert real.reason is None and [(l.kind, l.point, l.axis) for l in real.joints] == [
+        ("technic-pin", (0.0, 0.0, 0.0), (0.0, 1.0, 0.0))], real
     from factory.ldraw.other_connectors import CONNECTOR_KINDS
     from factory.physics.unmodelled import joint_kind
 

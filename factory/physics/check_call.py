@@ -24,7 +24,7 @@ from factory.physics.load_model import Link, LoadBase, LoadConfig, support_point
 from factory.physics.mass import part_mass_properties
 from factory.physics.structure import Placed, Structure, connections_at, lowest_point
 from factory.physics.sweep import seating_from_connections, sweep
-from factory.physics.unmodelled import bar_joints, may_hold
+from factory.physics.unmodelled import Joint, joints_between, may_hold
 from factory.physics.verdict import CheckConfig, Verdict
 from factory.pose import Pose
 
@@ -76,6 +76,8 @@ class _Call:
         self.to_sweep: list[tuple] = []
         self.to_collide: list[tuple] = []
         self.to_clutch: list[tuple] = []
+        self.joint_links: dict[int, list[Link]] = {}
+        """Each candidate's joints as the load model's links (`joint_links`), by its position."""
         if len(first) == 1:  # one part at many poses: every candidate's connections in one query
             each = connections_at(structure, first[0].part, np.array([u[0].pose.R for u in units]),
                                   np.array([u[0].pose.t for u in units]))
@@ -124,24 +126,30 @@ class _Call:
                         max_penetration_ldu=round(depth, 4), touching=bool(near))
             # Joints matter only to a candidate that collides or has no stud connection.
             joints = self._joints(unit, near) if collision or not outer else {}
-            if joints and collision and self.scene.penetration(pose, touched, joints)[0] > config.max_penetration_ldu:
-                joints = {}  # it overlaps beyond the joints too: judged on that overlap
-            if not outer and near:
-                holders = tuple(sorted(set(joints) | {i for i in near if any(
-                    may_hold(p.part, p.pose, structure.placed[i].part, structure.placed[i].pose) for p in unit)}))
+            if joints and collision:
+                # Overlap round a joint's axis (a pin in its hole, a bar in a clip, fingers between
+                # fingers), or anywhere with a part held by its shape, is the joint's.
+                depth = self.scene.penetration(pose, touched, _zones(joints))[0]
+                if depth > config.max_penetration_ldu:
+                    joints = {}  # it overlaps beyond the joints too: judged on that overlap
+                else:
+                    collision = False
+                    base.update(collision=False, max_penetration_ldu=round(depth, 4))
+            if not outer and near and not joints:
+                holders = tuple(sorted(i for i in near if any(
+                    may_hold(p.part, p.pose, structure.placed[i].part, structure.placed[i].pose) for p in unit)))
                 if holders:
-                    # Held by a connection we do not model (Technic, clip, hinge, tyre): not judged here.
+                    # May be held by a connection whose place the checker cannot find (connector
+                    # primitives that do not mate in line): not judged, held rigid once placed.
                     self.verdicts[k] = Verdict(**base, held_by=holders, reason="unsupported-connection")
                     continue
-            if collision and joints:
-                # On studs, and overlapping only where it is joined to a part by a clip, bar or
-                # hinge (a hinge roof's fingers between its holder's): held by that joint too.
-                self.verdicts[k] = Verdict(**base, held_by=tuple(sorted(joints)), reason="unsupported-connection")
-                continue
             if collision:
                 self.verdicts[k] = Verdict(**base, reason="collision")
                 continue
-            if not connected:
+            if joints:
+                self.joint_links[k] = joint_links(joints, base_n)
+                base.update(connected=True, joints=tuple(joint_links(joints, 0)))
+            elif not connected:
                 self.verdicts[k] = Verdict(**base, reason="no-connection")
                 continue
             self.to_clutch.append((k, base, unit, world, conns, outer, touched))
@@ -150,17 +158,15 @@ class _Call:
         if self.backend != "jax":
             self.clutched(holds_alone_many(self.clutch_cases(), config.loads))
 
-    def _joints(self, unit: Sequence[Placed], near) -> dict[int, np.ndarray]:
-        """The structure parts among `near` that a part of the unit meets at a clip, bar, hinge or
-        pin joint, with where (`unmodelled.bar_joints`: stretches of axis, world frame)."""
-        if not any(len(p.part.flat.bars) + len(p.part.flat.bores) for p in unit):
-            return {}  # nothing to be joined by (every part of the sampler's library)
+    def _joints(self, unit: Sequence[Placed], near) -> dict[int, list[tuple[int, Joint]]]:
+        """The structure parts among `near` that hold a part of the unit by a joint, with the
+        joints (`unmodelled.joints_between`, world frame), each with the unit's part it holds."""
         placed = self.structure.placed
         out = {}
         for i in sorted(near):
-            found = [z for p in unit if len(z := bar_joints(p.part, p.pose, placed[i].part, placed[i].pose))]
+            found = [(u, j) for u, p in enumerate(unit) for j in joints_between(p.part, p.pose, placed[i].part, placed[i].pose)]
             if found:
-                out[i] = np.concatenate(found)
+                out[i] = found
         return out
 
     def clutch_cases(self) -> list[tuple]:
@@ -171,8 +177,8 @@ class _Call:
         floor = None
         cases = []
         for k, base, unit, world, conns, outer, touched in self.to_clutch:
-            if not outer:
-                continue
+            if not outer or k in self.joint_links:
+                continue  # held by a joint too: the whole structure's loads judge it with its joints
             ground_y = None
             if self.standing:
                 if self.floor_y is not None:
@@ -193,13 +199,18 @@ class _Call:
         held = iter(holds)
         judged = 0
         for k, base, unit, world, conns, outer, touched in self.to_clutch:
-            if outer and not next(held):
+            if outer and k not in self.joint_links and not next(held):
                 self.verdicts[k] = Verdict(**base, clutch=False, reason="clutch")
                 continue
             if self.judge_first is not None and judged >= self.judge_first:
                 continue  # not judged: its verdict stays None (`check.CheckRequest.judge_first`)
             judged += 1
             dirs = seating_from_connections(outer, self.base_n)
+            if k in self.joint_links:
+                # Held by a joint: its insertion along the joint's axis is not swept yet.
+                base.update(approach="joint")
+                self._after_sweep(k, base, None, unit, conns, outer)
+                continue
             if outer and self.backend == "jax":
                 # Swept later, with every call's candidates at once on the device (`sweep_jax`).
                 self.to_sweep.append((k, base, unit, conns, world, touched, dirs))
@@ -229,7 +240,7 @@ class _Call:
             if built.buildable is False:
                 self.verdicts[k] = Verdict(**base, clutch=True, reason=built.reason)
                 return
-        if self.standing and (outer or self.base_n == 0):
+        if self.standing and (outer or k in self.joint_links or self.base_n == 0):
             self.verdicts[k] = Verdict(**base, clutch=True if outer else None)
             self.pending.append((k, list(unit), conns))
         else:
@@ -247,6 +258,24 @@ class _Call:
         for k, *_ in self.pending[len(results):]:
             self.verdicts[k] = None
         self.pending = []
+
+
+def _zones(joints: dict[int, list[tuple[int, Joint]]]) -> dict[int, np.ndarray | None]:
+    """`CollisionScene.penetration`'s joints: per holding part, the stretches of axis round which
+    its overlap with the candidate is the joints' (None: all of it, a joint with no axis)."""
+    out = {}
+    for i, js in joints.items():
+        if any(j.zone is None for _, j in js):
+            out[i] = None
+        else:
+            out[i] = (np.array([j.zone for _, j in js], float).reshape(-1, 3, 3), np.array([j.radius for _, j in js]))
+    return out
+
+
+def joint_links(joints: dict[int, list[tuple[int, Joint]]], base_n: int) -> list[Link]:
+    """The load model's links of a candidate's joints (`_joints`): unit part `u` is numbered
+    `base_n + u`, the holding structure part by its index."""
+    return [Link(base_n + u, i, j.point, j.kind, j.axis) for i, js in sorted(joints.items()) for u, j in js]
 
 
 def _alone_case(unit: Sequence[Placed], outer, base_n: int, ground_y: float | None, cfg: LoadConfig) -> tuple:

@@ -30,18 +30,18 @@ def _judge_loads(calls: Sequence[_Call], loads_jax) -> None:
             continue
         cfg = c.config.loads
         loads = _load_base(c.structure, c.floor_y, cfg)
-        links = [Link(l.a + c.base_n, l.b + c.base_n, l.point) for l in c.unit_links]
+        links = [l.moved(c.base_n) for l in c.unit_links]
         if c.judge_first is not None:
             # The asker takes the first survivor in the request's order (the sampler): the programs
             # one at a time, each started from the structure's own, up to the first that stands.
             c.loaded(_until_standing(c, loads, links))
             continue
-        if loads_jax is not None and not links and loads.shared() and all(len(u) == 1 for _, u, _ in c.pending):
+        if loads_jax is not None and not links and not c.joint_links and loads.shared() and all(len(u) == 1 for _, u, _ in c.pending):
             # One part on a connected structure: its columns written once per structure, the
             # programs of every such call in shared launches (`solve_on_bases`).
             on_base.setdefault((cfg, c.explain), []).append((c, loads))
         else:
-            general.append((c, [loads.model(unit, conns, links) for _, unit, conns in c.pending]))
+            general.append((c, [loads.model(unit, conns, links + c.joint_links.get(k, [])) for k, unit, conns in c.pending]))
     for (cfg, explain), members in on_base.items():
         groups = [(loads, [u for _, u, _ in c.pending], [cs for *_, cs in c.pending]) for c, loads in members]
         for (c, _), results in zip(members, judge_on_bases(groups, cfg, loads_jax.solve_on_bases, explain)):
@@ -118,8 +118,8 @@ def _until_standing(call: "_Call", loads: LoadBase, links: Sequence[Link]) -> li
 
     def one_stands(entries) -> bool:
         for entry in entries:
-            _, unit, conns = entry
-            model = loads.model(unit, conns, links)
+            k, unit, conns = entry
+            model = loads.model(unit, conns, [*links, *call.joint_links.get(k, [])])
             (verdict,) = judge_many([model], call.config.loads, _started_solver(call, [model], [unit]),
                                     explain=call.explain)
             solved.append((entry, verdict))

@@ -11,7 +11,7 @@ import numpy as np
 
 from factory.connections import STUD_RADIUS
 from factory.physics.check_state import current
-from factory.physics.load_model import UP, LoadConfig, LoadModel, hull_xz, inside_polygon
+from factory.physics.load_model import UP, LoadConfig, LoadModel, NO_LINKS, hull_xz, inside_polygon
 from factory.physics.load_program import to_lp
 from factory.physics.lp import LinearProgram, LPResult, solve_highs
 from factory.physics.mass import GRAVITY
@@ -140,7 +140,7 @@ def _alone_program(mass_kg, com, conns, ground, cfg: LoadConfig) -> LinearProgra
         conn_b=np.array([1 if h else 0 for h, _, _ in conns], np.int64),
         conn_pos=np.array([p for _, p, _ in conns], float).reshape(-1, 3), conn_axis=axes,
         ground_body=np.zeros(len(ground), np.int64), ground_pos=np.asarray(ground, float).reshape(-1, 3),
-        link_a=np.zeros(0, np.int64), link_b=np.zeros(0, np.int64), link_pos=np.zeros((0, 3)),
+        **NO_LINKS,
     )
     lp = to_lp(model, cfg)
     return LinearProgram(lp.c, lp.a_eq[:6], lp.b_eq[:6], lp.a_ub, lp.b_ub, lp.lower, lp.upper)

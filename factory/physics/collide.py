@@ -457,9 +457,10 @@ class CollisionScene:
         contacts with parts in `connected` are ignored; a stud standing in another part's hollow
         (crossing none of its faces) touches it without overlapping. Touching = a real gap under
         NEAR_LDU. `joints`: structure part -> stretches of axis (k, 3, 3) where the candidate
-        meets it at a clip, bar or hinge joint (`unmodelled.bar_joints`); an overlap with that part
-        round such an axis (`unmodelled.in_zone`: a contact's position, a piece's centre) is the
-        joint's and left out.
+        meets it at a joint (`unmodelled.joints_between`); an overlap with that part round such an
+        axis (`unmodelled.in_zone`: a contact's position, a piece's centre) is the joint's and left
+        out; None for a part holding it by a joint with no axis (a minifigure joint, a tyre on its
+        rim): all its overlap with that part is left out.
         """
         pos, quat = pose.to_mujoco_quat()
         self.data.qpos[:3] = pos
@@ -482,7 +483,8 @@ class CollisionScene:
                 at = np.asarray(con.pos[:n], float) @ LDRAW_TO_MUJOCO / LDU_M
                 for owner, zones in joints.items():
                     mine = keep & (other == owner)
-                    mine[mine] = in_zone(at[mine], zones)
+                    if zones is not None:
+                        mine[mine] = in_zone(at[mine], zones)
                     keep &= ~mine
             conn = (other >= 0) & np.isin(other, np.fromiter(connected, np.int64, len(connected)))
             keep &= ~(conn & (self.is_stud[other_g] | self.is_stud[cand_g]))
@@ -513,6 +515,10 @@ class CollisionScene:
         b = _inside_depth(self._c_planes, self._c_piece, self._c_box, inv.apply(self._s_centre))
         for owner, zones in (joints or {}).items():
             mine = self._s_owner == owner
+            if zones is None:
+                a[mine] = 0.0
+                b[:, mine] = 0.0
+                continue
             a[np.ix_(mine, in_zone(centres, zones))] = 0.0
             b[:, mine & in_zone(self._s_centre, zones)] = 0.0
         depth_s = a.max(axis=1)  # per structure piece: deepest candidate centre inside it

@@ -13,8 +13,11 @@ computed once for all candidates of a call), and the support polygon on the grou
   `|tau| <= clutch_n * r`;
 - the ground only pushes: at each support point (a part's collision vertices within
   `ground_tol_ldu` of the ground, reduced to their hull) a force inside the friction pyramid;
-- a connection the checker does not model (Technic, clips, hinges: `Link`) is rigid: a free force
-  and moment between the two parts.
+- a joint (Technic pins and axles, clips, hinges, wheels, minifigure joints: `Link`) carries a
+  force along its axis and across it, and a moment about it and across it, each within its kind's
+  capacity (`joint_capacity`): a pin that turns freely carries no moment about its axis. A
+  connection the checker cannot place (`unsupported-connection`) is a rigid link: free force and
+  moment.
 
 Its program is `load_program`'s (`to_lp`).
 """
@@ -30,6 +33,7 @@ from scipy.spatial import ConvexHull, QhullError
 from factory.connections import STUD_RADIUS
 from factory.physics.check_state import current
 from factory.physics.geometry import collision_shape
+from factory.physics.joint_capacity import capacity
 from factory.physics.mass import part_mass_properties
 from factory.physics.structure import Placed, lowest_point
 
@@ -65,11 +69,20 @@ class LoadConfig:
 
 @dataclass(frozen=True)
 class Link:
-    """A rigid connection the checker does not model (Technic, clip, hinge) between two parts."""
+    """A joint between two parts (`joint_capacity`), or a rigid link where its kind is 'rigid'."""
 
     a: int
     b: int
     point: tuple[float, float, float]
+    """Where it holds (LDU)."""
+    kind: str = "rigid"
+    """A key of `joint_capacity.JOINT_CAPACITY`, or 'rigid'."""
+    axis: tuple[float, float, float] | None = None
+    """Its unit axis, where it has one (a pin's, a bar's, a hinge's)."""
+
+    def moved(self, by: int) -> "Link":
+        """The same link between parts numbered `by` later."""
+        return Link(self.a + by, self.b + by, self.point, self.kind, self.axis)
 
 
 @dataclass(frozen=True)
@@ -95,6 +108,12 @@ class LoadModel:
     link_a: np.ndarray
     link_b: np.ndarray
     link_pos: np.ndarray
+    link_axis: np.ndarray
+    """(nl, 3) each link's unit axis (any unit vector where it has none)."""
+    link_cap: np.ndarray
+    """(nl, 6) each link's capacities in its columns' order (`JointCapacity.as_row`; inf: free)."""
+    link_kind: np.ndarray
+    """(nl,) each link's kind (`Link.kind`)."""
 
     @property
     def n_bodies(self) -> int:
@@ -154,7 +173,7 @@ class LoadBase:
         self.mass = np.array([m for m, _, _ in props], float)
         self.com = np.array([p.pose.apply(c) for p, (_, c, _) in zip(self.placed, props)], float).reshape(-1, 3)
         self.conn_a, self.conn_b, self.conn_pos, self.conn_axis = connection_arrays(connections)
-        self.link_a, self.link_b, self.link_pos = _link_arrays(links)
+        self.link_a, self.link_b, self.link_pos, self.link_axis, self.link_cap, self.link_kind = _link_arrays(links)
         parent = np.arange(n)
 
         def root(i):
@@ -192,7 +211,7 @@ class LoadBase:
         gp = [base_pts[i] for i in comp[comp < n]] + [support_points(p, floor_y, self.cfg) for p in unit]
         keep, lk = member[self.conn_a], member[self.link_a]
         new_a, new_b, new_pos, new_axis = connection_arrays(conns)
-        ul_a, ul_b, ul_pos = _link_arrays(unit_links)
+        ul_a, ul_b, ul_pos, ul_axis, ul_cap, ul_kind = _link_arrays(unit_links)
         return LoadModel(
             parts=comp, mass=np.r_[self.mass[member], [m for m, _, _ in props]],
             com=np.concatenate([self.com[member], np.array([p.pose.apply(c) for p, (_, c, _) in zip(unit, props)]).reshape(-1, 3)]),
@@ -203,6 +222,9 @@ class LoadBase:
             ground_pos=np.concatenate(gp) if gp else np.zeros((0, 3)),
             link_a=body[np.r_[self.link_a[lk], ul_a]], link_b=body[np.r_[self.link_b[lk], ul_b]],
             link_pos=np.concatenate([self.link_pos[lk], ul_pos]),
+            link_axis=np.concatenate([self.link_axis[lk], ul_axis]),
+            link_cap=np.concatenate([self.link_cap[lk], ul_cap]),
+            link_kind=np.concatenate([self.link_kind[lk], ul_kind]),
         )
 
     def of(self, seeds: Sequence[int]) -> LoadModel:
@@ -244,9 +266,18 @@ def connection_arrays(connections) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
             np.array([c[3] for c in connections], float).reshape(-1, 3))
 
 
-def _link_arrays(links: Sequence[Link]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _link_arrays(links: Sequence[Link]) -> tuple[np.ndarray, ...]:
+    """(a, b, point, axis, capacities, kind) of links as arrays (`LoadModel`'s link fields)."""
     return (np.array([l.a for l in links], np.int64), np.array([l.b for l in links], np.int64),
-            np.array([l.point for l in links], float).reshape(-1, 3))
+            np.array([l.point for l in links], float).reshape(-1, 3),
+            np.array([l.axis if l.axis is not None else (0.0, 1.0, 0.0) for l in links], float).reshape(-1, 3),
+            np.array([capacity(l.kind).as_row() for l in links], float).reshape(-1, 6),
+            np.array([l.kind for l in links], dtype=object))
+
+
+NO_LINKS = dict(link_a=np.zeros(0, np.int64), link_b=np.zeros(0, np.int64), link_pos=np.zeros((0, 3)),
+                link_axis=np.zeros((0, 3)), link_cap=np.zeros((0, 6)), link_kind=np.zeros(0, dtype=object))
+"""`LoadModel`'s link fields of a model without links."""
 
 
 def load_model(placed: Sequence[Placed], connections: Sequence[tuple[int, int, np.ndarray, np.ndarray]],

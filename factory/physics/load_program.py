@@ -1,7 +1,7 @@
 """The minimax load program of a `LoadModel` (`to_lp`, a `LinearProgram`): its columns (`s`, then
 each connection's 4 rim forces, 2 shears and torsion, each support point's friction pyramid, each
-rigid link's free force and moment: `layout`), the balance rows of every body and the capacity rows
-scaled by `s`.
+link's force and moment along and across its axis: `layout`), the balance rows of every body and
+the capacity rows scaled by `s` (the connections', then the links' finite ones: `link_rows`).
 
 Minimising `s`, the largest share of any capacity used (all tension, shear and torsion limits
 scaled by `s`), gives the structure's load: it stands when `s <= 1`, and the connections at `s`
@@ -74,11 +74,24 @@ def support_columns(pos: np.ndarray, cfg: LoadConfig) -> list[tuple[np.ndarray, 
             for d in ([1, 0, 0], [-1, 0, 0], [0, 0, 1], [0, 0, -1])]
 
 
-def link_columns(pos: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """The 6 columns of each rigid link: a free force, then a free moment, along x, y, z."""
+def link_columns(pos: np.ndarray, axis: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The 6 columns of each link: a force along its axis and across it (two), then a moment
+    about its axis and across it (two), in the order of `JointCapacity.as_row`."""
     z = np.zeros_like(pos)
-    axes = [np.broadcast_to(np.eye(3)[j], pos.shape) for j in range(3)]
+    e1, e2 = _basis(axis) if len(axis) else (axis, axis)
+    axes = [axis, e1, e2]
     return [(v, pos, z) for v in axes] + [(z, pos, v) for v in axes]
+
+
+def link_rows(cap: np.ndarray) -> list[tuple[np.ndarray, int, float]]:
+    """The links' capacity rows, as (links, column of the link, sign) groups: each row
+    sign * x[column] <= s * cap[link, column], for every finite capacity, column by column."""
+    out = []
+    for j in range(PER_LINK):
+        finite = np.flatnonzero(np.isfinite(cap[:, j])) if len(cap) else np.zeros(0, np.int64)
+        if len(finite):
+            out += [(finite, j, 1.0), (finite, j, -1.0)]
+    return out
 
 
 def to_lp(model: LoadModel, cfg: LoadConfig = LoadConfig()) -> LinearProgram:
@@ -98,7 +111,7 @@ def to_lp(model: LoadModel, cfg: LoadConfig = LoadConfig()) -> LinearProgram:
             add(bodies, np.full(nc, s), cols["conn"].start + PER_CONNECTION * np.arange(nc) + j, f, p, m)
     for j, (f, p, m) in enumerate(support_columns(model.ground_pos, cfg) if ng else []):
         add(model.ground_body, np.ones(ng), cols["ground"].start + PER_SUPPORT * np.arange(ng) + j, f, p, m)
-    for j, (f, p, m) in enumerate(link_columns(model.link_pos) if nl else []):
+    for j, (f, p, m) in enumerate(link_columns(model.link_pos, model.link_axis) if nl else []):
         for bodies, s in ((model.link_b, 1.0), (model.link_a, -1.0)):
             add(bodies, np.full(nl, s), cols["link"].start + PER_LINK * np.arange(nl) + j, f, p, m)
 
@@ -127,6 +140,10 @@ def to_lp(model: LoadModel, cfg: LoadConfig = LoadConfig()) -> LinearProgram:
             ub_cols.append(base + j)
             ub_vals.append(np.full(nc, s))
             ub_cap.append(np.full(nc, cap))
+    for links, j, s in link_rows(model.link_cap):
+        ub_cols.append(cols["link"].start + PER_LINK * links + j)
+        ub_vals.append(np.full(len(links), s))
+        ub_cap.append(model.link_cap[links, j])
     k = sum(len(c) for c in ub_cols)
     if k:
         r = np.arange(k)

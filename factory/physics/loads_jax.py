@@ -22,9 +22,9 @@ import jax
 import numpy as np
 
 from factory.physics.interior_point_jax import _OPTIMAL
-from factory.physics.load_model import LoadBase, LoadConfig, LoadModel, connection_arrays, support_points
+from factory.physics.load_model import NO_LINKS, LoadBase, LoadConfig, LoadModel, connection_arrays, support_points
 from factory.physics.load_program import (LEVER_LDU, PER_CONNECTION, PER_LINK, PER_SUPPORT, capacity_rows,
-                                          connection_columns, layout, link_columns, support_columns, to_lp)
+                                          connection_columns, layout, link_columns, link_rows, support_columns, to_lp)
 from factory.physics.lp import LPResult
 from factory.physics.lp_jax import COMPILES, MAX_ITERATIONS, _cols, _empty, _fallback, _group, _quarter, _rows, _run
 from factory.physics.mass import GRAVITY, part_mass_properties
@@ -102,9 +102,14 @@ def _load_arrays(models: Sequence[LoadModel], cfg: LoadConfig, batch: int, n: in
         owner, idx = each(nl)
         la, lb = cat("link_a"), cat("link_b")
         base = 1 + PER_CONNECTION * nc[owner] + PER_SUPPORT * ng[owner] + PER_LINK * idx
-        for j, (f, p, mom) in enumerate(link_columns(cat("link_pos"))):  # free: no rows
+        for j, (f, p, mom) in enumerate(link_columns(cat("link_pos"), cat("link_axis"))):
             put(owner, base + j, lb, 1.0, f, p, mom, 0)
             put(owner, base + j, la, -1.0, f, p, mom, 6)
+        cap = cat("link_cap")
+        for links, j, sign in link_rows(cap):  # sign * x_j <= s * cap: slot 0 for +, 1 for -
+            col, slot = base[links] + j, int(sign < 0)
+            out["coef"][owner[links], col, slot], out["link"][owner[links], col, slot] = sign, -cap[links, j]
+            out["rhs"][owner[links], col, slot], out["mask"][owner[links], col, slot] = 0.0, 1.0
     for v in out.values():
         v[B:] = v[0]
     return out
@@ -172,7 +177,7 @@ def _own_model(base: LoadBase, unit, conns, cfg: LoadConfig) -> LoadModel:
     return LoadModel(parts=None, mass=np.r_[base.mass, m], com=np.concatenate([base.com, unit[0].pose.apply(c)[None]]),
                      conn_a=ca, conn_b=cb, conn_pos=cp, conn_axis=cx,
                      ground_body=np.full(len(pts), base.n, np.int64), ground_pos=pts,
-                     link_a=np.zeros(0, np.int64), link_b=np.zeros(0, np.int64), link_pos=np.zeros((0, 3)))
+                     **NO_LINKS)
 
 
 def solve_on_base(base: LoadBase, units: Sequence, conns: Sequence, cfg: LoadConfig | None = None, *,

@@ -97,6 +97,9 @@ def start_basis(solved: Solved, model: LoadModel, cfg: LoadConfig = LoadConfig()
     keys = keys or ProgramKeys.of(model)
     if BASIS_STATUS is None or not solved.keys.distinct or not keys.distinct:
         return None
+    if np.isfinite(model.link_cap).any() or len(solved.basis.rows) != (
+            len(capacity_rows(cfg)) * len(solved.keys.conn) + 6 * len(solved.keys.parts)):
+        return None  # a joint's capacity rows (`load_program.link_rows`) are not mapped: started cold
     basic, zero, lower = BASIS_STATUS.kBasic, BASIS_STATUS.kZero, BASIS_STATUS.kLower
     conn, ground, link, body = solved.keys.index
     old_cols, old_rows = solved.basis.cols, solved.basis.rows

@@ -32,7 +32,7 @@ import scipy.sparse as sp
 
 from factory.physics.load_model import (LoadBase, LoadConfig, LoadModel, hull_xz, inside_polygon, inside_polygon_many,
                                         support_points)
-from factory.physics.load_program import to_lp
+from factory.physics.load_program import capacity_rows, link_rows, to_lp
 from factory.physics.lp import LinearProgram, LPResult, solve_highs
 from factory.physics.mass import part_mass_properties
 from factory.physics.structure import Placed
@@ -41,16 +41,19 @@ from factory.physics.structure import Placed
 @dataclass(frozen=True)
 class Failure:
     """A connection at the model's largest load: the stud's part, the socket's part (caller's
-    numbering) and the stud's base (LDU)."""
+    numbering) and the stud's base (LDU); for a joint (`joint` set: its kind), its two parts and
+    where it holds."""
 
     stud_part: int
     socket_part: int
     stud: tuple[float, float, float]
     load: float
+    joint: str | None = None
 
     def to_json(self) -> dict:
-        return {"stud_part": self.stud_part, "socket_part": self.socket_part,
-                "stud": [round(v, 3) for v in self.stud], "load": round(self.load, 4)}
+        out = {"stud_part": self.stud_part, "socket_part": self.socket_part,
+               "stud": [round(v, 3) for v in self.stud], "load": round(self.load, 4)}
+        return out if self.joint is None else {**out, "joint": self.joint}
 
 
 @dataclass(frozen=True)
@@ -102,27 +105,38 @@ def _failing(model: LoadModel, s: float, cfg: LoadConfig) -> tuple[Failure, ...]
     program gives each connection its own load variable, capped at `s`, and minimises their sum:
     a connection still at `s` there cannot be relieved."""
     lp = to_lp(model, cfg)
-    nc = len(model.conn_a)
+    nc, nl = len(model.conn_a), len(model.link_a)
     coo = lp.a_ub.tocoo()
-    row_conn = np.arange(lp.a_ub.shape[0]) % nc  # capacity rows come in blocks of one per connection
-    col = np.where(coo.col == 0, lp.n + row_conn[coo.row], coo.col)
-    a_ub = sp.csr_matrix((coo.data, (coo.row, col)), shape=(lp.a_ub.shape[0], lp.n + nc))
-    a_eq = sp.hstack([lp.a_eq, sp.csr_matrix((lp.a_eq.shape[0], nc))]).tocsr()
-    c = np.concatenate([np.zeros(lp.n), np.ones(nc)])
-    lower = np.concatenate([lp.lower, np.zeros(nc)])
-    upper = np.concatenate([lp.upper, np.full(nc, s * (1 + 1e-9) + 1e-12)])
+    # Capacity rows come in blocks of one per connection, then the links' (`load_program.link_rows`).
+    n_conn_rows = len(capacity_rows(cfg)) * nc
+    holder = np.concatenate([np.arange(n_conn_rows) % max(nc, 1)] +
+                            [nc + links for links, _, _ in link_rows(model.link_cap)]).astype(np.int64)
+    nh = nc + nl
+    col = np.where(coo.col == 0, lp.n + holder[coo.row], coo.col)
+    a_ub = sp.csr_matrix((coo.data, (coo.row, col)), shape=(lp.a_ub.shape[0], lp.n + nh))
+    a_eq = sp.hstack([lp.a_eq, sp.csr_matrix((lp.a_eq.shape[0], nh))]).tocsr()
+    c = np.concatenate([np.zeros(lp.n), np.ones(nh)])
+    lower = np.concatenate([lp.lower, np.zeros(nh)])
+    upper = np.concatenate([lp.upper, np.full(nh, s * (1 + 1e-9) + 1e-12)])
     lower[0] = upper[0] = 0.0
     res = solve_highs(LinearProgram(c, a_eq, lp.b_eq, a_ub, lp.b_ub, lower, upper))
     if res.status != "optimal":
-        loads = np.full(nc, s)  # cannot happen for a solved minimax; keep every connection
+        loads = np.full(nh, s)  # cannot happen for a solved minimax; keep every connection
     else:
         loads = res.x[lp.n:]
+    # A rigid link has no capacity row: its load variable stays at 0, never among the worst.
     worst = np.flatnonzero(loads >= s * (1 - 1e-6))
-    return tuple(
-        Failure(int(model.parts[model.conn_a[k]]), int(model.parts[model.conn_b[k]]),
-                tuple(float(v) for v in model.conn_pos[k]), float(loads[k]))
-        for k in worst
-    )
+    out = []
+    for k in worst:
+        if k < nc:
+            out.append(Failure(int(model.parts[model.conn_a[k]]), int(model.parts[model.conn_b[k]]),
+                               tuple(float(v) for v in model.conn_pos[k]), float(loads[k])))
+        else:
+            link = k - nc
+            out.append(Failure(int(model.parts[model.link_a[link]]), int(model.parts[model.link_b[link]]),
+                               tuple(float(v) for v in model.link_pos[link]), float(loads[k]),
+                               joint=str(model.link_kind[link])))
+    return tuple(out)
 
 
 def solve_loads_highs(models: Sequence[LoadModel], cfg: LoadConfig = LoadConfig()) -> list[LPResult]:

@@ -18,6 +18,8 @@ its axis (`JOINT_RADIUS_LDU`); `check` leaves that out and judges the rest of th
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from factory.ldraw.other_connectors import CONNECTOR_KINDS, place_connectors
@@ -39,6 +41,13 @@ with bar of the Vintage Car, the car roof hinge, the surf board's pins in hollow
 JOINT_RADIUS_LDU = 6.5
 """How far from a bar joint's axis the overlap it makes may lie: a stud's radius (a hollow stud's
 wall round a pin; a clip's grip is thinner), and the overlap tolerance."""
+TECHNIC_RADIUS_LDU = 8.0
+"""The same for a joint of connector primitives (a Technic pin in its hole: the pin's collar, wider
+than its 6 LDU shaft, sits in the counterbore at the hole's mouth; the friction pin 2780 in the
+beam 18654 overlaps 1.3 LDU at 7 LDU from the axis, none beyond 8)."""
+MATE_OVERLAP_LDU = 1.0
+"""How far a male connector's stretch must run into its female's for them to be one joint (the
+outer half of a pin, ending at the hole's mouth, is not in that hole)."""
 END_LDU = 0.5
 """How far the ends of two solid bar-size cylinders on one axis may be apart, or into each other,
 for them to be fingers side by side (the checker's overlap tolerance)."""
@@ -202,12 +211,17 @@ def bar_joints(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> np
                      place_connectors(b, placed_pose.R, placed_pose.t), b_out)
 
 
-def in_zone(points: np.ndarray, zones: np.ndarray, radius: float = JOINT_RADIUS_LDU) -> np.ndarray:
+def in_zone(points: np.ndarray, zones, radius: float = JOINT_RADIUS_LDU) -> np.ndarray:
     """(n,) whether each point lies within `radius` of one of the stretches of axis `zones`
-    (k, 3, 3), between its ends grown by `radius`."""
+    (k, 3, 3), between its ends grown by `radius`; `zones` may also be (stretches, radii), a
+    radius per stretch."""
     points = np.asarray(points, float).reshape(-1, 3)
     out = np.zeros(len(points), bool)
-    for p0, p1, u in zones:
+    if isinstance(zones, tuple):
+        zones, radii = zones
+    else:
+        radii = np.full(len(zones), radius)
+    for (p0, p1, u), radius in zip(zones, radii):
         d = points - p0
         along = d @ u
         radial = np.linalg.norm(d - along[:, None] * u, axis=1)
@@ -242,3 +256,83 @@ def connectors_meet(a: np.ndarray, b: np.ndarray) -> bool:
     """Whether any connector of `a` (j, 3, 3) lies on the axis of one of `b` (k, 3, 3), both in
     one frame, within the tolerances above."""
     return next(_meeting(a, b), None) is not None
+
+
+@dataclass(frozen=True)
+class Joint:
+    """Where a new part is held by a joint of a placed part (`joints_between`), world frame (LDU)."""
+
+    kind: str
+    """One of `JOINTS`."""
+    point: tuple[float, float, float]
+    """Where it holds: the middle of the stretch the two connectors share, or for a joint with no
+    axis, the middle of where the two parts' boxes meet."""
+    axis: tuple[float, float, float] | None
+    """The joint's axis (the placed part's connector's); None for a minifigure joint or a part
+    held by its shape."""
+    zone: tuple | None
+    """The stretch of axis (end, end, axis) round which the overlap the joint makes lies
+    (`in_zone`); None where the joint has no axis: all of the overlap of the two parts is the
+    joint's."""
+    radius: float = JOINT_RADIUS_LDU
+    """How far from `zone`'s axis that overlap may lie."""
+
+
+def _box_meeting(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> tuple[float, float, float]:
+    """The middle of where two parts' world boxes meet (overlap, or the gap between them)."""
+    from factory.parts import box_corners
+
+    a = new_pose.apply(box_corners(new.bbox))
+    b = placed_pose.apply(box_corners(placed.bbox))
+    lo, hi = np.maximum(a.min(0), b.min(0)), np.minimum(a.max(0), b.max(0))
+    return tuple(round(float(v), 4) for v in (lo + hi) / 2)
+
+
+def _is_round(kind: str) -> bool:
+    return kind in ("bar", "grip", "bore")
+
+
+def _joint(kind: str, stretch: np.ndarray, radius: float = JOINT_RADIUS_LDU) -> Joint:
+    mid = stretch[:2].mean(0)
+    return Joint(kind, tuple(round(float(v), 4) for v in mid), tuple(round(float(v), 6) for v in stretch[2]),
+                 tuple(tuple(round(float(v), 4) for v in row) for row in stretch), radius)
+
+
+def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> list[Joint]:
+    """The joints by which `placed` holds `new` (both at their world poses): a minifigure joint
+    between two minifigure pieces; connector primitives of the two that mate (`joints.mates`:
+    a pin in a pin hole, an axle in an axle hole, a clip on a bar or handle, a wheel on its pin,
+    click hinge halves) on one axis (`NEAR_LDU`); bar-size cylinders or bores that meet
+    (`bars_meet`: a bar in a clip or a hollow stud, hinge fingers between fingers); and where
+    one side has no connector with a position at all, a part held by its shape (`may_hold`'s
+    rule: a tyre on a rim). Empty where none holds it."""
+    from factory.joints import joint_connectors, mates
+
+    if is_minifig(new) and is_minifig(placed):
+        return [Joint("minifig", _box_meeting(new, new_pose, placed, placed_pose), None, None)]
+    out: list[Joint] = []
+    ca, cb = joint_connectors(new), joint_connectors(placed)
+    pa = _placed_joint_connectors(ca, new_pose)
+    pb = _placed_joint_connectors(cb, placed_pose)
+    for i, j in _meeting(pa, pb):
+        ka, kb = ca[i].kind, cb[j].kind
+        if _is_round(ka) and _is_round(kb):
+            continue  # two round cylinders: `bars_meet`'s rules, below
+        freedom = mates(ka, kb)
+        if freedom is None:
+            continue  # two holes in line, a pin end to end with a pin: nothing holds
+        if not freedom.stepped and _stretch_overlap(pa[i], pb[j]) < MATE_OVERLAP_LDU:
+            continue  # a male end at a female's mouth, not in it (hinge halves meet end to end)
+        out.append(_joint(_joint_of({ka, kb}), _together(pa[i], pb[j]), TECHNIC_RADIUS_LDU))
+    for stretch in bar_joints(new, new_pose, placed, placed_pose):
+        out.append(_joint("bar-in-stud" if _in_bore(new, new_pose, placed, placed_pose) else "bar", stretch))
+    if not out and not (len(_connectors(new)) and len(_connectors(placed))) and held_otherwise(new) and offers_other(placed):
+        out.append(Joint("by-shape", _box_meeting(new, new_pose, placed, placed_pose), None, None))
+    return out
+
+
+def _placed_joint_connectors(conns, pose: Pose) -> np.ndarray:
+    if not conns:
+        return np.zeros((0, 3, 3))
+    raw = np.array([[c.start, c.end, c.axis] for c in conns], float)
+    return place_connectors(raw, pose.R, pose.t)

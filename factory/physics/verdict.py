@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from factory.physics.load_model import LoadConfig
+from factory.physics.load_model import Link, LoadConfig
 from factory.physics.statics import Failure
 from factory.pose import Pose
 
@@ -45,6 +45,10 @@ class Verdict:
     """The largest share of any connection's capacity used in the whole structure (<= 1 stands)."""
     failing: tuple[Failure, ...] = ()
     """The connections at that load, when it is over capacity."""
+    joints: tuple[Link, ...] = ()
+    """The joints that hold it (not studs), as the load model's links (`Link.kind`: a name of
+    `unmodelled.JOINTS`; `a`: the part of the candidate's unit it holds, 0 for a one-part
+    candidate; `b`: the structure part holding it); the load check carries them (`joint_capacity`)."""
     held_by: tuple[int, ...] = ()
     """For 'unsupported-connection': the structure parts that may hold it by a connection the
     checker does not model (they become rigid links once it is placed)."""
