@@ -181,3 +181,57 @@ def test_both_backends_judge_joints_alike(at, backend):
     v = verdict(clip_on_brick(at), bar_unit(at), backend)
     assert v.ok and kinds(v) == ["bar"], v
     assert verdict([at("35480", -40, 8, 0)], at("3023", -50, 0, 0), backend).reason == "collision"
+
+
+# Joints carry loads (`joint_capacity`): hand-built with parts of `../shared/ldraw`, on a floor
+# 24 LDU below the Technic brick's top.
+ALONG_Z = [[0, 0, -1], [0, 1, 0], [1, 0, 0]]  # a pin's X axis along Z
+BEAM_ALONG_X = [[0, 0, 1], [1, 0, 0], [0, 1, 0]]  # a beam's holes (its Y) along Z, its length along X
+
+
+def standing(structure, placed):
+    (v,) = check_units(structure, [[placed]], "cpu", floor_y=24.0)
+    return v
+
+
+def placed_on(structure, placed):
+    """Place a part as the replay does: checked, then added with the links of its joints."""
+    from factory.replay import _links
+
+    v = standing(structure, placed)
+    assert v.ok, v
+    structure.add(placed, _links(len(structure), v))
+    return v
+
+
+def test_a_beam_hung_on_one_free_pin_swings_and_on_two_pins_stands(at):
+    # A Technic brick 1x4 (3701: pin holes along Z at x = -20, 0, 20, 10 LDU below its top) with a
+    # pin (3673) half in a hole; a Technic beam 3 (32523) put on the pin's other half by its end
+    # hole, lying along X. A pin turns freely in a hole: nothing holds the beam's weight, 20 LDU
+    # from the pin, about the pin's axis.
+    structure = Structure([at("3701", 0, 0, 0)])
+    v = placed_on(structure, at("3673", -20, 10, 10, ALONG_Z))
+    assert [(l.kind, l.point) for l in v.joints] == [("technic-pin", (-20.0, 10.0, 0.0))], v
+    beam = at("32523", 0, 10, 20, BEAM_ALONG_X)
+    v = standing(structure, beam)
+    assert v.reason == "unstable" and [(l.b, l.kind) for l in v.joints] == [(1, "technic-pin")], v
+    # A second pin under the beam's middle hole: two pins hold it by their shears.
+    placed_on(structure, at("3673", 0, 10, 10, ALONG_Z))
+    v = standing(structure, beam)
+    assert v.ok and v.load < 0.1 and sorted((l.b, l.kind) for l in v.joints) == [(1, "technic-pin"), (2, "technic-pin")], v
+    # The beam moved off the pins' axes is judged like any part; slid on by half its depth it
+    # still holds (a pin is 20 LDU long on each side).
+    assert standing(structure, moved(beam, (0, -10, 0))).reason == "collision"
+    assert standing(structure, moved(beam, (0, 0, 5))).ok
+
+
+def test_a_wheel_rim_on_a_wheel_pin_is_held_by_it(at):
+    # A plate 2x2 with a wheel pin (4488: the pin along X from x = 20 to 34, 5 LDU below the
+    # plate's top) and a rim (30027b: its wheel-pin hole along its -Z, turned to run along X).
+    plate = [at("4488", 0, 0, 0)]
+    rim = at("30027b", 36, 5, 0, [[0, 0, -1], [0, 1, 0], [1, 0, 0]])
+    v = verdict(plate, rim)
+    assert v.ok and [(l.kind, l.point) for l in v.joints] == [("wheel-pin", (27.0, 5.0, 0.0))], v
+    # Pushed on further it runs into the plate; off the pin's axis it holds nothing.
+    assert verdict(plate, moved(rim, (-6, 0, 0))).reason is not None
+    assert verdict(plate, moved(rim, (0, -8, 0))).reason in {"collision", "no-connection"}

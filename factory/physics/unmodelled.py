@@ -323,8 +323,12 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
             continue  # two holes in line, a pin end to end with a pin: nothing holds
         if not freedom.stepped and _stretch_overlap(pa[i], pb[j]) < MATE_OVERLAP_LDU:
             continue  # a male end at a female's mouth, not in it (hinge halves meet end to end)
-        out.append(_joint(_joint_of({ka, kb}), _together(pa[i], pb[j]), TECHNIC_RADIUS_LDU))
+        found = _joint(_joint_of({ka, kb}), _together(pa[i], pb[j]), TECHNIC_RADIUS_LDU)
+        if not any(o.kind == found.kind and o.point == found.point for o in out):
+            out.append(found)  # a hole drawn with a primitive at each mouth is one joint with a pin
     for stretch in bar_joints(new, new_pose, placed, placed_pose):
+        if any(o.zone is not None and _on_one_axis(stretch, np.array(o.zone)) for o in out):
+            continue  # the cylinders of a connector already found (a rim's hole round a wheel pin)
         out.append(_joint("bar-in-stud" if _in_bore(new, new_pose, placed, placed_pose) else "bar", stretch))
     if not out and not (len(_connectors(new)) and len(_connectors(placed))) and held_otherwise(new) and offers_other(placed):
         out.append(Joint("by-shape", _box_meeting(new, new_pose, placed, placed_pose), None, None))
