@@ -23,7 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from factory.ldraw.other_connectors import CONNECTOR_KINDS, place_connectors
-from factory.parts import Part
+from factory.joints import joint_connectors, mates
+from factory.parts import Part, box_corners
 from factory.pose import Pose
 
 NEAR_LDU = 2.0
@@ -280,8 +281,6 @@ class Joint:
 
 def _box_meeting(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> tuple[float, float, float]:
     """The middle of where two parts' world boxes meet (overlap, or the gap between them)."""
-    from factory.parts import box_corners
-
     a = new_pose.apply(box_corners(new.bbox))
     b = placed_pose.apply(box_corners(placed.bbox))
     lo, hi = np.maximum(a.min(0), b.min(0)), np.minimum(a.max(0), b.max(0))
@@ -306,8 +305,6 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
     (`bars_meet`: a bar in a clip or a hollow stud, hinge fingers between fingers); and where
     one side has no connector with a position at all, a part held by its shape (`may_hold`'s
     rule: a tyre on a rim). Empty where none holds it."""
-    from factory.joints import joint_connectors, mates
-
     if is_minifig(new) and is_minifig(placed):
         return [Joint("minifig", _box_meeting(new, new_pose, placed, placed_pose), None, None)]
     out: list[Joint] = []
