@@ -235,3 +235,17 @@ def test_a_wheel_rim_on_a_wheel_pin_is_held_by_it(at):
     # Pushed on further it runs into the plate; off the pin's axis it holds nothing.
     assert verdict(plate, moved(rim, (-6, 0, 0))).reason is not None
     assert verdict(plate, moved(rim, (0, -8, 0))).reason in {"collision", "no-connection"}
+
+
+def test_a_pin_goes_into_its_hole_along_its_axis_unless_both_ways_are_blocked(at):
+    # The pin of the beam test, half in the Technic brick's end hole. It comes in along the
+    # hole's axis from either side; with a 1x4 brick against the hole's far mouth it still comes
+    # from the near side, and with another brick 10 LDU beyond the pin's outer end it has no way in.
+    pin = at("3673", -20, 10, 10, ALONG_Z)
+    v = verdict([at("3701", 0, 0, 0)], pin)
+    assert v.ok and v.buildable is True, v
+    far_wall = at("3010", 0, 0, -20)
+    v = verdict([at("3701", 0, 0, 0), far_wall], pin)
+    assert v.ok and v.buildable is True, v
+    v = verdict([at("3701", 0, 0, 0), far_wall, at("3010", 0, 0, 50)], pin)
+    assert v.reason == "blocked" and v.buildable is False and set(v.blocked_by) <= {1, 2} and v.blocked_by, v

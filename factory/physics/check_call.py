@@ -23,7 +23,7 @@ from factory.physics.check_state import current
 from factory.physics.load_model import Link, LoadBase, LoadConfig, support_points
 from factory.physics.mass import part_mass_properties
 from factory.physics.structure import Placed, Structure, connections_at, lowest_point
-from factory.physics.sweep import seating_from_connections, sweep
+from factory.physics.sweep import seating_from_connections, sweep, sweep_joint
 from factory.physics.unmodelled import Joint, joints_between, may_hold
 from factory.physics.verdict import CheckConfig, Verdict
 from factory.pose import Pose
@@ -78,6 +78,8 @@ class _Call:
         self.to_clutch: list[tuple] = []
         self.joint_links: dict[int, list[Link]] = {}
         """Each candidate's joints as the load model's links (`joint_links`), by its position."""
+        self.joint_zones: dict[int, dict] = {}
+        """... and where their overlap lies (`_zones`)."""
         if len(first) == 1:  # one part at many poses: every candidate's connections in one query
             each = connections_at(structure, first[0].part, np.array([u[0].pose.R for u in units]),
                                   np.array([u[0].pose.t for u in units]))
@@ -148,6 +150,7 @@ class _Call:
                 continue
             if joints:
                 self.joint_links[k] = joint_links(joints, base_n)
+                self.joint_zones[k] = _zones(joints)
                 base.update(connected=True, joints=tuple(joint_links(joints, 0)))
             elif not connected:
                 self.verdicts[k] = Verdict(**base, reason="no-connection")
@@ -207,9 +210,15 @@ class _Call:
             judged += 1
             dirs = seating_from_connections(outer, self.base_n)
             if k in self.joint_links:
-                # Held by a joint: its insertion along the joint's axis is not swept yet.
-                base.update(approach="joint")
-                self._after_sweep(k, base, None, unit, conns, outer)
+                # Held by joints: swept in along their axis (`sweep.sweep_joint`) when held by
+                # nothing else; on studs too, or by a joint with no axis, not swept yet.
+                zones = self.joint_zones[k]
+                if outer or any(z is None for z in zones.values()):
+                    base.update(approach="joint")
+                    self._after_sweep(k, base, None, unit, conns, outer)
+                else:
+                    self._after_sweep(k, base, sweep_joint(self.scene, structure, world, zones,
+                                                           config.max_penetration_ldu), unit, conns, outer)
                 continue
             if outer and self.backend == "jax":
                 # Swept later, with every call's candidates at once on the device (`sweep_jax`).
@@ -238,7 +247,7 @@ class _Call:
         if built is not None:
             base.update(buildable=built.buildable, approach=built.reason, blocked_by=built.blocked_by)
             if built.buildable is False:
-                self.verdicts[k] = Verdict(**base, clutch=True, reason=built.reason)
+                self.verdicts[k] = Verdict(**base, clutch=True if outer else None, reason=built.reason)
                 return
         if self.standing and (outer or k in self.joint_links or self.base_n == 0):
             self.verdicts[k] = Verdict(**base, clutch=True if outer else None)

@@ -313,9 +313,43 @@ def _from_the_side(scene, structure, unit, connected, d, tol, step_ldu, press, q
     return None, queries
 
 
-def _along(scene, structure, unit, connected, d, tol, step_ldu, reach: float | None = None) -> SweepResult:
+JOINT_LINE_LDU = 1000.0
+"""How far each way a joint's zone is drawn out along its axis for `sweep_joint`: the part slides
+along the joint's axis all the way from clear space, and its overlap with the holder round that
+axis is the joint's wherever it is."""
+
+
+def sweep_joint(scene: CollisionScene, structure: Structure, unit: Sequence[tuple[Part, Pose]],
+                joints: dict, max_penetration_ldu: float = 0.5, step_ldu: float = 2.0) -> SweepResult:
+    """Buildability of a unit held by joints alone: it reaches its pose along the joints' shared
+    axis, from either end (a pin goes into its hole, a wheel onto its axle, a clip onto its bar,
+    from the side that is open), its overlap with each holder round the joint's axis left out
+    (`joints`: holder -> (stretches (k, 3, 3), radii), as `CollisionScene.penetration` takes them).
+    Not judged (None, 'two-axes') where the joints' axes are not parallel: a part on two joints
+    at an angle cannot slide onto both."""
+    axes = np.concatenate([z[:, 2] for z, _ in joints.values()])
+    if not len(axes) or (np.abs(axes @ axes[0]) < SAME_AXIS).any():
+        return SweepResult(None, "two-axes", (), 0.0, 0.0, 0)
+    lines = {}
+    for holder, (zones, radii) in joints.items():
+        u = zones[:, 2]
+        length = ((zones[:, 1] - zones[:, 0]) * u).sum(axis=1)[:, None]
+        lo, hi = np.minimum(length, 0.0) - JOINT_LINE_LDU, np.maximum(length, 0.0) + JOINT_LINE_LDU
+        lines[holder] = (np.stack([zones[:, 0] + lo * u, zones[:, 0] + hi * u, u], axis=1), radii)
+    found = []
+    for d in (axes[0], -axes[0]):
+        way = _along(scene, structure, unit, set(), d, max_penetration_ldu, step_ldu, joints=lines)
+        if way.buildable:
+            return way
+        found.append(way)
+    return min(found, key=lambda w: w.at_ldu)
+
+
+def _along(scene, structure, unit, connected, d, tol, step_ldu, reach: float | None = None,
+           joints: dict | None = None) -> SweepResult:
     """The sweep of the unit along `d` from clear space to its pose (module docstring), or only
-    over the last `reach` LDU of it (the pose at `reach` queried too)."""
+    over the last `reach` LDU of it (the pose at `reach` queried too); `joints` as
+    `CollisionScene.penetration` takes them."""
     margin = min(tol, 2 * INSET_LDU)
     unit_boxes = _boxes(unit)
     boxes = _boxes([(p.part, p.pose) for p in structure.placed])
@@ -330,7 +364,7 @@ def _along(scene, structure, unit, connected, d, tol, step_ldu, reach: float | N
         the tolerance."""
         nonlocal queries, deepest, deepest_at
         queries += 1
-        depth, near = scene.penetration(Pose(anchor.R, anchor.t - s * d), connected)
+        depth, near = scene.penetration(Pose(anchor.R, anchor.t - s * d), connected, joints)
         if depth > deepest:
             deepest, deepest_at = depth, s
         if depth > tol:
