@@ -31,7 +31,7 @@ from factory.physics.geometry import collision_shape
 from factory.physics.check import CheckConfig, Verdict, check_units
 from factory.physics.load_model import Link
 from factory.physics.structure import Placed, Structure, canonical_key, connectors, match
-from factory.physics.unmodelled import JOINTS, joint_kind
+from factory.physics.unmodelled import JOINTS, joint_kind, joints_between
 from factory.pose import Pose
 from factory.symmetry import rotation_about
 
@@ -120,7 +120,8 @@ def _faults(structure, local: Placed, backend, config, standing, step, index, fi
             moved = Pose(local.pose.R, local.pose.t + 10.0 * side)
         (v,) = check_units(structure, [[Placed(local.part, local.colour, moved)]], backend, config,
                            standing=standing)
-        yield _record(v, step=step, index=index, part=local.part.name, color=local.colour, fault=name)
+        yield _record(v, step=step, index=index, part=local.part.name, color=local.colour, fault=name,
+                      **_joint_record(structure, [Placed(local.part, local.colour, moved)], v))
         if name == "turn" and finished is not None:
             # The same turn in the finished design: every other part of the assembly in place,
             # those built later too (a turn that fits the parts built so far can still clash
@@ -196,12 +197,31 @@ def stud_pairs(structure: Structure, unit: list[Placed]) -> int:
 
 
 def _held_by(structure: Structure, later: list[Placed]) -> Structure | None:
-    """`structure` with the next step's parts added (None when there are none)."""
+    """`structure` with the next step's parts added (None when there are none), as `_joined`."""
     if not later:
         return None
-    held = Structure(structure.placed + later)
-    held.links.extend(structure.links)
-    return held
+    return _joined(structure, later)
+
+
+def _joined(structure: Structure, later: list[Placed]) -> Structure:
+    """`structure` with the `later` parts (of the same step, or of the next) added, each linked by
+    the joints it makes with the parts before it (`unmodelled.joints_between`; studs join by
+    themselves): what holds them when they are judged together (four tyres on their rims)."""
+    out = Structure(list(structure.placed))
+    out.links.extend(structure.links)
+    for q in later:
+        n = len(out)
+        box = _envelope(q.part, q.pose)
+        links = [Link(n, i, j.point, j.kind, j.axis) for i, p in enumerate(out.placed)
+                 if _boxes_near(box, _envelope(p.part, p.pose))
+                 for j in joints_between(q.part, q.pose, p.part, p.pose)]
+        out.add(q, links)
+    return out
+
+
+def _boxes_near(a: np.ndarray, b: np.ndarray, gap: float = 2.0) -> bool:
+    """Whether two boxes (`_envelope`) are within `gap` LDU of each other."""
+    return bool(np.all(a[0] <= b[1] + gap) and np.all(b[0] <= a[1] + gap))
 
 
 def _first(structure: Structure, n: int) -> Structure:
@@ -305,8 +325,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
             along = going_in_with(event.tag) if v.reason in ("no-connection", "unstable") else []
             if along:
                 # As the parts of one step: it may rest on what goes in with it.
-                judged_on = Structure(parent.placed + along)
-                judged_on.links.extend(parent.links)
+                judged_on = _joined(parent, along)
                 (v,) = check_units(judged_on, [unit], backend, config, standing=standing, unit_links=done.links)
             joints = _joint_record(judged_on if along else parent, unit, v)
             yield _record(v, step=event.last_step, index=0, part=event.tag.rsplit("/", 1)[-1],
@@ -331,8 +350,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
             if v.reason in ("no-connection", "unstable") and index + 1 < len(locals_):
                 # Parts of one step go in together: a part may hang from one listed after it, and
                 # the step is judged standing once all its parts are in.
-                judged_on = Structure(structure.placed + [q for q in locals_[index + 1 :] if _solid(q.part)])
-                judged_on.links.extend(structure.links)
+                judged_on = _joined(structure, [q for q in locals_[index + 1 :] if _solid(q.part)])
                 (v,) = check_units(judged_on, [[local]], backend, config, standing=standing)
             held = _held_by(judged_on, next_step.get(id(step), [])) if v.reason in ("no-connection", "unstable") else None
             if held is not None:

@@ -211,9 +211,11 @@ class _Call:
             dirs = seating_from_connections(outer, self.base_n)
             if k in self.joint_links:
                 # Held by joints: swept in along their axis (`sweep.sweep_joint`) when held by
-                # nothing else; on studs too, or by a joint with no axis, not swept yet.
+                # pins, axles or wheel pins alone, which go in along it. A clip or a hinge snaps
+                # on across its bar, a minifigure joint or a part held by its shape has no axis,
+                # and a part on studs too goes on along two ways: not swept yet.
                 zones = self.joint_zones[k]
-                if outer or any(z is None for z in zones.values()):
+                if outer or any(l.kind not in AXIAL for l in self.joint_links[k]):
                     base.update(approach="joint")
                     self._after_sweep(k, base, None, unit, conns, outer)
                 else:
@@ -267,6 +269,10 @@ class _Call:
         for k, *_ in self.pending[len(results):]:
             self.verdicts[k] = None
         self.pending = []
+
+
+AXIAL = ("technic-pin", "technic-axle", "wheel-pin")
+"""Joint kinds a part goes onto along the joint's axis (`sweep.sweep_joint`)."""
 
 
 def _zones(joints: dict[int, list[tuple[int, Joint]]]) -> dict[int, np.ndarray | None]:

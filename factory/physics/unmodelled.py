@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factory.ldraw.other_connectors import CONNECTOR_KINDS, place_connectors
-from factory.joints import joint_connectors, mates
+from factory.joints import JointConnector, joint_connectors, mates
 from factory.parts import Part, box_corners
 from factory.pose import Pose
 
@@ -308,7 +308,7 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
     if is_minifig(new) and is_minifig(placed):
         return [Joint("minifig", _box_meeting(new, new_pose, placed, placed_pose), None, None)]
     out: list[Joint] = []
-    ca, cb = joint_connectors(new), joint_connectors(placed)
+    ca, cb = _holes(joint_connectors(new)), _holes(joint_connectors(placed))
     pa = _placed_joint_connectors(ca, new_pose)
     pb = _placed_joint_connectors(cb, placed_pose)
     for i, j in _meeting(pa, pb):
@@ -318,17 +318,70 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
         freedom = mates(ka, kb)
         if freedom is None:
             continue  # two holes in line, a pin end to end with a pin: nothing holds
-        if not freedom.stepped and _stretch_overlap(pa[i], pb[j]) < MATE_OVERLAP_LDU:
-            continue  # a male end at a female's mouth, not in it (hinge halves meet end to end)
+        if not freedom.stepped and _stretch_overlap(pa[i], pb[j]) < min(
+                MATE_OVERLAP_LDU, ca[i].length, cb[j].length) + max(0.0, min(ca[i].length, cb[j].length) - SEATED_LDU):
+            # Not pushed home: the shorter of the two must lie on the other but for `SEATED_LDU`
+            # (a pin all the way into its hole, a hole all on its axle wherever it slides); a
+            # male end at a female's mouth is not in it. Hinge halves meet end to end.
+            continue
         found = _joint(_joint_of({ka, kb}), _together(pa[i], pb[j]), TECHNIC_RADIUS_LDU)
         if not any(o.kind == found.kind and o.point == found.point for o in out):
             out.append(found)  # a hole drawn with a primitive at each mouth is one joint with a pin
     for stretch in bar_joints(new, new_pose, placed, placed_pose):
-        if any(o.zone is not None and _on_one_axis(stretch, np.array(o.zone)) for o in out):
-            continue  # the cylinders of a connector already found (a rim's hole round a wheel pin)
+        if any(o.radius == TECHNIC_RADIUS_LDU and _on_one_axis(stretch, np.array(o.zone))
+               and _stretch_overlap(stretch, np.array(o.zone)) > 0 for o in out):
+            continue  # the cylinders of a primitive's joint already found (a rim's hole round a wheel pin)
         out.append(_joint("bar-in-stud" if _in_bore(new, new_pose, placed, placed_pose) else "bar", stretch))
-    if not out and not (len(_connectors(new)) and len(_connectors(placed))) and held_otherwise(new) and offers_other(placed):
+    if not out and not (len(_connectors(new)) and len(_connectors(placed))) and held_otherwise(new) \
+            and offers_other(placed) and _box_share(new, new_pose, placed, placed_pose) >= SHAPE_SHARE:
         out.append(Joint("by-shape", _box_meeting(new, new_pose, placed, placed_pose), None, None))
+    return out
+
+
+SHAPE_SHARE = 0.1
+"""How much of the smaller of two parts' boxes the boxes must share for one to hold the other by
+its shape (a rim's box lies inside its tyre's; hinge halves drawn without connectors share the
+stretch where their fingers interleave). A part merely touching one without studs (a brick slid
+against a tile, a shift fault) shares none: it is not held by it."""
+
+
+def _box_share(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> float:
+    """The volume two parts' world boxes share, as a share of the smaller box's volume."""
+    a = new_pose.apply(box_corners(new.bbox))
+    b = placed_pose.apply(box_corners(placed.bbox))
+    side = np.minimum(a.max(0), b.max(0)) - np.maximum(a.min(0), b.min(0))
+    shared = float(np.prod(np.maximum(side, 0.0)))
+    smaller = min(float(np.prod(a.max(0) - a.min(0))), float(np.prod(b.max(0) - b.min(0))))
+    return shared / smaller if smaller > 0 else 0.0
+
+
+SEATED_LDU = 1.0
+"""How much of the shorter of two mated connectors may lie off the other: a part held by a pin,
+an axle or a clip is pushed home on it (a Technic brick slid 10 LDU out along its pins, half off
+them, is not placed: the shift faults of the Gearbox)."""
+HOLE_GAP_LDU = 16.0
+"""Female primitives of one kind on one axis of one part, this close, are one hole: a Technic
+brick's hole is drawn with a pin-hole primitive at each mouth, 16 LDU apart."""
+
+
+def _holes(conns) -> list:
+    """A part's joint connectors with the female primitives of one kind that lie on one axis
+    within `HOLE_GAP_LDU` of each other merged into one (a hole drawn at both mouths)."""
+    out, merged = [], set()
+    for i, c in enumerate(conns):
+        if i in merged:
+            continue
+        if c.kind in ("pin-hole", "axle-hole", "wheel-pin-hole"):
+            seg = np.array([c.start, c.end, c.axis], float)
+            for j in range(i + 1, len(conns)):
+                d = conns[j]
+                other = np.array([d.start, d.end, d.axis], float)
+                if j not in merged and d.kind == c.kind and _on_one_axis(other, seg) and \
+                        _stretch_overlap(other, seg) >= -HOLE_GAP_LDU:
+                    seg = _together(other, seg)
+                    merged.add(j)
+            c = JointConnector(c.kind, tuple(seg[0]), tuple(seg[1]), tuple(seg[2]))
+        out.append(c)
     return out
 
 
