@@ -132,3 +132,63 @@ def summary(part) -> dict[str, int]:
         if c.kind != "bore":
             counts[c.kind] = counts.get(c.kind, 0) + 1
     return dict(sorted(counts.items()))
+
+
+HOLE_GAP_LDU = 16.0
+"""Female primitives of one kind on one axis of one part, this close, are one hole: a Technic
+brick's hole is drawn with a pin-hole primitive at each mouth, 16 LDU apart."""
+
+
+def merged_holes(conns) -> list:
+    """A part's joint connectors with the female primitives of one kind that lie on one axis
+    within `HOLE_GAP_LDU` of each other merged into one (a hole drawn at both mouths)."""
+    out, merged = [], set()
+    for i, c in enumerate(conns):
+        if i in merged:
+            continue
+        if c.kind in ("pin-hole", "axle-hole", "wheel-pin-hole"):
+            seg = np.array([c.start, c.end, c.axis], float)
+            for j in range(i + 1, len(conns)):
+                d = conns[j]
+                other = np.array([d.start, d.end, d.axis], float)
+                if j not in merged and d.kind == c.kind and _on_one_axis(other, seg) and \
+                        _overlap(other, seg) >= -HOLE_GAP_LDU:
+                    seg = _joined(other, seg)
+                    merged.add(j)
+            c = JointConnector(c.kind, tuple(seg[0]), tuple(seg[1]), tuple(seg[2]))
+        out.append(c)
+    return out
+
+
+ATTACHABLE_SKIPPED = ("hinge",)
+"""Connector kinds the sampler does not attach through: click hinge halves meet end to end
+between fingers (their place is not a stretch of one axis to slide onto)."""
+
+
+def joint_ends(part) -> list[JointConnector]:
+    """The part's joint connectors the sampler can attach through (`merged_holes`: a hole drawn
+    at both mouths is one; click hinges and connectors of no length left out)."""
+    return [c for c in merged_holes(joint_connectors(part)) if c.kind not in ATTACHABLE_SKIPPED and c.length > 0]
+
+
+def _on_one_axis(s: np.ndarray, t: np.ndarray, angle_deg: float = 10.0, radial_ldu: float = 1.0) -> bool:
+    """Whether stretch `s` lies on `t`'s axis line (within `angle_deg` and `radial_ldu`)."""
+    u = t[2]
+    if abs(float(s[2] @ u)) < np.cos(np.radians(angle_deg)):
+        return False
+    d = s[:2].mean(0) - t[0]
+    return float(np.linalg.norm(d - (d @ u) * u)) <= radial_ldu
+
+
+def _overlap(s: np.ndarray, t: np.ndarray) -> float:
+    """How far two stretches on one axis overlap (negative: the gap between)."""
+    u = t[2]
+    x, y = sorted((s[:2] - t[0]) @ u), sorted((t[:2] - t[0]) @ u)
+    return float(min(x[1], y[1]) - max(x[0], y[0]))
+
+
+def _joined(s: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The stretch of `t`'s axis that `s` and `t` cover together (end, end, axis)."""
+    u = t[2]
+    along = np.concatenate([(s[:2] - t[0]) @ u, (t[:2] - t[0]) @ u])
+    return np.stack([t[0] + along.min() * u, t[0] + along.max() * u, u])

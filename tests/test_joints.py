@@ -16,6 +16,7 @@ from factory.parts import load_part
 from factory.physics.check import check_units
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
+from ldraw_support import LDRAW
 
 def kinds(v):
     return sorted({l.kind for l in v.joints})
@@ -250,3 +251,23 @@ def test_a_pin_goes_into_its_hole_along_its_axis_unless_both_ways_are_blocked(at
     assert v.ok and v.buildable is True, v
     v = verdict([at("3701", 0, 0, 0), far_wall, at("3010", 0, 0, 50)], pin)
     assert v.reason == "blocked" and v.buildable is False and set(v.blocked_by) <= {1, 2} and v.blocked_by, v
+
+
+def test_the_sampler_attaches_through_joints():
+    """With Technic parts the sampler grows objects through pins, axles and open studs as well as
+    studs (`factory.physics.joint_attach`): steps held by joints alone, judged by the same checks,
+    and the same object from the same seed."""
+    from factory.sampler import Sampler, SamplerConfig
+
+    cfg = SamplerConfig(seed=3, parts=(("3701", 1.0), ("3673", 1.0), ("32523", 1.0), ("3707", 0.5), ("3023", 1.0)),
+                        min_steps=8, max_steps=8)
+    sampler = Sampler(cfg, ldraw=str(LDRAW))
+    obj = sampler.sample(0)
+    assert obj.end_reason == "target" and len(obj.steps) == 8
+    held = [s for s in obj.steps if s.verdict.joints and not s.verdict.connections]
+    assert {l.kind for s in held for l in s.verdict.joints} >= {"technic-pin", "technic-axle"}, obj.steps
+    assert all(s.verdict.ok and s.verdict.stable for s in obj.steps[1:])
+    # A pin's step: the pin lies on a hole's axis of the brick it is in.
+    pin = next(s for s in held if s.part == "3673.dat")
+    assert pin.verdict.joints[0].b == 0 and abs(abs(pin.verdict.joints[0].axis[2]) - 1.0) < 1e-6
+    assert sampler.sample(0).same_as(obj)

@@ -15,7 +15,7 @@ import pytest
 
 from factory.ldraw import Library, Reader, get_reader
 from factory.parts import load_part
-from factory.prior.choose import NO_CONNECTOR, NO_STUDS
+from factory.prior.choose import NO_CONNECTOR
 from factory.symmetry import find_symmetry, symmetry_cached
 from pipelines.prepare import pack, survey, unpack
 from pipelines.realism import compare, coverage, read_collection
@@ -37,7 +37,7 @@ def test_every_part_of_a_library_is_usable_or_listed_with_its_reason(real_reader
     assert len(statuses) == len(names) == 312
     assert by["3001"].reason is None and by["3001"].category == "Brick"
     assert by["3023"].reason.startswith("renumbered: moved to 3023b")  # a stub, not a part of its own
-    assert by["3673"].reason == NO_STUDS  # a Technic pin: held by what the sampler does not connect yet
+    assert by["3673"].reason is None  # a Technic pin: the sampler attaches it through its joints
     assert by["3673"].joints == {"pin": 2} and by["3700"].joints == {"bar": 1, "pin-hole": 2}
     assert by["3641"].reason == NO_CONNECTOR and by["3641"].joints == {}  # a tyre: held by its shape
     assert by["3820"].reason.startswith("a minifigure piece")
@@ -207,31 +207,31 @@ def test_the_json_listing_streams_each_part_as_it_finishes_so_an_interrupted_run
 
 @needs_ldraw
 def test_a_designs_parts_are_prepared_even_those_the_sampler_cannot_use(tmp_path, monkeypatch, capsys):
-    """`--designs` lists the library parts a design places; with `--prepare` a Technic pin (no
-    studs: the sampler cannot use it) gets its collision pieces too, since a replay needs them."""
+    """`--designs` lists the library parts a design places; with `--prepare` a tyre (no studs,
+    sockets or joint connectors: the sampler cannot use it) gets its collision pieces too, since a replay needs them."""
     from pipelines.parts import main
 
     monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path / "cache"))
     design = tmp_path / "pinned.ldr"
     design.write_text("0 pinned\n0 Name: pinned.ldr\n1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat\n"
-                      "1 0 0 -24 0 1 0 0 0 1 0 0 0 1 3673.dat\n1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat\n")
+                      "1 0 0 -24 0 1 0 0 0 1 0 0 0 1 3641.dat\n1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat\n")
     assert main(["--ldraw", str(LDRAW), "--designs", str(design), "--json", "--workers", "1", "--no-progress"]) == 0
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
-    assert [(x["part"], x["reason"]) for x in lines] == [("3001", None), ("3673", NO_STUDS)]
+    assert [(x["part"], x["reason"]) for x in lines] == [("3001", None), ("3641", NO_CONNECTOR)]
     assert not (tmp_path / "cache" / "coacd").exists()  # listed, not prepared
     assert main(["--ldraw", str(LDRAW), "--designs", str(design), "--prepare", "--json", "--workers", "1",
                  "--no-progress"]) == 0
-    assert [json.loads(x)["reason"] for x in capsys.readouterr().out.splitlines()] == [None, NO_STUDS]
+    assert [json.loads(x)["reason"] for x in capsys.readouterr().out.splitlines()] == [None, NO_CONNECTOR]
     pieces = {p.name for p in (tmp_path / "cache" / "coacd").iterdir()}
-    # A fresh process with a fresh cache: the pin alone, prepared as the sampler would (not at all:
+    # A fresh process with a fresh cache: the tyre alone, prepared as the sampler would (not at all:
     # it cannot use it), then as a design's part
-    env = {**os.environ, "BRICK_FACTORY_CACHE": str(tmp_path / "pin")}
-    assert survey(str(LDRAW), ["3673"])[0].reason == NO_STUDS
+    env = {**os.environ, "BRICK_FACTORY_CACHE": str(tmp_path / "tyre")}
+    assert survey(str(LDRAW), ["3641"])[0].reason == NO_CONNECTOR
     code = ("import sys; from pipelines.prepare import survey; "
-            "print(survey(sys.argv[1], ['3673'], prepare=True, every=sys.argv[2] == '1')[0].reason)")
+            "print(survey(sys.argv[1], ['3641'], prepare=True, every=sys.argv[2] == '1')[0].reason)")
     for every in ("0", "1"):
         out = subprocess.run([sys.executable, "-c", code, str(LDRAW), every], capture_output=True, text=True,
                              cwd=ROOT, env=env)
-        assert out.returncode == 0 and out.stdout.strip() == NO_STUDS, out.stderr
-        made = {p.name for p in (tmp_path / "pin" / "coacd").iterdir()} if (tmp_path / "pin" / "coacd").exists() else set()
+        assert out.returncode == 0 and out.stdout.strip() == NO_CONNECTOR, out.stderr
+        made = {p.name for p in (tmp_path / "tyre" / "coacd").iterdir()} if (tmp_path / "tyre" / "coacd").exists() else set()
         assert bool(made) == (every == "1") and made <= pieces

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factory.ldraw.other_connectors import CONNECTOR_KINDS, place_connectors
-from factory.joints import JointConnector, joint_connectors, mates
+from factory.joints import joint_connectors, mates, merged_holes
 from factory.parts import Part, box_corners
 from factory.pose import Pose
 
@@ -308,7 +308,7 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
     if is_minifig(new) and is_minifig(placed):
         return [Joint("minifig", _box_meeting(new, new_pose, placed, placed_pose), None, None)]
     out: list[Joint] = []
-    ca, cb = _holes(joint_connectors(new)), _holes(joint_connectors(placed))
+    ca, cb = merged_holes(joint_connectors(new)), merged_holes(joint_connectors(placed))
     pa = _placed_joint_connectors(ca, new_pose)
     pb = _placed_joint_connectors(cb, placed_pose)
     for i, j in _meeting(pa, pb):
@@ -359,32 +359,6 @@ SEATED_LDU = 1.0
 """How much of the shorter of two mated connectors may lie off the other: a part held by a pin,
 an axle or a clip is pushed home on it (a Technic brick slid 10 LDU out along its pins, half off
 them, is not placed: the shift faults of the Gearbox)."""
-HOLE_GAP_LDU = 16.0
-"""Female primitives of one kind on one axis of one part, this close, are one hole: a Technic
-brick's hole is drawn with a pin-hole primitive at each mouth, 16 LDU apart."""
-
-
-def _holes(conns) -> list:
-    """A part's joint connectors with the female primitives of one kind that lie on one axis
-    within `HOLE_GAP_LDU` of each other merged into one (a hole drawn at both mouths)."""
-    out, merged = [], set()
-    for i, c in enumerate(conns):
-        if i in merged:
-            continue
-        if c.kind in ("pin-hole", "axle-hole", "wheel-pin-hole"):
-            seg = np.array([c.start, c.end, c.axis], float)
-            for j in range(i + 1, len(conns)):
-                d = conns[j]
-                other = np.array([d.start, d.end, d.axis], float)
-                if j not in merged and d.kind == c.kind and _on_one_axis(other, seg) and \
-                        _stretch_overlap(other, seg) >= -HOLE_GAP_LDU:
-                    seg = _together(other, seg)
-                    merged.add(j)
-            c = JointConnector(c.kind, tuple(seg[0]), tuple(seg[1]), tuple(seg[2]))
-        out.append(c)
-    return out
-
-
 def _placed_joint_connectors(conns, pose: Pose) -> np.ndarray:
     if not conns:
         return np.zeros((0, 3, 3))

@@ -17,14 +17,13 @@ from dataclasses import dataclass
 from factory.embedded.catalog import PARTS
 from factory.embedded.colours import COLOURS
 from factory.errors import LDrawError
-from factory.joints import joint_connectors
+from factory.joints import joint_ends
 from factory.ldraw import Reader
 from factory.ldraw.colours import EDGE, MAIN
 from factory.prior.families import family, unprinted
 from factory.prior.prior import MINIFIG, PartUse, Prior
 
 NOT_IN_LIBRARY = "not in the library"
-NO_STUDS = "no studs and no sockets: held by pins, axles, clips or hinges, which the sampler does not connect yet"
 NO_CONNECTOR = ("no studs, no sockets and no joint connector found: held by its shape (a tyre on a rim, cloth, "
                 "a sticker), which the factory cannot tell where to put")
 MINIFIGURE = "a minifigure piece: held by minifigure joints, which the sampler does not connect"
@@ -114,7 +113,7 @@ def why_unusable(reader: Reader, name: str) -> str | None:
         if is_minifig(part):
             return MINIFIGURE
         if not part.studs and not part.sockets:
-            return NO_STUDS if joint_connectors(part) else NO_CONNECTOR
+            return None if joint_ends(part) else NO_CONNECTOR
     except LDrawError as exc:
         return f"cannot be read: {exc}"
     return None

@@ -44,6 +44,8 @@ from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
 from factory.sampler.assembly import Assembly, AssemblyStep
 from factory.physics.attach import attachment_arrays, lowest_y
+from factory.joints import joint_ends
+from factory.physics.joint_attach import joint_attachment_arrays
 from factory.sampler.config import SamplerConfig, SamplerConfigError
 from factory.sampler.density import CandidateDensities, DensityTracker
 from factory.sampler.lockstep import grow_together
@@ -131,6 +133,9 @@ class Sampler:
                 else:
                     ground = floor
                     r, t = attachment_arrays(structure, part)
+                    jr, jt = joint_attachment_arrays(structure, part)
+                    if len(jt):  # through joints too (pins, axles, wheels, clips, open studs)
+                        r, t = np.concatenate([r, jr]), np.concatenate([t, jt])
                     feasible = len(t)
                     if not feasible:
                         rejected["no-attachment"] += 1
@@ -337,8 +342,9 @@ def _load_parts(reader: Reader, config: SamplerConfig) -> list[Part]:
                 f"parts: unknown part {name!r} in the {reader.library.description}; "
                 f"{_choices(library_parts(reader), name)}"
             ) from None
-        if not part.studs and not part.sockets:  # (also derives both, once per reader)
-            raise SamplerConfigError(f"parts: {name!r} has no studs and no sockets; it cannot attach to anything")
+        if not part.studs and not part.sockets and not joint_ends(part):  # (also derives both, once per reader)
+            raise SamplerConfigError(f"parts: {name!r} has no studs, no sockets and no joint connector; "
+                                     "it cannot attach to anything")
         out.append(part)
     return out
 

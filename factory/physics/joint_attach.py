@@ -1,0 +1,84 @@
+"""Attachments through joints: every pose that pushes one of a part's joint connectors home on a
+free mating connector of the structure (a pin into a pin hole, an axle through an axle hole, a
+wheel onto its pin, a clip onto a bar, a plate's underside pin into an open stud, and the other
+way round), at a few turns about the joint's axis. The joint analogue of `attach`'s stud
+attachments; the checker judges them like any candidate (`unmodelled.joints_between`).
+
+For a connector of the part and a target of the structure whose kinds mate (`joints.mates`; click
+hinges, whose fingers sit end to end, are left out), the part's connector axis is laid on the
+target's axis both ways round, turned by `TURNS` quarter turns about it (a joint that turns is
+held at any angle: these are a few of them), and slid along it so that the shorter of the two
+lies on the other: its ends aligned with the other's ends, and centred on it. Poses equal under
+the part's symmetry (to 1e-3 LDU) are dropped, first kept. Deterministic order: connector,
+target, way round, turn, slide. Click hinges are left out (`joints.ATTACHABLE_SKIPPED`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from factory.joints import JointConnector, joint_ends, mates
+from factory.ldraw.other_connectors import place_connectors
+from factory.parts import Part
+from factory.physics.structure import Structure, align
+from factory.physics.unmodelled import is_minifig
+from factory.symmetry import rotation_about
+
+TURNS = 4
+"""Quarter turns about a joint's axis tried for each way round."""
+
+def _ends(part: Part) -> list[JointConnector]:
+    """`joints.joint_ends`, minifigure pieces having none (their joints are their own)."""
+    return [] if is_minifig(part) else joint_ends(part)
+
+
+def _targets(structure: Structure) -> tuple[np.ndarray, list[str]]:
+    """The structure's joint connectors in the world frame (k, 3, 3) and their kinds."""
+    segs, kinds = [], []
+    for p in structure.placed:
+        conns = _ends(p.part)
+        if conns:
+            raw = np.array([[c.start, c.end, c.axis] for c in conns], float)
+            segs.append(place_connectors(raw, p.pose.R, p.pose.t))
+            kinds += [c.kind for c in conns]
+    return (np.concatenate(segs) if segs else np.zeros((0, 3, 3))), kinds
+
+
+def joint_attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations (n, 3, 3) and translations (n, 3) of the part's attachments through joints
+    (module docstring); empty where it or the structure has no connector that mates."""
+    mine = _ends(part)
+    targets, kinds = _targets(structure)
+    rots, ts, keys = [], [], set()
+    for c in mine:
+        a0, a1, ua = (np.array(v, float) for v in (c.start, c.end, c.axis))
+        for g, kind in zip(targets, kinds):
+            freedom = mates(c.kind, kind)
+            if freedom is None or freedom.stepped:
+                continue
+            u = g[2]
+            b = float((g[1] - g[0]) @ u)
+            b_lo, b_hi = min(0.0, b), max(0.0, b)
+            for way in (1.0, -1.0):
+                base = align(ua, way * u)
+                for k in range(TURNS):
+                    r = np.round(rotation_about(u, 90.0 * k) @ base, 12)
+                    d = float((r @ (a1 - a0)) @ u)
+                    c_lo, c_hi = min(0.0, d), max(0.0, d)
+                    slides = {b_lo - c_lo, b_hi - c_hi, (b_lo + b_hi) / 2 - (c_lo + c_hi) / 2}
+                    for x in sorted(slides):
+                        t = g[0] + x * u - r @ a0
+                        key = _key(part, r, t)
+                        if key not in keys:
+                            keys.add(key)
+                            rots.append(r)
+                            ts.append(t)
+    if not ts:
+        return np.zeros((0, 3, 3)), np.zeros((0, 3))
+    return np.stack(rots), np.stack(ts)
+
+
+def _key(part: Part, r: np.ndarray, t: np.ndarray) -> tuple:
+    """A pose's key under the part's symmetry (as `attach`'s: rotation, translation to 1e-3 LDU)."""
+    rot = min(tuple(np.round(r @ s, 4).ravel().tolist()) for s in part.symmetry.rotations)
+    return rot, tuple(np.round(np.round(t, 3) * 1000).astype(np.int64).tolist())
