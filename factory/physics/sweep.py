@@ -322,8 +322,9 @@ axis is the joint's wherever it is."""
 def sweep_joint(scene: CollisionScene, structure: Structure, unit: Sequence[tuple[Part, Pose]],
                 joints: dict, max_penetration_ldu: float = 0.5, step_ldu: float = 2.0) -> SweepResult:
     """Buildability of a unit held by joints alone: it reaches its pose along the joints' shared
-    axis, from either end (a pin goes into its hole, a wheel onto its axle, a clip onto its bar,
-    from the side that is open), its overlap with each holder round the joint's axis left out
+    axis, from either end (a pin goes into its hole, a wheel onto its axle, from the side that is
+    open), over the joint's length and `PRESS_MIN_LDU` past it, its overlap with each holder
+    round the joint's axis left out
     (`joints`: holder -> (stretches (k, 3, 3), radii), as `CollisionScene.penetration` takes them).
     Not judged (None, 'two-axes') where the joints' axes are not parallel: a part on two joints
     at an angle cannot slide onto both."""
@@ -336,9 +337,13 @@ def sweep_joint(scene: CollisionScene, structure: Structure, unit: Sequence[tupl
         length = ((zones[:, 1] - zones[:, 0]) * u).sum(axis=1)[:, None]
         lo, hi = np.minimum(length, 0.0) - JOINT_LINE_LDU, np.maximum(length, 0.0) + JOINT_LINE_LDU
         lines[holder] = (np.stack([zones[:, 0] + lo * u, zones[:, 0] + hi * u, u], axis=1), radii)
+    # Only the joint's own length and a fingertip's room past it are swept: further out a hand
+    # brings the part in along any line (as `PRESS_MIN_LDU` for studs), and a long axle slid
+    # through a large model would ask hundreds of poses.
+    reach = max(float(np.linalg.norm(z[:, 1] - z[:, 0], axis=1).max()) for z, _ in joints.values()) + PRESS_MIN_LDU
     found = []
     for d in (axes[0], -axes[0]):
-        way = _along(scene, structure, unit, set(), d, max_penetration_ldu, step_ldu, joints=lines)
+        way = _along(scene, structure, unit, set(), d, max_penetration_ldu, step_ldu, reach=reach, joints=lines)
         if way.buildable:
             return way
         found.append(way)
