@@ -303,8 +303,9 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
     a pin in a pin hole, an axle in an axle hole, a clip on a bar or handle, a wheel on its pin,
     click hinge halves) on one axis (`NEAR_LDU`); bar-size cylinders or bores that meet
     (`bars_meet`: a bar in a clip or a hollow stud, hinge fingers between fingers); and where
-    one side has no connector with a position at all, a part held by its shape (`may_hold`'s
-    rule: a tyre on a rim). Empty where none holds it."""
+    one side has no connector with a position at all, a part without sockets held by its shape
+    (a tyre on a rim; a part with sockets sits on studs, and one slid off them beside a part
+    without any is not held). Empty where none holds it."""
     if is_minifig(new) and is_minifig(placed):
         return [Joint("minifig", _box_meeting(new, new_pose, placed, placed_pose), None, None)]
     out: list[Joint] = []
@@ -332,7 +333,7 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
                and _stretch_overlap(stretch, np.array(o.zone)) > 0 for o in out):
             continue  # the cylinders of a primitive's joint already found (a rim's hole round a wheel pin)
         out.append(_joint("bar-in-stud" if _in_bore(new, new_pose, placed, placed_pose) else "bar", stretch))
-    if not out and not (len(_connectors(new)) and len(_connectors(placed))) and held_otherwise(new) \
+    if not out and not new.sockets and not (len(_connectors(new)) and len(_connectors(placed))) \
             and offers_other(placed) and _box_share(new, new_pose, placed, placed_pose) >= SHAPE_SHARE:
         out.append(Joint("by-shape", _box_meeting(new, new_pose, placed, placed_pose), None, None))
     return out
