@@ -16,7 +16,7 @@ from factory.parts import load_part
 from factory.physics.check import check_units
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
-from ldraw_support import LDRAW
+from ldraw_support import LDRAW, needs_ldraw
 
 def kinds(v):
     return sorted({l.kind for l in v.joints})
@@ -253,6 +253,7 @@ def test_a_pin_goes_into_its_hole_along_its_axis_unless_both_ways_are_blocked(at
     assert v.reason == "blocked" and v.buildable is False and set(v.blocked_by) <= {1, 2} and v.blocked_by, v
 
 
+@needs_ldraw
 def test_the_sampler_attaches_through_joints():
     """With Technic parts the sampler grows objects through pins, axles and open studs as well as
     studs (`factory.physics.joint_attach`): steps held by joints alone, judged by the same checks,

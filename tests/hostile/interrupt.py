@@ -36,7 +36,7 @@ NOTES = ("physics:", "growth:")
 
 @dataclass
 class Try:
-    delay: float
+    delay: float | str
     status: int | None
     stderr: str
     resumed_status: int | None = None
@@ -90,15 +90,31 @@ def reference(out: Path, python: str = sys.executable, build: list[str] = BUILD)
     return time.perf_counter() - t0
 
 
-def interrupt_once(out: Path, delay: float, ref: Path, python: str = sys.executable, build: list[str] = BUILD) -> Try:
-    """Ctrl-C `build` (synth's arguments less --out) after `delay` seconds, resume it, compare
-    the folder with `ref` (the same build, uninterrupted)."""
+FIRST_SHARD = "first-shard"
+"""`interrupt_once`'s moment right after the build's first shard is recorded (`meta/shards`): in
+the middle of building, however fast the machine."""
+
+
+def _wait_for_first_shard(out: Path, p: subprocess.Popen, limit: float = 120.0) -> None:
+    end = time.monotonic() + limit
+    while time.monotonic() < end and p.poll() is None:
+        if any((out / "meta" / "shards").glob("*")):
+            return
+        time.sleep(0.02)
+
+
+def interrupt_once(out: Path, delay, ref: Path, python: str = sys.executable, build: list[str] = BUILD) -> Try:
+    """Ctrl-C `build` (synth's arguments less --out) after `delay` seconds, or at `FIRST_SHARD`,
+    resume it, compare the folder with `ref` (the same build, uninterrupted)."""
     shutil.rmtree(out, ignore_errors=True)
     p = subprocess.Popen(_command(out, python, build), cwd=ROOT, env=_env(), stdout=subprocess.DEVNULL,
                          stderr=subprocess.PIPE, text=True, start_new_session=True,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
-        time.sleep(delay)
+        if delay == FIRST_SHARD:
+            _wait_for_first_shard(out, p)
+        else:
+            time.sleep(delay)
         try:
             os.killpg(p.pid, signal.SIGINT)
         except ProcessLookupError:
