@@ -11,13 +11,15 @@ its axis it spans and the axis, in the part's LDraw frame (LDU, -Y up).
 Which kinds mate, and what each joint leaves free (`FREEDOMS`): a pin turns in a pin hole and does
 not slide; an axle in an axle hole slides and does not turn; an axle in a pin hole does both; a
 wheel turns on its wheel pin; a clip turns about its bar and slides along it; a click hinge turns in
-steps. The checker does not judge these joints yet (`factory.physics.unmodelled` tells only that a
-part may be held by one, and by which kind: `joint_kind`).
+steps. The checker finds the joints two placed parts make (`factory.physics.unmodelled.
+joints_between`), the sampler attaches through them (`factory.physics.joint_attach`), and the
+load model carries them (`factory.physics.joint_capacity`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -139,6 +141,13 @@ HOLE_GAP_LDU = 16.0
 brick's hole is drawn with a pin-hole primitive at each mouth, 16 LDU apart."""
 
 
+@lru_cache(maxsize=None)
+def part_connectors(part) -> tuple[JointConnector, ...]:
+    """`merged_holes` of the part's `joint_connectors`, computed once per part (the checks ask for
+    them at every candidate that touches a part, the sampler at every draw)."""
+    return tuple(merged_holes(joint_connectors(part)))
+
+
 def merged_holes(conns) -> list:
     """A part's joint connectors with the female primitives of one kind that lie on one axis
     within `HOLE_GAP_LDU` of each other merged into one (a hole drawn at both mouths)."""
@@ -151,9 +160,9 @@ def merged_holes(conns) -> list:
             for j in range(i + 1, len(conns)):
                 d = conns[j]
                 other = np.array([d.start, d.end, d.axis], float)
-                if j not in merged and d.kind == c.kind and _on_one_axis(other, seg) and \
-                        _overlap(other, seg) >= -HOLE_GAP_LDU:
-                    seg = _joined(other, seg)
+                if j not in merged and d.kind == c.kind and on_one_axis(other, seg) and \
+                        stretch_overlap(other, seg) >= -HOLE_GAP_LDU:
+                    seg = together(other, seg)
                     merged.add(j)
             c = JointConnector(c.kind, tuple(seg[0]), tuple(seg[1]), tuple(seg[2]))
         out.append(c)
@@ -166,13 +175,14 @@ between fingers (their place is not a stretch of one axis to slide onto)."""
 
 
 def joint_ends(part) -> list[JointConnector]:
-    """The part's joint connectors the sampler can attach through (`merged_holes`: a hole drawn
-    at both mouths is one; click hinges and connectors of no length left out)."""
-    return [c for c in merged_holes(joint_connectors(part)) if c.kind not in ATTACHABLE_SKIPPED and c.length > 0]
+    """The part's joint connectors the sampler can attach through (`part_connectors`: a hole
+    drawn at both mouths is one; click hinges and connectors of no length left out)."""
+    return [c for c in part_connectors(part) if c.kind not in ATTACHABLE_SKIPPED and c.length > 0]
 
 
-def _on_one_axis(s: np.ndarray, t: np.ndarray, angle_deg: float = 10.0, radial_ldu: float = 1.0) -> bool:
-    """Whether stretch `s` lies on `t`'s axis line (within `angle_deg` and `radial_ldu`)."""
+def on_one_axis(s: np.ndarray, t: np.ndarray, angle_deg: float = 10.0, radial_ldu: float = 1.0) -> bool:
+    """Whether stretch `s` (end, end, axis) lies on `t`'s axis line: within `angle_deg` of
+    parallel, its middle within `radial_ldu` of the line."""
     u = t[2]
     if abs(float(s[2] @ u)) < np.cos(np.radians(angle_deg)):
         return False
@@ -180,14 +190,14 @@ def _on_one_axis(s: np.ndarray, t: np.ndarray, angle_deg: float = 10.0, radial_l
     return float(np.linalg.norm(d - (d @ u) * u)) <= radial_ldu
 
 
-def _overlap(s: np.ndarray, t: np.ndarray) -> float:
+def stretch_overlap(s: np.ndarray, t: np.ndarray) -> float:
     """How far two stretches on one axis overlap (negative: the gap between)."""
     u = t[2]
     x, y = sorted((s[:2] - t[0]) @ u), sorted((t[:2] - t[0]) @ u)
     return float(min(x[1], y[1]) - max(x[0], y[0]))
 
 
-def _joined(s: np.ndarray, t: np.ndarray) -> np.ndarray:
+def together(s: np.ndarray, t: np.ndarray) -> np.ndarray:
     """The stretch of `t`'s axis that `s` and `t` cover together (end, end, axis)."""
     u = t[2]
     along = np.concatenate([(s[:2] - t[0]) @ u, (t[:2] - t[0]) @ u])

@@ -28,6 +28,17 @@ def _rotation_key(part: Part, r: np.ndarray) -> tuple:
     return min(tuple(np.round(r @ s, 4).ravel().tolist()) for s in part.symmetry.rotations)
 
 
+def _translation_key(t: np.ndarray) -> np.ndarray:
+    """Translations (n, 3) as integers of 1e-3 LDU (poses within that are one)."""
+    return np.round(np.round(t, 3) * 1000).astype(np.int64)
+
+
+def pose_key(part: Part, r: np.ndarray, t: np.ndarray) -> tuple:
+    """One pose's key: equal for poses equal under the part's symmetry (as the rows deduplicated
+    below), for callers that enumerate poses one at a time (`joint_attach`)."""
+    return _rotation_key(part, r), tuple(_translation_key(np.asarray(t)[None])[0].tolist())
+
+
 def _first_rows(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(indices of each distinct row's first occurrence, ascending; each row's group: the rank of
     its row's first occurrence). Integer rows whose columns' ranges fit one int64 are packed into
@@ -132,7 +143,7 @@ def attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarray, np.
     packed = _packed(order)
     perm = np.argsort(packed, kind="stable") if packed is not None else np.lexsort(order.T[::-1])
     rot_index, t, rid = rot_index[perm], t[perm], rid[perm]
-    tkey = np.round(np.round(t, 3) * 1000).astype(np.int64)
+    tkey = _translation_key(t)
     keys = np.concatenate([rid[:, None].astype(np.int64), tkey], axis=1)
     first, _ = _first_rows(keys)
     return np.stack(rots)[rot_index[first]], t[first]

@@ -456,10 +456,10 @@ class CollisionScene:
         Overlap = depth between inset pieces + both insets; 0 when no inset pieces touch. Stud
         contacts with parts in `connected` are ignored; a stud standing in another part's hollow
         (crossing none of its faces) touches it without overlapping. Touching = a real gap under
-        NEAR_LDU. `joints`: structure part -> stretches of axis (k, 3, 3) where the candidate
-        meets it at a joint (`unmodelled.joints_between`); an overlap with that part round such an
-        axis (`unmodelled.in_zone`: a contact's position, a piece's centre) is the joint's and left
-        out; None for a part holding it by a joint with no axis (a minifigure joint, a tyre on its
+        NEAR_LDU. `joints`: structure part -> (stretches of axis (k, 3, 3), radii (k,)) where the
+        candidate meets it at a joint (`unmodelled.joints_between`); an overlap with that part
+        within a radius of such an axis (`unmodelled.in_zone`: a contact's position, a piece's
+        centre) is the joint's and left out; None for a part holding it by a joint with no axis (a minifigure joint, a tyre on its
         rim): all its overlap with that part is left out.
         """
         pos, quat = pose.to_mujoco_quat()

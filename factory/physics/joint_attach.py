@@ -20,12 +20,14 @@ import numpy as np
 from factory.joints import JointConnector, joint_ends, mates
 from factory.ldraw.other_connectors import place_connectors
 from factory.parts import Part
+from factory.physics.attach import pose_key
 from factory.physics.structure import Structure, align
 from factory.physics.unmodelled import is_minifig
 from factory.symmetry import rotation_about
 
 TURNS = 4
 """Quarter turns about a joint's axis tried for each way round."""
+
 
 def _ends(part: Part) -> list[JointConnector]:
     """`joints.joint_ends`, minifigure pieces having none (their joints are their own)."""
@@ -68,7 +70,7 @@ def joint_attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarra
                     slides = {b_lo - c_lo, b_hi - c_hi, (b_lo + b_hi) / 2 - (c_lo + c_hi) / 2}
                     for x in sorted(slides):
                         t = g[0] + x * u - r @ a0
-                        key = _key(part, r, t)
+                        key = pose_key(part, r, t)
                         if key not in keys:
                             keys.add(key)
                             rots.append(r)
@@ -76,9 +78,3 @@ def joint_attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarra
     if not ts:
         return np.zeros((0, 3, 3)), np.zeros((0, 3))
     return np.stack(rots), np.stack(ts)
-
-
-def _key(part: Part, r: np.ndarray, t: np.ndarray) -> tuple:
-    """A pose's key under the part's symmetry (as `attach`'s: rotation, translation to 1e-3 LDU)."""
-    rot = min(tuple(np.round(r @ s, 4).ravel().tolist()) for s in part.symmetry.rotations)
-    return rot, tuple(np.round(np.round(t, 3) * 1000).astype(np.int64).tolist())

@@ -69,6 +69,11 @@ class LoadVerdict:
     """Connections in the component held rigid because the checker does not model them."""
 
 
+def _rigid(kinds: np.ndarray) -> int:
+    """How many links are held rigid (not joints with capacities: `Link.kind` 'rigid')."""
+    return int(np.count_nonzero(kinds == "rigid"))
+
+
 def tips(model: LoadModel, cfg: LoadConfig = LoadConfig()) -> bool:
     """Whether the component's centre of mass lies outside its support polygon (or it has none)."""
     if not len(model.ground_pos):
@@ -88,7 +93,7 @@ def verdict_of(model: LoadModel, result: LPResult | None, cfg: LoadConfig = Load
                explain: bool = True) -> LoadVerdict:
     """A verdict from a solved program (None: the model tips and was not solved); `explain=False`
     leaves `failing` empty (finding the failing connections costs a second program)."""
-    links = len(model.link_a)
+    links = _rigid(model.link_kind)
     if result is None or result.status == "infeasible":
         return LoadVerdict(False, "unstable", None, rigid_links=links)
     if result.status != "optimal":
@@ -192,7 +197,7 @@ def judge_on_bases(groups: Sequence[tuple], cfg: LoadConfig, solve_on_bases: Cal
                              for (base, units, conns), todo in zip(groups, todo_all)], cfg)
     out_all = []
     for (base, units, conns), todo, results in zip(groups, todo_all, solved):
-        links = len(base.link_a)
+        links = _rigid(base.link_kind)
         out: list[LoadVerdict] = [LoadVerdict(False, "unstable", None, rigid_links=links)] * len(units)
         for i, r in zip(todo, results):
             if r.status != "optimal":

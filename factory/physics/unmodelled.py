@@ -1,19 +1,18 @@
-"""Whether a part may be held by a connection the checker does not model (Technic pins and axles,
-clips, click hinges, wheel pins, tyres on rims), so that its placement is not judged on studs.
+"""The joints that hold a part beyond studs (`joints_between`: Technic pins and axles, wheel pins,
+clips and bars, hinge fingers, bars in open studs, minifigure joints, tyres on rims), with where
+their overlap lies, and whether a part may be held where no joint mates (`may_hold`: then its
+placement is `unsupported-connection`, not judged).
 
-Two sides can say so. A part's connector primitives, where it has them, say where such a
-connection can be: it holds only if a connector of the new part lies on the axis of a connector of
-the part it touches (a pin in a hole, a hinge finger between the other half's fingers). A part
-drawn without such primitives can only be judged by its shape: a new part with no sockets cannot
-sit on studs (a hinge top, a tyre, a rim), a placed part without studs or sockets offers something
-else (a hinge base, a rim); there is no position to compare then, so touching is enough.
-Minifigure pieces hold one another by joints of their own (`is_minifig`).
-
-Clips, bars and hinges are mostly drawn without connector primitives, but always with cylinders of
-the bar's radius (`Flat.bars`: 4 LDU): a bar in a clip, a pin in a hollow stud and hinge fingers
-between fingers put such cylinders of two parts on one axis (`bar_joints`). The overlap such a joint
-makes (the collision pieces fill a clip's grip, a hollow stud, the gaps between fingers) lies round
-its axis (`JOINT_RADIUS_LDU`); `check` leaves that out and judges the rest of the overlap.
+A part's connector primitives, where it has them, say where a joint can be: connectors of the two
+parts that mate lie on one axis, pushed home (a pin in a hole, a hinge finger between the other
+half's fingers). Clips, bars and hinges are mostly drawn without connector primitives, but always
+with cylinders of the bar's radius (`Flat.bars`: 4 LDU): a bar in a clip, a pin in a hollow stud
+and hinge fingers between fingers put such cylinders of two parts on one axis (`bar_joints`). A
+part drawn without any can only be judged by its shape: a new part with no sockets (a tyre, a rim)
+against a placed part without studs or sockets. Minifigure pieces hold one another by joints of
+their own (`is_minifig`). The overlap a joint makes (the collision pieces fill a clip's grip, a
+hollow stud, the gaps between fingers, a pin's hole) lies round its axis (`Joint.zone`,
+`Joint.radius`); the checks leave that out and judge the rest of the overlap.
 """
 
 from __future__ import annotations
@@ -23,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factory.ldraw.other_connectors import CONNECTOR_KINDS, place_connectors
-from factory.joints import joint_connectors, mates, merged_holes
+from factory.joints import mates, on_one_axis, part_connectors, stretch_overlap, together
 from factory.parts import Part, box_corners
 from factory.pose import Pose
 
@@ -46,9 +45,6 @@ TECHNIC_RADIUS_LDU = 8.0
 """The same for a joint of connector primitives (a Technic pin in its hole: the pin's collar, wider
 than its 6 LDU shaft, sits in the counterbore at the hole's mouth; the friction pin 2780 in the
 beam 18654 overlaps 1.3 LDU at 7 LDU from the axis, none beyond 8)."""
-MATE_OVERLAP_LDU = 1.0
-"""How far a male connector's stretch must run into its female's for them to be one joint (the
-outer half of a pin, ending at the hole's mouth, is not in that hole)."""
 END_LDU = 0.5
 """How far the ends of two solid bar-size cylinders on one axis may be apart, or into each other,
 for them to be fingers side by side (the checker's overlap tolerance)."""
@@ -166,8 +162,8 @@ def bars_meet(a: np.ndarray, a_out: np.ndarray, b: np.ndarray, b_out: np.ndarray
     end, a brick's underside pin on another part's pin, hold nothing). Two hollow ones hold
     nothing; where a side is not known (0), either is allowed."""
     pairs = [(i, j) for i in range(len(a)) for j in range(len(b))
-             if not (a_out[i] < 0 and b_out[j] < 0) and _on_one_axis(a[i], b[j])]
-    found = [(i, j) for i, j in pairs if a_out[i] * b_out[j] <= 0 and _stretch_overlap(a[i], b[j]) > 0]
+             if not (a_out[i] < 0 and b_out[j] < 0) and on_one_axis(a[i], b[j], PARALLEL_DEG, BAR_AXIS_LDU)]
+    found = [(i, j) for i, j in pairs if a_out[i] * b_out[j] <= 0 and stretch_overlap(a[i], b[j]) > 0]
     solid = [(i, j) for i, j in pairs if a_out[i] >= 0 and b_out[j] >= 0]
     for fingers, others, side in ((a, b, 0), (b, a, 1)):
         ends: dict[int, dict] = {}
@@ -180,26 +176,7 @@ def bars_meet(a: np.ndarray, a_out: np.ndarray, b: np.ndarray, b_out: np.ndarray
             if abs(y[0] - x[1]) <= END_LDU:
                 ends.setdefault(f, {})["high"] = pair
         found += [pair for e in ends.values() if len(e) == 2 for pair in e.values()]
-    return np.array([_together(a[i], b[j]) for i, j in found]).reshape(-1, 3, 3)
-
-
-def _together(s: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """The stretch of `t`'s axis that `s` and `t` cover together (end, end, axis)."""
-    u = t[2]
-    along = np.concatenate([(s[:2] - t[0]) @ u, (t[:2] - t[0]) @ u])
-    return np.stack([t[0] + along.min() * u, t[0] + along.max() * u, u])
-
-
-def _on_one_axis(s: np.ndarray, t: np.ndarray) -> bool:
-    angle, radial, _ = separation(s, t)
-    return angle <= PARALLEL_DEG and radial <= BAR_AXIS_LDU
-
-
-def _stretch_overlap(s: np.ndarray, t: np.ndarray) -> float:
-    """How far the stretches of two connectors on one axis overlap (negative: the gap between)."""
-    u = t[2]
-    x, y = sorted((s[:2] - t[0]) @ u), sorted((t[:2] - t[0]) @ u)
-    return float(min(x[1], y[1]) - max(x[0], y[0]))
+    return np.array([together(a[i], b[j]) for i, j in found]).reshape(-1, 3, 3)
 
 
 def bar_joints(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> np.ndarray:
@@ -212,17 +189,12 @@ def bar_joints(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> np
                      place_connectors(b, placed_pose.R, placed_pose.t), b_out)
 
 
-def in_zone(points: np.ndarray, zones, radius: float = JOINT_RADIUS_LDU) -> np.ndarray:
-    """(n,) whether each point lies within `radius` of one of the stretches of axis `zones`
-    (k, 3, 3), between its ends grown by `radius`; `zones` may also be (stretches, radii), a
-    radius per stretch."""
+def in_zone(points: np.ndarray, zones: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """(n,) whether each point lies within its radius of one of the stretches of axis of `zones`
+    (stretches (k, 3, 3), radii (k,)), between its ends grown by that radius."""
     points = np.asarray(points, float).reshape(-1, 3)
     out = np.zeros(len(points), bool)
-    if isinstance(zones, tuple):
-        zones, radii = zones
-    else:
-        radii = np.full(len(zones), radius)
-    for (p0, p1, u), radius in zip(zones, radii):
+    for (p0, p1, u), radius in zip(*zones):
         d = points - p0
         along = d @ u
         radial = np.linalg.norm(d - along[:, None] * u, axis=1)
@@ -308,8 +280,10 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
     without any is not held). Empty where none holds it."""
     if is_minifig(new) and is_minifig(placed):
         return [Joint("minifig", _box_meeting(new, new_pose, placed, placed_pose), None, None)]
+    if not part_connectors(new) and new.sockets:
+        return []  # nothing to be held by (every part of the embedded library but the round ones)
     out: list[Joint] = []
-    ca, cb = merged_holes(joint_connectors(new)), merged_holes(joint_connectors(placed))
+    ca, cb = part_connectors(new), part_connectors(placed)
     pa = _placed_joint_connectors(ca, new_pose)
     pb = _placed_joint_connectors(cb, placed_pose)
     for i, j in _meeting(pa, pb):
@@ -319,20 +293,21 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
         freedom = mates(ka, kb)
         if freedom is None:
             continue  # two holes in line, a pin end to end with a pin: nothing holds
-        if not freedom.stepped and _stretch_overlap(pa[i], pb[j]) < min(
-                MATE_OVERLAP_LDU, ca[i].length, cb[j].length) + max(0.0, min(ca[i].length, cb[j].length) - SEATED_LDU):
-            # Not pushed home: the shorter of the two must lie on the other but for `SEATED_LDU`
-            # (a pin all the way into its hole, a hole all on its axle wherever it slides); a
-            # male end at a female's mouth is not in it. Hinge halves meet end to end.
+        if not freedom.stepped and stretch_overlap(pa[i], pb[j]) < min(ca[i].length, cb[j].length):
+            # Not pushed home: the shorter of the two lies wholly on the other (a pin all the way
+            # into its hole, a hole all on its axle wherever it slides); a male end at a female's
+            # mouth is not in it. Hinge halves meet end to end.
             continue
-        found = _joint(_joint_of({ka, kb}), _together(pa[i], pb[j]), TECHNIC_RADIUS_LDU)
+        found = _joint(_joint_of({ka, kb}), together(pa[i], pb[j]), TECHNIC_RADIUS_LDU)
         if not any(o.kind == found.kind and o.point == found.point for o in out):
             out.append(found)  # a hole drawn with a primitive at each mouth is one joint with a pin
-    for stretch in bar_joints(new, new_pose, placed, placed_pose):
-        if any(o.radius == TECHNIC_RADIUS_LDU and _on_one_axis(stretch, np.array(o.zone))
-               and _stretch_overlap(stretch, np.array(o.zone)) > 0 for o in out):
+    rounds = bar_joints(new, new_pose, placed, placed_pose)
+    kind = "bar-in-stud" if len(rounds) and _in_bore(new, new_pose, placed, placed_pose) else "bar"
+    for stretch in rounds:
+        if any(o.radius == TECHNIC_RADIUS_LDU and on_one_axis(stretch, np.array(o.zone), PARALLEL_DEG, BAR_AXIS_LDU)
+               and stretch_overlap(stretch, np.array(o.zone)) > 0 for o in out):
             continue  # the cylinders of a primitive's joint already found (a rim's hole round a wheel pin)
-        out.append(_joint("bar-in-stud" if _in_bore(new, new_pose, placed, placed_pose) else "bar", stretch))
+        out.append(_joint(kind, stretch))
     if not out and not new.sockets and not (len(_connectors(new)) and len(_connectors(placed))) \
             and offers_other(placed) and _box_share(new, new_pose, placed, placed_pose) >= SHAPE_SHARE:
         out.append(Joint("by-shape", _box_meeting(new, new_pose, placed, placed_pose), None, None))
@@ -356,10 +331,6 @@ def _box_share(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> fl
     return shared / smaller if smaller > 0 else 0.0
 
 
-SEATED_LDU = 1.0
-"""How much of the shorter of two mated connectors may lie off the other: a part held by a pin,
-an axle or a clip is pushed home on it (a Technic brick slid 10 LDU out along its pins, half off
-them, is not placed: the shift faults of the Gearbox)."""
 def _placed_joint_connectors(conns, pose: Pose) -> np.ndarray:
     if not conns:
         return np.zeros((0, 3, 3))
