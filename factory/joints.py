@@ -44,8 +44,7 @@ class Freedom:
     slides: bool
     """It slides along the axis (an axle in an axle hole, a clip along a bar)."""
     stepped: bool = False
-    """It holds only at steps of its turn (a click hinge's detents; their angle is not read from
-    the parts yet)."""
+    """It holds only at steps of its turn (a click hinge's detents, `CLICK_STEP_DEG` apart)."""
 
 
 FREEDOMS: dict[frozenset[str], Freedom] = {
@@ -77,6 +76,9 @@ class JointConnector:
     """The two ends of the stretch of the axis the connector spans (LDU)."""
     axis: tuple[float, float, float]
     """Its unit axis (the line a mating connector lies on)."""
+    ref: tuple[float, float, float] | None = None
+    """For a connector primitive, the direction of the primitive's own Z axis: where it is turned
+    to about its axis (`click_angle`); None for a cylinder or a bore."""
 
     @property
     def gender(self) -> str:
@@ -87,9 +89,10 @@ class JointConnector:
         return float(np.linalg.norm(np.subtract(self.end, self.start)))
 
 
-def _records(kind_of, segments: np.ndarray) -> list[JointConnector]:
+def _records(kind_of, segments: np.ndarray, refs: np.ndarray | None = None) -> list[JointConnector]:
     return [JointConnector(kind_of(i), tuple(round(float(v), 4) for v in s[0]),
-                           tuple(round(float(v), 4) for v in s[1]), tuple(round(float(v), 6) for v in s[2]))
+                           tuple(round(float(v), 4) for v in s[1]), tuple(round(float(v), 6) for v in s[2]),
+                           None if refs is None else tuple(round(float(v), 6) for v in refs[i]))
             for i, s in enumerate(segments)]
 
 
@@ -98,7 +101,7 @@ def joint_connectors(part) -> tuple[JointConnector, ...]:
     connector primitives, its bar-size cylinders that are not inside one of them, and its hollow
     studs' bores."""
     flat = part.flat
-    out = _records(lambda i: CONNECTOR_KINDS[int(flat.other_kinds[i])], flat.other_connectors)
+    out = _records(lambda i: CONNECTOR_KINDS[int(flat.other_kinds[i])], flat.other_connectors, flat.other_refs)
     # A bar-size cylinder inside a connector primitive (a hinge's finger, a clip's grip drawn with
     # `clip*`) is that connector, not another.
     prims = flat.other_connectors
@@ -138,7 +141,34 @@ def summary(part) -> dict[str, int]:
 
 HOLE_GAP_LDU = 16.0
 """Female primitives of one kind on one axis of one part, this close, are one hole: a Technic
-brick's hole is drawn with a pin-hole primitive at each mouth, 16 LDU apart."""
+brick's hole is drawn with a pin-hole primitive at each mouth, 16 LDU apart. Click hinge halves
+on one axis this close are one hinge too (a dual finger is drawn as two halves, 8 LDU apart, with
+the other part's single finger between them)."""
+
+CLICK_STEP_DEG = 22.5
+"""A click hinge holds at steps of this angle from straight. LEGO's click hinges lock at 22.5°
+steps (the part names say "9-Position": 0° to 180°); LDraw's `clh4` draws the teeth and notches
+that make them at 11.25° apart round the pivot, one of each per step."""
+CLICK_PLAY_DEG = 4.0
+"""How far from a step a click hinge's two halves may be turned and still be held: designs set
+hinges a little off a step (6966's wing hinge at 25°); half way between two steps (11.25° off)
+no tooth sits in a notch and the hinge turns freely."""
+
+
+def click_angle(ref_a, ref_b, axis) -> float:
+    """The angle (degrees, in (-180, 180]) from one click hinge half's turn `ref_a` to the other's
+    `ref_b` about `axis` (all in one frame): 0 where the two halves are straight, in line (their
+    primitives' Z axes agree, as LDraw draws mated halves: 44301 on 44302 at one pose)."""
+    u = np.asarray(axis, float)
+    a = np.asarray(ref_a, float) - (np.asarray(ref_a, float) @ u) * u
+    b = np.asarray(ref_b, float) - (np.asarray(ref_b, float) @ u) * u
+    return float(np.degrees(np.arctan2(np.cross(a, b) @ u, a @ b)))
+
+
+def on_a_click(angle_deg: float) -> bool:
+    """Whether a click hinge turned to `angle_deg` sits in a step (`CLICK_PLAY_DEG`)."""
+    off = abs(angle_deg) % CLICK_STEP_DEG
+    return min(off, CLICK_STEP_DEG - off) <= CLICK_PLAY_DEG
 
 
 @lru_cache(maxsize=None)
@@ -149,13 +179,14 @@ def part_connectors(part) -> tuple[JointConnector, ...]:
 
 
 def merged_holes(conns) -> list:
-    """A part's joint connectors with the female primitives of one kind that lie on one axis
-    within `HOLE_GAP_LDU` of each other merged into one (a hole drawn at both mouths)."""
+    """A part's joint connectors with the female primitives of one kind (or click hinge halves)
+    that lie on one axis within `HOLE_GAP_LDU` of each other merged into one (a hole drawn at both
+    mouths, a dual finger drawn as two halves)."""
     out, merged = [], set()
     for i, c in enumerate(conns):
         if i in merged:
             continue
-        if c.kind in ("pin-hole", "axle-hole", "wheel-pin-hole"):
+        if c.kind in ("pin-hole", "axle-hole", "wheel-pin-hole", "hinge"):
             seg = np.array([c.start, c.end, c.axis], float)
             for j in range(i + 1, len(conns)):
                 d = conns[j]
@@ -164,20 +195,15 @@ def merged_holes(conns) -> list:
                         stretch_overlap(other, seg) >= -HOLE_GAP_LDU:
                     seg = together(other, seg)
                     merged.add(j)
-            c = JointConnector(c.kind, tuple(seg[0]), tuple(seg[1]), tuple(seg[2]))
+            c = JointConnector(c.kind, *(tuple(float(v) for v in row) for row in seg), c.ref)
         out.append(c)
     return out
 
 
-ATTACHABLE_SKIPPED = ("hinge",)
-"""Connector kinds the sampler does not attach through: click hinge halves meet end to end
-between fingers (their place is not a stretch of one axis to slide onto)."""
-
-
 def joint_ends(part) -> list[JointConnector]:
     """The part's joint connectors the sampler can attach through (`part_connectors`: a hole
-    drawn at both mouths is one; click hinges and connectors of no length left out)."""
-    return [c for c in part_connectors(part) if c.kind not in ATTACHABLE_SKIPPED and c.length > 0]
+    drawn at both mouths is one; connectors of no length left out)."""
+    return [c for c in part_connectors(part) if c.length > 0]
 
 
 def on_one_axis(s: np.ndarray, t: np.ndarray, angle_deg: float = 10.0, radial_ldu: float = 1.0) -> bool:

@@ -16,7 +16,8 @@ from factory.parts import load_part
 from factory.physics.check import check_units
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
-from ldraw_support import LDRAW, needs_ldraw
+from factory.replay import _links
+from ldraw_support import LDRAW, LIBRARY_ZIP, needs_ldraw
 
 def kinds(v):
     return sorted({l.kind for l in v.joints})
@@ -271,4 +272,134 @@ def test_the_sampler_attaches_through_joints():
     # A pin's step: the pin lies on a hole's axis of the brick it is in.
     pin = next(s for s in held if s.part == "3673.dat")
     assert pin.verdict.joints[0].b == 0 and abs(abs(pin.verdict.joints[0].axis[2]) - 1.0) < 1e-6
+    assert sampler.sample(0).same_as(obj)
+
+
+# A click hinge (44302a, dual finger, at the end of a 2x4 brick; 44301a, single finger) turns in
+# steps (`joints.CLICK_STEP_DEG`): straight where the two halves' primitives are turned alike, the
+# single finger's plate then lying beyond the pivot, studs up. The pivot is 30 LDU along X from each
+# half's origin, 2 LDU below its top; the axis runs along Z.
+HINGE_PIVOT = np.array([50.0, 2.0, 0.0])
+
+
+def hinge_base(at):
+    structure = Structure([at("3001", 0, 8, -10)])
+    placed_on_floor(structure, at("44302a", 20, 0, 0))
+    return structure
+
+
+def hinged(at, angle):
+    """44301a on 44302a's fingers, turned `angle` degrees up from straight."""
+    from factory.symmetry import rotation_about
+
+    turn = rotation_about(np.array([0.0, 0.0, 1.0]), -angle)
+    straight = np.diag([-1.0, 1.0, -1.0])  # turned half round Y: its finger meets the other's
+    t = turn @ (HINGE_PIVOT - straight @ np.array([30.0, 2.0, 0.0]) - HINGE_PIVOT) + HINGE_PIVOT
+    return at("44301a", *t, turn @ straight)
+
+
+def on_floor(structure, placed, floor_y=32.0):
+    (v,) = check_units(structure, [[placed]], "cpu", floor_y=floor_y)
+    return v
+
+
+@pytest.mark.parametrize("angle", [0.0, 22.5, 45.0, 67.5, 90.0])
+def test_a_plate_on_a_click_hinge_is_held_at_each_step(at, angle):
+    structure = hinge_base(at)
+    half = hinged(at, angle)
+    v = placed_on_floor(structure, half)
+    assert [(l.kind, l.b) for l in v.joints] == [("click-hinge", 1)], v
+    # A 1x4 plate on the single finger's two studs, reaching away from the hinge.
+    plate = at("3710", *(half.pose.t + half.pose.R @ np.array([-20.0, -8.0, 0.0])), half.pose.R)
+    v = on_floor(structure, plate)
+    assert v.ok and v.connections == 2 and v.stable and v.load < 1.0, v
+
+
+@pytest.mark.parametrize("angle", [11.25, 33.75, -11.25])
+def test_a_click_hinge_between_two_steps_holds_nothing(at, angle):
+    # Half way between two steps no tooth sits in a notch: the fingers hold nothing (a little
+    # off a step, as designs set them, still holds).
+    structure = hinge_base(at)
+    v = on_floor(structure, hinged(at, angle))
+    assert not v.ok and not v.joints, v
+    assert on_floor(structure, hinged(at, angle + 12.5 if angle > 0 else angle - 12.5)).ok
+
+
+def placed_on_floor(structure, placed):
+    v = on_floor(structure, placed)
+    assert v.ok, v
+    structure.add(placed, _links(len(structure), v))
+    return v
+
+
+@pytest.fixture(scope="module")
+def lib_at():
+    """`at` for parts of LDraw's complete.zip (`LIBRARY_ZIP`: wheels the subset lacks)."""
+    if not LIBRARY_ZIP.is_file():
+        pytest.skip(f"LDraw's complete.zip is not at {LIBRARY_ZIP}")
+    reader = Reader(Library.from_path(LIBRARY_ZIP))
+
+    def _at(name, x, y, z, R=I3):
+        return Placed(load_part(reader, name), 4, Pose(np.array(R, float), [x, y, z]))
+
+    return _at
+
+
+def technic_base(at, holder):
+    """A Technic brick 1x4 (3701) on a 2x4 brick, with `holder` (an axle or a pin along Z) through
+    its middle hole (at x = 0, 10 LDU below its top), on a floor 48 LDU below its top."""
+    structure = Structure([at("3001", 0, 24, -10)])
+    for placed in (at("3701", 0, 0, 0), holder):
+        (v,) = check_units(structure, [[placed]], "cpu", floor_y=48.0)
+        assert v.ok, v
+        structure.add(placed, _links(len(structure), v))
+    return structure
+
+
+def test_a_wheel_is_pressed_onto_an_axle_and_onto_a_pin(lib_at):
+    def judged(structure, placed):
+        (v,) = check_units(structure, [[placed]], "cpu", floor_y=48.0)
+        return v
+
+    # An axle 3 (4519) through the hole, z from -20 to 40; a wheel with an axle hole (3482, its
+    # hole 20 LDU long along Z) pushed on from its outer end is held wherever its hole is all on
+    # the axle, and stands; pushed only half way on, nothing holds it.
+    on_axle = technic_base(lib_at, lib_at("4519", 0, 10, 10, ALONG_Z))
+    for z in (25.0, 30.0):
+        v = judged(on_axle, lib_at("3482", 0, 10, z))
+        assert v.ok and v.stable and [(l.kind, l.b) for l in v.joints] == [("technic-axle", 2)], v
+    v = judged(on_axle, lib_at("3482", 0, 10, 40))
+    assert not v.ok and not v.joints, v
+    # A pin (3673) half in the hole, its other half out (z 10 to 30); a wheel with a pin hole
+    # (30285, turned so that its hub faces the brick) on that half spins on it, its centre of mass
+    # on its axis: held, and it stands.
+    on_pin = technic_base(lib_at, lib_at("3673", 0, 10, 10, ALONG_Z))
+    wheel = lib_at("30285", 0, 10, 30, np.diag([1.0, -1.0, -1.0]))
+    v = judged(on_pin, wheel)
+    assert v.ok and v.stable and [(l.kind, l.b) for l in v.joints] == [("technic-pin", 2)], v
+    v = judged(on_pin, moved(wheel, (0, 0, 10)))
+    assert not v.ok and not v.joints, v
+
+
+@needs_ldraw
+def test_the_sampler_turns_click_hinges_to_their_steps():
+    """With click hinge plates the sampler attaches a single finger between dual fingers
+    (`joint_attach`), at one of the hinge's steps from straight (`joints.CLICK_STEP_DEG`)."""
+    from factory.joints import click_angle, on_a_click, part_connectors
+    from factory.sampler import Sampler, SamplerConfig
+
+    cfg = SamplerConfig(seed=3, parts=(("44302a", 1.0), ("44301a", 1.0), ("3023", 1.0), ("3710", 0.5)),
+                        min_steps=10, max_steps=10)
+    sampler = Sampler(cfg, ldraw=str(LDRAW))
+    obj = sampler.sample(0)
+    hinged = [s for s in obj.steps if any(l.kind == "click-hinge" for l in s.verdict.joints)]
+    assert hinged and all(s.verdict.ok and s.verdict.stable is not False for s in hinged), obj.steps
+    for step in hinged:
+        (link,) = step.verdict.joints
+        holder = obj.steps[link.b]
+        mine = next(c for c in part_connectors(load_part(sampler.reader, step.part)) if c.kind == "hinge")
+        theirs = next(c for c in part_connectors(load_part(sampler.reader, holder.part)) if c.kind == "hinge")
+        angle = click_angle(step.pose.R @ np.array(mine.ref), holder.pose.R @ np.array(theirs.ref),
+                            holder.pose.R @ np.array(theirs.axis))
+        assert on_a_click(angle) and abs(angle / 22.5 - round(angle / 22.5)) < 1e-6, angle
     assert sampler.sample(0).same_as(obj)

@@ -100,6 +100,10 @@ class Flat:
     other_kinds: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
     """(j,) int8 for `other_connectors`: what each is, an index in `other_connectors.CONNECTOR_KINDS`
     (a pin hole, an axle, a click hinge...)."""
+    other_refs: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    """(j, 3) float64 for `other_connectors`: the unit direction of each primitive's own Z axis in
+    this frame, which marks its turn about its axis (two click hinge halves are straight, in line,
+    where their Z axes agree: `joints.click_angle`)."""
     bores: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
     """(b, 3, 3) float64, like `other_connectors`: the bore of each hollow stud (its stretch of the
     stud's axis). A bore holds a bar (a torch, an antenna, an exhaust pipe's pin), a connection
@@ -275,7 +279,7 @@ class Reader:
             return cached
         self._check_stack(res, stack)
         tris, cols, edges, studs, in_stud, others, bores = [], [], [], [], [], [], []
-        kinds = []
+        kinds, refs = [], []
         bars, bar_out = [], []
         certified = res.file.certified
         for it in res.file.items:
@@ -305,9 +309,11 @@ class Reader:
                     # holes) are parts of it, not connectors of their own.
                     others.append(place_connectors(axis_segment(it.name, child.triangles)[None], it.matrix, it.pos))
                     kinds.append([connector_kind(it.name)])
+                    refs.append(_turned(np.array([[0.0, 0.0, 1.0]]), it.matrix))
                 elif len(child.other_connectors):
                     others.append(place_connectors(child.other_connectors, it.matrix, it.pos))
                     kinds.append(child.other_kinds)
+                    refs.append(_turned(child.other_refs, it.matrix))
                 if is_hollow_stud(it.name):
                     bores.append(place_connectors(axis_segment(it.name, child.triangles)[None], it.matrix, it.pos))
                 elif len(child.bores):
@@ -340,12 +346,13 @@ class Reader:
             studs=_unique_studs(np.concatenate(studs)) if studs else np.zeros((0, 2, 3)),
             certified=certified,
             in_stud=np.concatenate(in_stud) if in_stud else np.zeros(0, bool),
-            **_with_kinds(np.concatenate(others), np.concatenate(kinds).astype(np.int8)) if others else {},
+            **_with_kinds(np.concatenate(others), np.concatenate(kinds).astype(np.int8), np.concatenate(refs))
+            if others else {},
             bores=_unique_connectors(np.concatenate(bores)) if bores else np.zeros((0, 3, 3)),
             **_bars(bars, bar_out, certified),
         )
         for arr in (flat.triangles, flat.colours, flat.edges, flat.studs, flat.in_stud,
-                    flat.other_connectors, flat.other_kinds, flat.bores, flat.bars, flat.bar_out):
+                    flat.other_connectors, flat.other_kinds, flat.other_refs, flat.bores, flat.bars, flat.bar_out):
             arr.setflags(write=False)
         self._flat[res.key] = flat
         return flat
@@ -412,10 +419,17 @@ def _first_of_each(conns: np.ndarray) -> list[int]:
     return keep
 
 
-def _with_kinds(conns: np.ndarray, kinds: np.ndarray) -> dict:
-    """`Flat`'s other connectors and their kinds, each drawn twice kept once (`_unique_connectors`)."""
+def _with_kinds(conns: np.ndarray, kinds: np.ndarray, refs: np.ndarray) -> dict:
+    """`Flat`'s other connectors, their kinds and turns, each drawn twice kept once
+    (`_unique_connectors`)."""
     keep = _first_of_each(conns)
-    return {"other_connectors": conns[keep], "other_kinds": kinds[keep]}
+    return {"other_connectors": conns[keep], "other_kinds": kinds[keep], "other_refs": refs[keep]}
+
+
+def _turned(directions: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """Unit directions (k, 3) turned by a type 1 matrix (which may scale or mirror)."""
+    out = np.asarray(directions, float) @ np.asarray(matrix, float).T
+    return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-12)
 
 
 def _unique_studs(studs: np.ndarray) -> np.ndarray:

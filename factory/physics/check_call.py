@@ -21,7 +21,8 @@ from factory.physics.clutch import holds_alone_many
 from factory.physics.collide import CollisionScene, Penetration
 from factory.physics.check_state import current
 from factory.physics.load_model import Link, LoadBase, LoadConfig, support_points
-from factory.physics.mass import part_mass_properties
+from factory.physics.joint_capacity import FREE_TWIST_NLDU, TURNS_FREELY
+from factory.physics.mass import GRAVITY, part_mass_properties
 from factory.physics.structure import Placed, Structure, connections_at, lowest_point
 from factory.physics.sweep import seating_from_connections, sweep, sweep_joint
 from factory.physics.unmodelled import Joint, joints_between, may_hold
@@ -152,6 +153,9 @@ class _Call:
                 self.joint_links[k] = joint_links(joints, base_n)
                 self.joint_zones[k] = _zones(joints)
                 base.update(connected=True, joints=tuple(joint_links(joints, 0)))
+                if not outer and swings(unit, joints):
+                    self.verdicts[k] = Verdict(**base, stable=False, reason="unstable")
+                    continue
             elif not connected:
                 self.verdicts[k] = Verdict(**base, reason="no-connection")
                 continue
@@ -273,6 +277,29 @@ class _Call:
 
 AXIAL = ("technic-pin", "technic-axle", "wheel-pin")
 """Joint kinds a part goes onto along the joint's axis (`sweep.sweep_joint`)."""
+
+
+def swings(unit: Sequence[Placed], joints: dict[int, list[tuple[int, Joint]]]) -> bool:
+    """Whether a unit held by joints alone, all of them turning freely about one axis line (a
+    part hung on one Technic pin, a wheel on its pin: `joint_capacity.TURNS_FREELY`), swings: its
+    weight turns it about that line by more than such a joint holds (`FREE_TWIST_NLDU`: a wheel,
+    its centre of mass on its axis, does not; a beam hung by its end hole does). Whatever else
+    may hold it later (a second pin) does not hold it at its own step."""
+    found = [j for js in joints.values() for _, j in js]
+    if not found or any(j.kind not in TURNS_FREELY or j.axis is None for j in found):
+        return False
+    u = np.asarray(found[0].axis, float)
+    p = np.asarray(found[0].point, float)
+    for j in found[1:]:
+        d = np.asarray(j.point, float) - p
+        if abs(float(np.asarray(j.axis, float) @ u)) < 0.999 or np.linalg.norm(d - (d @ u) * u) > 1.0:
+            return False  # two axes: the joints hold each other's turn
+    twist = 0.0
+    for placed in unit:
+        mass_kg, com, _ = part_mass_properties(placed.part)
+        weight = np.array([0.0, mass_kg * GRAVITY, 0.0])  # LDraw's +y is down
+        twist += float(np.cross(placed.pose.apply(com) - p, weight) @ u)
+    return abs(twist) > FREE_TWIST_NLDU
 
 
 def _zones(joints: dict[int, list[tuple[int, Joint]]]) -> dict[int, np.ndarray | None]:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factory.ldraw.other_connectors import CONNECTOR_KINDS, place_connectors
-from factory.joints import mates, on_one_axis, part_connectors, stretch_overlap, together
+from factory.joints import JointConnector, click_angle, mates, on_a_click, on_one_axis, part_connectors, stretch_overlap, together
 from factory.parts import Part, box_corners
 from factory.pose import Pose
 
@@ -283,6 +283,7 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
     if not part_connectors(new) and new.sockets:
         return []  # nothing to be held by (every part of the embedded library but the round ones)
     out: list[Joint] = []
+    loose: list[np.ndarray] = []
     ca, cb = part_connectors(new), part_connectors(placed)
     pa = _placed_joint_connectors(ca, new_pose)
     pb = _placed_joint_connectors(cb, placed_pose)
@@ -293,6 +294,9 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
         freedom = mates(ka, kb)
         if freedom is None:
             continue  # two holes in line, a pin end to end with a pin: nothing holds
+        if freedom.stepped and not _clicked(ca[i], new_pose, cb[j], placed_pose):
+            loose.append(together(pa[i], pb[j]))  # between two steps: its fingers hold nothing
+            continue
         if not freedom.stepped and stretch_overlap(pa[i], pb[j]) < min(ca[i].length, cb[j].length):
             # Not pushed home: the shorter of the two lies wholly on the other (a pin all the way
             # into its hole, a hole all on its axle wherever it slides); a male end at a female's
@@ -307,11 +311,21 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
         if any(o.radius == TECHNIC_RADIUS_LDU and on_one_axis(stretch, np.array(o.zone), PARALLEL_DEG, BAR_AXIS_LDU)
                and stretch_overlap(stretch, np.array(o.zone)) > 0 for o in out):
             continue  # the cylinders of a primitive's joint already found (a rim's hole round a wheel pin)
+        if any(on_one_axis(stretch, z, PARALLEL_DEG, BAR_AXIS_LDU) and stretch_overlap(stretch, z) > 0 for z in loose):
+            continue  # the fingers of a click hinge turned between two steps
         out.append(_joint(kind, stretch))
     if not out and not new.sockets and not (len(_connectors(new)) and len(_connectors(placed))) \
             and offers_other(placed) and _box_share(new, new_pose, placed, placed_pose) >= SHAPE_SHARE:
         out.append(Joint("by-shape", _box_meeting(new, new_pose, placed, placed_pose), None, None))
     return out
+
+
+def _clicked(a: JointConnector, a_pose: Pose, b: JointConnector, b_pose: Pose) -> bool:
+    """Whether two click hinge halves (at their parts' poses) are turned to one of the hinge's
+    steps (`joints.on_a_click`); halves whose turn is not known are taken as held."""
+    if a.ref is None or b.ref is None:
+        return True
+    return on_a_click(click_angle(a_pose.R @ np.array(a.ref), b_pose.R @ np.array(b.ref), b_pose.R @ np.array(b.axis)))
 
 
 SHAPE_SHARE = 0.1
