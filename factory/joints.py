@@ -110,7 +110,71 @@ def joint_connectors(part) -> tuple[JointConnector, ...]:
             continue
         out += _records(lambda _: "grip" if flat.bar_out[i] < 0 else "bar", bar[None])
     out += _records(lambda _: "bore", flat.bores)
+    if not any(c.gender == "female" and c.kind in _HOLE_KINDS for c in out):
+        out += drawn_holes(flat.triangles)
     return tuple(out)
+
+
+_HOLE_KINDS = ("pin-hole", "axle-hole", "bush", "wheel-pin-hole")
+
+HOLE_PROBE_LDU = (5.0, 7.0)
+"""Where `drawn_holes` looks round an axis for the walls of a hole (LDU from it): at 5 a Technic
+axle hole's cross is open along its arms and closed between them (the cross's arms reach 6 LDU
+from its axis), a pin hole (radius 6) is open all round, a bar's hole (radius 4) closed; at 7
+the part surrounds either (a gear's hub), where an opening a part merely frames (a window, an
+arch) is open."""
+
+
+def drawn_holes(triangles: np.ndarray) -> list[JointConnector]:
+    """The Technic holes a part draws without connector primitives (a gear whose axle hole is
+    made of rectangles and cylinder pieces: 3648b): along each of the part's axes, through its
+    origin, a line the part does not meet, walled in as `HOLE_PROBE_LDU` says. Its stretch is
+    where the walls are."""
+    out = []
+    tris = np.asarray(triangles, float)
+    if not len(tris):
+        return out
+    near, wall = HOLE_PROBE_LDU
+    for k in range(3):
+        u, v, w = np.eye(3)[k], np.eye(3)[(k + 1) % 3], np.eye(3)[(k + 2) % 3]
+        if len(_line_hits(tris, np.zeros(3), u)):
+            continue
+
+        def hits(radius: float, degrees) -> list[np.ndarray]:
+            return [_line_hits(tris, radius * (np.cos(a) * v + np.sin(a) * w), u) for a in np.radians(degrees)]
+
+        # Off the part's planes of symmetry: a line in one runs along the seams of mirrored
+        # subfiles (3648b's quarters) and may slip between their triangles.
+        walls = hits(wall, np.arange(22.5, 360, 45))
+        if not all(len(h) for h in walls):
+            continue
+        arms, between = hits(near, (5, 95, 185, 275)), hits(near, (45, 135, 225, 315))
+        if any(len(h) for h in arms):
+            continue
+        kind = "axle-hole" if all(len(h) for h in between) else "pin-hole" if not any(len(h) for h in between) else None
+        if kind is None:
+            continue
+        along = np.concatenate(walls)
+        lo, hi = float(along.min()), float(along.max())
+        if hi - lo >= 4.0:
+            out.append(JointConnector(kind, tuple(float(x) for x in lo * u), tuple(float(x) for x in hi * u),
+                                      tuple(float(x) for x in u)))
+    return out
+
+
+def _line_hits(tris: np.ndarray, origin: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Where the line `origin + s u` crosses the triangles (n, 3, 3): the values of s."""
+    e1, e2 = tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
+    p = np.cross(u, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    ok = np.abs(det) > 1e-12
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    t = origin - tris[:, 0]
+    a = np.einsum("ij,ij->i", t, p) * inv
+    q = np.cross(t, e1)
+    b = (q @ u) * inv
+    hit = ok & (a >= -1e-9) & (b >= -1e-9) & (a + b <= 1 + 1e-9)
+    return np.einsum("ij,ij->i", e2, q)[hit] * inv[hit]
 
 
 def _within(s: np.ndarray, t: np.ndarray, tol: float = 1.0) -> bool:

@@ -403,3 +403,20 @@ def test_the_sampler_turns_click_hinges_to_their_steps():
                             holder.pose.R @ np.array(theirs.axis))
         assert on_a_click(angle) and abs(angle / 22.5 - round(angle / 22.5)) < 1e-6, angle
     assert sampler.sample(0).same_as(obj)
+
+
+def test_holes_drawn_without_connector_primitives_are_found(lib_at):
+    # A gear whose axle hole is drawn with rectangles and cylinder pieces (3648b), a Technic
+    # plate's middle hole (3709b); an arch, a window and a tyre frame openings, not holes.
+    from factory.joints import drawn_holes
+
+    def holes(name):
+        return [(c.kind, tuple(abs(v) for v in c.axis)) for c in drawn_holes(lib_at(name, 0, 0, 0).part.flat.triangles)]
+
+    assert holes("3648b") == [("axle-hole", (0.0, 0.0, 1.0))]
+    assert holes("3709b") == [("pin-hole", (0.0, 1.0, 0.0))]
+    assert holes("3659") == holes("60594") == holes("3483") == holes("3001") == []
+    # The gear goes onto an axle like a gear drawn with an axle hole primitive.
+    on_axle = technic_base(lib_at, lib_at("4519", 0, 10, 10, ALONG_Z))
+    (v,) = check_units(on_axle, [[lib_at("3648b", 0, 10, 25)]], "cpu", floor_y=48.0)
+    assert v.ok and [(l.kind, l.b) for l in v.joints] == [("technic-axle", 2)], v

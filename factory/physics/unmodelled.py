@@ -45,6 +45,10 @@ TECHNIC_RADIUS_LDU = 8.0
 """The same for a joint of connector primitives (a Technic pin in its hole: the pin's collar, wider
 than its 6 LDU shaft, sits in the counterbore at the hole's mouth; the friction pin 2780 in the
 beam 18654 overlaps 1.3 LDU at 7 LDU from the axis, none beyond 8)."""
+HOME_TOL_LDU = 0.01
+"""How far short of wholly on the other the shorter connector may be and still be pushed home
+(the rounding of placed coordinates)."""
+
 END_LDU = 0.5
 """How far the ends of two solid bar-size cylinders on one axis may be apart, or into each other,
 for them to be fingers side by side (the checker's overlap tolerance)."""
@@ -297,7 +301,7 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
         if freedom.stepped and not _clicked(ca[i], new_pose, cb[j], placed_pose):
             loose.append(together(pa[i], pb[j]))  # between two steps: its fingers hold nothing
             continue
-        if not freedom.stepped and stretch_overlap(pa[i], pb[j]) < min(ca[i].length, cb[j].length):
+        if not freedom.stepped and stretch_overlap(pa[i], pb[j]) < min(ca[i].length, cb[j].length) - HOME_TOL_LDU:
             # Not pushed home: the shorter of the two lies wholly on the other (a pin all the way
             # into its hole, a hole all on its axle wherever it slides); a male end at a female's
             # mouth is not in it. Hinge halves meet end to end.
