@@ -114,10 +114,11 @@ def _faults(structure, local: Placed, backend, config, standing, step, index, fi
                 # The part looks the same turned, or fills the same box (a 1x1 or 2x2 part: only
                 # its slope or face turns): nothing it could clash with moves, no fault to inject.
                 continue
-        elif name == "lift":
-            moved = Pose(local.pose.R, local.pose.t + 8.0 * up)
         else:
-            moved = Pose(local.pose.R, local.pose.t + 10.0 * side)
+            move = 8.0 * up if name == "lift" else 10.0 * side
+            moved = Pose(local.pose.R, local.pose.t + move)
+            if lands_on_a_joint(structure, local.part, moved, move):
+                continue  # not a fault: builders put parts there
         (v,) = check_units(structure, [[Placed(local.part, local.colour, moved)]], backend, config,
                            standing=standing)
         yield _record(v, step=step, index=index, part=local.part.name, color=local.colour, fault=name,
@@ -131,6 +132,30 @@ def _faults(structure, local: Placed, backend, config, standing, step, index, fi
                                standing=standing)
             yield _record(v, step=step, index=index, part=local.part.name, color=local.colour,
                           fault=TURN_FINISHED)
+
+
+SLIDING_JOINTS = ("clip-bar", "bar", "bar-in-stud", "technic-axle")
+"""Joint kinds a part slides along (`joints.FREEDOMS`): moved along such a joint's axis it is
+still on it."""
+
+
+def lands_on_a_joint(structure: Structure, part, moved: Pose, move: np.ndarray) -> bool:
+    """Whether a fault's move puts the part on another real connection, so that it is no fault:
+    its pin into a hollow stud's bore (a plate or Technic brick half a stud over, its underside pin
+    in an open stud: builders offset parts so), or along the axis of a joint it slides on (an
+    antenna's bar lifted up its clip). Told by the parts' connectors
+    (`unmodelled.joints_between`), not by the checks' verdict."""
+    u = np.asarray(move, float) / np.linalg.norm(move)
+    box = _envelope(part, moved)
+    for q in structure.placed:
+        if not _boxes_near(box, _envelope(q.part, q.pose)):
+            continue
+        for j in joints_between(part, moved, q.part, q.pose):
+            if j.kind == "bar-in-stud":
+                return True
+            if j.kind in SLIDING_JOINTS and j.axis is not None and abs(float(np.asarray(j.axis) @ u)) > 0.98:
+                return True
+    return False
 
 
 def _links(index: int, verdict: Verdict, part: int = 0) -> list[Link]:
@@ -178,7 +203,8 @@ not checking."""
 
 FAULTS = ("shift", "lift", "turn")
 """Injected faults: 10 LDU sideways, 8 LDU up (off its studs), a quarter turn about the stud axis
-through the part's origin (only where that changes the geometry). Each is checked against the
+through the part's origin (only where that changes the geometry; a shift or lift only where it
+does not land the part on another real connection: `lands_on_a_joint`). Each is checked against the
 parts placed before it; the turn also against the finished design (`TURN_FINISHED`)."""
 TURN_FINISHED = "turn-in-finished-design"
 

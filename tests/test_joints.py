@@ -420,3 +420,18 @@ def test_holes_drawn_without_connector_primitives_are_found(lib_at):
     on_axle = technic_base(lib_at, lib_at("4519", 0, 10, 10, ALONG_Z))
     (v,) = check_units(on_axle, [[lib_at("3648b", 0, 10, 25)]], "cpu", floor_y=48.0)
     assert v.ok and [(l.kind, l.b) for l in v.joints] == [("technic-axle", 2)], v
+
+
+def test_a_fault_that_lands_on_another_connection_is_not_injected(at):
+    # A 1x2 plate with one socket on a round brick's hollow stud, shifted half a stud: its
+    # underside pin goes into the stud's bore, a real offset, not a fault. The same shift of a
+    # 2x2 plate (no pin) lands on nothing; neither does a lift off the stud.
+    from factory.replay import lands_on_a_joint
+
+    structure = Structure([at("3062b", 0, 0, 0)])
+    plate = at("3023", 10, -8, 0)
+    shifted = moved(plate, (-10, 0, 0))
+    assert lands_on_a_joint(structure, plate.part, shifted.pose, np.array([-10.0, 0, 0]))
+    square = at("3022", 10, -8, 10)
+    assert not lands_on_a_joint(structure, square.part, moved(square, (-10, 0, 0)).pose, np.array([-10.0, 0, 0]))
+    assert not lands_on_a_joint(structure, plate.part, moved(plate, (0, -8, 0)).pose, np.array([0, -8.0, 0]))
