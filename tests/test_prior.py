@@ -13,7 +13,7 @@ import pytest
 from factory.ldraw import Library, Reader, get_reader
 from factory.prior import Prior, PriorError, family, fit_prior, load_prior, unprinted
 from factory.prior.choose import MINIFIGURE, NO_CONNECTOR, NOT_IN_LIBRARY, choose_parts, embedded_choice
-from factory.prior.prior import DEFAULT_PRIOR, PartUse
+from factory.prior.prior import DEFAULT_PRIOR, OTHER, PartUse
 from factory.sampler import DEFAULT_PARTS, SamplerConfig
 from factory.sampler.from_prior import configure
 
@@ -194,3 +194,23 @@ def test_the_data_card_names_the_prior_the_parts_were_drawn_from():
     assert f"usage prior `{SamplerConfig().prior}`" in dataset_card(config, info)
     given = DatasetConfig.synthetic(2, sampler=replace(SamplerConfig(), prior=""))
     assert "as the build's config lists them" in dataset_card(given, info)
+
+
+def test_parts_held_by_joints_are_drawn_as_often_as_designs_place_them(real_reader):
+    """Tempering flattens the weights of rare parts, and most parts held by joints alone (pins,
+    axles, beams) are rare: the sampler draws them together at the designs' share of placements
+    held so (`joint_share`), whatever their tempered weights, the stud parts keeping their weights
+    among themselves."""
+    from factory.prior.choose import joint_share
+
+    uses = (("3023b", 5.0, "studs"), ("3001", 3.0, "studs"), ("3673", 1.0, OTHER), ("3707", 1.0, OTHER),
+            ("3062b", 1.0, "side studs"))
+    total = sum(w for _, w, _ in uses)
+    prior = Prior(tuple(PartUse(family(n), n, w / total, 1, 1, connection=kind) for n, w, kind in uses),
+                  ((4, 1.0),), (("studs", 0.6), ("side studs", 0.1), (OTHER, 0.1), ("minifigure", 0.2)), (), 1.0)
+    assert joint_share(prior) == pytest.approx(0.125)
+    weights = dict(choose_parts(prior, real_reader).parts)
+    drawn = sum(weights.values())
+    assert (weights["3673"] + weights["3707"]) / drawn == pytest.approx(0.125)
+    assert weights["3673"] == pytest.approx(weights["3707"])
+    assert weights["3023b"] / weights["3001"] == pytest.approx(5 / 3)

@@ -21,7 +21,7 @@ from factory.joints import joint_ends
 from factory.ldraw import Reader
 from factory.ldraw.colours import EDGE, MAIN
 from factory.prior.families import family, unprinted
-from factory.prior.prior import MINIFIG, PartUse, Prior
+from factory.prior.prior import MINIFIG, OTHER, SIDE_STUDS, STUDS, PartUse, Prior
 
 NOT_IN_LIBRARY = "not in the library"
 NO_CONNECTOR = ("no studs, no sockets and no joint connector found: held by its shape (a tyre on a rim, cloth, "
@@ -119,11 +119,21 @@ def why_unusable(reader: Reader, name: str) -> str | None:
     return None
 
 
+def held_by_joints(reader: Reader, name: str) -> bool:
+    """Whether a usable library part connects by joints alone (no studs, no sockets: a pin, an
+    axle, a beam, a gear)."""
+    from factory.parts import load_part
+
+    part = load_part(reader, name)
+    return not part.studs and not part.sockets
+
+
 def choose_parts(prior: Prior, reader: Reader, progress: Callable[[int, int], None] | None = None) -> PartChoice:
     """The parts and colours of `prior` that the library of `reader` can give the sampler."""
     have = set(reader.library.part_names())
     index = _family_index(sorted(have))
     parts: list[tuple[str, float]] = []
+    by_joints: list[bool] = []
     left: list[LeftOut] = []
     taken: set[str] = set()
     for k, use in enumerate(prior.parts):
@@ -139,6 +149,7 @@ def choose_parts(prior: Prior, reader: Reader, progress: Callable[[int, int], No
         reason = why_unusable(reader, found[0])
         if reason is None and found[0] not in taken:
             parts.append((found[0], use.weight))
+            by_joints.append(held_by_joints(reader, found[0]))
             taken.add(found[0])
         else:
             left.append(LeftOut(use.family, found[0], use.weight, reason or f"{found[0]} is listed twice"))
@@ -146,5 +157,28 @@ def choose_parts(prior: Prior, reader: Reader, progress: Callable[[int, int], No
         progress(len(prior.parts), len(prior.parts))
     valid = set(reader.colours.colours) - {MAIN, EDGE}
     colours = tuple((c, w) for c, w in prior.colours if c in valid)
-    return PartChoice(tuple(parts), colours, tuple(left), tuple(c for c, _ in prior.colours if c not in valid),
-                      sum(w for _, w in parts))
+    return PartChoice(balanced(parts, by_joints, prior), colours, tuple(left),
+                      tuple(c for c, _ in prior.colours if c not in valid), sum(w for _, w in parts))
+
+
+def joint_share(prior: Prior) -> float:
+    """The share of the designs' placements that are of parts held by pins, axles, clips or
+    hinges, among those of parts the sampler can connect (by studs, or by those joints)."""
+    shares = dict(prior.connections)
+    usable = shares.get(STUDS, 0.0) + shares.get(SIDE_STUDS, 0.0) + shares.get(OTHER, 0.0)
+    return shares.get(OTHER, 0.0) / usable if usable > 0 else 0.0
+
+
+def balanced(parts: list[tuple[str, float]], by_joints: list[bool], prior: Prior) -> tuple[tuple[str, float], ...]:
+    """The parts' weights with those held by joints alone (`by_joints`: `held_by_joints`) scaled together so that they are drawn `joint_share` of the time, as in the designs;
+    the others keep their weights among themselves. Tempering flattens the weights of rare parts,
+    and most joint parts are rare: without this they would be drawn more often than designs place
+    them, or, with few of them in a library, less."""
+    target = joint_share(prior)
+    joints = sum(w for (_, w), j in zip(parts, by_joints) if j)
+    studs = sum(w for (_, w), j in zip(parts, by_joints) if not j)
+    if joints <= 0 or studs <= 0 or target <= 0:
+        return tuple(parts)
+    scale_j, scale_s = target / joints, (1.0 - target) / studs
+    total = sum(w for _, w in parts)
+    return tuple((name, round(w * (scale_j if j else scale_s) * total, 9)) for (name, w), j in zip(parts, by_joints))
