@@ -373,12 +373,13 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
             judged_on = structure
             (v,) = check_units(judged_on, [[local]], backend, config,
                                require_connection=not _on_table(judged_on, [local]), standing=standing)
-            if v.reason in ("no-connection", "unstable") and index + 1 < len(locals_):
-                # Parts of one step go in together: a part may hang from one listed after it, and
-                # the step is judged standing once all its parts are in.
+            if v.reason in WAITS_FOR_LATER and index + 1 < len(locals_):
+                # Parts of one step go in together: a part may hang from one listed after it (a
+                # beam on the pins pushed through it next), and the step is judged standing once
+                # all its parts are in.
                 judged_on = _joined(structure, [q for q in locals_[index + 1 :] if _solid(q.part)])
                 (v,) = check_units(judged_on, [[local]], backend, config, standing=standing)
-            held = _held_by(judged_on, next_step.get(id(step), [])) if v.reason in ("no-connection", "unstable") else None
+            held = _held_by(judged_on, next_step.get(id(step), [])) if v.reason in WAITS_FOR_LATER else None
             if held is not None:
                 # Held in hand until the next step of its assembly is on (a plate laid beside the
                 # model, then fixed from below; a brick set on a horse that comes next, whole):
@@ -405,6 +406,11 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                                    finished[step.assembly])
             structure.add(local, _links(len(structure), v))
 
+
+WAITS_FOR_LATER = ("no-connection", "unstable", "unsupported-connection")
+"""Reasons a part may be judged again with the later parts of its step, then of the next step, in
+place: nothing holds it yet, it tips, or it is held by no joint the checker finds yet (a Technic
+block whose pins are pushed through it after it)."""
 
 RIGHT_REASONS = {"shift": {"collision", "no-connection"}, "lift": {"no-connection"},
                  "turn": {"collision", "no-connection"}, TURN_FINISHED: {"collision", "no-connection"}}
