@@ -10,7 +10,9 @@ places holds it; the parts of one step go in in any order, so a part that cannot
 under or between parts of its own step listed before it is judged going in first); a completed sub-assembly is checked as one rigid unit against
 the parts of its parent placed before it. Each sub-assembly is checked in its own frame (as its
 author built it) and is held in hand while built: only the main model must stand on the ground,
-sub-assemblies are judged on their connections.
+sub-assemblies are judged on their connections. A step that makes the main model tip on the table
+(not a part swinging on a free joint, whose verdict names the joint) is judged as held in hand too,
+as a person holds a Technic frame before its wheels are on (`held_in_hand` in its record).
 One JSON object per placed part, and one with `"unit": true` per sub-assembly attachment.
 """
 
@@ -387,6 +389,14 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 (w,) = check_units(held, [[local]], backend, config, standing=standing)
                 if w.ok:
                     v, judged_on = w, held
+            held_in_hand = False
+            if v.reason == "unstable" and standing and not v.failing:
+                # The model tips on the table (or has no equilibrium resting on its lowest point),
+                # not the part on its joints (a swing names its joint): while built, a person
+                # holds it, as a sub-assembly is held (a Technic frame before its wheels).
+                (w,) = check_units(judged_on, [[local]], backend, config, standing=False)
+                if w.ok:
+                    v, held_in_hand = w, True
             first = None
             if v.reason in ("blocked", "clamped") and step_start < len(structure):
                 # The parts of one step go in in any order: a part that cannot be pressed in under
@@ -398,7 +408,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
             joints = _joint_record(judged_on, [local], v)
             yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour,
                           stud_pairs=stud_pairs(judged_on, [local]), **({"first_in_step": True} if first else {}),
-                          **joints)
+                          **({"held_in_hand": True} if held_in_hand else {}), **joints)
             if faults and v.ok and v.connections:
                 # Faults move the part off the connections it was accepted on: those of the
                 # structure it was judged against (with the later parts of its step, if it hangs).
@@ -470,6 +480,8 @@ def summarize(records: list[dict]) -> dict:
         "by_joint": dict(Counter(r["joints"][0] for r in judged if r.get("joints"))),
         "by_joint_accepted": dict(Counter(r["joints"][0] for r in judged if r.get("joints") and r["reason"] is None)),
         "no_volume": sum(r["reason"] == NO_VOLUME for r in plain),
+        # Accepted held in hand: the model tipped on the table while built (`verify_model`).
+        "held_in_hand": sum(bool(r.get("held_in_hand")) for r in plain),
         "accepted": sum(r["reason"] is None for r in judged),
         "fidelity": (sum(r["reason"] is None for r in judged) / len(judged)) if judged else None,
         # The same over the placements the design connects by studs (`stud_pairs`): a part with

@@ -217,6 +217,8 @@ def test_a_beam_hung_on_one_free_pin_swings_and_on_two_pins_stands(at):
     beam = at("32523", 0, 10, 20, BEAM_ALONG_X)
     v = standing(structure, beam)
     assert v.reason == "unstable" and [(l.b, l.kind) for l in v.joints] == [(1, "technic-pin")], v
+    # It swings on that pin: the pin is named as failing, turned by more than it holds.
+    assert [(f.socket_part, f.joint) for f in v.failing] == [(1, "technic-pin")] and v.failing[0].load > 1, v
     # A second pin under the beam's middle hole: two pins hold it by their shears.
     placed_on(structure, at("3673", 0, 10, 10, ALONG_Z))
     v = standing(structure, beam)

@@ -23,6 +23,7 @@ from factory.physics.check_state import current
 from factory.physics.load_model import Link, LoadBase, LoadConfig, support_points
 from factory.physics.joint_capacity import FREE_TWIST_NLDU, TURNS_FREELY
 from factory.physics.mass import GRAVITY, part_mass_properties
+from factory.physics.statics import Failure
 from factory.physics.structure import Placed, Structure, connections_at, lowest_point
 from factory.physics.sweep import seating_from_connections, sweep, sweep_joint
 from factory.physics.unmodelled import Joint, joints_between, may_hold
@@ -153,8 +154,12 @@ class _Call:
                 self.joint_links[k] = joint_links(joints, base_n)
                 self.joint_zones[k] = _zones(joints)
                 base.update(connected=True, joints=tuple(joint_links(joints, 0)))
-                if not outer and swings(unit, joints):
-                    self.verdicts[k] = Verdict(**base, stable=False, reason="unstable")
+                swing = swings(unit, joints) if not outer else None
+                if swing is not None:
+                    # It turns on its free joints: the failing joint named, as for an overload.
+                    (holder, (_, joint)) = next((i, js[0]) for i, js in joints.items())
+                    self.verdicts[k] = Verdict(**base, stable=False, reason="unstable", failing=(
+                        Failure(base_n, holder, joint.point, round(swing / FREE_TWIST_NLDU, 4), joint.kind),))
                     continue
             elif not connected:
                 self.verdicts[k] = Verdict(**base, reason="no-connection")
@@ -279,27 +284,28 @@ AXIAL = ("technic-pin", "technic-axle", "wheel-pin")
 """Joint kinds a part goes onto along the joint's axis (`sweep.sweep_joint`)."""
 
 
-def swings(unit: Sequence[Placed], joints: dict[int, list[tuple[int, Joint]]]) -> bool:
-    """Whether a unit held by joints alone, all of them turning freely about one axis line (a
-    part hung on one Technic pin, a wheel on its pin: `joint_capacity.TURNS_FREELY`), swings: its
-    weight turns it about that line by more than such a joint holds (`FREE_TWIST_NLDU`: a wheel,
-    its centre of mass on its axis, does not; a beam hung by its end hole does). Whatever else
-    may hold it later (a second pin) does not hold it at its own step."""
+def swings(unit: Sequence[Placed], joints: dict[int, list[tuple[int, Joint]]]) -> float | None:
+    """The moment (N LDU) by which a unit held by joints alone, all of them turning freely about
+    one axis line (a part hung on one Technic pin, a wheel on its pin: `joint_capacity.
+    TURNS_FREELY`), swings: its weight turns it about that line by more than such a joint holds
+    (`FREE_TWIST_NLDU`: a wheel, its centre of mass on its axis, does not; a beam hung by its end
+    hole does); None where it does not swing. Whatever else may hold it later (a second pin)
+    does not hold it at its own step."""
     found = [j for js in joints.values() for _, j in js]
     if not found or any(j.kind not in TURNS_FREELY or j.axis is None for j in found):
-        return False
+        return None
     u = np.asarray(found[0].axis, float)
     p = np.asarray(found[0].point, float)
     for j in found[1:]:
         d = np.asarray(j.point, float) - p
         if abs(float(np.asarray(j.axis, float) @ u)) < 0.999 or np.linalg.norm(d - (d @ u) * u) > 1.0:
-            return False  # two axes: the joints hold each other's turn
+            return None  # two axes: the joints hold each other's turn
     twist = 0.0
     for placed in unit:
         mass_kg, com, _ = part_mass_properties(placed.part)
         weight = np.array([0.0, mass_kg * GRAVITY, 0.0])  # LDraw's +y is down
         twist += float(np.cross(placed.pose.apply(com) - p, weight) @ u)
-    return abs(twist) > FREE_TWIST_NLDU
+    return abs(twist) if abs(twist) > FREE_TWIST_NLDU else None
 
 
 def _zones(joints: dict[int, list[tuple[int, Joint]]]) -> dict[int, np.ndarray | None]:
