@@ -281,7 +281,8 @@ def _going_first(structure: Structure, start: int, local: Placed, backend, confi
 
 def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConfig = CheckConfig(),
                  faults: bool = False):
-    """Yield one record per placed part and per sub-assembly attachment, in build order.
+    """Yield one record per placed part and per sub-assembly attachment, in build order; return
+    the finished main model's structure (None where the main model places nothing).
 
     With `faults`, every accepted stud-connected part is also checked shifted, lifted and turned
     (records with a `"fault"` key), against the same structure.
@@ -350,15 +351,22 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 continue
             (v,) = check_units(parent, [unit], backend, config, require_connection=not _on_table(parent, unit),
                                standing=standing, unit_links=done.links)
-            along = going_in_with(event.tag) if v.reason in ("no-connection", "unstable") else []
+            along = going_in_with(event.tag) if v.reason in WAITS_FOR_LATER else []
+            judged_on = parent
             if along:
                 # As the parts of one step: it may rest on what goes in with it.
                 judged_on = _joined(parent, along)
                 (v,) = check_units(judged_on, [unit], backend, config, standing=standing, unit_links=done.links)
-            joints = _joint_record(judged_on if along else parent, unit, v)
+            held_in_hand = False
+            if v.reason == "unstable" and standing and not v.failing:
+                (w,) = check_units(judged_on, [unit], backend, config, standing=False, unit_links=done.links)
+                if w.ok:  # the model tips on the table while built: held in hand, as for a part
+                    v, held_in_hand = w, True
+            joints = _joint_record(judged_on, unit, v)
             yield _record(v, step=event.last_step, index=0, part=event.tag.rsplit("/", 1)[-1],
                           color=unit[0].colour, unit=True, assembly=event.tag,
-                          stud_pairs=stud_pairs(judged_on if along else parent, unit), **joints)
+                          stud_pairs=stud_pairs(judged_on, unit), **({"held_in_hand": True} if held_in_hand else {}),
+                          **joints)
             _add_unit(parent, unit, done.links, v)
             continue
         step = event.step
@@ -415,6 +423,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 yield from _faults(judged_on, local, backend, config, standing, step.index, index,
                                    finished[step.assembly])
             structure.add(local, _links(len(structure), v))
+    return structures.get("main")
 
 
 WAITS_FOR_LATER = ("no-connection", "unstable", "unsupported-connection")
@@ -433,11 +442,15 @@ class Verification:
 
     model: str
     records: tuple[dict, ...]
+    finished_stands: bool | None = None
+    """Whether the finished main model stands on the table (`stands`): steps accepted held in hand
+    while it was built must end in a model that stands. None where it has no parts."""
 
     @property
     def summary(self) -> dict:
-        """`summarize` of the records: acceptance, stud-connected fidelity, faults rejected."""
-        return summarize(list(self.records))
+        """`summarize` of the records: acceptance, stud-connected fidelity, faults rejected, and
+        whether the finished model stands."""
+        return {**summarize(list(self.records)), "finished_stands": self.finished_stands}
 
     @property
     def placements(self) -> list[dict]:
@@ -458,11 +471,28 @@ def verify(model_path, ldraw=None, backend: str = "cpu", faults: bool = False, c
     """Replay a design through the physics checks (`verify_model`): its `Verification`.
     `on_record` sees each record as it is made (a long replay's progress)."""
     records = []
-    for record in verify_model(model_path, ldraw, backend, config, faults):
+    replay = verify_model(model_path, ldraw, backend, config, faults)
+    while True:
+        try:
+            record = next(replay)
+        except StopIteration as end:
+            finished = end.value
+            break
         records.append(record)
         if on_record is not None:
             on_record(record)
-    return Verification(str(model_path), tuple(records))
+    return Verification(str(model_path), tuple(records), stands(finished, backend, config))
+
+
+def stands(structure: Structure | None, backend: str = "cpu", config: CheckConfig = CheckConfig()) -> bool | None:
+    """Whether a finished model stands on the table: its last part judged again on the rest, by
+    the loads alone (it neither tips nor overloads a connection); None for no parts."""
+    if structure is None or not len(structure):
+        return None
+    last = len(structure) - 1
+    (v,) = check_units(_first(structure, last), [[structure.placed[last]]], backend, config,
+                       require_connection=False)
+    return v.reason not in ("unstable", "overload")
 
 
 def summarize(records: list[dict]) -> dict:

@@ -294,19 +294,33 @@ SEESAW = """0 FILE main.ldr
 """
 
 
-@pytest.mark.parametrize("step, reason", [("", None), ("0 STEP\n", "unstable")])
-def test_sub_assemblies_of_one_step_go_in_together(write, step, reason):
+@pytest.mark.parametrize("step, held", [("", False), ("0 STEP\n", True)])
+def test_sub_assemblies_of_one_step_go_in_together(write, step, held):
     # Covered Wagon, main model: the wagon stands on its rear wheels and rests its front on the
     # drawbar, a sub-assembly of the same step built after it. Here a 2x4 plate on a 1x1 brick
     # at one end (it tips alone) and a 1x1 brick under its other end, in one step of the main
-    # model: judged with what goes in with it, it stands. A step later, it tips. (Embedded parts:
-    # the test needs no ../shared.)
-    from factory.replay import verify_model
+    # model: judged with what goes in with it, it stands. A step later, it tips on the table
+    # until the prop is in: held in hand meanwhile. Either way the finished model stands.
+    # (Embedded parts: the test needs no ../shared.)
+    from factory.replay import verify
 
     path = write("seesaw.mpd", SEESAW.format(step=step))
-    units = {r["assembly"]: r for r in verify_model(path, None) if r.get("unit")}
-    assert units["main/seesaw.ldr#1"]["reason"] == reason, units
+    found = verify(path, None)
+    units = {r["assembly"]: r for r in found.records if r.get("unit")}
+    seesaw = units["main/seesaw.ldr#1"]
+    assert seesaw["reason"] is None and bool(seesaw.get("held_in_hand")) is held, units
     assert units["main/prop.ldr#1"]["reason"] is None and units["main/prop.ldr#1"]["connections"] == 1, units
+    assert found.summary["finished_stands"] is True and found.summary["held_in_hand"] == int(held)
+
+
+def test_a_finished_model_that_tips_does_not_stand(write):
+    # The seesaw without its prop: accepted held in hand, but the finished model tips.
+    from factory.replay import verify
+
+    path = write("tips.mpd", SEESAW.format(step="").replace("1 16 0 0 0 1 0 0 0 1 0 0 0 1 prop.ldr\n", ""))
+    found = verify(path, None)
+    assert [r.get("held_in_hand") for r in found.records if r.get("unit")] == [True]
+    assert found.summary["finished_stands"] is False
 
 
 HELD = """0 FILE held.ldr
