@@ -20,7 +20,11 @@ Growth, per step:
    `judge_first` candidates past the clutch rule get the sweep and the loads, and a later request
    judges more if the walk reaches an unjudged one. Neither changes the object, only the cost;
 5. if none survives, draw another part (and colour), at most `max_redraws` times, then end the
-   object ('stuck', with the rejections of that step).
+   object ('stuck', with the rejections of that step). A step whose first draw is a part held by
+   joints alone (a pin, an axle, a beam: no studs, no sockets) draws its redraws from those parts
+   (they attach only where the structure offers a mating connector: redrawn from all parts, they
+   would be placed less often than drawn) `JOINT_REDRAWS` times, then, if none goes on,
+   `max_redraws` more from all.
 The first part is placed at the origin with the identity rotation (its lowest point fixes the
 ground) and is checked like any other (it must stand on its own).
 """
@@ -74,6 +78,11 @@ class Sampler:
         # The first part must carry studs (something has to be able to go on top of it).
         studded = [w if p.studs else 0.0 for p, (_, w) in zip(self.parts, config.parts)]
         self.first_p = _probabilities(studded) if any(studded) else self.part_p
+        # Parts held by joints alone, and their draw among themselves (None where there are none,
+        # or only those).
+        self.by_joints = [not p.studs and not p.sockets for p in self.parts]
+        joint_w = [w if j else 0.0 for j, (_, w) in zip(self.by_joints, config.parts)]
+        self.joint_p = _probabilities(joint_w) if any(joint_w) and not all(self.by_joints) else None
         self.colours = [c for c, _ in config.colours]
         _check_colours(self.reader, self.colours)
         self.colour_p = _probabilities([w for _, w in config.colours])
@@ -121,9 +130,16 @@ class Sampler:
             rejected: Counter = Counter()
             checked = 0
             chosen = None
-            for draw in range(cfg.max_redraws + 1):
+            joint_step = False
+            for draw in range(cfg.max_redraws + 1 + JOINT_REDRAWS):
                 first = not steps
-                part_i = int(rng.choice(len(self.parts), p=self.first_p if first else self.part_p))
+                if draw > cfg.max_redraws and not joint_step:
+                    break
+                joints_only = joint_step and draw <= JOINT_REDRAWS
+                part_i = int(rng.choice(len(self.parts), p=self.first_p if first else
+                                        self.joint_p if joints_only else self.part_p))
+                if draw == 0 and not first and self.joint_p is not None and self.by_joints[part_i]:
+                    joint_step = True
                 part = self.parts[part_i]
                 colour = self.colours[int(rng.choice(len(self.colours), p=self.colour_p))]
                 if first:
@@ -213,6 +229,11 @@ class Sampler:
             steps=tuple(steps), density=tracker.density() if steps else 0.0, seed=cfg.seed,
             index=int(index), target_steps=target, end_reason=end, stuck_rejected=stuck,
         )
+
+
+JOINT_REDRAWS = 2
+"""Redraws among the parts held by joints alone in a step whose first draw is one (each failed
+draw checks up to `candidates_per_step` candidates, so a few)."""
 
 
 class KeyOrder:
