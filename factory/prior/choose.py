@@ -122,7 +122,7 @@ def why_unusable(reader: Reader, name: str) -> str | None:
 def held_by_joints(reader: Reader, name: str) -> bool:
     """Whether a usable library part connects by joints alone (no studs, no sockets: a pin, an
     axle, a beam, a gear)."""
-    from factory.parts import load_part
+    from factory.parts import load_part  # trimesh and scipy: only when parts are chosen
 
     part = load_part(reader, name)
     return not part.studs and not part.sockets
