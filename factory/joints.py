@@ -23,6 +23,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from factory.connections import first_hits
 from factory.ldraw.other_connectors import CONNECTOR_KINDS
 
 GENDERS = {
@@ -135,46 +136,38 @@ def drawn_holes(triangles: np.ndarray) -> list[JointConnector]:
     if not len(tris):
         return out
     near, wall = HOLE_PROBE_LDU
+    # Off the part's planes of symmetry: a line in one runs along the seams of mirrored subfiles
+    # (3648b's quarters) and may slip between their triangles.
+    angles = np.radians(np.concatenate([[0.0], np.arange(22.5, 360, 45), [5, 95, 185, 275], [45, 135, 225, 315]]))
+    radii = np.concatenate([[0.0], np.full(8, wall), np.full(8, near)])
     for k in range(3):
         u, v, w = np.eye(3)[k], np.eye(3)[(k + 1) % 3], np.eye(3)[(k + 2) % 3]
-        if len(_line_hits(tris, np.zeros(3), u)):
+        points = radii[:, None] * (np.cos(angles)[:, None] * v + np.sin(angles)[:, None] * w)
+        lo, hi = _line_extent(tris, points, u)
+        met = np.isfinite(lo)
+        centre, walls, arms, between = met[0], met[1:9], met[9:13], met[13:]
+        if centre or not walls.all() or arms.any():
             continue
-
-        def hits(radius: float, degrees) -> list[np.ndarray]:
-            return [_line_hits(tris, radius * (np.cos(a) * v + np.sin(a) * w), u) for a in np.radians(degrees)]
-
-        # Off the part's planes of symmetry: a line in one runs along the seams of mirrored
-        # subfiles (3648b's quarters) and may slip between their triangles.
-        walls = hits(wall, np.arange(22.5, 360, 45))
-        if not all(len(h) for h in walls):
-            continue
-        arms, between = hits(near, (5, 95, 185, 275)), hits(near, (45, 135, 225, 315))
-        if any(len(h) for h in arms):
-            continue
-        kind = "axle-hole" if all(len(h) for h in between) else "pin-hole" if not any(len(h) for h in between) else None
-        if kind is None:
-            continue
-        along = np.concatenate(walls)
-        lo, hi = float(along.min()), float(along.max())
-        if hi - lo >= 4.0:
-            out.append(JointConnector(kind, tuple(float(x) for x in lo * u), tuple(float(x) for x in hi * u),
-                                      tuple(float(x) for x in u)))
+        kind = "axle-hole" if between.all() else "pin-hole" if not between.any() else None
+        start, end = float(lo[1:9].min()), float(hi[1:9].max())
+        if kind is not None and end - start >= 4.0:
+            # Rounded as `_records` rounds (a far cast leaves 1e-11 LDU of noise).
+            out.append(JointConnector(kind, tuple(round(float(x), 4) + 0.0 for x in start * u),
+                                      tuple(round(float(x), 4) + 0.0 for x in end * u), tuple(float(x) for x in u)))
     return out
 
 
-def _line_hits(tris: np.ndarray, origin: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Where the line `origin + s u` crosses the triangles (n, 3, 3): the values of s."""
-    e1, e2 = tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
-    p = np.cross(u, e2)
-    det = np.einsum("ij,ij->i", e1, p)
-    ok = np.abs(det) > 1e-12
-    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-    t = origin - tris[:, 0]
-    a = np.einsum("ij,ij->i", t, p) * inv
-    q = np.cross(t, e1)
-    b = (q @ u) * inv
-    hit = ok & (a >= -1e-9) & (b >= -1e-9) & (a + b <= 1 + 1e-9)
-    return np.einsum("ij,ij->i", e2, q)[hit] * inv[hit]
+_FAR_LDU = 1e5
+"""Farther along a line than any part reaches (LDU): where `_line_extent` casts from."""
+
+
+def _line_extent(tris: np.ndarray, points: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where each line `points[i] + s u` first and last meets the triangles: (lowest s, highest
+    s), inf where it meets none (`connections.first_hits`, cast from both far ends)."""
+    n = len(points)
+    dirs = np.concatenate([np.tile(u, (n, 1)), np.tile(-u, (n, 1))])
+    hits = first_hits(tris, np.concatenate([points - _FAR_LDU * u, points + _FAR_LDU * u]), dirs)
+    return hits[:n] - _FAR_LDU, _FAR_LDU - hits[n:]
 
 
 def _within(s: np.ndarray, t: np.ndarray, tol: float = 1.0) -> bool:
@@ -262,6 +255,26 @@ def merged_holes(conns) -> list:
             c = JointConnector(c.kind, *(tuple(float(v) for v in row) for row in seg), c.ref)
         out.append(c)
     return out
+
+
+def stretches(conns) -> np.ndarray:
+    """Joint connectors as one array (k, 3, 3): each one's ends and axis (`place_connectors`
+    moves them)."""
+    return np.array([[c.start, c.end, c.axis] for c in conns], float).reshape(-1, 3, 3)
+
+
+@lru_cache(maxsize=None)
+def part_stretches(part) -> np.ndarray:
+    """`stretches` of `part_connectors`, once per part (read-only)."""
+    out = stretches(part_connectors(part))
+    out.setflags(write=False)
+    return out
+
+
+def held_by_joints_alone(part) -> bool:
+    """Whether a part can only be held by joints: it has no studs and no sockets (a pin, an axle,
+    a beam, a gear)."""
+    return not part.studs and not part.sockets
 
 
 def joint_ends(part) -> list[JointConnector]:

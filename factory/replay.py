@@ -28,12 +28,12 @@ from factory.errors import LDrawError, LDrawLimitError
 from factory.ldraw import NO_PARTS, build_steps, get_reader
 from factory.ldraw.model import count_parts
 from factory.ldraw.subassembly import UnitDone, parent_of, relative_frame, to_local, walk
-from factory.parts import box_corners, load_part
+from factory.parts import load_part
 from factory.physics.geometry import collision_shape
 from factory.physics.check import CheckConfig, Verdict, check_units
 from factory.physics.load_model import Link
 from factory.physics.structure import Placed, Structure, canonical_key, connectors, match
-from factory.physics.unmodelled import JOINTS, joint_kind, joints_between
+from factory.physics.unmodelled import JOINTS, joint_kind, joints_between, world_box
 from factory.pose import Pose
 from factory.symmetry import rotation_about
 
@@ -111,7 +111,7 @@ def _faults(structure, local: Placed, backend, config, standing, step, index, fi
         if name == "turn":
             moved = Pose(rotation_about(up, 90.0) @ local.pose.R, local.pose.t)
             if canonical_key(local.part, moved) == canonical_key(local.part, local.pose) or np.allclose(
-                _envelope(local.part, moved), _envelope(local.part, local.pose), atol=1.0
+                world_box(local.part, moved), world_box(local.part, local.pose), atol=1.0
             ):
                 # The part looks the same turned, or fills the same box (a 1x1 or 2x2 part: only
                 # its slope or face turns): nothing it could clash with moves, no fault to inject.
@@ -148,9 +148,9 @@ def lands_on_a_joint(structure: Structure, part, moved: Pose, move: np.ndarray) 
     antenna's bar lifted up its clip). Told by the parts' connectors
     (`unmodelled.joints_between`), not by the checks' verdict."""
     u = np.asarray(move, float) / np.linalg.norm(move)
-    box = _envelope(part, moved)
+    box = world_box(part, moved)
     for q in structure.placed:
-        if not _boxes_near(box, _envelope(q.part, q.pose)):
+        if not _boxes_near(box, world_box(q.part, q.pose)):
             continue
         for j in joints_between(part, moved, q.part, q.pose):
             if j.kind == "bar-in-stud":
@@ -178,12 +178,6 @@ def _add_unit(structure: Structure, unit: list[Placed], inner_links, verdict: Ve
     for k, p in enumerate(unit):
         structure.add(p, _links(base + k, verdict, k))
     structure.links.extend(Link(l.a + base, l.b + base, l.point) for l in inner_links)
-
-
-def _envelope(part, pose: Pose) -> np.ndarray:
-    """The axis-aligned box (LDU) a part fills at a pose."""
-    world = pose.apply(box_corners(part.bbox))
-    return np.stack([world.min(0), world.max(0)])
 
 
 def _on_table(structure: Structure, unit: list[Placed]) -> bool:
@@ -239,17 +233,29 @@ def _joined(structure: Structure, later: list[Placed]) -> Structure:
     out.links.extend(structure.links)
     for q in later:
         n = len(out)
-        box = _envelope(q.part, q.pose)
+        box = world_box(q.part, q.pose)
         links = [Link(n, i, j.point, j.kind, j.axis) for i, p in enumerate(out.placed)
-                 if _boxes_near(box, _envelope(p.part, p.pose))
+                 if _boxes_near(box, world_box(p.part, p.pose))
                  for j in joints_between(q.part, q.pose, p.part, p.pose)]
         out.add(q, links)
     return out
 
 
 def _boxes_near(a: np.ndarray, b: np.ndarray, gap: float = 2.0) -> bool:
-    """Whether two boxes (`_envelope`) are within `gap` LDU of each other."""
+    """Whether two boxes (`world_box`) are within `gap` LDU of each other."""
     return bool(np.all(a[0] <= b[1] + gap) and np.all(b[0] <= a[1] + gap))
+
+
+def _in_hand(structure: Structure, unit: list[Placed], v: Verdict, backend, config, standing: bool,
+             unit_links=()) -> tuple[Verdict, bool]:
+    """(verdict, whether held in hand): a unit that makes the standing model tip on the table (or
+    leaves it no equilibrium on its lowest point), not one that swings on its own joints (a swing
+    names its joint), judged again as held while built, as a sub-assembly is held (a Technic
+    frame before its wheels); `v` itself where that does not accept it either."""
+    if v.reason != "unstable" or not standing or v.failing:
+        return v, False
+    (w,) = check_units(structure, [unit], backend, config, standing=False, unit_links=unit_links)
+    return (w, True) if w.ok else (v, False)
 
 
 def _first(structure: Structure, n: int) -> Structure:
@@ -357,11 +363,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 # As the parts of one step: it may rest on what goes in with it.
                 judged_on = _joined(parent, along)
                 (v,) = check_units(judged_on, [unit], backend, config, standing=standing, unit_links=done.links)
-            held_in_hand = False
-            if v.reason == "unstable" and standing and not v.failing:
-                (w,) = check_units(judged_on, [unit], backend, config, standing=False, unit_links=done.links)
-                if w.ok:  # the model tips on the table while built: held in hand, as for a part
-                    v, held_in_hand = w, True
+            v, held_in_hand = _in_hand(judged_on, unit, v, backend, config, standing, done.links)
             joints = _joint_record(judged_on, unit, v)
             yield _record(v, step=event.last_step, index=0, part=event.tag.rsplit("/", 1)[-1],
                           color=unit[0].colour, unit=True, assembly=event.tag,
@@ -397,14 +399,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 (w,) = check_units(held, [[local]], backend, config, standing=standing)
                 if w.ok:
                     v, judged_on = w, held
-            held_in_hand = False
-            if v.reason == "unstable" and standing and not v.failing:
-                # The model tips on the table (or has no equilibrium resting on its lowest point),
-                # not the part on its joints (a swing names its joint): while built, a person
-                # holds it, as a sub-assembly is held (a Technic frame before its wheels).
-                (w,) = check_units(judged_on, [[local]], backend, config, standing=False)
-                if w.ok:
-                    v, held_in_hand = w, True
+            v, held_in_hand = _in_hand(judged_on, [local], v, backend, config, standing)
             first = None
             if v.reason in ("blocked", "clamped") and step_start < len(structure):
                 # The parts of one step go in in any order: a part that cannot be pressed in under

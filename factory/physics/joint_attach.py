@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from factory.joints import CLICK_STEP_DEG, JointConnector, click_angle, joint_ends, mates
+from factory.joints import CLICK_STEP_DEG, JointConnector, click_angle, joint_ends, mates, stretches
 from factory.ldraw.other_connectors import place_connectors
 from factory.parts import Part
 from factory.physics.attach import pose_key
@@ -42,8 +42,7 @@ def _targets(structure: Structure) -> tuple[np.ndarray, list[str], list]:
     for p in structure.placed:
         conns = _ends(p.part)
         if conns:
-            raw = np.array([[c.start, c.end, c.axis] for c in conns], float)
-            segs.append(place_connectors(raw, p.pose.R, p.pose.t))
+            segs.append(place_connectors(stretches(conns), p.pose.R, p.pose.t))
             kinds += [c.kind for c in conns]
             refs += [None if c.ref is None else p.pose.R @ np.array(c.ref) for c in conns]
     return (np.concatenate(segs) if segs else np.zeros((0, 3, 3))), kinds, refs

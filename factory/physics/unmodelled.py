@@ -22,7 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from factory.ldraw.other_connectors import CONNECTOR_KINDS, place_connectors
-from factory.joints import JointConnector, click_angle, mates, on_a_click, on_one_axis, part_connectors, stretch_overlap, together
+from factory.joints import (JointConnector, click_angle, mates, on_a_click, on_one_axis, part_connectors, part_stretches,
+                            stretch_overlap, together)
 from factory.parts import Part, box_corners
 from factory.pose import Pose
 
@@ -255,11 +256,16 @@ class Joint:
     """How far from `zone`'s axis that overlap may lie."""
 
 
+def world_box(part: Part, pose: Pose) -> np.ndarray:
+    """The axis-aligned box (2, 3: lowest, highest corner; LDU) a part fills at a pose."""
+    world = pose.apply(box_corners(part.bbox))
+    return np.stack([world.min(0), world.max(0)])
+
+
 def _box_meeting(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> tuple[float, float, float]:
     """The middle of where two parts' world boxes meet (overlap, or the gap between them)."""
-    a = new_pose.apply(box_corners(new.bbox))
-    b = placed_pose.apply(box_corners(placed.bbox))
-    lo, hi = np.maximum(a.min(0), b.min(0)), np.minimum(a.max(0), b.max(0))
+    a, b = world_box(new, new_pose), world_box(placed, placed_pose)
+    lo, hi = np.maximum(a[0], b[0]), np.minimum(a[1], b[1])
     return tuple(round(float(v), 4) for v in (lo + hi) / 2)
 
 
@@ -289,8 +295,8 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
     out: list[Joint] = []
     loose: list[np.ndarray] = []
     ca, cb = part_connectors(new), part_connectors(placed)
-    pa = _placed_joint_connectors(ca, new_pose)
-    pb = _placed_joint_connectors(cb, placed_pose)
+    pa = place_connectors(part_stretches(new), new_pose.R, new_pose.t)
+    pb = place_connectors(part_stretches(placed), placed_pose.R, placed_pose.t)
     for i, j in _meeting(pa, pb):
         ka, kb = ca[i].kind, cb[j].kind
         if _is_round(ka) and _is_round(kb):
@@ -341,16 +347,9 @@ against a tile, a shift fault) shares none: it is not held by it."""
 
 def _box_share(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> float:
     """The volume two parts' world boxes share, as a share of the smaller box's volume."""
-    a = new_pose.apply(box_corners(new.bbox))
-    b = placed_pose.apply(box_corners(placed.bbox))
-    side = np.minimum(a.max(0), b.max(0)) - np.maximum(a.min(0), b.min(0))
+    a, b = world_box(new, new_pose), world_box(placed, placed_pose)
+    side = np.minimum(a[1], b[1]) - np.maximum(a[0], b[0])
     shared = float(np.prod(np.maximum(side, 0.0)))
-    smaller = min(float(np.prod(a.max(0) - a.min(0))), float(np.prod(b.max(0) - b.min(0))))
+    smaller = min(float(np.prod(a[1] - a[0])), float(np.prod(b[1] - b[0])))
     return shared / smaller if smaller > 0 else 0.0
 
-
-def _placed_joint_connectors(conns, pose: Pose) -> np.ndarray:
-    if not conns:
-        return np.zeros((0, 3, 3))
-    raw = np.array([[c.start, c.end, c.axis] for c in conns], float)
-    return place_connectors(raw, pose.R, pose.t)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from factory.embedded.catalog import PARTS
 from factory.embedded.colours import COLOURS
 from factory.errors import LDrawError
-from factory.joints import joint_ends
+from factory.joints import held_by_joints_alone, joint_ends
 from factory.ldraw import Reader
 from factory.ldraw.colours import EDGE, MAIN
 from factory.prior.families import family, unprinted
@@ -112,24 +112,17 @@ def why_unusable(reader: Reader, name: str) -> str | None:
         part = load_part(reader, name)
         if is_minifig(part):
             return MINIFIGURE
-        if not part.studs and not part.sockets:
+        if held_by_joints_alone(part):
             return None if joint_ends(part) else NO_CONNECTOR
     except LDrawError as exc:
         return f"cannot be read: {exc}"
     return None
 
 
-def held_by_joints(reader: Reader, name: str) -> bool:
-    """Whether a usable library part connects by joints alone (no studs, no sockets: a pin, an
-    axle, a beam, a gear)."""
-    from factory.parts import load_part  # trimesh and scipy: only when parts are chosen
-
-    part = load_part(reader, name)
-    return not part.studs and not part.sockets
-
-
 def choose_parts(prior: Prior, reader: Reader, progress: Callable[[int, int], None] | None = None) -> PartChoice:
     """The parts and colours of `prior` that the library of `reader` can give the sampler."""
+    from factory.parts import load_part  # trimesh and scipy: only when parts are chosen
+
     have = set(reader.library.part_names())
     index = _family_index(sorted(have))
     parts: list[tuple[str, float]] = []
@@ -149,7 +142,7 @@ def choose_parts(prior: Prior, reader: Reader, progress: Callable[[int, int], No
         reason = why_unusable(reader, found[0])
         if reason is None and found[0] not in taken:
             parts.append((found[0], use.weight))
-            by_joints.append(held_by_joints(reader, found[0]))
+            by_joints.append(held_by_joints_alone(load_part(reader, found[0])))
             taken.add(found[0])
         else:
             left.append(LeftOut(use.family, found[0], use.weight, reason or f"{found[0]} is listed twice"))
@@ -170,8 +163,9 @@ def joint_share(prior: Prior) -> float:
 
 
 def balanced(parts: list[tuple[str, float]], by_joints: list[bool], prior: Prior) -> tuple[tuple[str, float], ...]:
-    """The parts' weights with those held by joints alone (`by_joints`: `held_by_joints`) scaled together so that they are drawn `joint_share` of the time, as in the designs;
-    the others keep their weights among themselves. Tempering flattens the weights of rare parts,
+    """The parts' weights with those held by joints alone (`by_joints`:
+    `joints.held_by_joints_alone`) scaled together so that they are drawn `joint_share` of the
+    time, as in the designs; the others keep their weights among themselves. Tempering flattens the weights of rare parts,
     and most joint parts are rare: without this they would be drawn more often than designs place
     them, or, with few of them in a library, less."""
     target = joint_share(prior)

@@ -48,7 +48,7 @@ from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
 from factory.sampler.assembly import Assembly, AssemblyStep
 from factory.physics.attach import attachment_arrays, lowest_y
-from factory.joints import joint_ends
+from factory.joints import held_by_joints_alone, joint_ends
 from factory.physics.joint_attach import joint_attachment_arrays
 from factory.sampler.config import SamplerConfig, SamplerConfigError
 from factory.sampler.density import CandidateDensities, DensityTracker
@@ -80,7 +80,7 @@ class Sampler:
         self.first_p = _probabilities(studded) if any(studded) else self.part_p
         # Parts held by joints alone, and their draw among themselves (None where there are none,
         # or only those).
-        self.by_joints = [not p.studs and not p.sockets for p in self.parts]
+        self.by_joints = [held_by_joints_alone(p) for p in self.parts]
         joint_w = [w if j else 0.0 for j, (_, w) in zip(self.by_joints, config.parts)]
         self.joint_p = _probabilities(joint_w) if any(joint_w) and not all(self.by_joints) else None
         self.colours = [c for c, _ in config.colours]
@@ -363,7 +363,7 @@ def _load_parts(reader: Reader, config: SamplerConfig) -> list[Part]:
                 f"parts: unknown part {name!r} in the {reader.library.description}; "
                 f"{_choices(library_parts(reader), name)}"
             ) from None
-        if not part.studs and not part.sockets and not joint_ends(part):  # (also derives both, once per reader)
+        if held_by_joints_alone(part) and not joint_ends(part):  # (also derives studs and sockets, once per reader)
             raise SamplerConfigError(f"parts: {name!r} has no studs, no sockets and no joint connector; "
                                      "it cannot attach to anything")
         out.append(part)
