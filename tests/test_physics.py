@@ -369,13 +369,13 @@ def test_hinge_halves_are_excused_only_on_one_axis(real_reader):
 
 
 def test_turn_faults_only_where_the_part_fills_another_box():
-    from factory.replay import _envelope
+    from factory.physics.unmodelled import world_box
 
     turn = rotation_about((0, -1, 0), 90)
     square, long = part("3003"), part("3001")
     pose = Pose(I3, [0, -24, 0])
-    assert np.allclose(_envelope(square, pose), _envelope(square, Pose(turn, pose.t)), atol=1.0)
-    assert not np.allclose(_envelope(long, pose), _envelope(long, Pose(turn, pose.t)), atol=1.0)
+    assert np.allclose(world_box(square, pose), world_box(square, Pose(turn, pose.t)), atol=1.0)
+    assert not np.allclose(world_box(long, pose), world_box(long, Pose(turn, pose.t)), atol=1.0)
 
 
 def test_connections_at_many_poses_are_those_found_one_pose_at_a_time():
