@@ -13,6 +13,7 @@ import pytest
 from factory.ldraw import Library, Reader, get_reader
 from factory.prior import Prior, PriorError, family, fit_prior, load_prior, unprinted
 from factory.prior.choose import MINIFIGURE, NO_CONNECTOR, NOT_IN_LIBRARY, choose_parts, embedded_choice
+from ldraw_support import LIBRARY_ZIP
 from factory.prior.prior import DEFAULT_PRIOR, OTHER, PartUse
 from factory.sampler import DEFAULT_PARTS, SamplerConfig
 from factory.sampler.from_prior import configure
@@ -119,28 +120,29 @@ def _prior(*uses) -> Prior:
 
 
 def test_parts_a_library_cannot_give_are_listed_with_their_reason(mini_library):
-    """A part the library lacks, a minifigure piece, and a part with no studs, no sockets and no
-    joint connector (the mini library's 'brick' is a solid cube) are left out, each with why; the
-    colours the library lacks too."""
+    """A part the library lacks and a part with no studs, no sockets and no joint connector (the
+    mini library's 'brick' is a solid cube) are left out, each with why; the colours the library
+    lacks too."""
     reader = Reader(Library.from_dir(mini_library))
     have = reader.library.part_names()
     prior = _prior(("3001", 2.0, "studs"), ("973", 1.0, "minifigure"), (have[0], 1.0, "studs"))
     choice = choose_parts(prior, reader)
     reasons = {left.part: left.reason for left in choice.left_out}
-    assert reasons == {"3001": NOT_IN_LIBRARY, "973": MINIFIGURE, have[0]: NO_CONNECTOR}
+    assert reasons == {"3001": NOT_IN_LIBRARY, "973": NOT_IN_LIBRARY, have[0]: NO_CONNECTOR}
     assert choice.parts == () and choice.used_weight == 0
 
 
 def test_with_a_library_the_sampler_draws_the_prior_parts_it_holds(real_reader, tmp_path):
     """By the prior's name, else another member of its family the library holds (3062a -> 3062b);
-    a part it lacks and a minifigure piece are left out, and the config names the prior."""
+    a part it lacks and a minifigure piece held in a hand (a sword) are left out, and the config
+    names the prior."""
     prior = _prior(("3023b", 3.0, "studs"), ("3062a", 1.0, "studs"), ("no_such_part", 1.0, "studs"),
-                   ("3820", 1.0, "minifigure"))
+                   ("2530", 1.0, "minifigure"))
     path = tmp_path / "p.json"
     path.write_text(prior.dumps())
     config, choice = configure(SamplerConfig(), real_reader, path)
     assert dict(config.parts) == pytest.approx({"3023b": 0.5, "3062b": 1 / 6})
-    assert {left.part for left in choice.left_out} == {"no_such_part", "3820"}
+    assert {left.part for left in choice.left_out} == {"no_such_part", "2530"}
     assert config.prior == f"p.json sha256:{prior.digest()[:16]}" and dict(config.colours) == {4: 1.0}
 
 
@@ -208,9 +210,23 @@ def test_parts_held_by_joints_are_drawn_as_often_as_designs_place_them(real_read
     total = sum(w for _, w, _ in uses)
     prior = Prior(tuple(PartUse(family(n), n, w / total, 1, 1, connection=kind) for n, w, kind in uses),
                   ((4, 1.0),), (("studs", 0.6), ("side studs", 0.1), (OTHER, 0.1), ("minifigure", 0.2)), (), 1.0)
-    assert joint_share(prior) == pytest.approx(0.125)
+    assert joint_share(prior) == pytest.approx(0.1)  # of studs, side studs, joints and minifigure pieces
     weights = dict(choose_parts(prior, real_reader).parts)
     drawn = sum(weights.values())
-    assert (weights["3673"] + weights["3707"]) / drawn == pytest.approx(0.125)
+    assert (weights["3673"] + weights["3707"]) / drawn == pytest.approx(0.1)
     assert weights["3673"] == pytest.approx(weights["3707"])
     assert weights["3023b"] / weights["3001"] == pytest.approx(5 / 3)
+
+
+def test_minifigure_pieces_with_a_place_are_drawn_those_held_in_a_hand_listed(tmp_path):
+    """A torso, an arm and a hat have places of their own on a figure (`factory.minifig.SLOTS`):
+    the sampler draws them; a bow and a sword are held where each piece's grip is: left out, with
+    why."""
+    if not LIBRARY_ZIP.is_file():
+        pytest.skip(f"LDraw's complete.zip is not at {LIBRARY_ZIP}")
+    reader = Reader(Library.from_path(LIBRARY_ZIP))
+    prior = _prior(("3001", 4.0, "studs"), ("973", 1.0, "minifigure"), ("3818", 1.0, "minifigure"),
+                   ("4485", 1.0, "minifigure"), ("4499", 1.0, "minifigure"), ("2530", 1.0, "minifigure"))
+    choice = choose_parts(prior, reader)
+    assert [n for n, _ in choice.parts] == ["3001", "973", "3818", "4485"]
+    assert {left.part: left.reason for left in choice.left_out} == {"4499": MINIFIGURE, "2530": MINIFIGURE}

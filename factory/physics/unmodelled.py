@@ -24,6 +24,7 @@ import numpy as np
 from factory.ldraw.other_connectors import CONNECTOR_KINDS, place_connectors
 from factory.joints import (JointConnector, click_angle, mates, on_a_click, on_one_axis, part_connectors, part_stretches,
                             stretch_overlap, together)
+from factory.minifig import FEET, FOOT_AXIS, in_a_slot, related, role
 from factory.parts import Part, box_corners
 from factory.pose import Pose
 
@@ -83,6 +84,14 @@ def _connectors(part: Part) -> np.ndarray:
     return np.concatenate([part.flat.other_connectors, part.flat.bores])
 
 
+def _minifig_pair(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool:
+    """Whether two touching minifigure pieces hold one another: in a slot of one another where
+    their roles have one, or of one role never (`factory.minifig.related`); pieces with no slot
+    between them (a hand on a torso, a tool in a hand) wherever they meet."""
+    a, b = role(new.description), role(placed.description)
+    return a is None or b is None or not related(a, b) or in_a_slot(a, new_pose, b, placed_pose)
+
+
 def may_hold(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool:
     """Whether `placed` (touched by `new`) may hold `new` by a connection not modelled. When both
     have connectors with a position, their positions decide; otherwise the shapes (see the
@@ -92,7 +101,7 @@ def may_hold(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool
         # Minifigure pieces join by their own joints (neck, shoulders, wrists, hips, headgear on
         # the head's stud, which sits inside it), none of them a stud connection: the LDraw
         # files place a head and a helmet, or a neck and a head, overlapping by design.
-        return True
+        return _minifig_pair(new, new_pose, placed, placed_pose)
     a, b = _connectors(new), _connectors(placed)
     if len(a) and len(b):
         return connectors_meet(place_connectors(a, new_pose.R, new_pose.t),
@@ -127,7 +136,7 @@ def joint_kind(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> st
     """Which kind of connection (`JOINTS`) `placed` may hold `new` by, where `may_hold` or
     `bar_joints` says it may; None where neither does."""
     if is_minifig(new) and is_minifig(placed):
-        return "minifig"
+        return "minifig" if _minifig_pair(new, new_pose, placed, placed_pose) else None
     (a, ka), (b, kb) = _kinded(new), _kinded(placed)
     if len(a) and len(b):
         pa, pb = place_connectors(a, new_pose.R, new_pose.t), place_connectors(b, placed_pose.R, placed_pose.t)
@@ -279,9 +288,34 @@ def _joint(kind: str, stretch: np.ndarray, radius: float = JOINT_RADIUS_LDU) -> 
                  tuple(tuple(round(float(v), 4) for v in row) for row in stretch), radius)
 
 
+FOOT_LDU = 0.5
+"""How far a stud may be from a minifigure's foot hole and still be in it (the designs' standing
+figures: within 0.01 LDU of a stud, or 1 LDU or more off it)."""
+STUD_HEIGHT_LDU = 4.0
+
+
+def _feet_on_studs(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> list[Joint]:
+    """A minifigure's feet (`factory.minifig.FEET`) on studs of `placed` pointing into them: one
+    minifigure joint at each, its overlap round the stud."""
+    feet = FEET.get(role(new.description))
+    if not feet or not placed.studs:
+        return []
+    into = new_pose.R @ np.asarray(FOOT_AXIS)
+    out = []
+    for foot in feet:
+        at = new_pose.R @ np.asarray(foot) + new_pose.t
+        for s in placed.studs:
+            pos, axis = placed_pose.R @ np.asarray(s.pos) + placed_pose.t, placed_pose.R @ np.asarray(s.axis)
+            if np.linalg.norm(pos - at) <= FOOT_LDU and axis @ into > np.cos(np.radians(PARALLEL_DEG)):
+                out.append(_joint("minifig", np.stack([pos, pos + STUD_HEIGHT_LDU * axis, axis])))
+                break
+    return out
+
+
 def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> list[Joint]:
     """The joints by which `placed` holds `new` (both at their world poses): a minifigure joint
-    between two minifigure pieces; connector primitives of the two that mate (`joints.mates`:
+    between two minifigure pieces (in a slot of one another, where their roles have one:
+    `factory.minifig.related`), or at a minifigure's foot on a stud (`_feet_on_studs`); connector primitives of the two that mate (`joints.mates`:
     a pin in a pin hole, an axle in an axle hole, a clip on a bar or handle, a wheel on its pin,
     click hinge halves) on one axis (`NEAR_LDU`); bar-size cylinders or bores that meet
     (`bars_meet`: a bar in a clip or a hollow stud, hinge fingers between fingers); and where
@@ -289,7 +323,13 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
     (a tyre on a rim; a part with sockets sits on studs, and one slid off them beside a part
     without any is not held). Empty where none holds it."""
     if is_minifig(new) and is_minifig(placed):
+        if not _minifig_pair(new, new_pose, placed, placed_pose):
+            return []  # out of its slot (a head beside its neck, a second torso on the first)
         return [Joint("minifig", _box_meeting(new, new_pose, placed, placed_pose), None, None)]
+    if is_minifig(new):
+        feet = _feet_on_studs(new, new_pose, placed, placed_pose)
+        if feet:
+            return feet
     if not part_connectors(new) and new.sockets:
         return []  # nothing to be held by (every part of the embedded library but the round ones)
     out: list[Joint] = []

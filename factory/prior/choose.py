@@ -3,8 +3,9 @@ is left out.
 
 A prior part is looked up in the library by its name, then the other members the designs placed,
 then any unprinted member of its family the library holds (the embedded library has `3023` where
-designs place `3023b`). It is usable when it loads and has studs or sockets: the sampler connects
-parts by studs. A part left out keeps its weight in the report, so a user sees what share of real
+designs place `3023b`). It is usable when it loads and has studs or sockets, a joint connector
+(`joints.joint_ends`), or is a minifigure piece with a place of its own (`factory.minifig`): the
+sampler connects parts by these. A part left out keeps its weight in the report, so a user sees what share of real
 usage their data cannot show.
 """
 
@@ -18,6 +19,7 @@ from factory.embedded.catalog import PARTS
 from factory.embedded.colours import COLOURS
 from factory.errors import LDrawError
 from factory.joints import held_by_joints_alone, joint_ends
+from factory.minifig import role
 from factory.ldraw import Reader
 from factory.ldraw.colours import EDGE, MAIN
 from factory.prior.families import family, unprinted
@@ -26,7 +28,9 @@ from factory.prior.prior import MINIFIG, OTHER, SIDE_STUDS, STUDS, PartUse, Prio
 NOT_IN_LIBRARY = "not in the library"
 NO_CONNECTOR = ("no studs, no sockets and no joint connector found: held by its shape (a tyre on a rim, cloth, "
                 "a sticker), which the factory cannot tell where to put")
-MINIFIGURE = "a minifigure piece: held by minifigure joints, which the sampler does not connect"
+MINIFIGURE = ("a minifigure piece held by a hand, a helmet or another piece where it sits differs per piece "
+              "(a tool, a weapon, a plume, a visor): the sampler attaches only pieces with a place of their own "
+              "(`factory.minifig.SLOTS`)")
 
 
 @dataclass(frozen=True)
@@ -111,7 +115,7 @@ def why_unusable(reader: Reader, name: str) -> str | None:
     try:
         part = load_part(reader, name)
         if is_minifig(part):
-            return MINIFIGURE
+            return None if role(part.description) is not None else MINIFIGURE
         if held_by_joints_alone(part):
             return None if joint_ends(part) else NO_CONNECTOR
     except LDrawError as exc:
@@ -132,9 +136,6 @@ def choose_parts(prior: Prior, reader: Reader, progress: Callable[[int, int], No
     for k, use in enumerate(prior.parts):
         if progress:
             progress(k, len(prior.parts))
-        if use.connection == MINIFIG:
-            left.append(LeftOut(use.family, use.part, use.weight, MINIFIGURE))
-            continue
         found = _candidates(use, have, index)
         if not found:
             left.append(LeftOut(use.family, use.part, use.weight, NOT_IN_LIBRARY))
@@ -142,7 +143,8 @@ def choose_parts(prior: Prior, reader: Reader, progress: Callable[[int, int], No
         reason = why_unusable(reader, found[0])
         if reason is None and found[0] not in taken:
             parts.append((found[0], use.weight))
-            by_joints.append(held_by_joints_alone(load_part(reader, found[0])))
+            got = load_part(reader, found[0])
+            by_joints.append(held_by_joints_alone(got) and role(got.description) is None)
             taken.add(found[0])
         else:
             left.append(LeftOut(use.family, found[0], use.weight, reason or f"{found[0]} is listed twice"))
@@ -156,9 +158,10 @@ def choose_parts(prior: Prior, reader: Reader, progress: Callable[[int, int], No
 
 def joint_share(prior: Prior) -> float:
     """The share of the designs' placements that are of parts held by pins, axles, clips or
-    hinges, among those of parts the sampler can connect (by studs, or by those joints)."""
+    hinges, among those of parts the sampler can connect (by studs, by those joints, or minifigure
+    pieces by their own)."""
     shares = dict(prior.connections)
-    usable = shares.get(STUDS, 0.0) + shares.get(SIDE_STUDS, 0.0) + shares.get(OTHER, 0.0)
+    usable = sum(shares.get(k, 0.0) for k in (STUDS, SIDE_STUDS, OTHER, MINIFIG))
     return shares.get(OTHER, 0.0) / usable if usable > 0 else 0.0
 
 

@@ -49,7 +49,9 @@ from factory.pose import Pose
 from factory.sampler.assembly import Assembly, AssemblyStep
 from factory.physics.attach import attachment_arrays, lowest_y
 from factory.joints import held_by_joints_alone, joint_ends
+from factory.minifig import role
 from factory.physics.joint_attach import joint_attachment_arrays
+from factory.physics.minifig_attach import minifig_attachment_arrays
 from factory.sampler.config import SamplerConfig, SamplerConfigError
 from factory.sampler.density import CandidateDensities, DensityTracker
 from factory.sampler.lockstep import grow_together
@@ -75,12 +77,13 @@ class Sampler:
         self.reader = get_reader(ldraw)
         self.parts: list[Part] = _load_parts(self.reader, config)
         self.part_p = _probabilities([w for _, w in config.parts])
-        # The first part must carry studs (something has to be able to go on top of it).
-        studded = [w if p.studs else 0.0 for p, (_, w) in zip(self.parts, config.parts)]
+        # The first part must carry studs (something has to be able to go on top of it), and be
+        # no minifigure piece (a head's stud is no base for an object).
+        studded = [w if p.studs and role(p.description) is None else 0.0 for p, (_, w) in zip(self.parts, config.parts)]
         self.first_p = _probabilities(studded) if any(studded) else self.part_p
         # Parts held by joints alone, and their draw among themselves (None where there are none,
         # or only those).
-        self.by_joints = [held_by_joints_alone(p) for p in self.parts]
+        self.by_joints = [held_by_joints_alone(p) and role(p.description) is None for p in self.parts]
         joint_w = [w if j else 0.0 for j, (_, w) in zip(self.by_joints, config.parts)]
         self.joint_p = _probabilities(joint_w) if any(joint_w) and not all(self.by_joints) else None
         self.colours = [c for c, _ in config.colours]
@@ -152,6 +155,9 @@ class Sampler:
                     jr, jt = joint_attachment_arrays(structure, part)
                     if len(jt):  # through joints too (pins, axles, wheels, clips, open studs)
                         r, t = np.concatenate([r, jr]), np.concatenate([t, jt])
+                    mr, mt = minifig_attachment_arrays(structure, part)
+                    if len(mt):  # a minifigure piece: on its feet, or in a slot of a piece it joins
+                        r, t = np.concatenate([r, mr]), np.concatenate([t, mt])
                     feasible = len(t)
                     if not feasible:
                         rejected["no-attachment"] += 1
@@ -363,9 +369,10 @@ def _load_parts(reader: Reader, config: SamplerConfig) -> list[Part]:
                 f"parts: unknown part {name!r} in the {reader.library.description}; "
                 f"{_choices(library_parts(reader), name)}"
             ) from None
-        if held_by_joints_alone(part) and not joint_ends(part):  # (also derives studs and sockets, once per reader)
-            raise SamplerConfigError(f"parts: {name!r} has no studs, no sockets and no joint connector; "
-                                     "it cannot attach to anything")
+        # (also derives studs and sockets, once per reader)
+        if held_by_joints_alone(part) and not joint_ends(part) and role(part.description) is None:
+            raise SamplerConfigError(f"parts: {name!r} has no studs, no sockets, no joint connector and is no "
+                                     "minifigure piece the sampler attaches; it cannot attach to anything")
         out.append(part)
     return out
 

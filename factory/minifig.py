@@ -1,0 +1,161 @@
+"""Minifigure pieces and where they join: each piece's role (told by its LDraw title), where a
+piece of one role sits on a piece of another (`SLOTS`: the neck, the shoulders, the wrists, the
+hips, headgear on the head), and the holes under the feet that stand on studs (`FEET`).
+
+Minifigure joints are not drawn with connector primitives, and most of their pieces have no
+studs or sockets, so their places are given here as dimensions, in the parent piece's LDraw
+frame (LDU, -Y up): every minifigure drawn in LDraw's library shares them (a torso's origin is at
+its neck; hips sit 32 LDU below it, legs 12 below the hips, the head 24 above; an arm hangs
+15.6 LDU to the side, 9 down, turned 10 degrees out, and swings about its own X axis; a hand sits
+in its arm turned 45 degrees and turns about its own Z axis). The minifigures of the designs in
+`../shared/designs` sit so to 0.5 LDU (`tests/test_minifig.py` measures them). A piece with no
+role here (a tool, a weapon, a plume, a visor: where a hand or a helmet holds it differs per
+piece) is not attached by the sampler.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+ROLES = ("torso", "hips", "hips-legs", "leg-left", "leg-right", "arm-left", "arm-right", "hand", "head",
+         "headgear", "neckwear")
+"""The minifigure pieces the sampler attaches, by where they sit."""
+
+_TITLES = (
+    ("torso", r"Torso\b"),
+    ("hips-legs", r"Hips and Legs\b"),
+    ("hips", r"Hips\b"),
+    ("leg-left", r"Legs? Left\b"),
+    ("leg-right", r"Legs? Right\b"),
+    ("arm-left", r"Arm Left\b"),
+    ("arm-right", r"Arm Right\b"),
+    ("hand", r"Hand\b"),
+    ("head", r"Head\b"),
+)
+"""Roles told by the title's first words (after "Minifig ")."""
+_WORN = (
+    ("headgear", r"\b(Hat|Cap|Helmet|Hair|Hood|Headdress|Headgear|Crown|Bandana|Beanie|Turban|Tiara|Cowl)\b"),
+    ("neckwear", r"\b(Airtanks|Quiver|Armour|Armor|Cape|Epaulette|Neck Bracket|Life Jacket|Scarf|Backpack)\b"),
+)
+"""Roles told by a word of the title's name (before " with "): "Forestman Cap", "Arrow Quiver". A
+visor or a plume goes on a helmet, not a head: no role."""
+
+
+def role(description: str) -> str | None:
+    """The role (`ROLES`) of a piece by its LDraw title ("Minifig Torso ...", "~Minifig Leg Left
+    (Obsolete)", "Minifig Helmet Classic with ... Visor Dimples"); None for anything else,
+    minifigure accessories held in a hand included."""
+    title = description.lstrip("~_=| ")
+    if not title.startswith("Minifig "):
+        return None
+    rest = title[len("Minifig "):]
+    for name, pattern in _TITLES:
+        if re.match(pattern, rest):
+            return name
+    name_part = rest.split(" with ")[0]
+    if re.search(r"\b(Visor|Plume)\b", name_part):
+        return None
+    for name, pattern in _WORN:
+        if re.search(pattern, name_part):
+            return name
+    return None
+
+
+def _turn(axis: int, degrees: float) -> np.ndarray:
+    """The rotation by `degrees` about the X (0), Y (1) or Z (2) axis."""
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    r = np.eye(3)
+    r[i, i], r[i, j], r[j, i], r[j, j] = c, -s, s, c
+    return r
+
+
+@dataclass(frozen=True)
+class Slot:
+    """Where a `child` piece sits on a `parent` piece: at `offset` in the parent's frame, turned
+    by `base` and then by one of `angles` (degrees) about its own `axis` (0 X, 1 Y, 2 Z; None for a
+    piece that does not turn there)."""
+
+    parent: str
+    child: str
+    offset: tuple[float, float, float]
+    base: np.ndarray
+    axis: int | None
+    angles: tuple[float, ...]
+    """The turns the sampler tries (a joint that turns is held at any angle: these are a few)."""
+
+    def rotations(self) -> list[np.ndarray]:
+        """The child's rotations in the parent's frame, one per angle."""
+        if self.axis is None:
+            return [self.base]
+        return [self.base @ _turn(self.axis, a) for a in self.angles]
+
+
+_SHOULDER_OUT_DEG = 10.0
+SLOTS = (
+    Slot("torso", "hips", (0.0, 32.0, 0.0), np.eye(3), None, (0.0,)),
+    Slot("torso", "hips-legs", (0.0, 32.0, 0.0), np.eye(3), None, (0.0,)),
+    Slot("hips", "leg-left", (0.0, 12.0, 0.0), np.eye(3), 0, (0.0,)),
+    Slot("hips", "leg-right", (0.0, 12.0, 0.0), np.eye(3), 0, (0.0,)),
+    Slot("torso", "arm-left", (15.6, 9.0, 0.0), _turn(2, -_SHOULDER_OUT_DEG), 0, (0.0, -45.0, -90.0)),
+    Slot("torso", "arm-right", (-15.6, 9.0, 0.0), _turn(2, _SHOULDER_OUT_DEG), 0, (0.0, -45.0, -90.0)),
+    Slot("arm-left", "hand", (5.2, 18.76, -10.32), _turn(0, 45.0), 2, (0.0, 90.0)),
+    Slot("arm-right", "hand", (-5.2, 18.76, -10.32), _turn(0, 45.0), 2, (0.0, 90.0)),
+    Slot("torso", "head", (0.0, -24.0, 0.0), np.eye(3), 1, (0.0,)),
+    # ... or 3 LDU higher, as LDraw authors place it as often (8 of the 14 heads of the designs);
+    # the sampler puts it at -24 (no angles: no attachment of its own).
+    Slot("torso", "head", (0.0, -27.0, 0.0), np.eye(3), 1, ()),
+    Slot("head", "headgear", (0.0, 0.0, 0.0), np.eye(3), None, (0.0,)),
+    Slot("torso", "neckwear", (0.0, 0.0, 0.0), np.eye(3), None, (0.0,)),
+)
+"""Every place a piece of one role sits on another (module docstring). Legs swing at the hips and
+heads turn on the neck too; the sampler stands them straight."""
+
+FEET = {
+    "leg-left": ((10.0, 28.0, 0.0),),
+    "leg-right": ((-10.0, 28.0, 0.0),),
+    "hips-legs": ((10.0, 40.0, 0.0), (-10.0, 40.0, 0.0)),
+}
+"""The holes under a minifigure's feet, in the piece's frame: each takes a stud pointing up (-Y)
+into it. The legs of the designs' standing minifigures sit so on their plates' studs."""
+
+FOOT_AXIS = (0.0, -1.0, 0.0)
+"""The way a stud goes into a foot, in the piece's frame (as a socket's axis)."""
+
+
+LOWER_BODY = ("hips", "hips-legs", "leg-left", "leg-right")
+"""Pieces a figure stands on: a parent may be put on one from above (hips on a leg, a torso on
+hips); the other way round (a torso hung from an arm) the sampler does not build."""
+
+
+def related(a: str, b: str) -> bool:
+    """Whether pieces of roles `a` and `b` sit on one another only in a slot (or, of one role,
+    never on one another)."""
+    return a == b or any({s.parent, s.child} == {a, b} for s in SLOTS)
+
+
+def in_a_slot(a: str, a_pose, b: str, b_pose, tol_ldu: float = 1.5) -> bool:
+    """Whether a piece of role `a` and one of role `b` sit in a slot of one another (either way
+    round, `fits`)."""
+    return any(fits(s, a_pose, b_pose, tol_ldu) for s in SLOTS if (s.parent, s.child) == (a, b)) or \
+        any(fits(s, b_pose, a_pose, tol_ldu) for s in SLOTS if (s.parent, s.child) == (b, a))
+
+
+def fits(slot: Slot, parent_pose, child_pose, tol_ldu: float = 1.5, tol_deg: float = 3.0) -> bool:
+    """Whether a child piece at `child_pose` sits in `slot` of a parent at `parent_pose` (both
+    `Pose`s, LDU), at any turn about the slot's axis: its origin within `tol_ldu` of the slot's,
+    its rotation within `tol_deg` of the slot's base turned about that axis. 1.5 LDU: hand-edited
+    files put pieces 1 LDU off (10156's arms)."""
+    rel_t = parent_pose.R.T @ (np.asarray(child_pose.t) - parent_pose.t)
+    if np.linalg.norm(rel_t - np.asarray(slot.offset)) > tol_ldu:
+        return False
+    turn = slot.base.T @ parent_pose.R.T @ child_pose.R  # the turn after the base: about `axis` only
+    if slot.axis is None:
+        angle = np.degrees(np.arccos(np.clip((np.trace(turn) - 1) / 2, -1, 1)))
+        return bool(angle <= tol_deg)
+    a = np.zeros(3)
+    a[slot.axis] = 1.0
+    return bool(np.degrees(np.arccos(np.clip(turn @ a @ a, -1, 1))) <= tol_deg)
