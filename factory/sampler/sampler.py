@@ -24,7 +24,8 @@ Growth, per step:
    joints alone (a pin, an axle, a beam: no studs, no sockets) draws its redraws from those parts
    (they attach only where the structure offers a mating connector: redrawn from all parts, they
    would be placed less often than drawn) `JOINT_REDRAWS` times, then, if none goes on,
-   `max_redraws` more from all.
+   `max_redraws` more from all; so does a step whose first draw is a minifigure piece, among
+   those (most go on only in a slot of a figure's piece placed before).
 The first part is placed at the origin with the identity rotation (its lowest point fixes the
 ground) and is checked like any other (it must stand on its own).
 """
@@ -84,8 +85,14 @@ class Sampler:
         # Parts held by joints alone, and their draw among themselves (None where there are none,
         # or only those).
         self.by_joints = [held_by_joints_alone(p) and role(p.description) is None for p in self.parts]
-        joint_w = [w if j else 0.0 for j, (_, w) in zip(self.by_joints, config.parts)]
-        self.joint_p = _probabilities(joint_w) if any(joint_w) and not all(self.by_joints) else None
+        # ... and minifigure pieces: the groups a step redraws within (`JOINT_REDRAWS`).
+        self.group = ["joints" if j else "minifig" if role(p.description) is not None else None
+                      for p, j in zip(self.parts, self.by_joints)]
+        self.group_p = {}
+        for g in ("joints", "minifig"):
+            w = [w if pg == g else 0.0 for pg, (_, w) in zip(self.group, config.parts)]
+            if any(w) and not all(pg == g for pg in self.group):
+                self.group_p[g] = _probabilities(w)
         self.colours = [c for c, _ in config.colours]
         _check_colours(self.reader, self.colours)
         self.colour_p = _probabilities([w for _, w in config.colours])
@@ -133,16 +140,16 @@ class Sampler:
             rejected: Counter = Counter()
             checked = 0
             chosen = None
-            joint_step = False
+            group = None
             for draw in range(cfg.max_redraws + 1 + JOINT_REDRAWS):
                 first = not steps
-                if draw > cfg.max_redraws and not joint_step:
+                if draw > cfg.max_redraws and group is None:
                     break
-                joints_only = joint_step and draw <= JOINT_REDRAWS
+                within = group is not None and draw <= JOINT_REDRAWS
                 part_i = int(rng.choice(len(self.parts), p=self.first_p if first else
-                                        self.joint_p if joints_only else self.part_p))
-                if draw == 0 and not first and self.joint_p is not None and self.by_joints[part_i]:
-                    joint_step = True
+                                        self.group_p[group] if within else self.part_p))
+                if draw == 0 and not first and self.group[part_i] in self.group_p:
+                    group = self.group[part_i]
                 part = self.parts[part_i]
                 colour = self.colours[int(rng.choice(len(self.colours), p=self.colour_p))]
                 if first:
@@ -238,8 +245,9 @@ class Sampler:
 
 
 JOINT_REDRAWS = 2
-"""Redraws among the parts held by joints alone in a step whose first draw is one (each failed
-draw checks up to `candidates_per_step` candidates, so a few)."""
+"""Redraws among the parts held by joints alone in a step whose first draw is one, or among the
+minifigure pieces in a step whose first draw is one (each failed draw checks up to
+`candidates_per_step` candidates, so a few)."""
 
 
 class KeyOrder:
