@@ -108,8 +108,8 @@ SLOTS = (
     # ... or 3 LDU higher, as LDraw authors place it as often (8 of the 14 heads of the designs);
     # the sampler puts it at -24 (no angles: no attachment of its own).
     Slot("torso", "head", (0.0, -27.0, 0.0), np.eye(3), 1, ()),
-    Slot("head", "headgear", (0.0, 0.0, 0.0), np.eye(3), None, (0.0,)),
-    Slot("torso", "neckwear", (0.0, 0.0, 0.0), np.eye(3), None, (0.0,)),
+    Slot("head", "headgear", (0.0, 0.0, 0.0), np.eye(3), 1, (0.0,)),
+    Slot("torso", "neckwear", (0.0, 0.0, 0.0), np.eye(3), 1, (0.0,)),
 )
 """Every place a piece of one role sits on another (module docstring). Legs swing at the hips and
 heads turn on the neck too; the sampler stands them straight."""
@@ -137,11 +137,23 @@ def related(a: str, b: str) -> bool:
     return a == b or any({s.parent, s.child} == {a, b} for s in SLOTS)
 
 
-def in_a_slot(a: str, a_pose, b: str, b_pose, tol_ldu: float = 1.5) -> bool:
-    """Whether a piece of role `a` and one of role `b` sit in a slot of one another (either way
-    round, `fits`)."""
-    return any(fits(s, a_pose, b_pose, tol_ldu) for s in SLOTS if (s.parent, s.child) == (a, b)) or \
-        any(fits(s, b_pose, a_pose, tol_ldu) for s in SLOTS if (s.parent, s.child) == (b, a))
+HOLD_LDU = 6.0
+"""How far from its slot a piece may sit and still be held there (`in_a_slot`). Designs put hands
+up to 4.7 LDU off their arm's slot (40448, 6799) and turn arms about more than their shoulder's
+axis (40448, 6716): files drawn by hand, of figures that hold. A piece a slot's length or more
+away (a torso on a head's stud, a second torso on the first) is in none."""
+
+
+def _at_slot(slot: Slot, parent_pose, child_pose, tol_ldu: float) -> bool:
+    rel_t = parent_pose.R.T @ (np.asarray(child_pose.t) - parent_pose.t)
+    return bool(np.linalg.norm(rel_t - np.asarray(slot.offset)) <= tol_ldu)
+
+
+def in_a_slot(a: str, a_pose, b: str, b_pose, tol_ldu: float = HOLD_LDU) -> bool:
+    """Whether a piece of role `a` and one of role `b` sit in a slot of one another, either way
+    round: the child's origin within `tol_ldu` of the slot's, however it is turned."""
+    return any(_at_slot(s, a_pose, b_pose, tol_ldu) for s in SLOTS if (s.parent, s.child) == (a, b)) or \
+        any(_at_slot(s, b_pose, a_pose, tol_ldu) for s in SLOTS if (s.parent, s.child) == (b, a))
 
 
 def fits(slot: Slot, parent_pose, child_pose, tol_ldu: float = 1.5, tol_deg: float = 3.0) -> bool:

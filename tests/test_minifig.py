@@ -16,6 +16,7 @@ from factory.parts import load_part
 from factory.physics.check import check_units
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
+from factory.replay import _links
 from ldraw_support import DESIGNS, LIBRARY_ZIP, needs_ldraw
 
 pytestmark = needs_ldraw
@@ -123,3 +124,21 @@ def test_the_sampler_builds_minifigures(lib):
         placed.append((r, step.pose))
     assert slotted >= 2
     assert sampler.sample(0).same_as(obj)
+
+
+def test_pieces_of_a_figure_hold_one_another_at_their_slots(lib):
+    """Hips on a standing leg are held at the leg's slot (and a few LDU off it: files drawn by
+    hand); put 12 LDU to the side, touching the leg, they are held by nothing; a second leg of the
+    same side in the first one's place is no joint either."""
+    plate = _placed(lib, "3023", 0, 0, 0)
+    leg_at = np.asarray(plate.part.studs[0].pos) - np.asarray(FEET["leg-left"][0])
+    structure = Structure([plate])
+    leg = _placed(lib, "3817", *leg_at)
+    (v,) = check_units(structure, [[leg]], "cpu", floor_y=8.0)
+    assert v.ok, v
+    structure.add(leg, _links(len(structure), v))
+    for off, held in (([0.0, -12.0, 0.0], True), ([3.0, -12.0, 0.0], True), ([12.0, -12.0, 0.0], False)):
+        (v,) = check_units(structure, [[_placed(lib, "3815", *(leg_at + off))]], "cpu", floor_y=8.0)
+        assert v.ok == held, (off, v)
+    (v,) = check_units(structure, [[_placed(lib, "3817", *leg_at)]], "cpu", floor_y=8.0)
+    assert not v.ok and not v.joints, v
