@@ -37,11 +37,12 @@ _TITLES = (
 )
 """Roles told by the title's first words (after "Minifig ")."""
 _WORN = (
-    ("headgear", r"\b(Hat|Cap|Helmet|Hair|Hood|Headdress|Headgear|Crown|Bandana|Beanie|Turban|Tiara|Cowl)\b"),
+    ("headgear", r"\b(Hat|Cap|Helmet|Hair|Hood|Headdress|Headgear|Crown|Beanie|Turban|Tiara|Cowl)\b"),
     ("neckwear", r"\b(Airtanks|Quiver|Armour|Armor|Cape|Epaulette|Neck Bracket|Life Jacket|Scarf|Backpack)\b"),
 )
 """Roles told by a word of the title's name (before " with "): "Forestman Cap", "Arrow Quiver". A
-visor or a plume goes on a helmet, not a head: no role."""
+visor or a plume goes on a helmet, not a head, and a bandana on a head or at the neck (6716): no
+role."""
 
 
 def role(description: str) -> str | None:
@@ -137,10 +138,10 @@ def related(a: str, b: str) -> bool:
     return a == b or any({s.parent, s.child} == {a, b} for s in SLOTS)
 
 
-HOLD_LDU = 6.0
+HOLD_LDU = 7.0
 """How far from its slot a piece may sit and still be held there (`in_a_slot`). Designs put hands
-up to 4.7 LDU off their arm's slot (40448, 6799) and turn arms about more than their shoulder's
-axis (40448, 6716): files drawn by hand, of figures that hold. A piece a slot's length or more
+up to 6.3 LDU off their arm's slot (6716; 40448 4.7) and turn arms about more than their
+shoulder's axis (40448, 6716): files drawn by hand, of figures that hold. A piece a slot's length or more
 away (a torso on a head's stud, a second torso on the first) is in none."""
 
 
