@@ -7,8 +7,9 @@ studs or sockets, so their places are given here as dimensions, in the parent pi
 frame (LDU, -Y up): every minifigure drawn in LDraw's library shares them (a torso's origin is at
 its neck; hips sit 32 LDU below it, legs 12 below the hips, the head 24 above; an arm hangs
 15.6 LDU to the side, 9 down, turned 10 degrees out, and swings about its own X axis; a hand sits
-in its arm turned 45 degrees and turns about its own Z axis). The minifigures of the designs in
-`../shared/designs` sit so to 0.5 LDU (`tests/test_minifig.py` measures them). A piece with no
+in its arm turned 45 degrees and turns about its own Z axis). The figures of three designs in
+`../shared/designs` (6861, 889, 10156) sit so to 1.5 LDU and 3 degrees about each slot's axis
+(`tests/test_minifig.py`); a head is placed 3 LDU higher as often. A piece with no
 role here (a tool, a weapon, a plume, a visor: where a hand or a helmet holds it differs per
 piece) is not attached by the sampler.
 """
@@ -17,12 +18,11 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
-ROLES = ("torso", "hips", "hips-legs", "leg-left", "leg-right", "arm-left", "arm-right", "hand", "head",
-         "headgear", "neckwear")
-"""The minifigure pieces the sampler attaches, by where they sit."""
+from factory.symmetry import rotation_about
 
 _TITLES = (
     ("torso", r"Torso\b"),
@@ -45,8 +45,11 @@ visor or a plume goes on a helmet, not a head, and a bandana on a head or at the
 role."""
 
 
+@lru_cache(maxsize=None)
 def role(description: str) -> str | None:
-    """The role (`ROLES`) of a piece by its LDraw title ("Minifig Torso ...", "~Minifig Leg Left
+    """The role of a piece (torso, hips, hips-legs, leg-left, leg-right, arm-left, arm-right,
+    hand, head, headgear, neckwear; kept per title: the checker asks it of every pair of touching
+    pieces) by its LDraw title ("Minifig Torso ...", "~Minifig Leg Left
     (Obsolete)", "Minifig Helmet Classic with ... Visor Dimples"); None for anything else,
     minifigure accessories held in a hand included."""
     title = description.lstrip("~_=| ")
@@ -67,11 +70,7 @@ def role(description: str) -> str | None:
 
 def _turn(axis: int, degrees: float) -> np.ndarray:
     """The rotation by `degrees` about the X (0), Y (1) or Z (2) axis."""
-    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    r = np.eye(3)
-    r[i, i], r[i, j], r[j, i], r[j, j] = c, -s, s, c
-    return r
+    return rotation_about(np.eye(3)[axis], degrees)
 
 
 @dataclass(frozen=True)
@@ -141,8 +140,8 @@ def related(a: str, b: str) -> bool:
 HOLD_LDU = 7.0
 """How far from its slot a piece may sit and still be held there (`in_a_slot`). Designs put hands
 up to 6.3 LDU off their arm's slot (6716; 40448 4.7) and turn arms about more than their
-shoulder's axis (40448, 6716): files drawn by hand, of figures that hold. A piece a slot's length or more
-away (a torso on a head's stud, a second torso on the first) is in none."""
+shoulder's axis (40448, 6716): files drawn by hand, of figures that hold. A piece a slot's length
+or more away (a torso on a head's stud, a second torso on the first) is in none."""
 
 
 def _at_slot(slot: Slot, parent_pose, child_pose, tol_ldu: float) -> bool:
@@ -162,8 +161,7 @@ def fits(slot: Slot, parent_pose, child_pose, tol_ldu: float = 1.5, tol_deg: flo
     `Pose`s, LDU), at any turn about the slot's axis: its origin within `tol_ldu` of the slot's,
     its rotation within `tol_deg` of the slot's base turned about that axis. 1.5 LDU: hand-edited
     files put pieces 1 LDU off (10156's arms)."""
-    rel_t = parent_pose.R.T @ (np.asarray(child_pose.t) - parent_pose.t)
-    if np.linalg.norm(rel_t - np.asarray(slot.offset)) > tol_ldu:
+    if not _at_slot(slot, parent_pose, child_pose, tol_ldu):
         return False
     turn = slot.base.T @ parent_pose.R.T @ child_pose.R  # the turn after the base: about `axis` only
     if slot.axis is None:

@@ -35,8 +35,24 @@ def _translation_key(t: np.ndarray) -> np.ndarray:
 
 def pose_key(part: Part, r: np.ndarray, t: np.ndarray) -> tuple:
     """One pose's key: equal for poses equal under the part's symmetry (as the rows deduplicated
-    below), for callers that enumerate poses one at a time (`joint_attach`)."""
+    below), for callers that enumerate poses one at a time (`distinct_poses`)."""
     return _rotation_key(part, r), tuple(_translation_key(np.asarray(t)[None])[0].tolist())
+
+
+def distinct_poses(part: Part, poses) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations (n, 3, 3) and translations (n, 3) of `poses` ((r, t) pairs, in order), those equal
+    under the part's symmetry to one before them dropped (`pose_key`); for callers that enumerate
+    poses one at a time (`joint_attach`, `minifig_attach`)."""
+    rots, ts, keys = [], [], set()
+    for r, t in poses:
+        key = pose_key(part, r, t)
+        if key not in keys:
+            keys.add(key)
+            rots.append(r)
+            ts.append(t)
+    if not ts:
+        return np.zeros((0, 3, 3)), np.zeros((0, 3))
+    return np.stack(rots), np.stack(ts)
 
 
 def _first_rows(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -21,7 +21,7 @@ import numpy as np
 from factory.joints import CLICK_STEP_DEG, JointConnector, click_angle, joint_ends, mates, stretches
 from factory.ldraw.other_connectors import place_connectors
 from factory.parts import Part
-from factory.physics.attach import pose_key
+from factory.physics.attach import distinct_poses
 from factory.physics.structure import Structure, align
 from factory.physics.unmodelled import is_minifig
 from factory.symmetry import rotation_about
@@ -64,7 +64,7 @@ def joint_attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarra
     (module docstring); empty where it or the structure has no connector that mates."""
     mine = _ends(part)
     targets, kinds, refs = _targets(structure)
-    rots, ts, keys = [], [], set()
+    poses = []
     for c in mine:
         a0, a1, ua = (np.array(v, float) for v in (c.start, c.end, c.axis))
         for g, kind, ref in zip(targets, kinds, refs):
@@ -82,13 +82,5 @@ def joint_attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarra
                     c_lo, c_hi = min(0.0, d), max(0.0, d)
                     centred = (b_lo + b_hi) / 2 - (c_lo + c_hi) / 2
                     slides = {centred} if freedom.stepped else {b_lo - c_lo, b_hi - c_hi, centred}
-                    for x in sorted(slides):
-                        t = g[0] + x * u - r @ a0
-                        key = pose_key(part, r, t)
-                        if key not in keys:
-                            keys.add(key)
-                            rots.append(r)
-                            ts.append(t)
-    if not ts:
-        return np.zeros((0, 3, 3)), np.zeros((0, 3))
-    return np.stack(rots), np.stack(ts)
+                    poses += [(r, g[0] + x * u - r @ a0) for x in sorted(slides)]
+    return distinct_poses(part, poses)

@@ -18,7 +18,7 @@ import numpy as np
 
 from factory.minifig import FEET, LOWER_BODY, SLOTS, role
 from factory.parts import Part
-from factory.physics.attach import pose_key
+from factory.physics.attach import distinct_poses
 from factory.physics.structure import Structure
 from factory.symmetry import rotation_about
 
@@ -51,7 +51,7 @@ def minifig_attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndar
     order, slots in `SLOTS` order, angles; poses equal under the part's symmetry dropped."""
     mine = role(part.description)
     if mine is None:
-        return np.zeros((0, 3, 3)), np.zeros((0, 3))
+        return distinct_poses(part, [])
     placed = _roles(structure)
     poses: list[tuple[np.ndarray, np.ndarray]] = []
     if mine in FEET:
@@ -78,15 +78,5 @@ def minifig_attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndar
                     rot = at.R @ rel.T
                     poses.append((rot, at.t - rot @ np.asarray(slot.offset)))
     same = [structure.placed[i].pose.t for i, r in placed if r == mine]
-    rots, ts, keys = [], [], set()
-    for rot, t in poses:
-        if any(np.linalg.norm(t - s) < SAME_PLACE_LDU for s in same):
-            continue
-        key = pose_key(part, rot, t)
-        if key not in keys:
-            keys.add(key)
-            rots.append(rot)
-            ts.append(t)
-    if not ts:
-        return np.zeros((0, 3, 3)), np.zeros((0, 3))
-    return np.stack(rots), np.stack(ts)
+    return distinct_poses(part, [(rot, t) for rot, t in poses
+                                 if all(np.linalg.norm(t - s) >= SAME_PLACE_LDU for s in same)])

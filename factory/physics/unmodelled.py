@@ -26,6 +26,7 @@ from factory.joints import (JointConnector, click_angle, mates, on_a_click, on_o
                             stretch_overlap, together)
 from factory.minifig import FEET, FOOT_AXIS, in_a_slot, related, role
 from factory.parts import Part, box_corners
+from factory.physics.structure import connectors
 from factory.pose import Pose
 
 NEAR_LDU = 2.0
@@ -292,6 +293,7 @@ FOOT_LDU = 0.5
 """How far a stud may be from a minifigure's foot hole and still be in it (the designs' standing
 figures: within 0.01 LDU of a stud, or 1 LDU or more off it)."""
 STUD_HEIGHT_LDU = 4.0
+"""How far a stud stands into a foot: the stretch round which a foot joint's overlap lies."""
 
 
 def _feet_on_studs(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> list[Joint]:
@@ -300,15 +302,14 @@ def _feet_on_studs(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
     feet = FEET.get(role(new.description))
     if not feet or not placed.studs:
         return []
-    into = new_pose.R @ np.asarray(FOOT_AXIS)
+    pos, axis = connectors(placed, placed_pose, "studs")
+    into = axis @ (new_pose.R @ np.asarray(FOOT_AXIS)) > np.cos(np.radians(PARALLEL_DEG))
     out = []
-    for foot in feet:
-        at = new_pose.R @ np.asarray(foot) + new_pose.t
-        for s in placed.studs:
-            pos, axis = placed_pose.R @ np.asarray(s.pos) + placed_pose.t, placed_pose.R @ np.asarray(s.axis)
-            if np.linalg.norm(pos - at) <= FOOT_LDU and axis @ into > np.cos(np.radians(PARALLEL_DEG)):
-                out.append(_joint("minifig", np.stack([pos, pos + STUD_HEIGHT_LDU * axis, axis])))
-                break
+    for at in new_pose.apply(np.asarray(feet)):
+        hit = np.flatnonzero(into & (np.linalg.norm(pos - at, axis=1) <= FOOT_LDU))
+        if len(hit):
+            k = hit[0]
+            out.append(_joint("minifig", np.stack([pos[k], pos[k] + STUD_HEIGHT_LDU * axis[k], axis[k]])))
     return out
 
 
