@@ -160,23 +160,12 @@ def lands_on_a_joint(structure: Structure, part, moved: Pose, move: np.ndarray) 
     return False
 
 
-def _links(index: int, verdict: Verdict, part: int = 0) -> list[Link]:
-    """The links of a part placed at `index` (part `part` of its verdict's unit) to the parts
-    before it: the joints that hold it (its verdict's `joints`), and rigid links to the parts that
-    may hold it by a connection the checker cannot place (`held_by`), so that the
-    whole-structure loads carry it through them. A holder not placed yet (a later part of its
-    step it hangs from) is not linked."""
-    rigid = [Link(index, j, tuple(float(v) for v in verdict.pose.t)) for j in verdict.held_by if j < index] \
-        if part == 0 else []
-    return rigid + [Link(index, l.b, l.point, l.kind, l.axis) for l in verdict.joints if l.a == part and l.b < index]
-
-
 def _add_unit(structure: Structure, unit: list[Placed], inner_links, verdict: Verdict) -> None:
     """Add a finished sub-assembly's parts to its parent, with its own rigid links (renumbered) and,
     if the unit is held by an unmodelled connection, a link from its first part."""
     base = len(structure)
     for k, p in enumerate(unit):
-        structure.add(p, _links(base + k, verdict, k))
+        structure.add(p, verdict.links(base + k, k))
     structure.links.extend(Link(l.a + base, l.b + base, l.point) for l in inner_links)
 
 
@@ -275,13 +264,13 @@ def _going_first(structure: Structure, start: int, local: Placed, backend, confi
     if not w.ok:
         return None
     after = _first(structure, start)
-    after.add(local, _links(len(after), w))
+    after.add(local, w.links(len(after)))
     for q in structure.placed[start:]:
         (u,) = check_units(after, [[q]], backend, config, require_connection=not _on_table(after, [q]),
                            standing=standing)
         if not u.ok:
             return None
-        after.add(q, _links(len(after), u))
+        after.add(q, u.links(len(after)))
     return w, before
 
 
@@ -417,7 +406,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 # structure it was judged against (with the later parts of its step, if it hangs).
                 yield from _faults(judged_on, local, backend, config, standing, step.index, index,
                                    finished[step.assembly])
-            structure.add(local, _links(len(structure), v))
+            structure.add(local, v.links(len(structure)))
     return structures.get("main")
 
 

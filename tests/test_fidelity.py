@@ -457,8 +457,7 @@ def test_a_part_hung_from_a_later_part_of_its_step_links_only_to_parts_placed():
     # linked to that part's index before it was placed, and the loads of the next step indexed
     # past the structure. The later part makes the link when it comes (its own `held_by`).
     from factory.physics.check import Verdict
-    from factory.replay import _links
 
     v = Verdict(Pose.identity(), connected=False, connections=0, collision=False, max_penetration_ldu=0.0,
                 held_by=(3, 7), reason="unsupported-connection")
-    assert [(l.a, l.b) for l in _links(5, v)] == [(5, 3)]
+    assert [(l.a, l.b) for l in v.links(5)] == [(5, 3)]

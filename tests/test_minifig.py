@@ -16,7 +16,6 @@ from factory.parts import load_part
 from factory.physics.check import check_units
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
-from factory.replay import _links
 from ldraw_support import DESIGNS, LIBRARY_ZIP, needs_ldraw
 
 pytestmark = needs_ldraw
@@ -124,6 +123,10 @@ def test_the_sampler_builds_minifigures(lib):
         placed.append((r, step.pose))
     assert slotted >= 2
     assert sampler.sample(0).same_as(obj)
+    # A figure being built takes its next piece (a minifigure draw goes to a piece with a free slot
+    # where there is one): drawn among all pieces, a hand would rarely meet a free arm.
+    roles = [role(load_part(lib, s.part).description) for o in (obj, sampler.sample(1)) for s in o.steps]
+    assert "hand" in roles and "arm-right" in roles and "hips" in roles, roles
 
 
 def test_pieces_of_a_figure_hold_one_another_at_their_slots(lib):
@@ -136,7 +139,7 @@ def test_pieces_of_a_figure_hold_one_another_at_their_slots(lib):
     leg = _placed(lib, "3817", *leg_at)
     (v,) = check_units(structure, [[leg]], "cpu", floor_y=8.0)
     assert v.ok, v
-    structure.add(leg, _links(len(structure), v))
+    structure.add(leg, v.links(len(structure)))
     for off, held in (([0.0, -12.0, 0.0], True), ([3.0, -12.0, 0.0], True), ([12.0, -12.0, 0.0], False)):
         (v,) = check_units(structure, [[_placed(lib, "3815", *(leg_at + off))]], "cpu", floor_y=8.0)
         assert v.ok == held, (off, v)

@@ -45,16 +45,18 @@ def _leg_origin(r: str, pose) -> np.ndarray:
     return pose.t + pose.R @ np.array([0.0, _LEGS[r], 0.0])
 
 
-def minifig_attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarray, np.ndarray]:
+def minifig_attachment_arrays(structure: Structure, part: Part, in_slots_only: bool = False
+                              ) -> tuple[np.ndarray, np.ndarray]:
     """Rotations (n, 3, 3) and translations (n, 3) of a minifigure piece's attachments (module
     docstring); empty for a part with no role. Deterministic order: feet, then placed pieces in
-    order, slots in `SLOTS` order, angles; poses equal under the part's symmetry dropped."""
+    order, slots in `SLOTS` order, angles; poses equal under the part's symmetry dropped.
+    `in_slots_only`: only those in a slot of a placed piece (a figure being built), not on feet."""
     mine = role(part.description)
     if mine is None:
         return distinct_poses(part, [])
     placed = _roles(structure)
     poses: list[tuple[np.ndarray, np.ndarray]] = []
-    if mine in FEET:
+    if mine in FEET and not in_slots_only:
         sp, sa, _ = structure.studs
         busy, _ = structure.occupied()
         up = np.array([0.0, -1.0, 0.0])

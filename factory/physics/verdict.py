@@ -57,3 +57,13 @@ class Verdict:
     @property
     def ok(self) -> bool:
         return self.reason is None
+
+    def links(self, index: int, part: int = 0) -> list[Link]:
+        """The links to the parts before it of the unit's part `part`, placed as structure part
+        `index`: the joints that hold it (`joints`) and, for the unit's first part, rigid links to
+        the parts that may hold it by a connection the checker cannot place (`held_by`), so that
+        the whole-structure loads of later candidates carry it through them (studs are found
+        from the parts themselves; joints are not). A holder not placed yet is not linked."""
+        rigid = [Link(index, j, tuple(float(v) for v in self.pose.t)) for j in self.held_by if j < index] \
+            if part == 0 else []
+        return rigid + [Link(index, l.b, l.point, l.kind, l.axis) for l in self.joints if l.a == part and l.b < index]

@@ -25,7 +25,11 @@ Growth, per step:
    (they attach only where the structure offers a mating connector: redrawn from all parts, they
    would be placed less often than drawn) `JOINT_REDRAWS` times, then, if none goes on,
    `max_redraws` more from all; so does a step whose first draw is a minifigure piece, among
-   those (most go on only in a slot of a figure's piece placed before).
+   those that have a place on the structure (most go on only in a free slot of a figure's piece
+   placed before: drawn among all of them, a hand would rarely meet a free arm). A first draw
+   that is a minifigure piece is itself drawn again among the pieces with a free slot on the
+   structure, where any has one: a figure being built takes its next piece before another figure
+   is started, as figures in designs are whole.
 The first part is placed at the origin with the identity rotation (its lowest point fixes the
 ground) and is checked like any other (it must stand on its own).
 """
@@ -99,6 +103,16 @@ class Sampler:
         for part in self.parts:  # derive each part's connectors, symmetry and hull once, up front
             part.symmetry, part.hull_points
 
+    def _with_a_place(self, structure: Structure, in_slots_only: bool = False) -> np.ndarray | bool:
+        """The minifigure pieces' draw (`group_p`) among those that have an attachment on the
+        structure (on their feet, or in a free slot of a placed piece; `in_slots_only`: in a
+        slot), or False where none has."""
+        p = self.group_p["minifig"].copy()
+        for i in np.flatnonzero(p):
+            if not len(minifig_attachment_arrays(structure, self.parts[i], in_slots_only)[1]):
+                p[i] = 0.0
+        return _probabilities(p) if p.any() else False
+
     # -- public -----------------------------------------------------------------------------------
     def sample(self, index: int) -> Assembly:
         """Object `index` (an integer >= 0) of this configuration."""
@@ -141,15 +155,27 @@ class Sampler:
             checked = 0
             chosen = None
             group = None
+            open_p = None  # the minifigure pieces' draw among those with a place, once asked
             for draw in range(cfg.max_redraws + 1 + JOINT_REDRAWS):
                 first = not steps
                 if draw > cfg.max_redraws and group is None:
                     break
                 within = group is not None and draw <= JOINT_REDRAWS
+                if within and group == "minifig" and open_p is None:
+                    open_p = self._with_a_place(structure)
+                if within and group == "minifig" and open_p is False:
+                    continue  # no minifigure piece has a place on the structure: draw from all
                 part_i = int(rng.choice(len(self.parts), p=self.first_p if first else
+                                        open_p if within and group == "minifig" else
                                         self.group_p[group] if within else self.part_p))
                 if draw == 0 and not first and self.group[part_i] in self.group_p:
                     group = self.group[part_i]
+                    if group == "minifig":
+                        # A figure being built takes its next piece: of the pieces with a free slot
+                        # on the structure, where any has one.
+                        slot_p = self._with_a_place(structure, in_slots_only=True)
+                        if slot_p is not False:
+                            part_i = int(rng.choice(len(self.parts), p=slot_p))
                 part = self.parts[part_i]
                 colour = self.colours[int(rng.choice(len(self.colours), p=self.colour_p))]
                 if first:
@@ -231,7 +257,9 @@ class Sampler:
                 break
             part, colour, verdict, ground, draws, feasible = chosen
             floor = ground
-            structure.add(Placed(part, colour, verdict.pose))
+            # Its joints go in as links (studs are found from the parts): later parts hung on it
+            # are carried to the ground through them.
+            structure.add(Placed(part, colour, verdict.pose), verdict.links(len(structure)))
             d = tracker.add(part, verdict.pose)
             steps.append(AssemblyStep(
                 part=part.name, colour=colour, pose=verdict.pose, verdict=verdict,
