@@ -28,8 +28,8 @@ Growth, per step:
    those that have a place on the structure (most go on only in a free slot of a figure's piece
    placed before: drawn among all of them, a hand would rarely meet a free arm). A first draw
    that is a minifigure piece is itself drawn again among the pieces with a free slot on the
-   structure, where any has one: a figure being built takes its next piece before another figure
-   is started, as figures in designs are whole.
+   structure, where any has one, and goes in such a slot: a figure being built takes its next
+   piece before another figure is started, as figures in designs are whole.
 The first part is placed at the origin with the identity rotation (its lowest point fixes the
 ground) and is checked like any other (it must stand on its own).
 """
@@ -156,6 +156,7 @@ class Sampler:
             chosen = None
             group = None
             open_p = None  # the minifigure pieces' draw among those with a place, once asked
+            slot_p = False  # ... among those with a free slot, where the first draw is one
             for draw in range(cfg.max_redraws + 1 + JOINT_REDRAWS):
                 first = not steps
                 if draw > cfg.max_redraws and group is None:
@@ -176,6 +177,7 @@ class Sampler:
                         slot_p = self._with_a_place(structure, in_slots_only=True)
                         if slot_p is not False:
                             part_i = int(rng.choice(len(self.parts), p=slot_p))
+                slotting = draw == 0 and group == "minifig" and slot_p is not False
                 part = self.parts[part_i]
                 colour = self.colours[int(rng.choice(len(self.colours), p=self.colour_p))]
                 if first:
@@ -184,13 +186,16 @@ class Sampler:
                     feasible = 1
                 else:
                     ground = floor
-                    r, t = attachment_arrays(structure, part)
-                    jr, jt = joint_attachment_arrays(structure, part)
-                    if len(jt):  # through joints too (pins, axles, wheels, clips, open studs)
-                        r, t = np.concatenate([r, jr]), np.concatenate([t, jt])
-                    mr, mt = minifig_attachment_arrays(structure, part)
-                    if len(mt):  # a minifigure piece: on its feet, or in a slot of a piece it joins
-                        r, t = np.concatenate([r, mr]), np.concatenate([t, mt])
+                    if slotting:  # the next piece of a figure being built goes in a free slot
+                        r, t = minifig_attachment_arrays(structure, part, in_slots_only=True)
+                    else:
+                        r, t = attachment_arrays(structure, part)
+                        jr, jt = joint_attachment_arrays(structure, part)
+                        if len(jt):  # through joints too (pins, axles, wheels, clips, open studs)
+                            r, t = np.concatenate([r, jr]), np.concatenate([t, jt])
+                        mr, mt = minifig_attachment_arrays(structure, part)
+                        if len(mt):  # a minifigure piece: on its feet, or in a slot of a piece it joins
+                            r, t = np.concatenate([r, mr]), np.concatenate([t, mt])
                     feasible = len(t)
                     if not feasible:
                         rejected["no-attachment"] += 1
