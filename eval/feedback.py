@@ -37,6 +37,7 @@ from eval.parse import parse_pose
 from factory.dataset.prompts import feedback_turn, text_part
 from factory.ldraw import PlacedPart
 from factory.parts import load_part
+from factory.physics.linked import linked
 from factory.physics.settle import SettleConfig, settle_all
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose, nearest_rotation_matrix
@@ -102,7 +103,8 @@ def settle_answer(row: dict, predicted_text, before: list[dict], reader, scene: 
     point of `scene` (the whole assembly; default: before and this row); a predicted matrix that
     is not a rotation is taken as its nearest rotation."""
     blocks = parse_pose(predicted_text)
-    structure = Structure([Placed(load_part(reader, p.part), p.colour, p.pose) for p in placed_parts(before)])
+    # With the joints its parts make as links: a part held by a pin carries what is put on it.
+    structure = linked(Placed(load_part(reader, p.part), p.colour, p.pose) for p in placed_parts(before))
     everything = Structure([Placed(load_part(reader, p.part), p.colour, p.pose)
                             for p in placed_parts(scene if scene is not None else [*before, row])])
     floor_y = everything.floor_y()

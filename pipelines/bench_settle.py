@@ -26,6 +26,7 @@ from collections import Counter
 import numpy as np
 
 from factory import SamplerConfig, get_reader, grow, load_part
+from factory.physics.linked import linked
 from factory.physics.settle import SettleConfig, settle_all
 from factory.physics.settle_mjx import MjxStats, settle_many
 from factory.physics.structure import Placed, Structure
@@ -90,7 +91,7 @@ def cases(n: int, per_scene: int, seed: int, parts_range=(2, 4)) -> list[dict]:
         if len(steps) < parts_range[0] + 1:
             continue
         k = int(rng.integers(parts_range[0], min(parts_range[1], len(steps) - 1) + 1))
-        structure = Structure([Placed(load_part(reader, s.part), s.colour, s.pose) for s in steps[:k]])
+        structure = linked(Placed(load_part(reader, s.part), s.colour, s.pose) for s in steps[:k])
         part = load_part(reader, steps[k].part)
         floor_y = structure.floor_y()
         scene = len({c["scene"] for c in out})

@@ -441,3 +441,23 @@ def test_a_fault_that_lands_on_another_connection_is_not_injected(at):
     square = at("3022", 10, -8, 10)
     assert not lands_on_a_joint(structure, square.part, moved(square, (-10, 0, 0)).pose, np.array([-10.0, 0, 0]))
     assert not lands_on_a_joint(structure, plate.part, moved(plate, (0, -8, 0)).pose, np.array([0, -8.0, 0]))
+
+
+def test_a_structure_rebuilt_from_its_parts_keeps_their_joints():
+    """`physics.linked`: the structure of a grown object rebuilt from its parts alone (as a dataset
+    row gives them) has the joints the sampler kept as links when it placed each part held by
+    joints alone, so a part hung on a pin still carries what is put on it."""
+    from factory.physics.linked import linked
+    from factory.sampler import Sampler, SamplerConfig
+
+    cfg = SamplerConfig(seed=3, parts=(("3701", 1.0), ("3673", 1.0), ("32523", 1.0), ("3707", 0.5), ("3023", 1.0)),
+                        min_steps=8, max_steps=8)
+    sampler = Sampler(cfg, ldraw=str(LDRAW))
+    obj = sampler.sample(2)
+    kept = {(k, l.b, l.kind) for k, s in enumerate(obj.steps) if not s.verdict.connections
+            for l in s.verdict.links(k)}
+    assert {kind for *_, kind in kept} >= {"technic-pin", "technic-axle"}
+    by_name = {p.name: p for p in sampler.parts}
+    rebuilt = linked(Placed(by_name[s.part], s.colour, s.pose) for s in obj.steps)
+    assert {(l.a, l.b, l.kind) for l in rebuilt.links} == kept
+    assert Structure([Placed(by_name[s.part], s.colour, s.pose) for s in obj.steps]).links == []
