@@ -484,3 +484,18 @@ def test_a_hole_drawn_only_at_its_mouths_is_one_hole(lib_at):
 
     assert [(c.start, c.end) for c in merged_holes(mouths(0.0, 18.5))] == [((0.0, 0.0, 0.0), (0.0, 20.0, 0.0))]
     assert len(merged_holes(mouths(0.0, 19.0))) == 2
+
+
+def test_a_stop_bush_against_a_holes_mouth_is_part_of_the_pins_joint(lib_at):
+    # The long pin with stop bush (32054) pushed into the cross block 48989's pin hole at y = 20
+    # (along X, x -10 to 10): its bush (radius 9, x -30 to -10) lies against the block's face. The
+    # overlap there lies 8.0 to 8.3 LDU from the axis, beyond a pin's collar (8 LDU) but within the
+    # bush's (`unmodelled.BUSH_RADIUS_LDU`): the pin's joint, not an overlap beyond it.
+    block = [lib_at("48989", 0, 0, 0)]
+    pin = lib_at("32054", 0, 20, 0)
+    v = verdict(block, pin)
+    assert v.reason != "unsupported-connection" and [(l.kind, l.b) for l in v.joints] == [("technic-pin", 0)], v
+    assert v.max_penetration_ldu <= 0.5, v
+    # Off the hole's axis it is judged on its overlap.
+    v = verdict(block, moved(pin, (0, 3, 0)))
+    assert not v.ok and not v.joints, v
