@@ -201,6 +201,11 @@ HOLE_GAP_LDU = 16.0
 brick's hole is drawn with a pin-hole primitive at each mouth, 16 LDU apart. Click hinge halves
 on one axis this close are one hinge too (a dual finger is drawn as two halves, 8 LDU apart, with
 the other part's single finger between them)."""
+HOLE_LDU = 20.0
+"""A Technic hole's length: a stud's width, the thickness of a beam or brick it goes through.
+Mouths of one kind on one axis that span no more than this together are one hole, however far
+apart their primitives lie: the beam 64178 draws its holes with `npeghol` primitives only 1.5 LDU
+deep at each face, 17 LDU apart."""
 
 CLICK_STEP_DEG = 22.5
 """A click hinge holds at steps of this angle from straight. LEGO's click hinges lock at 22.5°
@@ -237,8 +242,9 @@ def part_connectors(part) -> tuple[JointConnector, ...]:
 
 def merged_holes(conns) -> list:
     """A part's joint connectors with the female primitives of one kind (or click hinge halves)
-    that lie on one axis within `HOLE_GAP_LDU` of each other merged into one (a hole drawn at both
-    mouths, a dual finger drawn as two halves)."""
+    that lie on one axis within `HOLE_GAP_LDU` of each other, or that together span no more than
+    one hole (`HOLE_LDU`), merged into one (a hole drawn at both mouths, a dual finger drawn as two
+    halves)."""
     out, merged = [], set()
     for i, c in enumerate(conns):
         if i in merged:
@@ -248,13 +254,22 @@ def merged_holes(conns) -> list:
             for j in range(i + 1, len(conns)):
                 d = conns[j]
                 other = np.array([d.start, d.end, d.axis], float)
-                if j not in merged and d.kind == c.kind and on_one_axis(other, seg) and \
-                        stretch_overlap(other, seg) >= -HOLE_GAP_LDU:
+                if j not in merged and d.kind == c.kind and on_one_axis(other, seg) and (
+                        stretch_overlap(other, seg) >= -HOLE_GAP_LDU or
+                        c.kind != "hinge" and _span(together(other, seg)) <= HOLE_LDU + HOME_TOL):
                     seg = together(other, seg)
                     merged.add(j)
             c = JointConnector(c.kind, *(tuple(float(v) for v in row) for row in seg), c.ref)
         out.append(c)
     return out
+
+
+HOME_TOL = 0.01
+"""LDU: the rounding of a part's coordinates, allowed on `HOLE_LDU`."""
+
+
+def _span(s: np.ndarray) -> float:
+    return float(np.linalg.norm(s[1] - s[0]))
 
 
 def stretches(conns) -> np.ndarray:

@@ -461,3 +461,65 @@ def test_a_structure_rebuilt_from_its_parts_keeps_their_joints():
     rebuilt = linked(Placed(by_name[s.part], s.colour, s.pose) for s in obj.steps)
     assert {(l.a, l.b, l.kind) for l in rebuilt.links} == kept
     assert Structure([Placed(by_name[s.part], s.colour, s.pose) for s in obj.steps]).links == []
+
+
+def test_a_bush_runs_along_its_primitives_z_and_goes_onto_an_axle(lib_at):
+    # LDraw draws a bush along its own Z (bush0 turns its axle hole from Y onto Z, z -10 to 10).
+    # The long pin with stop bush (32054) has its bush (bush0 at x = -20, Z turned onto X) on its
+    # pins' axis, beyond their end at x = -10; the bush with two flanges (3713) runs along Z, its
+    # flange at z = -10.
+    from factory.joints import part_connectors
+
+    def bushes(name):
+        return [(c.start, c.end, tuple(abs(v) for v in c.axis))
+                for c in part_connectors(lib_at(name, 0, 0, 0).part) if c.kind == "bush"]
+
+    assert bushes("32054") == [((-30.0, 0.0, 0.0), (-10.0, 0.0, 0.0), (1.0, 0.0, 0.0))]
+    assert bushes("3713") == [((0.0, 0.0, -10.0), (0.0, 0.0, 10.0), (0.0, 0.0, 1.0))]
+    # The bush pushed onto the axle 3 of `technic_base` (z from -20 to 40), beside the brick, is
+    # held by it; moved off the axle's axis it is not.
+    on_axle = technic_base(lib_at, lib_at("4519", 0, 10, 10, ALONG_Z))
+    (v,) = check_units(on_axle, [[lib_at("3713", 0, 10, 30)]], "cpu", floor_y=48.0)
+    assert v.ok and [(l.kind, l.b) for l in v.joints] == [("technic-axle", 2)], v
+    (v,) = check_units(on_axle, [[lib_at("3713", 0, 4, 30)]], "cpu", floor_y=48.0)
+    assert not v.ok and not v.joints, v
+
+
+def test_a_hole_drawn_only_at_its_mouths_is_one_hole(lib_at):
+    # The open-centre beam 64178 draws the holes through its 20 LDU thick arms (along Y) with a
+    # 1.5 LDU `npeghol` primitive at each face, 17 LDU apart: one hole from y = -10 to 10, as a
+    # Technic brick's hole drawn with a 2 LDU `peghole` at each mouth (3701) is.
+    from factory.joints import part_connectors
+
+    def hole_at(name, x, z):
+        found = [c for c in part_connectors(lib_at(name, 0, 0, 0).part) if c.kind == "pin-hole" and
+                 abs(c.axis[1]) > 0.99 and (c.start[0], c.start[2]) == (x, z)]
+        return sorted(round(v, 4) for c in found for v in (c.start[1], c.end[1]))
+
+    assert hole_at("64178", 40.0, 60.0) == [-10.0, 10.0]
+    assert hole_at("64178", -40.0, -20.0) == [-10.0, 10.0]
+    assert hole_at("3701", 0.0, 10.0) == []  # its holes run along Z
+    # Mouths farther apart than `HOLE_GAP_LDU` that span more than one hole stay apart.
+    from factory.joints import JointConnector, merged_holes
+
+    def mouths(a, b):
+        return [JointConnector("pin-hole", (0.0, a, 0.0), (0.0, a + 1.5, 0.0), (0.0, 1.0, 0.0)),
+                JointConnector("pin-hole", (0.0, b, 0.0), (0.0, b + 1.5, 0.0), (0.0, 1.0, 0.0))]
+
+    assert [(c.start, c.end) for c in merged_holes(mouths(0.0, 18.5))] == [((0.0, 0.0, 0.0), (0.0, 20.0, 0.0))]
+    assert len(merged_holes(mouths(0.0, 19.0))) == 2
+
+
+def test_a_stop_bush_against_a_holes_mouth_is_part_of_the_pins_joint(lib_at):
+    # The long pin with stop bush (32054) pushed into the cross block 48989's pin hole at y = 20
+    # (along X, x -10 to 10): its bush (radius 9, x -30 to -10) lies against the block's face. The
+    # overlap there lies 8.0 to 8.3 LDU from the axis, beyond a pin's collar (8 LDU) but within the
+    # bush's (`unmodelled.BUSH_RADIUS_LDU`): the pin's joint, not an overlap beyond it.
+    block = [lib_at("48989", 0, 0, 0)]
+    pin = lib_at("32054", 0, 20, 0)
+    v = verdict(block, pin)
+    assert v.reason != "unsupported-connection" and [(l.kind, l.b) for l in v.joints] == [("technic-pin", 0)], v
+    assert v.max_penetration_ldu <= 0.5, v
+    # Off the hole's axis it is judged on its overlap.
+    v = verdict(block, moved(pin, (0, 3, 0)))
+    assert not v.ok and not v.joints, v

@@ -20,6 +20,7 @@ bushes, wheel pins, handles."""
 
 _X = (1.0, 0.0, 0.0)
 _Y = (0.0, 1.0, 0.0)
+_Z = (0.0, 0.0, 1.0)
 
 _AXES = (
     # Click hinges turn about their local X. The pivot is the centre of the rounded finger: for
@@ -33,10 +34,15 @@ _AXES = (
     # Clips and bar handles hold a bar along X, its centre 2 LDU below the origin (clip3's and
     # phandle1's cylinders).
     (re.compile(r"clip|phandle"), (0.0, 2.0, 0.0), _X),
+    # Bushes run along their Z: bush0 places its axle hole (axlehol5) turned from Y onto Z, from
+    # z = -10 to 10, and bush1/bush2 draw their collars in planes z = const (the bush 3713 and
+    # the stop bush of the long pin 32054 are drawn so: flanges and pin along the bush's Z).
+    (re.compile(r"bush"), (0.0, 0.0, 0.0), _Z),
 )
 """(primitive name pattern, a point on its axis, the axis), in the primitive's frame; anything
-else (Technic holes, pins, axles, bushes, wheel pins and their holes) runs along Y through the
-origin, as LDraw draws them."""
+else (Technic holes, pins, axles, wheel pins and their holes) runs along Y through the origin,
+as LDraw draws them (each checked against the primitives of LDraw's library: the stretch of
+their geometry along that axis, their cross-section round it)."""
 
 
 def place_connectors(conns: np.ndarray, rotation: np.ndarray, offset: np.ndarray) -> np.ndarray:

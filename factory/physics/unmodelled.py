@@ -48,6 +48,12 @@ TECHNIC_RADIUS_LDU = 8.0
 """The same for a joint of connector primitives (a Technic pin in its hole: the pin's collar, wider
 than its 6 LDU shaft, sits in the counterbore at the hole's mouth; the friction pin 2780 in the
 beam 18654 overlaps 1.3 LDU at 7 LDU from the axis, none beyond 8)."""
+BUSH_RADIUS_LDU = 9.0
+"""The same for a Technic joint with a bush on its axis, of either part, at its stretch: a bush's
+collar is drawn to 9 LDU from its axis (`bush1`; the stop bush of the long pin 32054, the flanges
+of 3713), and it lies against the face round the hole's mouth. 32054's stop bush against the
+beam 64178 and the cross block 48989 overlaps them 1.1 to 1.4 LDU at 8.0 to 8.3 LDU from the
+axis, the medium motor 99455 at up to 8.9."""
 HOME_TOL_LDU = 0.01
 """How far short of wholly on the other the shorter connector may be and still be pushed home
 (the rounding of placed coordinates)."""
@@ -353,13 +359,17 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
             # into its hole, a hole all on its axle wherever it slides); a male end at a female's
             # mouth is not in it. Hinge halves meet end to end.
             continue
-        found = _joint(_joint_of({ka, kb}), together(pa[i], pb[j]), TECHNIC_RADIUS_LDU)
+        stretch = together(pa[i], pb[j])
+        bushed = any(c.kind == "bush" and on_one_axis(s, stretch, PARALLEL_DEG, NEAR_LDU) and
+                     stretch_overlap(s, stretch) >= -NEAR_LDU
+                     for conns, placed_at in ((ca, pa), (cb, pb)) for c, s in zip(conns, placed_at))
+        found = _joint(_joint_of({ka, kb}), stretch, BUSH_RADIUS_LDU if bushed else TECHNIC_RADIUS_LDU)
         if not any(o.kind == found.kind and o.point == found.point for o in out):
             out.append(found)  # a hole drawn with a primitive at each mouth is one joint with a pin
     rounds = bar_joints(new, new_pose, placed, placed_pose)
     kind = "bar-in-stud" if len(rounds) and _in_bore(new, new_pose, placed, placed_pose) else "bar"
     for stretch in rounds:
-        if any(o.radius == TECHNIC_RADIUS_LDU and on_one_axis(stretch, np.array(o.zone), PARALLEL_DEG, BAR_AXIS_LDU)
+        if any(o.radius in (TECHNIC_RADIUS_LDU, BUSH_RADIUS_LDU) and on_one_axis(stretch, np.array(o.zone), PARALLEL_DEG, BAR_AXIS_LDU)
                and stretch_overlap(stretch, np.array(o.zone)) > 0 for o in out):
             continue  # the cylinders of a primitive's joint already found (a rim's hole round a wheel pin)
         if any(on_one_axis(stretch, z, PARALLEL_DEG, BAR_AXIS_LDU) and stretch_overlap(stretch, z) > 0 for z in loose):
