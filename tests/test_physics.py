@@ -556,3 +556,16 @@ def test_depths_inside_pieces_measured_only_where_a_box_holds_the_point():
     assert inside.sum() > 50 and (~inside).sum() > 50
     assert np.allclose(got[inside], expected[inside])
     assert np.all(got[~inside] <= 0)
+
+
+@pytest.mark.parametrize("eps", [0.0, 1e-9, 1e-8, 1e-5, 1e-3, 0.3])
+def test_align_takes_a_vector_onto_one_almost_opposite(eps):
+    # A joint's axis laid on a target's the other way round: 1e-8 off opposite, float arithmetic
+    # rounds b @ a to -1 while their cross product is not zero (a sampled object divided by zero).
+    from factory.physics.structure import align
+
+    b = np.array([0.0, 1.0, 0.0])
+    a = -b + np.array([eps, 0.0, eps / 2])
+    a /= np.linalg.norm(a)
+    r = align(b, a)
+    assert np.allclose(r @ b, a, atol=1e-9) and np.allclose(r @ r.T, np.eye(3)) and np.isclose(np.linalg.det(r), 1.0)

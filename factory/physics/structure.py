@@ -227,6 +227,11 @@ def align(b: np.ndarray, a: np.ndarray) -> np.ndarray:
             return np.eye(3)
         perp = np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 0, 1.0])
         return rotation_about(np.cross(a, perp), 180.0)
+    if 1 + c < 1e-6:
+        # Nearly opposite: 1 / (1 + c) below loses the rotation (or divides by zero where c
+        # rounds to -1 with v not quite zero); turn about v's direction by the angle between.
+        s = float(np.linalg.norm(v))
+        return rotation_about(v / s, float(np.degrees(np.arctan2(s, c))))
     k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
     return np.eye(3) + k + k @ k * (1 / (1 + c))
 
