@@ -443,6 +443,7 @@ def test_a_fault_that_lands_on_another_connection_is_not_injected(at):
     assert not lands_on_a_joint(structure, plate.part, moved(plate, (0, -8, 0)).pose, np.array([0, -8.0, 0]))
 
 
+@needs_ldraw
 def test_a_structure_rebuilt_from_its_parts_keeps_their_joints():
     """`physics.linked`: the structure of a grown object rebuilt from its parts alone (as a dataset
     row gives them) has the joints the sampler kept as links when it placed each part held by
