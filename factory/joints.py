@@ -206,6 +206,10 @@ HOLE_LDU = 20.0
 Mouths of one kind on one axis that span no more than this together are one hole, however far
 apart their primitives lie: the beam 64178 draws its holes with `npeghol` primitives only 1.5 LDU
 deep at each face, 17 LDU apart."""
+HOME_TOL_LDU = 0.01
+"""The rounding of placed coordinates, allowed on lengths compared: `HOLE_LDU`, and how far short
+of wholly on the other the shorter of two mated connectors may be and still be pushed home
+(`unmodelled.joints_between`)."""
 
 CLICK_STEP_DEG = 22.5
 """A click hinge holds at steps of this angle from straight. LEGO's click hinges lock at 22.5°
@@ -256,16 +260,12 @@ def merged_holes(conns) -> list:
                 other = np.array([d.start, d.end, d.axis], float)
                 if j not in merged and d.kind == c.kind and on_one_axis(other, seg) and (
                         stretch_overlap(other, seg) >= -HOLE_GAP_LDU or
-                        c.kind != "hinge" and _span(together(other, seg)) <= HOLE_LDU + HOME_TOL):
+                        c.kind != "hinge" and _span(together(other, seg)) <= HOLE_LDU + HOME_TOL_LDU):
                     seg = together(other, seg)
                     merged.add(j)
             c = JointConnector(c.kind, *(tuple(float(v) for v in row) for row in seg), c.ref)
         out.append(c)
     return out
-
-
-HOME_TOL = 0.01
-"""LDU: the rounding of a part's coordinates, allowed on `HOLE_LDU`."""
 
 
 def _span(s: np.ndarray) -> float:

@@ -33,7 +33,8 @@ from factory.physics.geometry import collision_shape
 from factory.physics.check import CheckConfig, Verdict, check_units
 from factory.physics.load_model import Link
 from factory.physics.structure import Placed, Structure, canonical_key, connectors, match
-from factory.physics.unmodelled import JOINTS, joint_kind, joints_between, world_box
+from factory.physics.linked import links_by_joints
+from factory.physics.unmodelled import JOINTS, boxes_near, joint_kind, joints_between, world_box
 from factory.pose import Pose
 from factory.symmetry import rotation_about
 
@@ -150,7 +151,7 @@ def lands_on_a_joint(structure: Structure, part, moved: Pose, move: np.ndarray) 
     u = np.asarray(move, float) / np.linalg.norm(move)
     box = world_box(part, moved)
     for q in structure.placed:
-        if not _boxes_near(box, world_box(q.part, q.pose)):
+        if not boxes_near(box, world_box(q.part, q.pose)):
             continue
         for j in joints_between(part, moved, q.part, q.pose):
             if j.kind == "bar-in-stud":
@@ -221,18 +222,8 @@ def _joined(structure: Structure, later: list[Placed]) -> Structure:
     out = Structure(list(structure.placed))
     out.links.extend(structure.links)
     for q in later:
-        n = len(out)
-        box = world_box(q.part, q.pose)
-        links = [Link(n, i, j.point, j.kind, j.axis) for i, p in enumerate(out.placed)
-                 if _boxes_near(box, world_box(p.part, p.pose))
-                 for j in joints_between(q.part, q.pose, p.part, p.pose)]
-        out.add(q, links)
+        out.add(q, links_by_joints(out.placed, q))
     return out
-
-
-def _boxes_near(a: np.ndarray, b: np.ndarray, gap: float = 2.0) -> bool:
-    """Whether two boxes (`world_box`) are within `gap` LDU of each other."""
-    return bool(np.all(a[0] <= b[1] + gap) and np.all(b[0] <= a[1] + gap))
 
 
 def _in_hand(structure: Structure, unit: list[Placed], v: Verdict, backend, config, standing: bool,

@@ -8,41 +8,37 @@ ground, and every later part that hangs on it is judged `unstable`. `linked` fin
 part with no stud connection to the parts before it is linked to each of them that holds it by a
 joint as it stands (`unmodelled.joints_between`). A part held by studs is not asked (the checker
 asks joints of a candidate only where it has no stud connection or overlaps: a part pinned and
-on studs at once carries its loads through its studs here).
+on studs at once carries its loads through its studs here). `links_by_joints` is the one
+test of a part against those before it, also used where a replay judges parts together
+(`replay._joined`).
 """
 
 from __future__ import annotations
 
 from typing import Iterable
 
-import numpy as np
-
 from factory.physics.load_model import Link
 from factory.physics.structure import Placed, Structure
-from factory.physics.unmodelled import joints_between, world_box
+from factory.physics.unmodelled import boxes_near, joints_between, world_box
 
-NEAR_LDU = 2.0
-"""How far apart two parts' boxes may be for a joint between them to be looked for (a joint's parts
-touch; the checker's own touching distance)."""
+
+def links_by_joints(before: list[Placed], part: Placed) -> list[Link]:
+    """The links of `part`, placed after `before` (as part `len(before)`), to each of them that
+    holds it by a joint as it stands (`unmodelled.joints_between`; parts whose boxes are not near
+    are not asked)."""
+    n, box = len(before), world_box(part.part, part.pose)
+    return [Link(n, i, j.point, j.kind, j.axis) for i, p in enumerate(before)
+            if boxes_near(box, world_box(p.part, p.pose))
+            for j in joints_between(part.part, part.pose, p.part, p.pose)]
 
 
 def linked(placed: Iterable[Placed]) -> Structure:
     """The structure of `placed` (in order), each part with no stud connection to the parts before
     it linked to those that hold it by a joint (module docstring)."""
     out = Structure()
-    boxes: list[np.ndarray] = []
     for p in placed:
-        idx = len(out)
-        before = len(out.connections)
+        idx, before = len(out), len(out.connections)
         out.add(p)
-        box = world_box(p.part, p.pose)
-        if idx and not any(a == idx or b == idx for a, b, *_ in out.connections[before:]):
-            links = []
-            for j, other in enumerate(boxes):
-                if np.all(box[0] <= other[1] + NEAR_LDU) and np.all(other[0] <= box[1] + NEAR_LDU):
-                    q = out.placed[j]
-                    links += [Link(idx, j, jt.point, jt.kind, jt.axis)
-                              for jt in joints_between(p.part, p.pose, q.part, q.pose)]
-            out.links.extend(links)
-        boxes.append(box)
+        if idx and len(out.connections) == before:  # a part's new connections are all its own
+            out.links.extend(links_by_joints(out.placed[:idx], p))
     return out

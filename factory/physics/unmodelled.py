@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factory.ldraw.other_connectors import CONNECTOR_KINDS, place_connectors
-from factory.joints import (JointConnector, click_angle, mates, on_a_click, on_one_axis, part_connectors, part_stretches,
+from factory.joints import (HOME_TOL_LDU, JointConnector, click_angle, mates, on_a_click, on_one_axis, part_connectors, part_stretches,
                             stretch_overlap, together)
 from factory.minifig import FEET, FOOT_AXIS, in_a_slot, related, role
 from factory.parts import Part, box_corners
@@ -54,9 +54,6 @@ collar is drawn to 9 LDU from its axis (`bush1`; the stop bush of the long pin 3
 of 3713), and it lies against the face round the hole's mouth. 32054's stop bush against the
 beam 64178 and the cross block 48989 overlaps them 1.1 to 1.4 LDU at 8.0 to 8.3 LDU from the
 axis, the medium motor 99455 at up to 8.9."""
-HOME_TOL_LDU = 0.01
-"""How far short of wholly on the other the shorter connector may be and still be pushed home
-(the rounding of placed coordinates)."""
 
 END_LDU = 0.5
 """How far the ends of two solid bar-size cylinders on one axis may be apart, or into each other,
@@ -278,6 +275,13 @@ def world_box(part: Part, pose: Pose) -> np.ndarray:
     return np.stack([world.min(0), world.max(0)])
 
 
+def boxes_near(a: np.ndarray, b: np.ndarray, gap: float = 2.0) -> bool:
+    """Whether two boxes (`world_box`) are within `gap` LDU of each other: a coarse test of whether
+    two parts may touch, and so be joined (the checks' touching distance, `collide.NEAR_LDU`, is
+    a real gap of 1 LDU)."""
+    return bool(np.all(a[0] <= b[1] + gap) and np.all(b[0] <= a[1] + gap))
+
+
 def _box_meeting(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> tuple[float, float, float]:
     """The middle of where two parts' world boxes meet (overlap, or the gap between them)."""
     a, b = world_box(new, new_pose), world_box(placed, placed_pose)
@@ -366,15 +370,14 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
         found = _joint(_joint_of({ka, kb}), stretch, BUSH_RADIUS_LDU if bushed else TECHNIC_RADIUS_LDU)
         if not any(o.kind == found.kind and o.point == found.point for o in out):
             out.append(found)  # a hole drawn with a primitive at each mouth is one joint with a pin
+    # Cylinders on the axis of a primitives' joint found above (a rim's hole round a wheel pin) or
+    # of a click hinge turned between two steps (its fingers) are that joint's, not a bar's.
+    taken = [np.array(o.zone) for o in out] + loose
     rounds = bar_joints(new, new_pose, placed, placed_pose)
     kind = "bar-in-stud" if len(rounds) and _in_bore(new, new_pose, placed, placed_pose) else "bar"
     for stretch in rounds:
-        if any(o.radius in (TECHNIC_RADIUS_LDU, BUSH_RADIUS_LDU) and on_one_axis(stretch, np.array(o.zone), PARALLEL_DEG, BAR_AXIS_LDU)
-               and stretch_overlap(stretch, np.array(o.zone)) > 0 for o in out):
-            continue  # the cylinders of a primitive's joint already found (a rim's hole round a wheel pin)
-        if any(on_one_axis(stretch, z, PARALLEL_DEG, BAR_AXIS_LDU) and stretch_overlap(stretch, z) > 0 for z in loose):
-            continue  # the fingers of a click hinge turned between two steps
-        out.append(_joint(kind, stretch))
+        if not any(on_one_axis(stretch, z, PARALLEL_DEG, BAR_AXIS_LDU) and stretch_overlap(stretch, z) > 0 for z in taken):
+            out.append(_joint(kind, stretch))
     if not out and not new.sockets and not (len(_connectors(new)) and len(_connectors(placed))) \
             and offers_other(placed) and _box_share(new, new_pose, placed, placed_pose) >= SHAPE_SHARE:
         out.append(Joint("by-shape", _box_meeting(new, new_pose, placed, placed_pose), None, None))

@@ -84,14 +84,14 @@ class Sampler:
         self.part_p = _probabilities([w for _, w in config.parts])
         # The first part must carry studs (something has to be able to go on top of it), and be
         # no minifigure piece (a head's stud is no base for an object).
-        studded = [w if p.studs and role(p.description) is None else 0.0 for p, (_, w) in zip(self.parts, config.parts)]
+        roles = [role(p.description) for p in self.parts]
+        studded = [w if p.studs and r is None else 0.0 for p, r, (_, w) in zip(self.parts, roles, config.parts)]
         self.first_p = _probabilities(studded) if any(studded) else self.part_p
-        # Parts held by joints alone, and their draw among themselves (None where there are none,
-        # or only those).
-        self.by_joints = [held_by_joints_alone(p) and role(p.description) is None for p in self.parts]
-        # ... and minifigure pieces: the groups a step redraws within (`JOINT_REDRAWS`).
-        self.group = ["joints" if j else "minifig" if role(p.description) is not None else None
-                      for p, j in zip(self.parts, self.by_joints)]
+        # Parts held by joints alone and minifigure pieces: the groups a step redraws within
+        # (`JOINT_REDRAWS`), and each group's draw among its parts (none where the group is empty,
+        # or is all the parts).
+        self.group = ["minifig" if r is not None else "joints" if held_by_joints_alone(p) else None
+                      for p, r in zip(self.parts, roles)]
         self.group_p = {}
         for g in ("joints", "minifig"):
             w = [w if pg == g else 0.0 for pg, (_, w) in zip(self.group, config.parts)]
@@ -103,15 +103,15 @@ class Sampler:
         for part in self.parts:  # derive each part's connectors, symmetry and hull once, up front
             part.symmetry, part.hull_points
 
-    def _with_a_place(self, structure: Structure, in_slots_only: bool = False) -> np.ndarray | bool:
+    def _with_a_place(self, structure: Structure, in_slots_only: bool = False) -> np.ndarray | None:
         """The minifigure pieces' draw (`group_p`) among those that have an attachment on the
         structure (on their feet, or in a free slot of a placed piece; `in_slots_only`: in a
-        slot), or False where none has."""
+        slot), or None where none has."""
         p = self.group_p["minifig"].copy()
         for i in np.flatnonzero(p):
             if not len(minifig_attachment_arrays(structure, self.parts[i], in_slots_only)[1]):
                 p[i] = 0.0
-        return _probabilities(p) if p.any() else False
+        return _probabilities(p) if p.any() else None
 
     # -- public -----------------------------------------------------------------------------------
     def sample(self, index: int) -> Assembly:
@@ -154,30 +154,30 @@ class Sampler:
             rejected: Counter = Counter()
             checked = 0
             chosen = None
-            group = None
-            open_p = None  # the minifigure pieces' draw among those with a place, once asked
-            slot_p = False  # ... among those with a free slot, where the first draw is one
+            group = None  # the group of the step's first draw, if it is in one
+            within_p = None  # the redraws' draw within that group (None: none has a place)
             for draw in range(cfg.max_redraws + 1 + JOINT_REDRAWS):
                 first = not steps
                 if draw > cfg.max_redraws and group is None:
                     break
-                within = group is not None and draw <= JOINT_REDRAWS
-                if within and group == "minifig" and open_p is None:
-                    open_p = self._with_a_place(structure)
-                if within and group == "minifig" and open_p is False:
-                    continue  # no minifigure piece has a place on the structure: draw from all
-                part_i = int(rng.choice(len(self.parts), p=self.first_p if first else
-                                        open_p if within and group == "minifig" else
-                                        self.group_p[group] if within else self.part_p))
+                p = self.first_p if first else self.part_p
+                if group is not None and draw <= JOINT_REDRAWS:
+                    if within_p is None:
+                        continue  # no minifigure piece has a place on the structure: draw from all
+                    p = within_p
+                part_i = int(rng.choice(len(self.parts), p=p))
+                slotting = False
                 if draw == 0 and not first and self.group[part_i] in self.group_p:
                     group = self.group[part_i]
+                    within_p = self.group_p[group]
                     if group == "minifig":
                         # A figure being built takes its next piece: of the pieces with a free slot
-                        # on the structure, where any has one.
+                        # on the structure, where any has one, into such a slot.
                         slot_p = self._with_a_place(structure, in_slots_only=True)
-                        if slot_p is not False:
+                        if slot_p is not None:
                             part_i = int(rng.choice(len(self.parts), p=slot_p))
-                slotting = draw == 0 and group == "minifig" and slot_p is not False
+                            slotting = True
+                        within_p = self._with_a_place(structure)
                 part = self.parts[part_i]
                 colour = self.colours[int(rng.choice(len(self.colours), p=self.colour_p))]
                 if first:
