@@ -85,10 +85,30 @@ def _solid(part) -> bool:
     return bool(shape.body or shape.studs)
 
 
-def _flat_record(**extra) -> dict:
-    """The record of a part with no volume (`_record` of an empty verdict): not checked."""
+DUPLICATE = "duplicate"
+"""The reason of a part placed where the same part already is (the same file at the same pose, up
+to `DUPLICATE_LDU`): two copies no builder could place, an authoring error of the design (the
+Gearbox places a 1x6 brick and a Technic brick twice so). Reported, not checked, left out of the
+structure and of the acceptance rate, as `no-volume`."""
+
+DUPLICATE_LDU = 0.01
+"""How close two copies' origins and axes (each column of the pose's matrix) must be to be one."""
+
+
+def duplicate_of(structure: Structure, placed: Placed) -> int | None:
+    """The index of a part of `structure` that `placed` duplicates (`DUPLICATE`), None if none."""
+    for i, q in enumerate(structure.placed):
+        if (q.part.name.lower() == placed.part.name.lower()
+                and np.abs(q.pose.t - placed.pose.t).max() <= DUPLICATE_LDU
+                and np.abs(q.pose.R - placed.pose.R).max() <= DUPLICATE_LDU / 20.0):
+            return i
+    return None
+
+
+def _flat_record(reason: str = NO_VOLUME, **extra) -> dict:
+    """The record of a part not checked (`_record` of an empty verdict): no volume, or a duplicate."""
     return _record(Verdict(Pose.identity(), connected=False, connections=0, collision=False,
-                           max_penetration_ldu=0.0, reason=NO_VOLUME), **extra)
+                           max_penetration_ldu=0.0, reason=reason), **extra)
 
 
 def _faults(structure, local: Placed, backend, config, standing, step, index, finished=None):
@@ -362,6 +382,11 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 # reported and left out of the structure (nothing rests on it).
                 yield _flat_record(step=step.index, index=index, part=placed.part, color=placed.colour)
                 continue
+            twin = duplicate_of(structure, local)
+            if twin is not None:
+                yield _flat_record(DUPLICATE, step=step.index, index=index, part=placed.part, color=placed.colour,
+                                   duplicate_of=twin)
+                continue
             judged_on = structure
             (v,) = check_units(judged_on, [[local]], backend, config,
                                require_connection=not _on_table(judged_on, [local]), standing=standing)
@@ -473,7 +498,7 @@ def stands(structure: Structure | None, backend: str = "cpu", config: CheckConfi
 def summarize(records: list[dict]) -> dict:
     """Fidelity (share of stud-connected placements accepted) and fault rejection rates."""
     plain = [r for r in records if "fault" not in r]
-    judged = [r for r in plain if r["reason"] not in ("unsupported-connection", NO_VOLUME)]
+    judged = [r for r in plain if r["reason"] not in ("unsupported-connection", NO_VOLUME, DUPLICATE)]
     studded = [r for r in judged if r.get("stud_pairs", 0) > 0]
     out = {
         "placements": len(plain),
@@ -485,6 +510,7 @@ def summarize(records: list[dict]) -> dict:
         "by_joint": dict(Counter(r["joints"][0] for r in judged if r.get("joints"))),
         "by_joint_accepted": dict(Counter(r["joints"][0] for r in judged if r.get("joints") and r["reason"] is None)),
         "no_volume": sum(r["reason"] == NO_VOLUME for r in plain),
+        "duplicates": sum(r["reason"] == DUPLICATE for r in plain),
         # Accepted held in hand: the model tipped on the table while built (`verify_model`).
         "held_in_hand": sum(bool(r.get("held_in_hand")) for r in plain),
         "accepted": sum(r["reason"] is None for r in judged),

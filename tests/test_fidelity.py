@@ -461,3 +461,25 @@ def test_a_part_hung_from_a_later_part_of_its_step_links_only_to_parts_placed():
     v = Verdict(Pose.identity(), connected=False, connections=0, collision=False, max_penetration_ldu=0.0,
                 held_by=(3, 7), reason="unsupported-connection")
     assert [(l.a, l.b) for l in v.links(5)] == [(5, 3)]
+
+
+@pytest.mark.parametrize("twin, duplicate", [("1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat", True),
+                                             ("1 4 0 -24 0 -1 0 0 0 1 0 0 0 -1 3001.dat", False),
+                                             ("1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3003.dat", False)])
+def test_a_part_placed_twice_at_one_pose_is_reported_as_a_duplicate(write, twin, duplicate):
+    # The Gearbox places a 1x6 brick twice at one pose: judged, the second copy overlapped the
+    # first as a collision. It is the design's error, reported apart; the brick on top is judged
+    # on the first copy alone. The same brick turned half round, or another part there, is no
+    # copy and still collides.
+    from factory.replay import summarize, verify_model
+
+    path = write("twice.ldr", "1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat\n0 STEP\n"
+                 "1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat\n0 STEP\n"
+                 f"{twin}\n0 STEP\n1 4 0 -48 0 1 0 0 0 1 0 0 0 1 3001.dat\n0 STEP\n")
+    records = [r for r in verify_model(path, None) if "fault" not in r]
+    assert [r["reason"] for r in records] == [None, None, "duplicate" if duplicate else "collision", None]
+    if duplicate:
+        assert records[2]["duplicate_of"] == 1
+    summary = summarize(records)
+    assert summary["duplicates"] == int(duplicate)
+    assert summary["accepted"] == 3 and summary["stud_connected"] == (2 if duplicate else 3)
