@@ -258,6 +258,20 @@ def _in_hand(structure: Structure, unit: list[Placed], v: Verdict, backend, conf
     return (w, True) if w.ok else (v, False)
 
 
+def _in_hand_with(structure: Structure, local: Placed, later: list[Placed], backend, config,
+                  standing: bool) -> Verdict | None:
+    """The verdict of `local` going in held in hand with the later parts of its step that are
+    pressed onto it (by studs), as one unit, where that accepts it; else None."""
+    alone = Structure([local])
+    onto = [q for q in later if stud_pairs(alone, [q])]
+    if not onto:
+        return None
+    unit = [local, *onto]
+    (w,) = check_units(structure, [unit], backend, config, require_connection=not _on_table(structure, unit),
+                       standing=standing)
+    return w if w.ok else None
+
+
 def _first(structure: Structure, n: int) -> Structure:
     """A new structure of the first `n` parts of `structure`, with the links among them."""
     out = Structure(structure.placed[:n])
@@ -390,18 +404,27 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
             judged_on = structure
             (v,) = check_units(judged_on, [[local]], backend, config,
                                require_connection=not _on_table(judged_on, [local]), standing=standing)
-            if v.reason in WAITS_FOR_LATER and index + 1 < len(locals_):
+            later = [q for q in locals_[index + 1 :] if _solid(q.part)]
+            if v.reason in WAITS_FOR_LATER and later:
                 # Parts of one step go in together: a part may hang from one listed after it (a
                 # beam on the pins pushed through it next), and the step is judged standing once
                 # all its parts are in.
-                judged_on = _joined(structure, [q for q in locals_[index + 1 :] if _solid(q.part)])
-                (v,) = check_units(judged_on, [[local]], backend, config, standing=standing)
+                judged_on = _joined(structure, later)
+                (w,) = check_units(judged_on, [[local]], backend, config, standing=standing)
+                if w.reason in ("blocked", "clamped"):
+                    # Pushed onto the later parts it hangs from, it cannot get in; held in hand
+                    # with them pressed onto it (a plate under a tile that bridges it to the
+                    # model), it goes in with them.
+                    w = _in_hand_with(structure, local, later, backend, config, standing) or w
+                v = w
             held = _held_by(judged_on, next_step.get(id(step), [])) if v.reason in WAITS_FOR_LATER else None
             if held is not None:
                 # Held in hand until the next step of its assembly is on (a plate laid beside the
                 # model, then fixed from below; a brick set on a horse that comes next, whole):
                 # accepted if that holds it.
                 (w,) = check_units(held, [[local]], backend, config, standing=standing)
+                if w.reason in ("blocked", "clamped"):
+                    w = _in_hand_with(judged_on, local, held.placed[len(judged_on):], backend, config, standing) or w
                 if w.ok:
                     v, judged_on = w, held
             v, held_in_hand = _in_hand(judged_on, [local], v, backend, config, standing)

@@ -483,3 +483,30 @@ def test_a_part_placed_twice_at_one_pose_is_reported_as_a_duplicate(write, twin,
     summary = summarize(records)
     assert summary["duplicates"] == int(duplicate)
     assert summary["accepted"] == 3 and summary["stud_connected"] == (2 if duplicate else 3)
+
+
+UNDER_A_BRIDGE = """1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat
+1 4 80 -8 0 1 0 0 0 1 0 0 0 1 3020.dat
+0 STEP
+1 4 60 -16 0 1 0 0 0 1 0 0 0 1 3068b.dat
+0 STEP
+1 1 60 -24 0 1 0 0 0 1 0 0 0 1 3022.dat
+{between}1 14 40 -32 0 1 0 0 0 1 0 0 0 1 3020.dat
+0 STEP
+"""
+
+
+@pytest.mark.parametrize("same_step", [True, False])
+def test_a_part_laid_on_a_tile_goes_in_with_the_plate_pressed_onto_it(write, same_step):
+    # Ferrari 512 S, step 14: a 2x2 plate laid on a tile beside a brick is held by a 2x4 plate of
+    # its step that bridges it to the brick. Pushed up into that plate it meets the tile under it
+    # (blocked); laid on the tile and held there while the bridge is pressed down onto both, it
+    # goes in, whether the bridge is listed in its step or in the next.
+    from factory.replay import verify_model
+
+    path = write("bridge.ldr", UNDER_A_BRIDGE.format(between="" if same_step else "0 STEP\n"))
+    records = [r for r in verify_model(path, None) if "fault" not in r]
+    assert [r["part"] for r in records] == ["3001.dat", "3020.dat", "3068b.dat", "3022.dat", "3020.dat"]
+    plate, bridge = records[3], records[4]
+    assert bridge["reason"] is None and plate["reason"] is None, records
+    assert plate["buildable"] and bridge["buildable"]
