@@ -1,5 +1,5 @@
 """A decomposition refused once (past its time or memory limit) is not tried again under the same
-limits."""
+limits, and the part gets its convex hull's pieces instead of being left out."""
 
 from __future__ import annotations
 
@@ -9,8 +9,13 @@ import pytest
 def test_a_refused_decomposition_is_kept_and_not_tried_again_under_the_same_limits(monkeypatch, tmp_path):
     """A part whose decomposition ran past its limit (LDraw's 2573 took more than 300 s here) cost
     that time again in every process that met it, and stopped a run of the prior's parts; the
-    refusal is kept in the cache and given at once, until a wider limit is set."""
-    from factory.errors import LDrawLimitError
+    refusal is kept in the cache and not tried again until a wider limit is set. Meanwhile the
+    part has its hull's pieces (LDraw's dome 24947, with studs, and 3 wheels were left out of
+    every library so)."""
+    import json
+
+    import numpy as np
+
     from factory.ldraw import Library, Reader
     from factory.parts import load_part
     from factory.physics import decompose, geometry
@@ -19,25 +24,28 @@ def test_a_refused_decomposition_is_kept_and_not_tried_again_under_the_same_limi
     monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", "0.05")
     monkeypatch.setattr(decompose, "_faithful_pieces", lambda part, cfg: None)  # the way to coacd
     part = lambda: load_part(Reader(Library.embedded()), "3001")  # noqa: E731 (a fresh part: nothing in memory)
-    with pytest.raises(LDrawLimitError, match="more than 0.05 s") as first:
-        geometry.collision_shape(part())
-    assert "refused before" not in str(first.value)
-    run = decompose.subprocess.run
-    monkeypatch.setattr(decompose.subprocess, "run", lambda *a, **k: pytest.fail("a decomposition was started"))
-    with pytest.raises(LDrawLimitError, match=r"more than 0.05 s.*\(refused before; kept in the cache\)"):
-        geometry.collision_shape(part())
-    monkeypatch.setattr(decompose.subprocess, "run", run)
+    first = geometry.collision_shape(part())
+    (kept,) = (tmp_path / "coacd").glob("*.json")
+    assert "more than 0.05 s" in json.loads(kept.read_text())["message"]
+    # The hull's pieces: inside the brick's box, filling it but for its open underside.
+    lo, hi = np.array([-40.0, -0.01, -20.0]), np.array([40.0, 24.01, 20.0])
+    assert first.body and all(((p >= lo) & (p <= hi)).all() for p in first.body)
+    real = decompose._decompose
+    monkeypatch.setattr(decompose, "_decompose", lambda *a, **k: pytest.fail("a decomposition was started"))
+    again = geometry.collision_shape(part())
+    assert again.key == first.key and all(np.array_equal(a, b) for a, b in zip(again.body, first.body))
+    tried = []
+    monkeypatch.setattr(decompose, "_decompose", lambda *a, **k: tried.append(1) or real(*a, **k))
     monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", "0.1")  # a wider limit tries again
-    with pytest.raises(LDrawLimitError, match="more than 0.1 s") as wider:
-        geometry.collision_shape(part())
-    assert "refused before" not in str(wider.value)
+    geometry.collision_shape(part())
+    assert len(tried) == 2 and "more than 0.1 s" in json.loads(kept.read_text())["message"]
 
 
 @pytest.mark.slow
 def test_a_decomposition_past_its_time_limit_is_tried_again_at_coarser_settings(monkeypatch, tmp_path):
     """LDraw's 6061, 48169 and 4746 took more than 300 s at the default settings and were left out
     of every library; a decomposition that runs past its limit is tried again at `COARSE`
-    settings, and the part is refused only if that runs past the limit too."""
+    settings, and only if that runs past the limit too does the part get its hull's pieces."""
     from factory.errors import LDrawLimitError
     from factory.ldraw import Library, Reader
     from factory.parts import load_part
@@ -60,7 +68,9 @@ def test_a_decomposition_past_its_time_limit_is_tried_again_at_coarser_settings(
     monkeypatch.setattr(decompose, "_decompose", real)
     with pytest.raises(LDrawLimitError, match=r"more than 0.01 s of CPU time; .*again at coarser settings: "
                                               r".*more than 0.01 s of CPU time"):
-        geometry.collision_shape(load_part(Reader(Library.embedded()), "3003"))
+        decompose._decomposed(*(lambda p: (p, *decompose._body_mesh(p)))(load_part(Reader(Library.embedded()), "3003")),
+                              decompose.DecompositionConfig())
+    assert geometry.collision_shape(load_part(Reader(Library.embedded()), "3003")).body  # its hull's pieces
 
 
 def test_the_limit_is_cpu_time_not_wall_time(tmp_path):
@@ -111,7 +121,6 @@ def test_a_refusal_kept_before_the_coarser_try_existed_is_tried_again(monkeypatc
     names the file where it is read)."""
     import json
 
-    from factory.errors import LDrawLimitError
     from factory.ldraw import Library, Reader
     from factory.parts import load_part
     from factory.physics import decompose, geometry
@@ -120,8 +129,7 @@ def test_a_refusal_kept_before_the_coarser_try_existed_is_tried_again(monkeypatc
     monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", "0.05")
     monkeypatch.setattr(decompose, "_faithful_pieces", lambda part, cfg: None)  # the way to coacd
     part = lambda: load_part(Reader(Library.embedded()), "3001")  # noqa: E731
-    with pytest.raises(LDrawLimitError):
-        geometry.collision_shape(part())
+    geometry.collision_shape(part())
     (kept,) = (tmp_path / "coacd").glob("*.json")
     record = json.loads(kept.read_text())
     assert record["coarse"] == decompose.COARSE and record["message"].startswith("decomposing")  # no file before
@@ -130,6 +138,6 @@ def test_a_refusal_kept_before_the_coarser_try_existed_is_tried_again(monkeypatc
     tried = []
     real = decompose._decompose
     monkeypatch.setattr(decompose, "_decompose", lambda *a, **k: tried.append(1) or real(*a, **k))
-    with pytest.raises(LDrawLimitError, match="again at coarser settings"):
-        geometry.collision_shape(part())
+    geometry.collision_shape(part())
     assert len(tried) == 2  # tried again, both ways
+    assert json.loads(kept.read_text())["coarse"] == decompose.COARSE

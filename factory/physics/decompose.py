@@ -26,7 +26,7 @@ from scipy.spatial import ConvexHull, QhullError
 from factory.cache import cache_root, keep
 from factory.errors import LDrawLimitError
 from factory.parts import Part
-from factory.physics.faithful import _faithful_pieces
+from factory.physics.faithful import _faithful_pieces, _refined
 from factory.physics.hull import INSET_LDU, inset_hull
 
 
@@ -97,8 +97,36 @@ Measured on this project's 2-core machine, parts of LDraw's library that took mo
 the limit gets can depend on the machine; the cache (and `pipelines.parts --pack`) keeps it."""
 
 
-class DecompositionTooSlow(LDrawLimitError):
+class DecompositionRefused(LDrawLimitError):
+    """coacd ran past its time limit (at both settings) or its memory on a part, now or before
+    (`_refused_before`): the part gets its hull's pieces instead (`hull_pieces`)."""
+
+
+class DecompositionTooSlow(DecompositionRefused):
     """coacd ran past `coacd_seconds()` on a part."""
+
+
+HULL_CELLS = 4096
+"""How many cells the faithful split of a refused part's convex hull (`hull_pieces`) may examine:
+LDraw's dome 24947 needs 107 pieces and the wheel 18976 137 (4 s and 2.3 s here; at the
+decomposition's own 256 cells both stayed whole hulls). The wheels 56145 and 56904 need more
+and keep their hull (10-11 s to find that here)."""
+
+
+def hull_pieces(part: Part, verts: np.ndarray, cfg: DecompositionConfig) -> list[np.ndarray]:
+    """The collision pieces of a part coacd refused: its convex hull split into faithful pieces of
+    its own faces (`faithful._refined`, up to `HULL_CELLS` cells), else the hull itself. A whole
+    hull fills the part's holes and hollows: a pin or an axle in a wheel's hub, a tyre on its rim
+    or a stud in a socket still goes in (joint zones and connected studs are left out of the
+    overlap), but a part beside it finds no room in a hollow."""
+    try:
+        hull = verts[ConvexHull(verts).vertices]
+    except (QhullError, ValueError):
+        return []
+    piece = inset_hull(hull, cfg.inset_ldu)
+    if piece is None:
+        return []
+    return _refined(part, [piece], replace(cfg, refine_cells=max(cfg.refine_cells, HULL_CELLS)))
 
 
 def coacd_seconds() -> float:
@@ -187,8 +215,8 @@ def _decompose(vertices: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig
                                        f"machine, {COACD_SECONDS_ENV}=SECONDS allows longer)", name or None)
         if code != 0 or not os.path.exists(out):
             tail = (stderr.strip().splitlines() or ["no message"])[-1]
-            raise LDrawLimitError(f"{what} failed within {COACD_MEMORY_BYTES >> 20:,} MB of memory ({tail}); "
-                                  "refusing the part", name or None)
+            raise DecompositionRefused(f"{what} failed within {COACD_MEMORY_BYTES >> 20:,} MB of memory ({tail}); "
+                                       "refusing the part", name or None)
         with np.load(out) as pieces:
             return [pieces[f"arr_{i}"] for i in range(len(pieces.files))]
 
@@ -247,7 +275,7 @@ def _decomposed(part: Part, verts: np.ndarray, faces: np.ndarray, cfg: Decomposi
         try:
             raw = _decompose(verts, faces, replace(cfg, **COARSE), name)
         except LDrawLimitError as again:
-            raise LDrawLimitError(f"{slow.message}; again at coarser settings: {again.message}", slow.file) from None
+            raise DecompositionRefused(f"{slow.message}; again at coarser settings: {again.message}", slow.file) from None
     pieces = (_snap(r, verts, cfg.snap_ldu) for r in raw)
     return [p for p in (inset_hull(r, cfg.inset_ldu) for r in pieces if r is not None) if p is not None]
 
@@ -276,4 +304,4 @@ def _refused_before(raw_key: str, file) -> None:
     except (OSError, ValueError, KeyError, TypeError):
         return
     if wide:
-        raise LDrawLimitError(f"{message} (refused before; kept in the cache)", file)
+        raise DecompositionRefused(f"{message} (refused before; kept in the cache)", file)
