@@ -454,3 +454,34 @@ def test_a_process_without_a_worker_number_starts_its_warm_up_at_its_pid(monkeyp
     assert pair_kernels.warm_up() == len(shapes)
     start = os.getpid() % len(shapes)
     assert seen == shapes[start:] + shapes[:start]
+
+
+@pytest.mark.parametrize("gpu", [False, True])
+def test_a_launch_keeps_its_projections_within_max_work_with_the_same_intervals(monkeypatch, gpu):
+    """A launch held at least 256 pairs whatever its pieces: pieces of the largest buckets (128
+    vertices, 128 x 128 edge axes) then made one 4 GiB buffer, and a 16-worker build of 40 real
+    parts on one H200 ran out of memory in 37 of 40 shards. Pairs per launch keep a launch's
+    vertex-axis projections within `MAX_WORK` (forced small here), padding included, and the
+    intervals are those of launches of any size (to the last bit or so)."""
+    from factory.physics.piece_sets import LEVELS
+
+    rng = np.random.default_rng(5)
+    jobs = [_job(rng, 40), _job(rng, 9)]
+    monkeypatch.setattr(pair_kernels, "_HIGH", {})
+    whole = pair_kernels.intervals_many(jobs)
+    monkeypatch.setattr(pair_kernels, "_on_gpu", lambda: gpu)
+    monkeypatch.setattr(pair_kernels, "MAX_WORK", 1 << 12)
+    monkeypatch.setattr(pair_kernels, "_HIGH", {})
+    monkeypatch.setattr(pair_kernels, "COMPILES", [])
+    small = pair_kernels.intervals_many(jobs)
+    for a, b in zip(whole, small):  # XLA may order a sum otherwise at another batch size: an ulp
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+    assert pair_kernels.COMPILES
+    for s in pair_kernels.COMPILES:  # (kind, crosses, pairs, unit rows, structure rows, candidates, sizes...)
+        us, ss = s[6:9], s[9:12]
+        work = (us[0] + ss[0]) * (us[1] + ss[1] + s[1] * us[2] * ss[2])
+        assert s[2] < pair_kernels.MIN_ROWS and (s[2] == 1 or s[2] * work <= pair_kernels.MAX_WORK), s
+    monkeypatch.undo()
+    big = LEVELS[-1]
+    work = (2 * big[0]) * (2 * big[1] + big[2] * big[2])
+    assert pair_kernels._chunk(True, big, big) * work <= pair_kernels.MAX_WORK

@@ -168,11 +168,14 @@ WIDTH = {"sweep": 6, "still": 3}
 
 
 def _chunk(crosses: bool, us: tuple, ss: tuple) -> int:
-    """Pairs per launch of the kernel of buckets `us`, `ss` (a power of two, at least 256): as many
-    as keep its vertex-axis projections within `MAX_WORK`; edge-edge axes only with `crosses`."""
+    """Pairs per launch of the kernel of buckets `us`, `ss` (a power of two, at least 1): as many
+    as keep its vertex-axis projections within `MAX_WORK`; edge-edge axes only with `crosses`.
+    No floor: at 256 pairs, pieces of the largest buckets (a round part's 128 vertices and
+    128 x 128 edge axes) made one buffer of 256 x 128 x 16,512 doubles, 4 GiB, and every shard of
+    a 16-worker build of 40 real parts on one H200 ran out of its worker's share of the GPU."""
     nv = us[0] + ss[0]
     axes = us[1] + ss[1] + crosses * us[2] * ss[2]
-    return max(256, 1 << int(math.log2(max(1, MAX_WORK // (nv * axes)))))
+    return 1 << int(math.log2(max(1, MAX_WORK // (nv * axes))))
 
 
 def _launch(crosses: bool, ut, us: tuple, st, ss: tuple, poses, u, s, k, thr, thr_c, kind: str = "sweep") -> list:
@@ -196,7 +199,7 @@ def _launch(crosses: bool, ut, us: tuple, st, ss: tuple, poses, u, s, k, thr, th
             m = min(chunk, n - a)
             # On a GPU a launch of a few pairs costs about what one of thousands does: pairs are
             # padded to the most met (at least `GPU_MIN_PAIRS`), so a run compiles few pair counts.
-            rows = min(chunk, _grown(("pairs", *dims), m, GPU_MIN_PAIRS)) if _on_gpu() else pow2(m, MIN_ROWS)
+            rows = min(chunk, _grown(("pairs", *dims), m, GPU_MIN_PAIRS) if _on_gpu() else pow2(m, MIN_ROWS))
             shape = (kind, int(crosses), rows, ut.shape[0], st.shape[0], poses.shape[0], *sizes)
             if shape not in COMPILES:
                 COMPILES.append(shape)
