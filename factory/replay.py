@@ -258,18 +258,25 @@ def _in_hand(structure: Structure, unit: list[Placed], v: Verdict, backend, conf
     return (w, True) if w.ok else (v, False)
 
 
-def _in_hand_with(structure: Structure, local: Placed, later: list[Placed], backend, config,
-                  standing: bool) -> Verdict | None:
-    """The verdict of `local` going in held in hand with the later parts of its step that are
-    pressed onto it (by studs), as one unit, where that accepts it; else None."""
+NO_WAY_IN = ("blocked", "clamped")
+"""Reasons of a part that cannot reach its place along its approach."""
+
+
+def _in_hand_with(v: Verdict, structure: Structure, local: Placed, later: list[Placed], backend, config,
+                  standing: bool) -> Verdict:
+    """`v`, the verdict of `local` judged with the `later` parts it hangs from; where it finds no
+    way in (`NO_WAY_IN`), the verdict of `local` going in held in hand with those later parts
+    pressed onto it by studs, as one unit, if that accepts it."""
+    if v.reason not in NO_WAY_IN:
+        return v
     alone = Structure([local])
     onto = [q for q in later if stud_pairs(alone, [q])]
     if not onto:
-        return None
+        return v
     unit = [local, *onto]
     (w,) = check_units(structure, [unit], backend, config, require_connection=not _on_table(structure, unit),
                        standing=standing)
-    return w if w.ok else None
+    return w if w.ok else v
 
 
 def _first(structure: Structure, n: int) -> Structure:
@@ -410,26 +417,22 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 # beam on the pins pushed through it next), and the step is judged standing once
                 # all its parts are in.
                 judged_on = _joined(structure, later)
-                (w,) = check_units(judged_on, [[local]], backend, config, standing=standing)
-                if w.reason in ("blocked", "clamped"):
-                    # Pushed onto the later parts it hangs from, it cannot get in; held in hand
-                    # with them pressed onto it (a plate under a tile that bridges it to the
-                    # model), it goes in with them.
-                    w = _in_hand_with(structure, local, later, backend, config, standing) or w
-                v = w
+                (v,) = check_units(judged_on, [[local]], backend, config, standing=standing)
+                # Pushed onto the later parts it hangs from, it may not get in; held in hand with
+                # them pressed onto it (a plate under a tile that bridges it to the model), it does.
+                v = _in_hand_with(v, structure, local, later, backend, config, standing)
             held = _held_by(judged_on, next_step.get(id(step), [])) if v.reason in WAITS_FOR_LATER else None
             if held is not None:
                 # Held in hand until the next step of its assembly is on (a plate laid beside the
                 # model, then fixed from below; a brick set on a horse that comes next, whole):
                 # accepted if that holds it.
                 (w,) = check_units(held, [[local]], backend, config, standing=standing)
-                if w.reason in ("blocked", "clamped"):
-                    w = _in_hand_with(judged_on, local, held.placed[len(judged_on):], backend, config, standing) or w
+                w = _in_hand_with(w, judged_on, local, held.placed[len(judged_on):], backend, config, standing)
                 if w.ok:
                     v, judged_on = w, held
             v, held_in_hand = _in_hand(judged_on, [local], v, backend, config, standing)
             first = None
-            if v.reason in ("blocked", "clamped") and step_start < len(structure):
+            if v.reason in NO_WAY_IN and step_start < len(structure):
                 # The parts of one step go in in any order: a part that cannot be pressed in under
                 # or between parts of its own step listed before it (a brick under the plate that
                 # bridges it) is judged going in first, and those parts again after it.

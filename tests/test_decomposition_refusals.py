@@ -66,10 +66,10 @@ def test_a_decomposition_past_its_time_limit_is_tried_again_at_coarser_settings(
     assert tried == [50, 30] and len(shape.body) >= 1
     monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", "0.01")  # real coacd, too slow both times
     monkeypatch.setattr(decompose, "_decompose", real)
+    brick = load_part(Reader(Library.embedded()), "3003")
     with pytest.raises(LDrawLimitError, match=r"more than 0.01 s of CPU time; .*again at coarser settings: "
                                               r".*more than 0.01 s of CPU time"):
-        decompose._decomposed(*(lambda p: (p, *decompose._body_mesh(p)))(load_part(Reader(Library.embedded()), "3003")),
-                              decompose.DecompositionConfig())
+        decompose._decomposed(brick, *decompose._body_mesh(brick), decompose.DecompositionConfig())
     assert geometry.collision_shape(load_part(Reader(Library.embedded()), "3003")).body  # its hull's pieces
 
 

@@ -280,6 +280,23 @@ def _decomposed(part: Part, verts: np.ndarray, faces: np.ndarray, cfg: Decomposi
     return [p for p in (inset_hull(r, cfg.inset_ldu) for r in pieces if r is not None) if p is not None]
 
 
+def decomposed_or_refused(part: Part, verts: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig,
+                          raw_key: str) -> tuple[list[np.ndarray], float] | None:
+    """(the body's inset pieces, their inset) from `_decomposed`, cached under `raw_key`; None where
+    coacd refuses the part, now (the refusal is kept) or before (`_refused_before`)."""
+    try:
+        _refused_before(raw_key, getattr(part, "file", None))
+    except DecompositionRefused:
+        return None
+    try:
+        raw = (_decomposed(part, verts, faces, cfg), cfg.inset_ldu)
+    except DecompositionRefused as exc:
+        _remember_refusal(raw_key, exc)
+        return None
+    _save(cache_dir() / f"{raw_key}.npz", *raw)
+    return raw
+
+
 def _refusal_path(raw_key: str) -> Path:
     return cache_dir() / f"{raw_key}.json"
 

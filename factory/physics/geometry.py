@@ -35,9 +35,8 @@ import numpy as np
 
 from factory.errors import LDrawLimitError
 from factory.parts import Part
-from factory.physics.decompose import (DecompositionConfig, DecompositionRefused, _body_mesh, _decomposed, _load,
-                                       _refused_before, _remember_refusal, _save, cache_dir, hull_pieces)
-from factory.physics.decompose import HULL_CELLS
+from factory.physics.decompose import (HULL_CELLS, DecompositionConfig, _body_mesh, _load, _save, cache_dir,
+                                       decomposed_or_refused, hull_pieces)
 from factory.physics.faithful import REFINED_VERSION, _refined
 from factory.physics.hull import INSET_LDU, _hull_volume, inset_hull, stud_prism
 
@@ -98,27 +97,18 @@ def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()
     key = hashlib.sha256(f"{raw_key}/refined/{refine}/{REFINED_VERSION}".encode()).hexdigest()[:24]
     found = _load(cache_dir() / f"{key}.npz")
     if found is None:
-        raw = _load(cache_dir() / f"{raw_key}.npz")
-        if raw is None:
-            try:
-                _refused_before(raw_key, getattr(part, "file", None))
-                try:
-                    raw = (_decomposed(part, verts, faces, cfg), cfg.inset_ldu)
-                except DecompositionRefused as exc:
-                    _remember_refusal(raw_key, exc)
-                    raise
-                _save(cache_dir() / f"{raw_key}.npz", *raw)
-            except DecompositionRefused:
-                # Its hull's pieces instead, kept under their own key: the refusal stays, so that
-                # a wider limit tries coacd again (`decompose.hull_pieces`).
-                key = hashlib.sha256(f"{raw_key}/hull/{HULL_CELLS}/{REFINED_VERSION}".encode()).hexdigest()[:24]
-                found = _load(cache_dir() / f"{key}.npz")
-                if found is None:
-                    found = (hull_pieces(part, verts, cfg), cfg.inset_ldu)
-                    _save(cache_dir() / f"{key}.npz", *found)
-        if found is None:
+        raw = _load(cache_dir() / f"{raw_key}.npz") or decomposed_or_refused(part, verts, faces, cfg, raw_key)
+        if raw is not None:
             found = (_refined(part, raw[0], cfg), raw[1])
             _save(cache_dir() / f"{key}.npz", *found)
+        else:
+            # Refused by coacd: its hull's pieces, already faithful, under their own key (the
+            # refusal stays, so that a wider limit tries coacd again: `decompose.hull_pieces`).
+            key = hashlib.sha256(f"{raw_key}/hull/{HULL_CELLS}/{REFINED_VERSION}".encode()).hexdigest()[:24]
+            found = _load(cache_dir() / f"{key}.npz")
+            if found is None:
+                found = (hull_pieces(part, verts, cfg), cfg.inset_ldu)
+                _save(cache_dir() / f"{key}.npz", *found)
     body, inset = found
     studs, stud_at = [], []
     for s in part.studs:
