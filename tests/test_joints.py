@@ -173,11 +173,24 @@ def test_an_overlap_away_from_the_joint_is_still_a_collision(at, case):
 
 
 @pytest.mark.parametrize("backend", ["cpu", "jax"])
-def test_both_backends_judge_joints_alike(at, backend):
-    # The batched collision rule finds the overlap; the joint's zone is left out on the CPU scene.
+def test_both_backends_judge_joints_alike(at, backend, monkeypatch):
+    # The batched collision rule finds the overlap; where the joint's zone is left out, MuJoCo is
+    # asked about the holding part alone, never about the whole structure.
+    scenes = []
     if backend == "jax":
         pytest.importorskip("jax")
+        from factory.physics.collide import CollisionScene
+
+        built = CollisionScene.__init__
+        monkeypatch.setattr(CollisionScene, "__init__", lambda self, structure, *a: scenes.append(
+            len(structure.placed)) or built(self, structure, *a))
     assert kinds(verdict(roof_holder(at), at("4213", 0, -96, 0), backend)) == ["bar"]
+    assert verdict(roof_holder(at) + [at("3004", 0, -96, 0)], at("4213", 0, -96, 0), backend).reason == "collision"
+    plate = at("99206", 60, -32, 50, [[-1, 0, 0], [0, 1, 0], [0, 0, -1]])
+    board = at("90397", 30, -26, 68, [[0, 0, 1], [-1, 0, 0], [0, -1, 0]])
+    assert kinds(verdict([plate], board, backend)) == ["bar-in-stud"]
+    assert verdict([plate], moved(board, (0, 10, 0)), backend).reason in {"collision", "no-connection"}
+    assert set(scenes) <= {1} and (backend == "cpu" or scenes)
     assert verdict(roof_holder(at), at("4213", 10, -96, 0), backend).reason == "collision"
     v = verdict(clip_on_brick(at), bar_unit(at), backend)
     assert v.ok and kinds(v) == ["bar"], v

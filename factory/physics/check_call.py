@@ -109,6 +109,21 @@ class _Call:
             self._scene = _collision_scene(self.structure, self.rel, self.floor_y if self.floor_y is not None else 1e6)
         return self._scene
 
+    def _depth_round_joints(self, pen: Penetration, pose: Pose, touched: set[int], zones: dict) -> float:
+        """The candidate's depth with its overlap round its joints left out (`zones`, as
+        `CollisionScene.penetration`'s `joints`). From a device result, the parts holding it by
+        joints are asked of a MuJoCo scene of those parts alone (where its contacts lie decides
+        what is the joints'), every other part of the device's pairs: the whole structure's scene
+        cost the batched checks more than their launches on real parts."""
+        if pen.apart is None:
+            return self.scene.penetration(pose, touched, zones)[0]
+        holders = sorted(zones)
+        scene = _collision_scene([self.structure.placed[i] for i in holders], self.rel,
+                                 self.floor_y if self.floor_y is not None else 1e6)
+        mine = {n for n, i in enumerate(holders) if i in touched}
+        own = scene.penetration(pose, mine, {n: zones[i] for n, i in enumerate(holders)})[0]
+        return max(own, pen.apart(set(holders)))
+
     def collide_group(self):
         """This call's candidates for `collide_jax.penetrations`."""
         return (self.structure, self.rel, [unit[0].pose for _, unit, *_ in self.to_collide],
@@ -133,7 +148,7 @@ class _Call:
             if joints and collision:
                 # Overlap round a joint's axis (a pin in its hole, a bar in a clip, fingers between
                 # fingers), or anywhere with a part held by its shape, is the joint's.
-                depth = self.scene.penetration(pose, touched, _zones(joints))[0]
+                depth = self._depth_round_joints(pen, pose, touched, _zones(joints))
                 if depth > config.max_penetration_ldu:
                     joints = {}  # it overlaps beyond the joints too: judged on that overlap
                 else:
@@ -346,17 +361,20 @@ def _alone_case(unit: Sequence[Placed], outer, base_n: int, ground_y: float | No
 # of the same part); building the scene is most of a call's time.
 
 
-def _placed_key(structure: Structure, rel) -> tuple:
-    return (tuple(id(p) for p in structure.placed),
+def _placed_key(placed: list[Placed], rel) -> tuple:
+    return (tuple(id(p) for p in placed),
             tuple((id(part), pose.R.tobytes(), pose.t.tobytes()) for part, pose in rel))
 
 
-def _collision_scene(structure: Structure, rel, floor: float) -> CollisionScene:
-    return current().scenes.get((_placed_key(structure, rel), float(floor)),
-                      (list(structure.placed), [part for part, _ in rel]),
-                      lambda: CollisionScene(structure, rel, floor))
+def _collision_scene(structure: Structure | list[Placed], rel, floor: float) -> CollisionScene:
+    """The kept scene of `structure` (or of these placed parts alone, a structure made only if
+    none is kept) and the unit `rel`."""
+    placed = structure if isinstance(structure, list) else structure.placed
+    return current().scenes.get((_placed_key(placed, rel), float(floor)), (list(placed), [part for part, _ in rel]),
+                                lambda: CollisionScene(structure if isinstance(structure, Structure) else Structure(placed),
+                                                       rel, floor))
 
 
 def _load_base(structure: Structure, floor_y: float | None, cfg) -> LoadBase:
-    return current().load_bases.get((_placed_key(structure, ()), len(structure.links), floor_y, cfg), list(structure.placed),
+    return current().load_bases.get((_placed_key(structure.placed, ()), len(structure.links), floor_y, cfg), list(structure.placed),
                       lambda: LoadBase(structure.placed, structure.connections, floor_y, structure.links, cfg))

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import functools
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Callable
 from importlib import resources
 
 import mujoco
@@ -61,19 +62,32 @@ def _inside_depth(planes: np.ndarray, piece: np.ndarray, boxes: np.ndarray, poin
 
     Only pieces whose box holds a point are measured (a point outside a piece's box is outside the
     piece: 0 there): with real parts a structure holds thousands of pieces, and measuring every
-    point against every face was most of the sampler's time."""
+    point against every face was most of the sampler's time. `planes` hold each piece's faces
+    together, pieces in order (`piece` ascending): a piece's faces are found by bisection (picking
+    them by membership sorted every face of the structure, 30% of the reference checks' time in a
+    build of real parts on a lent H200)."""
     out = np.zeros((len(boxes), len(points)))
     if not len(boxes) or not len(points):
         return out
-    inbox = np.all((points[None] >= boxes[:, None, 0]) & (points[None] <= boxes[:, None, 1]), axis=2)
-    rows = np.flatnonzero(inbox.any(axis=1))
+    # Points within all pieces' box, then pieces whose box meets those points' box: both cheap,
+    # and the pairwise test below is then of a few pieces and points.
+    pts = np.flatnonzero(np.all((points >= boxes[:, 0].min(axis=0)) & (points <= boxes[:, 1].max(axis=0)), axis=1))
+    if not len(pts):
+        return out
+    p = points[pts]
+    near = np.flatnonzero(np.all((boxes[:, 0] <= p.max(axis=0)) & (boxes[:, 1] >= p.min(axis=0)), axis=1))
+    if not len(near):
+        return out
+    inbox = np.all((p[None] >= boxes[near, None, 0]) & (p[None] <= boxes[near, None, 1]), axis=2)
+    rows = near[inbox.any(axis=1)]
     if not len(rows):
         return out
-    mine = np.isin(piece, rows)
-    chosen, of = planes[mine], piece[mine]
-    signed = points @ chosen[:, :3].T + chosen[:, 3]  # (points, planes), > 0 outside a face
-    starts = np.flatnonzero(np.r_[True, of[1:] != of[:-1]])
-    out[rows] = -np.maximum.reduceat(signed, starts, axis=1).T
+    first, last = np.searchsorted(piece, rows), np.searchsorted(piece, rows, side="right")
+    counts = last - first
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    chosen = planes[np.repeat(first - starts, counts) + np.arange(counts.sum())]
+    signed = p @ chosen[:, :3].T + chosen[:, 3]  # (points, planes), > 0 outside a face
+    out[np.ix_(rows, pts)] = -np.maximum.reduceat(signed, starts, axis=1).T
     return out
 
 
@@ -286,6 +300,9 @@ class Penetration:
     """Deepest overlap (LDU) with the structure or the ground; 0 where nothing overlaps."""
     near: frozenset[int]
     """Structure parts it touches or overlaps."""
+    apart: Callable[[set[int]], float] | None = field(default=None, compare=False, repr=False)
+    """For a device result (`collide_jax`): the depth again with the overlap with some structure
+    parts left out, from the same pair results (None for the scene's)."""
 
 
 NEAR_LDU = 1.0

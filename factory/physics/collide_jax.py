@@ -26,6 +26,7 @@ decides a verdict only for a candidate with no stud connection (`unsupported-con
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Sequence
 
 import numpy as np
@@ -98,7 +99,42 @@ class _Job:
         near: list[list[int]] = [[] for _ in range(K)]
         for a, b in zip(k[touching].tolist(), j[touching].tolist()):
             near[a].append(b)
-        return [Penetration(d, frozenset(n)) for d, n in zip(deepest.tolist(), near)]
+        # Kept for `_apart`: a candidate that collides where it meets parts at joints is judged
+        # again, its overlap with every other part from these results.
+        self._res, self._overlap, self._undecided = res, overlap, undecided
+        self._crossing = dict(zip(probe.tolist(), crossing.tolist())) if len(probe) else {}
+        self._ground = self._below_ground() if self.floor_y is not None else np.zeros(K)
+        return [Penetration(d, frozenset(n), partial(self._apart, c))
+                for c, (d, n) in enumerate(zip(deepest.tolist(), near))]
+
+    def _apart(self, c: int, owners: set[int]) -> float:
+        """Candidate `c`'s depth with its overlap with the structure parts `owners` left out (the
+        ground and every other part as in `finish`), from the same pair results."""
+        uset, sset = self.uset, self.sset
+        k, u, s, j, _ = self.pairs
+        sel = np.flatnonzero((k == c) & ~np.isin(j, list(owners)))
+        res, overlap, undecided = self._res[sel], self._overlap[sel], self._undecided[sel]
+        deepest = float(self._ground[c])
+        body = ~uset.stud[u[sel]] & ~sset.stud[s[sel]]
+        if body.any():
+            deepest = max(deepest, float(np.maximum(res[body, 1], res[body, 2]).max()))
+        decided = ~undecided & (overlap > 0)
+        if decided.any():
+            deepest = max(deepest, float(overlap[decided].max()))
+        # Studs in a body: deepest first, each probed (or its probe reused) while it could deepen it.
+        for i in np.flatnonzero(undecided)[np.argsort(-overlap[undecided], kind="stable")]:
+            if overlap[i] <= deepest:
+                break
+            p = int(sel[i])
+            crosses = self._crossing.get(p)
+            if crosses is None:
+                stud_piece = u[p] if uset.stud[u[p]] else -1 - s[p]
+                crosses = bool(self._studs_cross(np.array([[c, stud_piece, j[p], uset.owner[u[p]]]]))[0])
+                self._crossing[p] = crosses
+            if crosses:
+                deepest = float(overlap[i])
+                break
+        return deepest
 
     def _below_ground(self) -> np.ndarray:
         """Per candidate: how far its pieces (plus their inset) reach below the ground."""
