@@ -197,6 +197,29 @@ def test_both_backends_judge_joints_alike(at, backend, monkeypatch):
     assert verdict([at("35480", -40, 8, 0)], at("3023", -50, 0, 0), backend).reason == "collision"
 
 
+def test_a_part_on_a_side_stud_is_held_by_the_same_clutch_rule_on_both_backends(at, monkeypatch):
+    # A tile clipped onto the side stud of a 1x1 brick, its clutch asked of the one-body program
+    # (the closed form left out): the batched checks solve it with HiGHS on the host, as the
+    # reference does (a device launch per round cost more than the programs).
+    pytest.importorskip("jax")
+    from factory.physics import clutch, lp_jax
+
+    monkeypatch.setattr(clutch, "_closed_form", lambda *a: None)
+    from factory.physics.check_state import CheckState, using
+
+    launched = []
+    real = lp_jax.solve_batch
+    monkeypatch.setattr(lp_jax, "solve_batch", lambda *a, **k: launched.append(a) or real(*a, **k))
+
+    brick, tile = clip_on_brick(at)
+    verdicts = {}
+    for backend in ("cpu", "jax"):
+        with using(CheckState()):  # each backend asks its own programs (answers are kept)
+            verdicts[backend] = verdict([brick], tile, backend)
+    assert verdicts["jax"] == verdicts["cpu"] and verdicts["cpu"].clutch and verdicts["cpu"].connections == 1, verdicts
+    assert not launched
+
+
 # Joints carry loads (`joint_capacity`): hand-built with parts of `../shared/ldraw`, on a floor
 # 24 LDU below the Technic brick's top.
 ALONG_Z = [[0, 0, -1], [0, 1, 0], [1, 0, 0]]  # a pin's X axis along Z
