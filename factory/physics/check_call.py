@@ -111,18 +111,24 @@ class _Call:
 
     def _depth_round_joints(self, pen: Penetration, pose: Pose, touched: set[int], zones: dict) -> float:
         """The candidate's depth with its overlap round its joints left out (`zones`, as
-        `CollisionScene.penetration`'s `joints`). From a device result, the parts holding it by
-        joints are asked of a MuJoCo scene of those parts alone (where its contacts lie decides
-        what is the joints'), every other part of the device's pairs: the whole structure's scene
-        cost the batched checks more than their launches on real parts."""
+        `CollisionScene.penetration`'s `joints`). From a device result, each part holding it by
+        joints is asked of a MuJoCo scene of that part alone, in its own frame (where the contacts
+        lie decides what is the joints'; the scene serves that part and unit in any structure), and
+        every other part of the device's pairs: the whole structure's scene, built again for each
+        structure, cost the batched checks more than their launches on real parts."""
         if pen.apart is None:
             return self.scene.penetration(pose, touched, zones)[0]
-        holders = sorted(zones)
-        scene = _collision_scene([self.structure.placed[i] for i in holders], self.rel,
-                                 self.floor_y if self.floor_y is not None else 1e6)
-        mine = {n for n, i in enumerate(holders) if i in touched}
-        own = scene.penetration(pose, mine, {n: zones[i] for n, i in enumerate(holders)})[0]
-        return max(own, pen.apart(set(holders)))
+        own = 0.0
+        for i, zone in zones.items():
+            held = self.structure.placed[i]
+            scene = _holder_scene(held.part, self.rel)
+            back = held.pose.inverse()
+            if zone is not None:
+                stretches, radii = zone
+                ends = back.apply(stretches[:, :2].reshape(-1, 3)).reshape(-1, 2, 3)
+                zone = (np.concatenate([ends, (stretches[:, 2] @ back.R.T)[:, None]], axis=1), radii)
+            own = max(own, scene.penetration(back @ pose, {0} if i in touched else set(), {0: zone})[0])
+        return max(own, pen.apart(set(zones)))
 
     def collide_group(self):
         """This call's candidates for `collide_jax.penetrations`."""
@@ -366,13 +372,17 @@ def _placed_key(placed: list[Placed], rel) -> tuple:
             tuple((id(part), pose.R.tobytes(), pose.t.tobytes()) for part, pose in rel))
 
 
-def _collision_scene(structure: Structure | list[Placed], rel, floor: float) -> CollisionScene:
-    """The kept scene of `structure` (or of these placed parts alone, a structure made only if
-    none is kept) and the unit `rel`."""
-    placed = structure if isinstance(structure, list) else structure.placed
-    return current().scenes.get((_placed_key(placed, rel), float(floor)), (list(placed), [part for part, _ in rel]),
-                                lambda: CollisionScene(structure if isinstance(structure, Structure) else Structure(placed),
-                                                       rel, floor))
+def _collision_scene(structure: Structure, rel, floor: float) -> CollisionScene:
+    return current().scenes.get((_placed_key(structure.placed, rel), float(floor)),
+                      (list(structure.placed), [part for part, _ in rel]),
+                      lambda: CollisionScene(structure, rel, floor))
+
+
+def _holder_scene(part: Part, rel) -> CollisionScene:
+    """The kept scene of `part` alone at the origin (no ground) and the unit `rel`."""
+    key = (id(part), tuple((id(p), pose.R.tobytes(), pose.t.tobytes()) for p, pose in rel))
+    return current().holder_scenes.get(key, (part, [p for p, _ in rel]), lambda: CollisionScene(
+        Structure([Placed(part, 0, Pose.identity())]), rel, 1e6))
 
 
 def _load_base(structure: Structure, floor_y: float | None, cfg) -> LoadBase:

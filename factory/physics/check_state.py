@@ -18,6 +18,10 @@ from contextvars import ContextVar
 from factory.physics.keep_last import KeepLast
 
 
+HOLDER_SCENES = 256
+"""Most scenes of a joint's holding part a checker keeps (`CheckState.holder_scenes`)."""
+
+
 class CheckState:
     """One checker's caches of work done per structure, unit or probe, its counters, and the number
     of objects whose caches it keeps at once (`capacity`: objects grown in lockstep ask about each
@@ -49,6 +53,9 @@ class CheckState:
         """`clutch.holds_alone_many`: answers by case relative to its centre of mass."""
         self.supports: dict = {}
         """`load_model.support_points`: a placed part's ground support points."""
+        self.holder_scenes = KeepLast(HOLDER_SCENES)
+        """`check_call`: a scene of one part holding a unit by joints, in that part's frame, by
+        part and unit (the batched checks' joints, met again across structures)."""
         self.placed_pieces: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
         """`piece_sets.structure_set`: each placed part's pieces turned and moved."""
         # Counters: changed in place only, so that a name bound to one stays its state's.
@@ -92,7 +99,7 @@ class CheckState:
         return {"scenes": self.scenes, "load_bases": self.load_bases, "structure_pieces": self.structure_pieces,
                 "unit_sets": self.unit_sets, "meshes": self.meshes, "crossed": self.crossed, "bodies": self.bodies,
                 "unit_pieces": self.unit_pieces, "alone": self.alone, "supports": self.supports,
-                "placed_pieces": self.placed_pieces}
+                "placed_pieces": self.placed_pieces, "holder_scenes": self.holder_scenes}
 
     def clear(self, only=None) -> None:
         """Empty the caches in place, or only those named in `only` (`caches`' names)."""
