@@ -147,8 +147,6 @@ def load_part(reader: Reader, name, model: str | None = None) -> Part:
     """
     if not isinstance(name, str):
         name, model = name.part, name.model
-    if model is None and name in reader.library_parts:
-        return reader.library_parts[name]
     res = reader.part(name, model)
     cache = reader.parts
     if res.key not in cache:
@@ -160,6 +158,4 @@ def load_part(reader: Reader, name, model: str | None = None) -> Part:
             flat=reader.flatten(res),
             file=res.file.path,
         )
-    if model is None:
-        reader.library_parts[name] = cache[res.key]
     return cache[res.key]

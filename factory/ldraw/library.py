@@ -79,6 +79,9 @@ class DirSource:
         self.label = label
         self.origin = origin
         self._listings: dict[str, dict[str, str]] = {}
+        # What each path named, found once as the listings are: resolving its links for every ask
+        # (a renderer asks for each part of a scene at every view) was a quarter of rendering real parts.
+        self._found: dict[str, Located | None] = {}
 
     def _listing(self, folder: str) -> dict[str, str]:
         if folder not in self._listings:
@@ -90,6 +93,11 @@ class DirSource:
         return self._listings[folder]
 
     def lookup(self, relpath: str) -> Located | None:
+        if relpath not in self._found:
+            self._found[relpath] = self._lookup(relpath)
+        return self._found[relpath]
+
+    def _lookup(self, relpath: str) -> Located | None:
         folder = str(self.root)
         for part in relpath.split("/"):
             real = self._listing(folder).get(part)

@@ -131,10 +131,6 @@ class Reader:
     """`factory.parts.Part` objects by resolved key, filled by `load_part`. A part found in a
     model's MPD blocks or folder has a key of its own (`MODEL#name`, `MODEL|file`), so it never
     stands in for the library's part of the same name in another model."""
-    library_parts: dict[str, object] = field(default_factory=dict)
-    """`parts`' entries of the library by the name asked (`load_part` with no model): a renderer
-    asks for every part of a scene at each of its views, and finding the file was a quarter of
-    rendering real parts (a path resolved per ask)."""
     models: dict[str, Model] = field(default_factory=dict)
     """The models opened last (`open_model`, the `KEEP_MODELS` latest), by path, for `model()`."""
     _colours: ColourTable | None = None

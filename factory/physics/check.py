@@ -141,8 +141,8 @@ def _run_calls(calls: "Sequence[_Call]", backend: str) -> list[list[Verdict]]:
             c.collided(found)  # counted as 'rules'
         # The clutch rule of every call: the closed form, else one body's program (6 rows) solved
         # by HiGHS on the host, as the reference does: about 1.7 ms a program on the 2-core
-        # machine, where a batched launch of them cost 73 ms (16 workers on a lent H200, 40 real
-        # parts) for a few programs each.
+        # machine, where a batched launch of a round's few programs cost 73 ms (a profiled build
+        # of 40 real parts, 16 workers sharing a lent H200).
         cases = [c.clutch_cases() for c in calls]
         t0 = time.perf_counter()
         # One config for every call: check_many passes its own to each.

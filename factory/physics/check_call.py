@@ -26,7 +26,7 @@ from factory.physics.mass import GRAVITY, part_mass_properties
 from factory.physics.statics import Failure
 from factory.physics.structure import Placed, Structure, connections_at, lowest_point
 from factory.physics.sweep import seating_from_connections, sweep, sweep_joint
-from factory.physics.unmodelled import Joint, joints_between, may_hold
+from factory.physics.unmodelled import Joint, joints_between, may_hold, zone_moved
 from factory.physics.verdict import CheckConfig, Verdict
 from factory.pose import Pose
 
@@ -121,13 +121,9 @@ class _Call:
         own = 0.0
         for i, zone in zones.items():
             held = self.structure.placed[i]
-            scene = _holder_scene(held.part, self.rel)
             back = held.pose.inverse()
-            if zone is not None:
-                stretches, radii = zone
-                ends = back.apply(stretches[:, :2].reshape(-1, 3)).reshape(-1, 2, 3)
-                zone = (np.concatenate([ends, (stretches[:, 2] @ back.R.T)[:, None]], axis=1), radii)
-            own = max(own, scene.penetration(back @ pose, {0} if i in touched else set(), {0: zone})[0])
+            own = max(own, _holder_scene(held.part, self.rel).penetration(
+                back @ pose, {0} if i in touched else set(), {0: zone_moved(zone, back)})[0])
         return max(own, pen.apart(set(zones)))
 
     def collide_group(self):
@@ -367,7 +363,8 @@ def _alone_case(unit: Sequence[Placed], outer, base_n: int, ground_y: float | No
 # of the same part); building the scene is most of a call's time.
 
 
-def _placed_key(placed: list[Placed], rel) -> tuple:
+def _placed_key(placed: Sequence, rel) -> tuple:
+    """Placed parts (or parts) by identity, and a unit's parts and poses."""
     return (tuple(id(p) for p in placed),
             tuple((id(part), pose.R.tobytes(), pose.t.tobytes()) for part, pose in rel))
 
@@ -380,8 +377,7 @@ def _collision_scene(structure: Structure, rel, floor: float) -> CollisionScene:
 
 def _holder_scene(part: Part, rel) -> CollisionScene:
     """The kept scene of `part` alone at the origin (no ground) and the unit `rel`."""
-    key = (id(part), tuple((id(p), pose.R.tobytes(), pose.t.tobytes()) for p, pose in rel))
-    return current().holder_scenes.get(key, (part, [p for p, _ in rel]), lambda: CollisionScene(
+    return current().holder_scenes.get(_placed_key([part], rel), (part, [p for p, _ in rel]), lambda: CollisionScene(
         Structure([Placed(part, 0, Pose.identity())]), rel, 1e6))
 
 

@@ -62,10 +62,11 @@ def _inside_depth(planes: np.ndarray, piece: np.ndarray, boxes: np.ndarray, poin
 
     Only pieces whose box holds a point are measured (a point outside a piece's box is outside the
     piece: 0 there): with real parts a structure holds thousands of pieces, and measuring every
-    point against every face was most of the sampler's time. `planes` hold each piece's faces
-    together, pieces in order (`piece` ascending): a piece's faces are found by bisection (picking
-    them by membership sorted every face of the structure, 30% of the reference checks' time in a
-    build of real parts on a lent H200)."""
+    point against every face was most of the sampler's time. Points and pieces are first narrowed
+    by their boxes, and a piece's faces found by bisection (`planes` hold each piece's faces
+    together, `piece` ascending): every piece's box against every point, and the faces picked by
+    membership, made this test 413 of the reference's 1,519 check worker-seconds in a profiled
+    build of 96 objects of 40 real parts on a lent H200."""
     out = np.zeros((len(boxes), len(points)))
     if not len(boxes) or not len(points):
         return out

@@ -32,7 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from factory.parts import Part
-from factory.physics.collide import CONNECTED_SLACK_LDU, NEAR_LDU, Penetration, probe_frame, studs_cross
+from factory.physics.collide import CONNECTED_SLACK_LDU, NEAR_LDU, Penetration, _deepest, probe_frame, studs_cross
 from factory.physics.geometry import collision_shape
 from factory.physics.structure import Structure
 from factory.physics.pair_kernels import intervals_many
@@ -76,11 +76,10 @@ class _Job:
         # A stud in another part's body, not connected, is undecided until probed against that
         # part's real surface; the rest decide the depth at once.
         undecided = (overlap > 0) & (uset.stud[u] != sset.stud[s])
-        deepest = np.zeros(K)
+        ground = self._below_ground() if self.floor_y is not None else np.zeros(K)
+        deepest = ground.copy()
         np.maximum.at(deepest, k, np.where(undecided, 0.0, np.maximum(overlap, 0.0)))
         np.maximum.at(deepest, k, np.maximum(centre, 0.0))
-        if self.floor_y is not None:
-            deepest = np.maximum(deepest, self._below_ground())
         # Probed: only where it can change the depth, and (with `tol`) not for a candidate that
         # collides by a decided pair already (its depth is then the deepest decided overlap).
         need = undecided & (overlap > deepest[k])
@@ -90,9 +89,7 @@ class _Job:
         if len(probe):
             # One probe per stud and part (whichever of the part's pieces it meets), all of them
             # against each part's surface at once.
-            stud_piece = np.where(uset.stud[u[probe]], u[probe], -1 - s[probe])
-            keys, which = np.unique(np.stack([k[probe], stud_piece, j[probe], uset.owner[u[probe]]], axis=1), axis=0,
-                                    return_inverse=True)
+            keys, which = np.unique(self._probe_keys(probe), axis=0, return_inverse=True)
             crossing = self._studs_cross(keys)[which.reshape(-1)]
             np.maximum.at(deepest, k[probe[crossing]], overlap[probe[crossing]])
         touching = (overlap > -NEAR_LDU) | (centre > 0)
@@ -101,40 +98,34 @@ class _Job:
             near[a].append(b)
         # Kept for `_apart`: a candidate that collides where it meets parts at joints is judged
         # again, its overlap with every other part from these results.
-        self._res, self._overlap, self._undecided = res, overlap, undecided
+        self._overlap, self._centre, self._undecided, self._ground = overlap, centre, undecided, ground
         self._crossing = dict(zip(probe.tolist(), crossing.tolist())) if len(probe) else {}
-        self._ground = self._below_ground() if self.floor_y is not None else np.zeros(K)
         return [Penetration(d, frozenset(n), partial(self._apart, c))
                 for c, (d, n) in enumerate(zip(deepest.tolist(), near))]
 
     def _apart(self, c: int, owners: set[int]) -> float:
         """Candidate `c`'s depth with its overlap with the structure parts `owners` left out (the
-        ground and every other part as in `finish`), from the same pair results."""
-        uset, sset = self.uset, self.sset
-        k, u, s, j, _ = self.pairs
+        ground and every other part as in `finish`), from the same pair results; its studs in a
+        body asked deepest first, as the scene asks them (`collide._deepest`), probes reused."""
+        k, j = self.pairs[0], self.pairs[3]
         sel = np.flatnonzero((k == c) & ~np.isin(j, list(owners)))
-        res, overlap, undecided = self._res[sel], self._overlap[sel], self._undecided[sel]
-        deepest = float(self._ground[c])
-        body = ~uset.stud[u[sel]] & ~sset.stud[s[sel]]
-        if body.any():
-            deepest = max(deepest, float(np.maximum(res[body, 1], res[body, 2]).max()))
-        decided = ~undecided & (overlap > 0)
-        if decided.any():
-            deepest = max(deepest, float(overlap[decided].max()))
-        # Studs in a body: deepest first, each probed (or its probe reused) while it could deepen it.
-        for i in np.flatnonzero(undecided)[np.argsort(-overlap[undecided], kind="stable")]:
-            if overlap[i] <= deepest:
-                break
+        overlap, undecided = self._overlap[sel], self._undecided[sel]
+
+        def crosses(i: int) -> bool:
             p = int(sel[i])
-            crosses = self._crossing.get(p)
-            if crosses is None:
-                stud_piece = u[p] if uset.stud[u[p]] else -1 - s[p]
-                crosses = bool(self._studs_cross(np.array([[c, stud_piece, j[p], uset.owner[u[p]]]]))[0])
-                self._crossing[p] = crosses
-            if crosses:
-                deepest = float(overlap[i])
-                break
-        return deepest
+            if p not in self._crossing:
+                self._crossing[p] = bool(self._studs_cross(self._probe_keys(np.array([p])))[0])
+            return self._crossing[p]
+
+        contacts = _deepest(overlap, ~undecided & (overlap > 0), np.flatnonzero(undecided), crosses)
+        return max(float(self._ground[c]), float(self._centre[sel].max(initial=0.0)), contacts)
+
+    def _probe_keys(self, pairs: np.ndarray) -> np.ndarray:
+        """(candidate, stud piece: unit piece u, or -1 - structure piece s, structure part, unit
+        member) of each pair of a stud and a body (`_studs_cross`)."""
+        k, u, s, j, _ = self.pairs
+        stud_piece = np.where(self.uset.stud[u[pairs]], u[pairs], -1 - s[pairs])
+        return np.stack([k[pairs], stud_piece, j[pairs], self.uset.owner[u[pairs]]], axis=1)
 
     def _below_ground(self) -> np.ndarray:
         """Per candidate: how far its pieces (plus their inset) reach below the ground."""

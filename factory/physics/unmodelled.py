@@ -221,6 +221,16 @@ def in_zone(points: np.ndarray, zones: tuple[np.ndarray, np.ndarray]) -> np.ndar
     return out
 
 
+def zone_moved(zones: tuple[np.ndarray, np.ndarray] | None, pose) -> tuple[np.ndarray, np.ndarray] | None:
+    """`zones` (stretches of axis (k, 3, 3): two ends and the axis; radii (k,)) moved by `pose`
+    (a `factory.pose.Pose`); None stays None (a joint with no axis)."""
+    if zones is None:
+        return None
+    stretches, radii = zones
+    ends = pose.apply(stretches[:, :2].reshape(-1, 3)).reshape(-1, 2, 3)
+    return np.concatenate([ends, (stretches[:, 2] @ pose.R.T)[:, None]], axis=1), radii
+
+
 def separation(s: np.ndarray, t: np.ndarray) -> tuple[float, float, float]:
     """(angle in degrees, radial distance, gap along the axis) between two connectors (end, end,
     axis): how far `s` is from lying on `t`'s axis line, and how far apart their stretches end."""
