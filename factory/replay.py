@@ -34,6 +34,7 @@ from factory.physics.check import CheckConfig, Verdict, check_units
 from factory.physics.load_model import Link
 from factory.physics.structure import Placed, Structure, canonical_key, connectors, match
 from factory.physics.linked import links_by_joints
+from factory.physics.seat import seat_offset
 from factory.physics.unmodelled import JOINTS, boxes_near, joint_kind, joints_between, world_box
 from factory.pose import Pose
 from factory.symmetry import rotation_about
@@ -306,6 +307,27 @@ def _going_first(structure: Structure, start: int, local: Placed, backend, confi
     return w, before
 
 
+def _seated(structure: Structure, unit: list[Placed], v: Verdict, backend, config, standing: bool,
+            unit_links=()) -> tuple[Verdict, list[Placed], float | None]:
+    """A unit rejected where the design draws it, judged again seated on the connection it was
+    drawn beside (`seat.seat_offset`: within `seat.SEAT_LDU`): (verdict, unit, how far it moved),
+    the unit as given and None where it is accepted as drawn or nothing seats it."""
+    if v.ok:
+        return v, unit, None
+    move = seat_offset(structure, unit)
+    if move is None:
+        return v, unit, None
+    unit = [Placed(p.part, p.colour, Pose(p.pose.R, p.pose.t + move)) for p in unit]
+    (v,) = check_units(structure, [unit], backend, config, require_connection=not _on_table(structure, unit),
+                       standing=standing, unit_links=unit_links)
+    return v, unit, float(np.linalg.norm(move))
+
+
+def _seat_record(seated: float | None) -> dict:
+    """A record's `seated_ldu`: how far the part was moved onto its connection (none if not)."""
+    return {} if seated is None else {"seated_ldu": round(seated, 3)}
+
+
 def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConfig = CheckConfig(),
                  faults: bool = False):
     """Yield one record per placed part and per sub-assembly attachment, in build order; return
@@ -378,6 +400,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 continue
             (v,) = check_units(parent, [unit], backend, config, require_connection=not _on_table(parent, unit),
                                standing=standing, unit_links=done.links)
+            v, unit, seated = _seated(parent, unit, v, backend, config, standing, done.links)
             along = going_in_with(event.tag) if v.reason in WAITS_FOR_LATER else []
             judged_on = parent
             if along:
@@ -389,7 +412,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
             yield _record(v, step=event.last_step, index=0, part=event.tag.rsplit("/", 1)[-1],
                           color=unit[0].colour, unit=True, assembly=event.tag,
                           stud_pairs=stud_pairs(judged_on, unit), **({"held_in_hand": True} if held_in_hand else {}),
-                          **joints)
+                          **_seat_record(seated), **joints)
             _add_unit(parent, unit, done.links, v)
             continue
         step = event.step
@@ -411,6 +434,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
             judged_on = structure
             (v,) = check_units(judged_on, [[local]], backend, config,
                                require_connection=not _on_table(judged_on, [local]), standing=standing)
+            v, (local,), seated = _seated(structure, [local], v, backend, config, standing)
             later = [q for q in locals_[index + 1 :] if _solid(q.part)]
             if v.reason in WAITS_FOR_LATER and later:
                 # Parts of one step go in together: a part may hang from one listed after it (a
@@ -442,7 +466,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
             joints = _joint_record(judged_on, [local], v)
             yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour,
                           stud_pairs=stud_pairs(judged_on, [local]), **({"first_in_step": True} if first else {}),
-                          **({"held_in_hand": True} if held_in_hand else {}), **joints)
+                          **({"held_in_hand": True} if held_in_hand else {}), **_seat_record(seated), **joints)
             if faults and v.ok and v.connections:
                 # Faults move the part off the connections it was accepted on: those of the
                 # structure it was judged against (with the later parts of its step, if it hangs).
