@@ -563,6 +563,9 @@ def summarize(records: list[dict]) -> dict:
         "duplicates": sum(r["reason"] == DUPLICATE for r in plain),
         # Accepted held in hand: the model tipped on the table while built (`verify_model`).
         "held_in_hand": sum(bool(r.get("held_in_hand")) for r in plain),
+        # Judged seated on the connection they were drawn beside (`seat.SEAT_LDU`), and of those accepted.
+        "seated": sum("seated_ldu" in r for r in plain),
+        "seated_accepted": sum("seated_ldu" in r and r["reason"] is None for r in plain),
         "accepted": sum(r["reason"] is None for r in judged),
         "fidelity": (sum(r["reason"] is None for r in judged) / len(judged)) if judged else None,
         # The same over the placements the design connects by studs (`stud_pairs`): a part with
