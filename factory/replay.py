@@ -12,7 +12,10 @@ the parts of its parent placed before it. Each sub-assembly is checked in its ow
 author built it) and is held in hand while built: only the main model must stand on the ground,
 sub-assemblies are judged on their connections. A step that makes the main model tip on the table
 (not a part swinging on a free joint, whose verdict names the joint) is judged as held in hand too,
-as a person holds a Technic frame before its wheels are on (`held_in_hand` in its record).
+as a person holds a Technic frame before its wheels are on (`held_in_hand` in its record). A part
+or sub-assembly rejected where the design draws it is judged again seated on the connection it was
+drawn within 2 LDU of (`physics.seat`: `seated_ldu` in its record), as hand-drawn CAD files set
+parts a little off the grid.
 One JSON object per placed part, and one with `"unit": true` per sub-assembly attachment.
 """
 
