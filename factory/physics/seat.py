@@ -5,12 +5,15 @@ Designs are drawn by hand in CAD programs, and some place parts a little off the
 they pass through, and some bricks 1 LDU above the studs under them. A real part there sits on the
 studs or in the hole. The design replay (`factory.replay`) judges a part rejected where it is drawn
 again where its nearest connection seats it, when that connection is within `SEAT_LDU`.
+
+World feedback's snapping (`snap.SnapTargets`) is the same idea for one predicted part and stud
+connections alone, with a tolerance for a part dropped from above; a design's parts are seated
+here instead because they are also sub-assemblies and parts held by pins and axles.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from factory.joints import mates, part_connectors, part_stretches, stretch_overlap
 from factory.ldraw.other_connectors import place_connectors
@@ -31,11 +34,11 @@ def _stud_offsets(structure: Structure, unit: list[Placed]) -> list[np.ndarray]:
     """Moves (3,) that would mate a stud or socket of the unit with one of the structure within
     `SEAT_LDU` (including ones already mated: a zero move)."""
     out = []
-    for which, theirs in (("sockets", structure.studs), ("studs", structure.sockets)):
-        pos, axis, _ = theirs
+    for which, theirs in (("sockets", "studs"), ("studs", "sockets")):
+        pos, axis, _ = getattr(structure, theirs)
         if not len(pos):
             continue
-        tree = cKDTree(pos)
+        tree = structure.tree(theirs)
         for placed in unit:
             cp, ca = connectors(placed.part, placed.pose, which)
             for i, js in enumerate(tree.query_ball_point(cp, SEAT_LDU) if len(cp) else []):
