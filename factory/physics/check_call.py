@@ -23,6 +23,7 @@ from factory.physics.check_state import current
 from factory.physics.load_model import Link, LoadBase, LoadConfig, support_points
 from factory.physics.joint_capacity import FREE_TWIST_NLDU, TURNS_FREELY
 from factory.physics.mass import GRAVITY, part_mass_properties
+from factory.physics.solid_overlap import REFINE_LDU, solid_depth
 from factory.physics.statics import Failure
 from factory.physics.structure import Placed, Structure, connections_at, lowest_point
 from factory.physics.sweep import seating_from_connections, sweep, sweep_joint
@@ -126,6 +127,27 @@ class _Call:
                 back @ pose, {0} if i in touched else set(), {0: zone_moved(zone, back)})[0])
         return max(own, pen.apart(set(zones)))
 
+    def _solid_depth(self, pen: Penetration, unit: Sequence[Placed], pose: Pose, touched: set[int],
+                     mated: list) -> float | None:
+        """The candidate's overlap measured in the parts' solids (`solid_overlap.solid_depth`) with
+        each structure part it meets (studs in sockets, at `mated`, left out), and its pieces'
+        overlap with the ground; None where a solid overlap is too large to measure."""
+        near = set(pen.near)
+        if pen.apart is not None:
+            deepest = pen.apart(near)
+        else:
+            deepest = self.scene.penetration(pose, touched, {i: None for i in near})[0]
+        for i in sorted(near):
+            held = self.structure.placed[i]
+            for p in unit:
+                if deepest > self.config.max_penetration_ldu:
+                    return deepest
+                d = solid_depth(p.part, p.pose, held.part, held.pose, mated)
+                if d is None:
+                    return None
+                deepest = max(deepest, d)
+        return deepest
+
     def collide_group(self):
         """This call's candidates for `collide_jax.penetrations`."""
         return (self.structure, self.rel, [unit[0].pose for _, unit, *_ in self.to_collide],
@@ -143,6 +165,12 @@ class _Call:
             pose = unit[0].pose
             connected = bool(outer) or (not self.require_connection) or base_n == 0
             collision = depth > config.max_penetration_ldu
+            if collision and depth <= REFINE_LDU:
+                # Shallow: maybe only a piece reaching past a curved face. The parts' solids decide
+                # where they clear it (never the other way: a deeper answer keeps the pieces').
+                solid = self._solid_depth(pen, unit, pose, touched, [c[2] for c in conns])
+                if solid is not None and solid <= config.max_penetration_ldu:
+                    collision, depth = False, solid
             base = dict(pose=pose, connected=bool(outer), connections=len(outer), collision=collision,
                         max_penetration_ldu=round(depth, 4), touching=bool(near))
             # Joints matter only to a candidate that collides or has no stud connection.

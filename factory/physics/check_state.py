@@ -21,6 +21,9 @@ from factory.physics.keep_last import KeepLast
 HOLDER_SCENES = 256
 """Most scenes of a joint's holding part a checker keeps (`CheckState.holder_scenes`)."""
 
+SOLIDS = 512
+"""Most parts whose ray grids a checker keeps (`CheckState.solids`)."""
+
 
 class CheckState:
     """One checker's caches of work done per structure, unit or probe, its counters, and the number
@@ -56,6 +59,8 @@ class CheckState:
         self.holder_scenes = KeepLast(HOLDER_SCENES)
         """`check_call`: a scene of one part holding a unit by joints, in that part's frame, by
         part and unit (the batched checks' joints, met again across structures)."""
+        self.solids = KeepLast(SOLIDS)
+        """`solid_overlap`: a part's triangles sorted for ray casts along each axis, by part."""
         self.placed_pieces: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
         """`piece_sets.structure_set`: each placed part's pieces turned and moved."""
         # Counters: changed in place only, so that a name bound to one stays its state's.
