@@ -34,6 +34,7 @@ states; the examples, loss weighting, clipping and updates are as above. Its che
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 import queue
@@ -454,14 +455,21 @@ def train(config: TrainConfig, progress: bool = True) -> dict:
         peak = group.reduce([peak], op="max")[0]  # the fullest GPU
     # a sharded model is gathered whole to rank 0 by every process
     weights = ckpt.full_model_state(model) if sharded and not final_is_current(config) else None
+    # Every process lets go of the model, its optimizer and scheduler before leaving the group: FSDP's
+    # parameters hold the group (through their mesh), and a gloo group last freed at interpreter
+    # exit aborted a CPU rank once ("terminate called without an active exception").
+    wrapped = optimizer = scheduler = out = norm = None  # (out and norm: unset when no step was left)
     if not group.main:
+        del model
+        gc.collect()
         end()  # its barrier waits for rank 0 to write final/ and the summary
         return {"rank": group.rank, "steps": state["step"]}
     final = save_final(config, model, processor, base, weights)
     summary = write_summary(run, config, state, device, trainable=n_train, parameters=n_all,
                             peak_gpu_gb=peak, final=final, processes=group.processes,
                             epochs=state["position"][0] + state["position"][1] / stream.examples_per_epoch)
-    del model, wrapped, optimizer
+    model = weights = None
+    gc.collect()
     end()
     return summary
 
