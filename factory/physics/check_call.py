@@ -23,7 +23,7 @@ from factory.physics.check_state import current
 from factory.physics.load_model import Link, LoadBase, LoadConfig, support_points
 from factory.physics.joint_capacity import FREE_TWIST_NLDU, TURNS_FREELY
 from factory.physics.mass import GRAVITY, part_mass_properties
-from factory.physics.solid_overlap import REFINE_LDU, solid_depth
+from factory.physics.solid_overlap import REFINE_LDU, deepest_solid
 from factory.physics.statics import Failure
 from factory.physics.structure import Placed, Structure, connections_at, lowest_point
 from factory.physics.sweep import seating_from_connections, sweep, sweep_joint
@@ -128,25 +128,39 @@ class _Call:
         return max(own, pen.apart(set(zones)))
 
     def _solid_depth(self, pen: Penetration, unit: Sequence[Placed], pose: Pose, touched: set[int],
-                     mated: list) -> float | None:
-        """The candidate's overlap measured in the parts' solids (`solid_overlap.solid_depth`) with
-        each structure part it meets (studs in sockets, at `mated`, left out), and its pieces'
-        overlap with the ground; None where a solid overlap is too large to measure."""
-        near = set(pen.near)
+                     mated: list, zones: dict | None = None) -> float | None:
+        """The candidate's overlap in the parts themselves (`solid_overlap.deepest_solid`: the
+        pieces' depth with each structure part it meets, less what the pieces reach past the solids;
+        studs in sockets, at `mated`, left out), and its pieces' overlap with the ground; None where
+        an overlap is too large to measure. `zones`: the overlap round joints left out, as
+        `_depth_round_joints` takes them."""
+        zones = zones or {}
+        near = sorted(set(pen.near) | set(zones))
         if pen.apart is not None:
-            deepest = pen.apart(near)
+            ground = pen.apart(set(near))
         else:
-            deepest = self.scene.penetration(pose, touched, {i: None for i in near})[0]
-        for i in sorted(near):
-            held = self.structure.placed[i]
-            for p in unit:
-                if deepest > self.config.max_penetration_ldu:
-                    return deepest
-                d = solid_depth(p.part, p.pose, held.part, held.pose, mated)
-                if d is None:
-                    return None
-                deepest = max(deepest, d)
-        return deepest
+            ground = self.scene.penetration(pose, touched, {i: None for i in near})[0]
+        tol = self.config.max_penetration_ldu
+        if ground > tol:
+            return ground
+        depths = []
+        for i in near:
+            if i in zones and pen.apart is not None:
+                held = self.structure.placed[i]
+                back = held.pose.inverse()
+                depths.append(_holder_scene(held.part, self.rel).penetration(
+                    back @ pose, {0} if i in touched else set(), {0: zone_moved(zones[i], back)})[0])
+            elif pen.apart is not None:
+                depths.append(pen.apart(set(near) - {i}))
+            else:
+                left_out = {j: None for j in near if j != i}
+                if i in zones:
+                    left_out[i] = zones[i]
+                depths.append(self.scene.penetration(pose, touched, left_out)[0])
+        solid = deepest_solid([(p.part, p.pose) for p in unit],
+                              [(self.structure.placed[i].part, self.structure.placed[i].pose) for i in near],
+                              depths, mated, stop=tol)
+        return None if solid is None else max(ground, solid)
 
     def collide_group(self):
         """This call's candidates for `collide_jax.penetrations`."""
@@ -179,6 +193,12 @@ class _Call:
                 # Overlap round a joint's axis (a pin in its hole, a bar in a clip, fingers between
                 # fingers), or anywhere with a part held by its shape, is the joint's.
                 depth = self._depth_round_joints(pen, pose, touched, _zones(joints))
+                if config.max_penetration_ldu < depth <= REFINE_LDU:
+                    # Shallow beyond the joints (a liftarm on the pins of a motor's curved housing):
+                    # the solids again, the holding parts among them.
+                    solid = self._solid_depth(pen, unit, pose, touched, [c[2] for c in conns], _zones(joints))
+                    if solid is not None and solid <= config.max_penetration_ldu:
+                        depth = solid
                 if depth > config.max_penetration_ldu:
                     joints = {}  # it overlaps beyond the joints too: judged on that overlap
                 else:

@@ -10,12 +10,20 @@ one of its triangles (closed on every side: a socket's hollow or a hollow stud's
 side, is not solid, where the pieces fill them). Points on a grid of `PITCH_LDU` where two pieces
 of the two parts (grown by their inset and a pitch) meet are tested; the overlap's depth is the
 thickness of the points inside both parts, as twice the deepest one's distance from the rest.
+
+A grid measures to within about a pitch either way, where the pieces' depth is exact. So the same
+grid also measures the overlap of the two parts' pieces (grown back by their insets), and the
+parts' depth is the pieces' exact depth less what the pieces reach past the solids on that grid
+(`solid_depth`, `corrected`): where the pieces are the part (a box-like part, cut along its own
+faces) both grid measures agree and the pieces' depth stands, so a real overlap just past the
+tolerance is never cleared by the grid's rounding.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from scipy.ndimage import distance_transform_edt
+from scipy.spatial import ConvexHull
 
 from factory.parts import Part
 from factory.physics.check_state import current
@@ -39,19 +47,45 @@ _DIRECTIONS = ((1, 1.0), (1, -1.0), (0, 1.0), (0, -1.0), (2, 1.0), (2, -1.0))
 """Down first: a point in a socket's hollow, open below, is out after one cast."""
 
 
-def _grids(part: Part) -> tuple[_RayGrid, _RayGrid, _RayGrid]:
-    """The part's triangles sorted for ray casts along each axis of its frame, kept per part."""
-    return current().solids.get(id(part), part, lambda: tuple(_RayGrid(part.flat.triangles, a) for a in range(3)))
+def _grids(part: Part) -> tuple[tuple[_RayGrid, _RayGrid, _RayGrid], list[np.ndarray], list[np.ndarray]]:
+    """The part's triangles sorted for ray casts along each axis of its frame, and the face planes
+    of its body pieces and of its stud pieces (each (k, 4), its frame), kept per part."""
+    def build():
+        shape = collision_shape(part)
+
+        def faces(pieces, grown):
+            # Each piece's planes, moved out by its inset, and its box grown as much.
+            return [(eq - np.r_[0.0, 0.0, 0.0, grown], v.min(0) - grown, v.max(0) + grown)
+                    for v, eq in ((v, ConvexHull(v).equations) for v in pieces)]
+
+        return (tuple(_RayGrid(part.flat.triangles, a) for a in range(3)),
+                faces(shape.body, shape.body_inset), faces(shape.studs, INSET_LDU))
+    return current().solids.get(id(part), part, build)
 
 
 def inside(part: Part, local: np.ndarray) -> np.ndarray:
     """Whether each point (in the part's frame) is inside its solid: closed on all six sides."""
-    grids = _grids(part)
+    grids = _grids(part)[0]
     out = np.ones(len(local), bool)
     for axis, sign in _DIRECTIONS:
         if not out.any():
             break
         out[out] = grids[axis].blocked(local[out], sign)
+    return out
+
+
+def in_pieces(part: Part, pose: Pose, local: np.ndarray, mated: np.ndarray) -> np.ndarray:
+    """Whether each point (in the part's frame) is inside one of its pieces grown back by its inset
+    (studs whose bases are at `mated`, world points, left out)."""
+    shape = collision_shape(part)
+    _, body, studs = _grids(part)
+    free = [f for f, (at, _) in zip(studs, shape.stud_at)
+            if not (len(mated) and np.min(np.linalg.norm(mated - pose.apply(np.asarray(at)[None])[0], axis=1)) <= MATCH_LDU)]
+    out = np.zeros(len(local), bool)
+    for planes, lo, hi in body + free:
+        rows = np.flatnonzero(~out & np.all((local >= lo) & (local <= hi), axis=1))
+        if len(rows):
+            out[rows] = (local[rows] @ planes[:, :3].T + planes[:, 3]).max(axis=1) <= 0.0
     return out
 
 
@@ -72,19 +106,30 @@ def _piece_boxes(part: Part, pose: Pose, mated: np.ndarray) -> np.ndarray:
     return np.array(boxes, float).reshape(-1, 2, 3)
 
 
-def solid_depth(a: Part, a_pose: Pose, b: Part, b_pose: Pose, mated=()) -> float | None:
-    """How deep part `a` and part `b`, placed, overlap in their solids (LDU, 0 where they do not),
-    measured where their pieces meet (leaving out the studs whose bases are in `mated`, (k, 3)
-    world points: studs in sockets); None where that spans more than `MAX_POINTS` grid points."""
+def _thickness(cells: np.ndarray, shape: np.ndarray) -> float:
+    """Twice the deepest of `cells` (grid indices) from the rest, less a cell, in LDU (0: none)."""
+    if not len(cells):
+        return 0.0
+    grid = np.zeros(tuple(shape + 2), bool)
+    c = cells + 1
+    grid[c[:, 0], c[:, 1], c[:, 2]] = True
+    return (2.0 * float(distance_transform_edt(grid).max()) - 1.0) * PITCH_LDU
+
+
+def solid_depth(a: Part, a_pose: Pose, b: Part, b_pose: Pose, mated=()) -> tuple[float, float] | None:
+    """How deep part `a` and part `b`, placed, overlap on the grid where their pieces meet, (in their
+    solids, in their pieces grown back by their insets), LDU, 0 where they do not; studs whose bases
+    are in `mated` ((k, 3) world points: studs in sockets) left out; None where that spans more than
+    `MAX_POINTS` grid points."""
     mated = np.asarray(mated, float).reshape(-1, 3)
     ba, bb = _piece_boxes(a, a_pose, mated), _piece_boxes(b, b_pose, mated)
     if not len(ba) or not len(bb):
-        return 0.0
+        return 0.0, 0.0
     lo = np.maximum(ba[:, None, 0], bb[None, :, 0])
     hi = np.minimum(ba[:, None, 1], bb[None, :, 1])
     meet = np.all(hi > lo, axis=2)
     if not meet.any():
-        return 0.0
+        return 0.0, 0.0
     lo, hi = lo[meet], hi[meet]
     # Cell centres at odd multiples of half a pitch: never on a face at a whole or half LDU.
     origin = np.floor(lo.min(0) / PITCH_LDU) * PITCH_LDU
@@ -98,12 +143,37 @@ def solid_depth(a: Part, a_pose: Pose, b: Part, b_pose: Pose, mated=()) -> float
         where[f[0]:l[0], f[1]:l[1], f[2]:l[2]] = True
     cells = np.argwhere(where)
     points = origin + (cells + 0.5) * PITCH_LDU
-    both = inside(a, (points - a_pose.t) @ a_pose.R)
-    both[both] = inside(b, (points[both] - b_pose.t) @ b_pose.R)
-    if not both.any():
-        return 0.0
-    overlap = np.zeros(tuple(shape + 2), bool)
-    c = cells[both] + 1
-    overlap[c[:, 0], c[:, 1], c[:, 2]] = True
-    deepest = float(distance_transform_edt(overlap).max())
-    return (2.0 * deepest - 1.0) * PITCH_LDU
+    la, lb = (points - a_pose.t) @ a_pose.R, (points - b_pose.t) @ b_pose.R
+    pieces = in_pieces(a, a_pose, la, mated)
+    pieces[pieces] = in_pieces(b, b_pose, lb[pieces], mated)
+    solids = inside(a, la)
+    solids[solids] = inside(b, lb[solids])
+    return _thickness(cells[solids], shape), _thickness(cells[pieces], shape)
+
+
+def corrected(pieces_depth: float, measured: tuple[float, float]) -> float:
+    """The parts' depth: the pieces' exact depth less what the pieces reach past the solids on the
+    grid (`solid_depth`'s two measures), never below the solids' own measure (or the pieces')."""
+    solid, grown = measured
+    return max(min(solid, pieces_depth), pieces_depth - max(0.0, grown - solid))
+
+
+def deepest_solid(unit, others, depths, mated=(), stop: float = np.inf) -> float | None:
+    """The parts' depth (`corrected`) of the parts of `unit` ((part, pose) pairs) with each of
+    `others` ((part, pose) pairs), given the pieces' depth with each of `others` (`depths`), studs at
+    `mated` left out; past `stop` the search ends (that depth is returned); None where an overlap is
+    too large to measure."""
+    deepest = 0.0
+    for (b, b_pose), pieces_depth in zip(others, depths):
+        if pieces_depth <= 0.0:
+            continue
+        solid = grown = 0.0
+        for a, a_pose in unit:
+            m = solid_depth(a, a_pose, b, b_pose, mated)
+            if m is None:
+                return None
+            solid, grown = max(solid, m[0]), max(grown, m[1])
+        deepest = max(deepest, corrected(pieces_depth, (solid, grown)))
+        if deepest > stop:
+            return deepest
+    return deepest

@@ -67,6 +67,7 @@ import numpy as np
 from factory.parts import Part
 from factory.physics.collide import NEAR_LDU, CollisionScene
 from factory.physics.geometry import INSET_LDU
+from factory.physics.solid_overlap import REFINE_LDU, deepest_solid
 from factory.physics.structure import Structure, connectors, match
 from factory.pose import Pose
 
@@ -372,6 +373,20 @@ def _along(scene, structure, unit, connected, d, tol, step_ldu, reach: float | N
         depth, near = scene.penetration(Pose(anchor.R, anchor.t - s * d), connected, joints)
         if depth > deepest:
             deepest, deepest_at = depth, s
+        if tol < depth <= REFINE_LDU and near:
+            # Shallow: the parts themselves decide, as for the collision check (`check_call`).
+            at = Pose(anchor.R, anchor.t - s * d)
+            parts = sorted(near)
+            depths = []
+            for i in parts:
+                left_out = {j: None for j in parts if j != i}
+                if joints and i in joints:
+                    left_out[i] = joints[i]
+                depths.append(scene.penetration(at, connected, left_out)[0])
+            solid = deepest_solid([(part, Pose(pose.R, pose.t - s * d)) for part, pose in unit],
+                                  [(structure.placed[i].part, structure.placed[i].pose) for i in parts], depths, stop=tol)
+            if solid is not None and solid <= tol:
+                depth = solid
         if depth > tol:
             # `penetration` names the parts touching the unit, not the one overlapping it: keep
             # those whose boxes overlap the unit's beyond the margin, as an overlapping part's must.

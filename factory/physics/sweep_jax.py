@@ -61,6 +61,7 @@ from factory.physics.check_state import current
 from factory.physics.collide import CONNECTED_SLACK_LDU, CollisionScene
 from factory.physics.geometry import INSET_LDU
 from factory.physics.pair_kernels import intervals_many
+from factory.physics.solid_overlap import REFINE_LDU
 from factory.physics.piece_sets import PieceSet, in_chunks, near_pairs, structure_set, unit_set
 from factory.physics.structure import Structure
 from factory.physics.sweep import (PRESS_LDU, PRESS_MIN_LDU, MIN_STEP_LDU, SweepResult, _boxes, _overlap_intervals, across,
@@ -228,11 +229,23 @@ class _SweepJob:
 
     def launch_args(self) -> tuple:
         k, u, s, j, is_conn, thr, thr_c, undecided = self.pairs
-        return (self.uset, self.sset, self.R, self.t, self.d, k, u, s, thr, thr_c)
+        # The decided pairs again at `solid_overlap.REFINE_LDU` (`_shallow`): a pair whose overlap
+        # on the path stays below it is one the CPU sweep measures again in the parts' solids.
+        deep = self._deep = np.flatnonzero(~is_conn & ~undecided)
+        thr_deep = REFINE_LDU - self.uset.inset[u[deep]] - self.sset.inset[s[deep]]
+        return (self.uset, self.sset, self.R, self.t, self.d, np.concatenate([k, k[deep]]), np.concatenate([u, u[deep]]),
+                np.concatenate([s, s[deep]]), np.concatenate([thr, thr_deep]),
+                np.concatenate([thr_c, np.full(len(deep), np.inf)]))
 
     def finish(self, res: np.ndarray) -> None:
         structure, units, connected, idx, d = self.structure, self.units, self.connected, self.idx, self.d
         k, _, _, j, is_conn, _, _, undecided = self.pairs
+        res, res_deep = res[:len(k)], res[len(k):]
+        # A decided pair that overlaps beyond the tolerance on the path but never beyond
+        # REFINE_LDU is undecided here: the CPU sweep's solids may clear it (`sweep._along`).
+        shallow = np.zeros(len(k), bool)
+        shallow[self._deep] = ~(res_deep[:, 1] > np.maximum(res_deep[:, 0], 0.0))
+        undecided = undecided | shallow
         results = self.results
         # Counted stretches of s > 0: (candidate, part, lo, hi, decided).
         hits = []

@@ -1,0 +1,51 @@
+"""Shallow overlaps measured again in the parts themselves (`physics.solid_overlap`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from factory.parts import load_part
+from factory.physics.collide import CollisionScene
+from factory.physics.solid_overlap import PITCH_LDU, corrected, deepest_solid, solid_depth
+from factory.physics.structure import Placed, Structure
+from factory.pose import Pose
+
+
+def _pieces_depth(a, a_pose: Pose, b, b_pose: Pose) -> float:
+    scene = CollisionScene(Structure([Placed(b, 4, b_pose)]), [(a, Pose.identity())], 1e6)
+    return scene.penetration(a_pose, set())[0]
+
+
+@pytest.mark.parametrize("overlap", [0.55, 0.7, 1.0])
+@pytest.mark.parametrize("phase", [0.0, 0.1, 0.2])
+def test_a_real_overlap_of_box_parts_keeps_its_exact_depth(embedded_reader, overlap, phase):
+    # Two 2x4 bricks side by side, pushed `overlap` into one another (a sub-pitch `phase` puts the
+    # faces anywhere between grid points). Their pieces are the bricks: the grid's two measures
+    # agree, and the pieces' exact depth stands, past the tolerance (0.5) where it is.
+    brick = load_part(embedded_reader, "3001")
+    a = Pose(np.eye(3), [phase, 0.0, 0.0])
+    b = Pose(np.eye(3), [phase + 80.0 - overlap, 0.0, 0.0])
+    pieces = _pieces_depth(brick, b, brick, a)
+    assert pieces == pytest.approx(overlap, abs=1e-3)
+    solid, grown = solid_depth(brick, b, brick, a)
+    assert abs(solid - grown) <= 1e-9  # the pieces are the part: the same points on the grid
+    assert abs(solid - overlap) <= 2 * PITCH_LDU  # a grid measure: within about a pitch either way
+    assert deepest_solid([(brick, b)], [(brick, a)], [pieces]) == pytest.approx(overlap, abs=1e-3)
+
+
+def test_parts_apart_or_stacked_on_studs_do_not_overlap(embedded_reader):
+    brick = load_part(embedded_reader, "3001")
+    base = Pose(np.eye(3), [0.0, 0.0, 0.0])
+    assert solid_depth(brick, Pose(np.eye(3), [81.0, 0.0, 0.0]), brick, base) == (0.0, 0.0)
+    # On its studs: the studs stand in the upper brick's hollow, which is no solid.
+    on = Pose(np.eye(3), [0.0, -24.0, 0.0])
+    solid, _ = solid_depth(brick, on, brick, base)
+    assert solid == 0.0
+
+
+def test_pieces_reaching_past_the_solids_are_measured_by_the_solids():
+    # What pieces reach past the part on the grid comes off their exact depth.
+    assert corrected(1.2, (0.25, 1.25)) == pytest.approx(0.25)
+    assert corrected(1.2, (0.75, 1.25)) == pytest.approx(0.75)
+    assert corrected(0.6, (0.25, 0.25)) == pytest.approx(0.6)
