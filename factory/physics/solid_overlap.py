@@ -40,8 +40,9 @@ REFINE_LDU = 2.0
 """Overlaps of the pieces up to this deep are measured again in the solids: past the faithfulness
 test's sample spacing (1.5 LDU) and the pieces' insets, the overlap is the parts'."""
 
-MAX_POINTS = 4_000_000
-"""Most grid points one measure spans (64 MB of flags); a larger overlap is left to the pieces."""
+MAX_POINTS = 2_000_000
+"""Most grid points one measure spans (32 MB of points; a 2x4 brick on another, its studs counted,
+spans 1.05 million); a larger one is left to the pieces."""
 
 _DIRECTIONS = ((1, 1.0), (1, -1.0), (0, 1.0), (0, -1.0), (2, 1.0), (2, -1.0))
 """Down first: a point in a socket's hollow, open below, is out after one cast."""
@@ -82,7 +83,12 @@ def in_pieces(part: Part, pose: Pose, local: np.ndarray, mated: np.ndarray) -> n
     free = [f for f, (at, _) in zip(studs, shape.stud_at)
             if not (len(mated) and np.min(np.linalg.norm(mated - pose.apply(np.asarray(at)[None])[0], axis=1)) <= MATCH_LDU)]
     out = np.zeros(len(local), bool)
+    if not len(local):
+        return out
+    top, bottom = local.max(0), local.min(0)
     for planes, lo, hi in body + free:
+        if np.any(lo > top) or np.any(hi < bottom):
+            continue
         rows = np.flatnonzero(~out & np.all((local >= lo) & (local <= hi), axis=1))
         if len(rows):
             out[rows] = (local[rows] @ planes[:, :3].T + planes[:, 3]).max(axis=1) <= 0.0
@@ -106,12 +112,12 @@ def _piece_boxes(part: Part, pose: Pose, mated: np.ndarray) -> np.ndarray:
     return np.array(boxes, float).reshape(-1, 2, 3)
 
 
-def _thickness(cells: np.ndarray, shape: np.ndarray) -> float:
+def _thickness(cells: np.ndarray) -> float:
     """Twice the deepest of `cells` (grid indices) from the rest, less a cell, in LDU (0: none)."""
     if not len(cells):
         return 0.0
-    grid = np.zeros(tuple(shape + 2), bool)
-    c = cells + 1
+    c = cells - cells.min(0) + 1  # the cells' own box, a cell of margin round it
+    grid = np.zeros(tuple(c.max(0) + 2), bool)
     grid[c[:, 0], c[:, 1], c[:, 2]] = True
     return (2.0 * float(distance_transform_edt(grid).max()) - 1.0) * PITCH_LDU
 
@@ -148,7 +154,7 @@ def solid_depth(a: Part, a_pose: Pose, b: Part, b_pose: Pose, mated=()) -> tuple
     pieces[pieces] = in_pieces(b, b_pose, lb[pieces], mated)
     solids = inside(a, la)
     solids[solids] = inside(b, lb[solids])
-    return _thickness(cells[solids], shape), _thickness(cells[pieces], shape)
+    return _thickness(cells[solids]), _thickness(cells[pieces])
 
 
 def corrected(pieces_depth: float, measured: tuple[float, float]) -> float:
@@ -163,9 +169,11 @@ def deepest_solid(unit, others, depths, mated=(), stop: float = np.inf) -> float
     `others` ((part, pose) pairs), given the pieces' depth with each of `others` (`depths`), studs at
     `mated` left out; past `stop` the search ends (that depth is returned); None where an overlap is
     too large to measure."""
-    deepest = 0.0
+    depths = list(depths)
+    # A part the pieces put within `stop` is left at that: the parts' depth is never deeper.
+    deepest = max([d for d in depths if d <= stop], default=0.0)
     for (b, b_pose), pieces_depth in zip(others, depths):
-        if pieces_depth <= 0.0:
+        if pieces_depth <= stop:
             continue
         solid = grown = 0.0
         for a, a_pose in unit:

@@ -46,7 +46,9 @@ to `MIN_STEP_LDU`. So every overlap deeper than tolerance + MIN_STEP_LDU / 2 on 
 (to the accuracy of MuJoCo's depths), however thin the blocker or long the step: an interval
 shorter than a step still gets its midpoint, and more where contacts are near. A clear stretch at
 2 LDU steps needs no halving ((-1 - 1 + 2) / 2 = 0); the segments at an interval's ends and next to
-touching parts do.
+touching parts do. A pose whose overlap lies between the tolerance and `solid_overlap.REFINE_LDU`
+is measured again in the parts themselves, as the collision check does (a piece may reach past a
+curved face: `solid_overlap`); that depth, where it clears the pose, is the pose's overlap.
 
 **The ground** is not swept: the question is whether the structure leaves a path, and a builder
 lifts a model off the table to press a part on from below (in the sampler, which fixes the ground,

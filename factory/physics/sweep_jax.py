@@ -24,6 +24,9 @@ whole call is swept on the CPU instead.
   (`collide.stud_crosses`, a probe of the real surface at each pose), which is not written here.
   Such a pair is **undecided**: a candidate blocked by a decided pair is blocked whatever it does;
   one that only an undecided pair could block is swept by `sweep.sweep` on the CPU (counted: `CheckState.sweep_counts`).
+- not connected, decided, but never deeper than `solid_overlap.REFINE_LDU` on the path (its
+  stretch at that threshold, found in the same launch, is empty): **undecided** too, since the CPU
+  sweep measures such overlaps again in the parts themselves and may clear them.
 
 A unit is blocked when a counted interval meets s > 0 (s = 0, the final pose, is the collision
 check's). One blocked only further out than `sweep.PRESS_LDU` is swept by `sweep.sweep` on the
