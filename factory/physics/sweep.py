@@ -381,10 +381,9 @@ def _along(scene, structure, unit, connected, d, tol, step_ldu, reach: float | N
             parts = sorted(near)
             depths = []
             for i in parts:
-                left_out = {j: None for j in parts if j != i}
-                if joints and i in joints:
-                    left_out[i] = joints[i]
-                depths.append(scene.penetration(at, connected, left_out)[0])
+                # The unit's depth with part i alone: the others it meets left out, and the
+                # overlap round every joint (parts whose overlap is all a joint's are not `near`).
+                depths.append(scene.penetration(at, connected, {**(joints or {}), **{j: None for j in parts if j != i}})[0])
             solid = deepest_solid([(part, Pose(pose.R, pose.t - s * d)) for part, pose in unit],
                                   [(structure.placed[i].part, structure.placed[i].pose) for i in parts], depths, stop=tol)
             if solid is not None and solid <= tol:
