@@ -5,9 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ldraw_support import LIBRARY_ZIP, needs_ldraw
+from factory.ldraw import get_reader
 from factory.parts import load_part
 from factory.physics.collide import CollisionScene
-from factory.physics.solid_overlap import PITCH_LDU, corrected, deepest_solid, solid_depth
+from factory.physics.solid_overlap import PITCH_LDU, REFINE_LDU, corrected, deepest_solid, solid_depth
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
 
@@ -31,7 +33,7 @@ def test_a_real_overlap_of_box_parts_keeps_its_exact_depth(embedded_reader, over
     solid, grown = solid_depth(brick, b, brick, a)
     assert abs(solid - grown) <= 1e-9  # the pieces are the part: the same points on the grid
     assert abs(solid - overlap) <= 2 * PITCH_LDU  # a grid measure: within about a pitch either way
-    assert deepest_solid([(brick, b)], [(brick, a)], [pieces]) == pytest.approx(overlap, abs=1e-3)
+    assert deepest_solid([(brick, b)], [(brick, a)], [pieces], 0.5) == pytest.approx(overlap, abs=1e-3)
 
 
 def test_parts_apart_or_stacked_on_studs_do_not_overlap(embedded_reader):
@@ -49,3 +51,24 @@ def test_pieces_reaching_past_the_solids_are_measured_by_the_solids():
     assert corrected(1.2, (0.25, 1.25)) == pytest.approx(0.25)
     assert corrected(1.2, (0.75, 1.25)) == pytest.approx(0.75)
     assert corrected(0.6, (0.25, 0.25)) == pytest.approx(0.6)
+
+
+@needs_ldraw
+def test_a_wing_over_curved_slopes_is_judged_on_the_parts_not_their_pieces():
+    # A wing plate 43719 turned about Y, over two curved slopes 50947 whose rounded tops its
+    # underside follows: the pieces (faithful where sampled, 1.5 LDU apart) overlap 1.09 LDU past
+    # the tolerance; in the parts themselves nothing overlaps, and what the pieces reach past the
+    # solids comes off their depth. Pushed 1.5 LDU further down, the overlap is the parts' own.
+    reader = get_reader(str(LIBRARY_ZIP))
+    wing, slope = load_part(reader, "43719"), load_part(reader, "50947")
+    turned = np.diag([-1.0, 1.0, -1.0])
+    quarter = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
+    slopes = [Pose(quarter, [x, -8.0, -40.0]) for x in (-30.0, 30.0)]
+    drawn = Pose(turned, [0.0, -16.0, 0.0])
+    pieces = [_pieces_depth(wing, drawn, slope, at) for at in slopes]
+    assert all(0.9 < p <= REFINE_LDU for p in pieces)
+    parts = deepest_solid([(wing, drawn)], [(slope, at) for at in slopes], pieces, 0.5)
+    assert parts is not None and parts <= 0.5
+    pressed = Pose(turned, [0.0, -14.5, 0.0])
+    deeper = [_pieces_depth(wing, pressed, slope, at) for at in slopes]
+    assert deepest_solid([(wing, pressed)], [(slope, at) for at in slopes], deeper, 0.5) > 0.5

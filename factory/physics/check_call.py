@@ -159,7 +159,7 @@ class _Call:
                 depths.append(self.scene.penetration(pose, touched, left_out)[0])
         solid = deepest_solid([(p.part, p.pose) for p in unit],
                               [(self.structure.placed[i].part, self.structure.placed[i].pose) for i in near],
-                              depths, mated, stop=tol)
+                              depths, tol, mated)
         return None if solid is None else max(ground, solid)
 
     def collide_group(self):
@@ -179,12 +179,6 @@ class _Call:
             pose = unit[0].pose
             connected = bool(outer) or (not self.require_connection) or base_n == 0
             collision = depth > config.max_penetration_ldu
-            if collision and depth <= REFINE_LDU:
-                # Shallow: maybe only a piece reaching past a curved face. The parts' solids decide
-                # where they clear it (never the other way: a deeper answer keeps the pieces').
-                solid = self._solid_depth(pen, unit, pose, touched, [c[2] for c in conns])
-                if solid is not None and solid <= config.max_penetration_ldu:
-                    collision, depth = False, solid
             base = dict(pose=pose, connected=bool(outer), connections=len(outer), collision=collision,
                         max_penetration_ldu=round(depth, 4), touching=bool(near))
             # Joints matter only to a candidate that collides or has no stud connection.
@@ -195,7 +189,7 @@ class _Call:
                 depth = self._depth_round_joints(pen, pose, touched, _zones(joints))
                 if config.max_penetration_ldu < depth <= REFINE_LDU:
                     # Shallow beyond the joints (a liftarm on the pins of a motor's curved housing):
-                    # the solids again, the holding parts among them.
+                    # measured again in the parts themselves, the holding parts among them.
                     solid = self._solid_depth(pen, unit, pose, touched, [c[2] for c in conns], _zones(joints))
                     if solid is not None and solid <= config.max_penetration_ldu:
                         depth = solid
@@ -204,6 +198,13 @@ class _Call:
                 else:
                     collision = False
                     base.update(collision=False, max_penetration_ldu=round(depth, 4))
+            if collision and not joints and pen.depth <= REFINE_LDU:
+                # Shallow, and no joint explains it: maybe only a piece reaching past a curved face.
+                # Measured again in the parts themselves (`solid_overlap`), which may clear it.
+                solid = self._solid_depth(pen, unit, pose, touched, [c[2] for c in conns])
+                if solid is not None and solid <= config.max_penetration_ldu:
+                    collision = False
+                    base.update(collision=False, max_penetration_ldu=round(solid, 4))
             if not outer and near and not joints:
                 holders = tuple(sorted(i for i in near if any(
                     may_hold(p.part, p.pose, structure.placed[i].part, structure.placed[i].pose) for p in unit)))

@@ -164,16 +164,16 @@ def corrected(pieces_depth: float, measured: tuple[float, float]) -> float:
     return max(min(solid, pieces_depth), pieces_depth - max(0.0, grown - solid))
 
 
-def deepest_solid(unit, others, depths, mated=(), stop: float = np.inf) -> float | None:
+def deepest_solid(unit, others, depths, tol: float, mated=()) -> float | None:
     """The parts' depth (`corrected`) of the parts of `unit` ((part, pose) pairs) with each of
     `others` ((part, pose) pairs), given the pieces' depth with each of `others` (`depths`), studs at
-    `mated` left out; past `stop` the search ends (that depth is returned); None where an overlap is
-    too large to measure."""
+    `mated` left out. A part the pieces put within `tol` keeps that depth (the parts' is never
+    deeper than the pieces' where they are faithful, and within it nothing is decided); past `tol`
+    the search ends (that depth is returned). None where an overlap is too large to measure."""
     depths = list(depths)
-    # A part the pieces put within `stop` is left at that: the parts' depth is never deeper.
-    deepest = max([d for d in depths if d <= stop], default=0.0)
+    deepest = max([d for d in depths if d <= tol], default=0.0)
     for (b, b_pose), pieces_depth in zip(others, depths):
-        if pieces_depth <= stop:
+        if pieces_depth <= tol:
             continue
         solid = grown = 0.0
         for a, a_pose in unit:
@@ -182,6 +182,6 @@ def deepest_solid(unit, others, depths, mated=(), stop: float = np.inf) -> float
                 return None
             solid, grown = max(solid, m[0]), max(grown, m[1])
         deepest = max(deepest, corrected(pieces_depth, (solid, grown)))
-        if deepest > stop:
+        if deepest > tol:
             return deepest
     return deepest

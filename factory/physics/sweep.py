@@ -385,7 +385,7 @@ def _along(scene, structure, unit, connected, d, tol, step_ldu, reach: float | N
                 # overlap round every joint (parts whose overlap is all a joint's are not `near`).
                 depths.append(scene.penetration(at, connected, {**(joints or {}), **{j: None for j in parts if j != i}})[0])
             solid = deepest_solid([(part, Pose(pose.R, pose.t - s * d)) for part, pose in unit],
-                                  [(structure.placed[i].part, structure.placed[i].pose) for i in parts], depths, stop=tol)
+                                  [(structure.placed[i].part, structure.placed[i].pose) for i in parts], depths, tol)
             if solid is not None and solid <= tol:
                 depth = solid
         if depth > tol:
