@@ -119,20 +119,23 @@ class _Call:
         structure, cost the batched checks more than their launches on real parts."""
         if pen.apart is None:
             return self.scene.penetration(pose, touched, zones)[0]
-        own = 0.0
-        for i, zone in zones.items():
-            held = self.structure.placed[i]
-            back = held.pose.inverse()
-            own = max(own, _holder_scene(held.part, self.rel).penetration(
-                back @ pose, {0} if i in touched else set(), {0: zone_moved(zone, back)})[0])
+        own = max((self._holder_depth(i, zone, pose, touched) for i, zone in zones.items()), default=0.0)
         return max(own, pen.apart(set(zones)))
 
-    def _solid_depth(self, pen: Penetration, unit: Sequence[Placed], pose: Pose, touched: set[int],
-                     mated: list, zones: dict | None = None) -> float | None:
-        """The candidate's overlap in the parts themselves (`solid_overlap.deepest_solid`: the
-        pieces' depth with each structure part it meets, less what the pieces reach past the solids;
-        studs in sockets, at `mated`, left out), and its pieces' overlap with the ground; None where
-        an overlap is too large to measure. `zones`: the overlap round joints left out, as
+    def _holder_depth(self, i: int, zone, pose: Pose, touched: set[int]) -> float:
+        """The candidate's depth with structure part `i` alone, its overlap round the joint `zone`
+        left out, asked of that part's own scene (`_holder_scene`, in its frame)."""
+        held = self.structure.placed[i]
+        back = held.pose.inverse()
+        return _holder_scene(held.part, self.rel).penetration(
+            back @ pose, {0} if i in touched else set(), {0: zone_moved(zone, back)})[0]
+
+    def _cleared(self, pen: Penetration, unit: Sequence[Placed], pose: Pose, touched: set[int],
+                 mated: list, zones: dict | None = None) -> float | None:
+        """The candidate's overlap in the parts themselves where that is within the tolerance, else
+        None (`solid_overlap.deepest_solid`: the pieces' depth with each structure part it meets,
+        less what the pieces reach past the solids; studs in sockets, at `mated`, left out; with
+        its pieces' overlap with the ground). `zones`: the overlap round joints left out, as
         `_depth_round_joints` takes them."""
         zones = zones or {}
         near = sorted(set(pen.near) | set(zones))
@@ -142,25 +145,17 @@ class _Call:
             ground = self.scene.penetration(pose, touched, {i: None for i in near})[0]
         tol = self.config.max_penetration_ldu
         if ground > tol:
-            return ground
-        depths = []
-        for i in near:
-            if i in zones and pen.apart is not None:
-                held = self.structure.placed[i]
-                back = held.pose.inverse()
-                depths.append(_holder_scene(held.part, self.rel).penetration(
-                    back @ pose, {0} if i in touched else set(), {0: zone_moved(zones[i], back)})[0])
-            elif pen.apart is not None:
-                depths.append(pen.apart(set(near) - {i}))
-            else:
-                left_out = {j: None for j in near if j != i}
-                if i in zones:
-                    left_out[i] = zones[i]
-                depths.append(self.scene.penetration(pose, touched, left_out)[0])
+            return None
+        # The pieces' depth with each part alone (the others it meets left out).
+        if pen.apart is None:
+            depths = self.scene.depths_alone(pose, touched, near, zones)
+        else:
+            depths = [self._holder_depth(i, zones[i], pose, touched) if i in zones else pen.apart(set(near) - {i})
+                      for i in near]
         solid = deepest_solid([(p.part, p.pose) for p in unit],
                               [(self.structure.placed[i].part, self.structure.placed[i].pose) for i in near],
                               depths, tol, mated)
-        return None if solid is None else max(ground, solid)
+        return None if solid is None or solid > tol else max(ground, solid)
 
     def collide_group(self):
         """This call's candidates for `collide_jax.penetrations`."""
@@ -183,16 +178,17 @@ class _Call:
                         max_penetration_ldu=round(depth, 4), touching=bool(near))
             # Joints matter only to a candidate that collides or has no stud connection.
             joints = self._joints(unit, near) if collision or not outer else {}
+            mated = [c[2] for c in conns]
             if joints and collision:
                 # Overlap round a joint's axis (a pin in its hole, a bar in a clip, fingers between
                 # fingers), or anywhere with a part held by its shape, is the joint's.
-                depth = self._depth_round_joints(pen, pose, touched, _zones(joints))
+                zones = _zones(joints)
+                depth = self._depth_round_joints(pen, pose, touched, zones)
                 if config.max_penetration_ldu < depth <= REFINE_LDU:
                     # Shallow beyond the joints (a liftarm on the pins of a motor's curved housing):
                     # measured again in the parts themselves, the holding parts among them.
-                    solid = self._solid_depth(pen, unit, pose, touched, [c[2] for c in conns], _zones(joints))
-                    if solid is not None and solid <= config.max_penetration_ldu:
-                        depth = solid
+                    cleared = self._cleared(pen, unit, pose, touched, mated, zones)
+                    depth = depth if cleared is None else cleared
                 if depth > config.max_penetration_ldu:
                     joints = {}  # it overlaps beyond the joints too: judged on that overlap
                 else:
@@ -201,10 +197,10 @@ class _Call:
             if collision and not joints and pen.depth <= REFINE_LDU:
                 # Shallow, and no joint explains it: maybe only a piece reaching past a curved face.
                 # Measured again in the parts themselves (`solid_overlap`), which may clear it.
-                solid = self._solid_depth(pen, unit, pose, touched, [c[2] for c in conns])
-                if solid is not None and solid <= config.max_penetration_ldu:
+                cleared = self._cleared(pen, unit, pose, touched, mated)
+                if cleared is not None:
                     collision = False
-                    base.update(collision=False, max_penetration_ldu=round(solid, 4))
+                    base.update(collision=False, max_penetration_ldu=round(cleared, 4))
             if not outer and near and not joints:
                 holders = tuple(sorted(i for i in near if any(
                     may_hold(p.part, p.pose, structure.placed[i].part, structure.placed[i].pose) for p in unit)))

@@ -522,6 +522,12 @@ class CollisionScene:
         near |= owners
         return max(deepest, depth), near
 
+    def depths_alone(self, pose: Pose, connected: set[int], parts: list[int], joints: dict | None = None) -> list[float]:
+        """`penetration`'s depth with each of `parts` alone (the others of `parts` left out; the
+        overlap round `joints` left out as there): how deep the candidate meets each part it meets."""
+        return [self.penetration(pose, connected, {**(joints or {}), **{j: None for j in parts if j != i}})[0]
+                for i in parts]
+
     def _coincident(self, pose: Pose, joints: dict | None = None) -> tuple[float, set[int]]:
         """Depth of a candidate piece centre inside a structure piece, or the reverse (a centre
         within a joint's zone with that piece's part left out: `penetration`)."""

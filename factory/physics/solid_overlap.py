@@ -33,8 +33,8 @@ from factory.physics.ray_grid import _RayGrid
 from factory.pose import Pose
 
 PITCH_LDU = 0.25
-"""The grid the solids are sampled on (half the collision tolerance): an overlap is measured to
-within a pitch, from below."""
+"""The grid the solids are sampled on (half the collision tolerance): an overlap's thickness is
+measured to within about a pitch either way (`corrected` says why that is enough)."""
 
 REFINE_LDU = 2.0
 """Overlaps of the pieces up to this deep are measured again in the solids: past the faithfulness
@@ -78,10 +78,8 @@ def inside(part: Part, local: np.ndarray) -> np.ndarray:
 def in_pieces(part: Part, pose: Pose, local: np.ndarray, mated: np.ndarray) -> np.ndarray:
     """Whether each point (in the part's frame) is inside one of its pieces grown back by its inset
     (studs whose bases are at `mated`, world points, left out)."""
-    shape = collision_shape(part)
     _, body, studs = _grids(part)
-    free = [f for f, (at, _) in zip(studs, shape.stud_at)
-            if not (len(mated) and np.min(np.linalg.norm(mated - pose.apply(np.asarray(at)[None])[0], axis=1)) <= MATCH_LDU)]
+    free = [f for f, keep in zip(studs, _free_studs(part, pose, mated)) if keep]
     out = np.zeros(len(local), bool)
     if not len(local):
         return out
@@ -95,17 +93,27 @@ def in_pieces(part: Part, pose: Pose, local: np.ndarray, mated: np.ndarray) -> n
     return out
 
 
+def _free_studs(part: Part, pose: Pose, mated: np.ndarray) -> np.ndarray:
+    """Per stud piece of the part placed at `pose`: whether it is not in a socket (its base not at
+    one of `mated`, world points). A stud in a socket is the connection's, as for the pieces."""
+    at = np.array([a for a, _ in collision_shape(part).stud_at], float).reshape(-1, 3)
+    if not len(mated) or not len(at):
+        return np.ones(len(at), bool)
+    base = pose.apply(at)
+    return np.linalg.norm(base[:, None] - mated[None], axis=2).min(axis=1) > MATCH_LDU
+
+
 def _piece_boxes(part: Part, pose: Pose, mated: np.ndarray) -> np.ndarray:
-    """(n, 2, 3) world boxes of the part's body pieces and of its studs not in a socket (`mated`:
-    world stud bases), grown by their inset and a pitch (the solid reaches that far past an inset
-    piece). A stud in a socket is the connection's, as for the pieces (`collide`)."""
+    """(n, 2, 3) world boxes of the part's body pieces and of its studs not in a socket
+    (`_free_studs`), grown by their inset and a pitch (the solid reaches that far past an inset
+    piece)."""
     shape = collision_shape(part)
     boxes = []
     for verts in shape.body:
         world = pose.apply(verts)
         boxes.append((world.min(0) - shape.body_inset - PITCH_LDU, world.max(0) + shape.body_inset + PITCH_LDU))
-    for verts, (at, _) in zip(shape.studs, shape.stud_at):
-        if len(mated) and np.min(np.linalg.norm(mated - pose.apply(np.asarray(at)[None])[0], axis=1)) <= MATCH_LDU:
+    for verts, keep in zip(shape.studs, _free_studs(part, pose, mated)):
+        if not keep:
             continue
         world = pose.apply(verts)
         boxes.append((world.min(0) - INSET_LDU - PITCH_LDU, world.max(0) + INSET_LDU + PITCH_LDU))

@@ -372,18 +372,16 @@ def _along(scene, structure, unit, connected, d, tol, step_ldu, reach: float | N
         the tolerance."""
         nonlocal queries, deepest, deepest_at
         queries += 1
-        depth, near = scene.penetration(Pose(anchor.R, anchor.t - s * d), connected, joints)
+        at = Pose(anchor.R, anchor.t - s * d)
+        depth, near = scene.penetration(at, connected, joints)
         if depth > deepest:
             deepest, deepest_at = depth, s
         if tol < depth <= REFINE_LDU and near:
-            # Shallow: the parts themselves decide, as for the collision check (`check_call`).
-            at = Pose(anchor.R, anchor.t - s * d)
+            # Shallow: the parts themselves decide, as for the collision check (`check_call`). The
+            # overlap round every joint stays left out (parts whose overlap is all a joint's are
+            # not `near`).
             parts = sorted(near)
-            depths = []
-            for i in parts:
-                # The unit's depth with part i alone: the others it meets left out, and the
-                # overlap round every joint (parts whose overlap is all a joint's are not `near`).
-                depths.append(scene.penetration(at, connected, {**(joints or {}), **{j: None for j in parts if j != i}})[0])
+            depths = scene.depths_alone(at, connected, parts, joints)
             solid = deepest_solid([(part, Pose(pose.R, pose.t - s * d)) for part, pose in unit],
                                   [(structure.placed[i].part, structure.placed[i].pose) for i in parts], depths, tol)
             if solid is not None and solid <= tol:

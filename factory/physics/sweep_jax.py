@@ -230,11 +230,16 @@ class _SweepJob:
             self.scene = self.scene()  # built on first need
         return sweep(self.scene, self.structure, self.units[i], self.connected[i], self.tol)
 
+    def _deep(self) -> np.ndarray:
+        """The pairs also launched at `solid_overlap.REFINE_LDU` (after all pairs, in this order):
+        the decided ones not connected. One whose overlap on the path stays below that is one the
+        CPU sweep measures again in the parts themselves (`finish`)."""
+        _, _, _, _, is_conn, _, _, undecided = self.pairs
+        return np.flatnonzero(~is_conn & ~undecided)
+
     def launch_args(self) -> tuple:
         k, u, s, j, is_conn, thr, thr_c, undecided = self.pairs
-        # The decided pairs again at `solid_overlap.REFINE_LDU` (`_shallow`): a pair whose overlap
-        # on the path stays below it is one the CPU sweep measures again in the parts' solids.
-        deep = self._deep = np.flatnonzero(~is_conn & ~undecided)
+        deep = self._deep()
         thr_deep = REFINE_LDU - self.uset.inset[u[deep]] - self.sset.inset[s[deep]]
         return (self.uset, self.sset, self.R, self.t, self.d, np.concatenate([k, k[deep]]), np.concatenate([u, u[deep]]),
                 np.concatenate([s, s[deep]]), np.concatenate([thr, thr_deep]),
@@ -247,7 +252,7 @@ class _SweepJob:
         # A decided pair that overlaps beyond the tolerance on the path but never beyond
         # REFINE_LDU is undecided here: the CPU sweep's solids may clear it (`sweep._along`).
         shallow = np.zeros(len(k), bool)
-        shallow[self._deep] = ~(res_deep[:, 1] > np.maximum(res_deep[:, 0], 0.0))
+        shallow[self._deep()] = ~(res_deep[:, 1] > np.maximum(res_deep[:, 0], 0.0))
         undecided = undecided | shallow
         results = self.results
         # Counted stretches of s > 0: (candidate, part, lo, hi, decided).
