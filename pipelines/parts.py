@@ -10,12 +10,14 @@ library's `parts/` folder; with `--designs`, every library part the designs plac
 `--prepare`, also those the sampler cannot use: `pipelines.verify` needs the collision pieces of
 each, and a design of a few hundred parts takes long to decompose on one core). `--prepare` computes what growing objects needs of each usable part
 (connections, symmetry, collision pieces) once, into the cache: a run cut short and run again
-does only what is left. `--pack FILE` writes the cache's part entries into one zip for another
+does only what is left; `--shard I/N` takes every N-th part from the I-th, so that N machines
+share one library. `--pack FILE` writes the cache's part entries into one zip for another
 machine, `--unpack FILE` takes them in there. See docs/prior.md.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import sys
@@ -70,6 +72,17 @@ def _short(reason: str) -> str:
     return reason.split(":")[0].split(" (")[0]
 
 
+def _shard(text: str) -> tuple[int, int]:
+    """`I/N` with 1 <= I <= N, for `--shard`."""
+    try:
+        i, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        i = n = 0
+    if not 1 <= i <= n:
+        raise argparse.ArgumentTypeError(f"expected I/N with 1 <= I <= N (for example 2/4), got {text!r}")
+    return i, n
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = ArgumentParser(prog="python -m pipelines.parts", description=__doc__.split("\n\n")[0])
     ap.add_argument("--ldraw", help="LDraw library: a folder or LDraw's complete.zip (default: $LDRAWDIR, else the "
@@ -83,6 +96,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="also compute each usable part's collision pieces (cached; resumable)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
     ap.add_argument("--json", action="store_true", help="one JSON line per part, printed as each finishes, instead of the table")
+    ap.add_argument("--shard", metavar="I/N", type=_shard,
+                    help="only every N-th part, from the I-th (1-based): N machines share one library's "
+                         "preparation, then each one's --pack is --unpack'ed into one cache")
     ap.add_argument("--pack", metavar="FILE", help="write the cache's part entries into one zip, and stop")
     ap.add_argument("--unpack", metavar="FILE", help="take a zip written by --pack into this cache, and stop")
     add_progress_flag(ap)
@@ -108,6 +124,9 @@ def main(argv: list[str] | None = None) -> int:
             choice = choose_parts(load_prior(args.prior_file), reader)
             names = [n for n, _ in choice.parts]
             left = choice.left_out
+        if args.shard:
+            i, n = args.shard
+            names = names[i - 1::n]
         if args.json:
             for lo in left:
                 print(json.dumps({"part": lo.part, "family": lo.family, "usable": False, "reason": lo.reason,

@@ -236,3 +236,23 @@ def test_a_designs_parts_are_prepared_even_those_the_sampler_cannot_use(tmp_path
         assert out.returncode == 0 and out.stdout.strip() == NO_CONNECTOR, out.stderr
         made = {p.name for p in (tmp_path / "tyre" / "coacd").iterdir()} if (tmp_path / "tyre" / "coacd").exists() else set()
         assert bool(made) == (every == "1") and made <= pieces
+
+
+@needs_ldraw
+def test_shards_of_a_library_cover_each_part_once_and_a_bad_shard_is_refused(capsys):
+    """`--shard I/N` gives N machines disjoint parts of one library that together are all of it."""
+    from pipelines.parts import main
+
+    assert main(["--ldraw", str(LDRAW), "--all", "--json", "--workers", "1", "--no-progress"]) == 0
+    whole = [json.loads(x)["part"] for x in capsys.readouterr().out.splitlines()]
+    shards = []
+    for i in (1, 2, 3):
+        assert main(["--ldraw", str(LDRAW), "--all", "--json", "--workers", "1", "--no-progress",
+                     "--shard", f"{i}/3"]) == 0
+        shards.append([json.loads(x)["part"] for x in capsys.readouterr().out.splitlines()])
+    assert sorted(sum(shards, [])) == sorted(whole) and len(whole) == 312
+    assert all(abs(len(s) - 104) <= 1 for s in shards)
+    for bad in ("0/3", "4/3", "2", "a/b"):
+        with pytest.raises(SystemExit):
+            main(["--ldraw", str(LDRAW), "--all", "--shard", bad])
+        assert "expected I/N with 1 <= I <= N" in capsys.readouterr().err
