@@ -256,3 +256,23 @@ def test_shards_of_a_library_cover_each_part_once_and_a_bad_shard_is_refused(cap
         with pytest.raises(SystemExit):
             main(["--ldraw", str(LDRAW), "--all", "--shard", bad])
         assert "expected I/N with 1 <= I <= N" in capsys.readouterr().err
+
+
+def test_preparing_over_several_workers_gives_each_one_numeric_thread(monkeypatch):
+    """coacd, run by each worker, starts a thread per core unless told otherwise: 16 workers on
+    a 16-core machine ran 256 threads. Each worker (and the coacd child it starts, which inherits
+    its environment) gets one."""
+    import pipelines.prepare
+    from pipelines.prepare import PartStatus
+    from pipelines.workers import ONE_THREAD
+
+    saved = {k: os.environ.pop(k, None) for k in ONE_THREAD}
+    monkeypatch.setattr(pipelines.prepare, "part_status",  # forked workers see this one
+                        lambda ldraw, name, *a: PartStatus(name, os.environ.get("OMP_NUM_THREADS", "unset"), None))
+    try:
+        assert {s.category for s in survey(None, ["3001", "3002", "3003"], n_workers=2)} == {"1"}
+    finally:
+        for k, v in saved.items():
+            os.environ.pop(k, None)
+            if v is not None:
+                os.environ[k] = v
