@@ -15,7 +15,9 @@ sub-assemblies are judged on their connections. A step that makes the main model
 as a person holds a Technic frame before its wheels are on (`held_in_hand` in its record). A part
 or sub-assembly rejected where the design draws it is judged again seated on the connection it was
 drawn within 2 LDU of (`physics.seat`: `seated_ldu` in its record), as hand-drawn CAD files set
-parts a little off the grid.
+parts a little off the grid. A part rejected only for meeting an earlier part that was itself
+rejected for overlapping where drawn is judged without it (`drawn_wrong`: `judged_without`), so
+one drawing error counts once.
 One JSON object per placed part, and one with `"unit": true` per sub-assembly attachment.
 """
 
@@ -27,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from factory.drawn_wrong import WRONG, judged_past
 from factory.errors import LDrawError, LDrawLimitError
 from factory.ldraw import NO_PARTS, build_steps, get_reader
 from factory.ldraw.model import count_parts
@@ -393,6 +396,8 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
 
     structures: dict[str, Structure] = {}
     """The parts placed so far in every open assembly, in its own frame, with their rigid links."""
+    wrong: dict[str, set[int]] = {}
+    """Per open assembly: its parts drawn where they cannot be (`drawn_wrong`)."""
     for event in walk(steps, frames):
         if isinstance(event, UnitDone):
             done = structures.pop(event.tag)
@@ -416,6 +421,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                           color=unit[0].colour, unit=True, assembly=event.tag,
                           stud_pairs=stud_pairs(judged_on, unit), **({"held_in_hand": True} if held_in_hand else {}),
                           **_seat_record(seated), **joints)
+            wrong.setdefault(event.parent, set()).update(len(parent) + i for i in wrong.pop(event.tag, ()))
             _add_unit(parent, unit, done.links, v)
             continue
         step = event.step
@@ -466,15 +472,23 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 first = _going_first(structure, step_start, local, backend, config, standing)
                 if first is not None:
                     v, judged_on = first
+            past = []
+            if judged_on is structure:
+                # A part drawn where an earlier part drawn wrong is: that error counts once.
+                v, past = judged_past(structure, wrong.get(step.assembly, set()), [local], v, backend, config,
+                                      not _on_table(structure, [local]), standing)
             joints = _joint_record(judged_on, [local], v)
             yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour,
                           stud_pairs=stud_pairs(judged_on, [local]), **({"first_in_step": True} if first else {}),
-                          **({"held_in_hand": True} if held_in_hand else {}), **_seat_record(seated), **joints)
+                          **({"held_in_hand": True} if held_in_hand else {}), **_seat_record(seated),
+                          **({"judged_without": past} if past else {}), **joints)
             if faults and v.ok and v.connections:
                 # Faults move the part off the connections it was accepted on: those of the
                 # structure it was judged against (with the later parts of its step, if it hangs).
                 yield from _faults(judged_on, local, backend, config, standing, step.index, index,
                                    finished[step.assembly])
+            if v.reason == WRONG:
+                wrong.setdefault(step.assembly, set()).add(len(structure))
             structure.add(local, v.links(len(structure)))
     return structures.get("main")
 
@@ -569,6 +583,8 @@ def summarize(records: list[dict]) -> dict:
         # Judged seated on the connection they were drawn beside (`seat.SEAT_LDU`), and of those accepted.
         "seated": sum("seated_ldu" in r for r in plain),
         "seated_accepted": sum("seated_ldu" in r and r["reason"] is None for r in plain),
+        # Accepted judged without earlier parts drawn where no part can be (`drawn_wrong`).
+        "judged_without": sum("judged_without" in r for r in plain),
         "accepted": sum(r["reason"] is None for r in judged),
         "fidelity": (sum(r["reason"] is None for r in judged) / len(judged)) if judged else None,
         # The same over the placements the design connects by studs (`stud_pairs`): a part with

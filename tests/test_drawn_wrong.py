@@ -1,0 +1,50 @@
+"""A design's part drawn where no part can be counts once: the parts drawn right beside it
+afterwards are judged without it (`factory.drawn_wrong`)."""
+
+from __future__ import annotations
+
+from factory.replay import verify_model
+
+I3 = "1 0 0 0 1 0 0 0 1"
+
+
+def _design(tmp_path, *steps: str):
+    model = tmp_path / "design.ldr"
+    model.write_text("0 Design\n" + "".join(f"{s}\n0 STEP\n" for s in steps))
+    return model
+
+
+BASE = (f"1 4 0 0 0 {I3} 3001.dat\n1 4 0 0 40 {I3} 3001.dat",  # two 2x4 bricks: an 80 x 80 base
+        f"1 1 -20 -24 0 {I3} 3003.dat")                         # a 2x2 brick on its left front
+WRONG = f"1 2 17 -24 3 {I3} 3003.dat"  # drawn 3 LDU left of and 3 LDU behind its studs: into the brick beside it
+
+
+def test_a_part_drawn_right_beside_one_drawn_wrong_is_accepted_once(tmp_path):
+    right = f"1 14 20 -24 40 {I3} 3003.dat"  # on its studs, where the one drawn wrong reaches 3 LDU in
+    records = list(verify_model(_design(tmp_path, *BASE, WRONG, right), faults=True))
+    plain = [r for r in records if "fault" not in r]
+    assert [r["reason"] for r in plain] == [None, None, None, "collision", None]
+    assert plain[3]["max_penetration_ldu"] > 2.0 and "seated_ldu" not in plain[3]  # too far off to seat
+    assert plain[4]["judged_without"] == [3] and "judged_without" not in plain[3]
+    # Its faults are judged against every part, the one drawn wrong too: each still rejected.
+    faults = [r for r in records if r.get("fault") and r["step"] == plain[4]["step"]]
+    assert faults and all(r["reason"] is not None for r in faults)
+
+    # Without the part drawn wrong in the design, the same part is accepted as it is.
+    alone = [r for r in verify_model(_design(tmp_path, *BASE, right)) if "fault" not in r]
+    assert alone[-1]["reason"] is None and "judged_without" not in alone[-1]
+
+
+def test_a_part_that_also_meets_a_part_drawn_right_is_still_rejected(tmp_path):
+    # It reaches 3 LDU into the brick drawn wrong and into the one drawn right before it.
+    both = f"1 14 -20 -24 37 {I3} 3003.dat"
+    plain = [r for r in verify_model(_design(tmp_path, *BASE, WRONG, both)) if "fault" not in r]
+    assert plain[3]["reason"] == "collision" and plain[4]["reason"] == "collision"
+    assert "judged_without" not in plain[4]
+
+
+def test_a_part_drawn_wrong_is_not_excused_by_another(tmp_path):
+    # A second brick drawn into the first one drawn wrong, and into the base beneath it, is rejected.
+    sunk = f"1 14 20 -21 40 {I3} 3003.dat"  # 3 LDU down: too far to seat
+    plain = [r for r in verify_model(_design(tmp_path, *BASE, WRONG, sunk)) if "fault" not in r]
+    assert plain[4]["reason"] == "collision" and "judged_without" not in plain[4]
