@@ -114,13 +114,14 @@ def survey(ldraw: str | None, names: Iterable[str], prepare: bool = False, n_wor
     else:
         # One numeric thread per worker, for the coacd children too (they inherit it): each one
         # otherwise starts a thread per core, and 16 workers on 16 cores ran 256 threads.
-        workers.one_thread_each()
-        ctx = mp.get_context("fork")
-        with ctx.Pool(n_workers, initializer=_init, initargs=(*workers.numbering(ctx), ldraw)) as pool:
-            for status in pool.imap_unordered(_one, [(n, prepare, own_parts, every) for n in names], chunksize=1):
-                out[status.part] = status
-                if progress:
-                    progress(status)
+        with workers.one_thread_each_meanwhile():
+            ctx = mp.get_context("fork")
+            with ctx.Pool(n_workers, initializer=_init, initargs=(*workers.numbering(ctx), ldraw)) as pool:
+                for status in pool.imap_unordered(_one, [(n, prepare, own_parts, every) for n in names],
+                                                  chunksize=1):
+                    out[status.part] = status
+                    if progress:
+                        progress(status)
     return [out[n] for n in names]
 
 

@@ -8,6 +8,7 @@ import multiprocessing
 import os
 import signal
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 
 from factory import gpus
 from factory.parent_death import sigterm_on_parent_death
@@ -22,6 +23,22 @@ def one_thread_each() -> None:
     """Worker processes started from now on use one numeric thread each (`ONE_THREAD`)."""
     for k, v in ONE_THREAD.items():
         os.environ.setdefault(k, v)
+
+
+@contextmanager
+def one_thread_each_meanwhile():
+    """`one_thread_each` for the processes started inside the block; this process's environment
+    as it was after it (a sampler that prepares its parts first keeps its own threads)."""
+    saved = {k: os.environ.get(k) for k in ONE_THREAD}
+    one_thread_each()
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 def numbering(ctx) -> tuple:

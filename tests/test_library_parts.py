@@ -271,6 +271,7 @@ def test_preparing_over_several_workers_gives_each_one_numeric_thread(monkeypatc
                         lambda ldraw, name, *a: PartStatus(name, os.environ.get("OMP_NUM_THREADS", "unset"), None))
     try:
         assert {s.category for s in survey(None, ["3001", "3002", "3003"], n_workers=2)} == {"1"}
+        assert "OMP_NUM_THREADS" not in os.environ  # this process keeps its own
     finally:
         for k, v in saved.items():
             os.environ.pop(k, None)
