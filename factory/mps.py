@@ -33,6 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from factory import gpus
+from factory.environ import kept
 from factory.parent_death import sigterm_on_parent_death
 
 MODE_ENV = "BRICK_FACTORY_MPS"
@@ -177,14 +178,9 @@ def shared_gpu(clients: int, mode: str | None = None, say=None):
         yield sharing
         return
     daemon, env, folder = started
-    before = {k: os.environ.get(k) for k in (PIPE_ENV, LOG_ENV)}
-    os.environ[PIPE_ENV], os.environ[LOG_ENV] = env[PIPE_ENV], env[LOG_ENV]
     try:
-        yield sharing
+        with kept((PIPE_ENV, LOG_ENV)):
+            os.environ[PIPE_ENV], os.environ[LOG_ENV] = env[PIPE_ENV], env[LOG_ENV]
+            yield sharing
     finally:
-        for k, v in before.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
         _stop(daemon, env, folder)

@@ -112,8 +112,8 @@ def survey(ldraw: str | None, names: Iterable[str], prepare: bool = False, n_wor
             if progress:
                 progress(out[name])
     else:
-        # One numeric thread per worker, for the coacd children too (they inherit it): each one
-        # otherwise starts a thread per core, and 16 workers on 16 cores ran 256 threads.
+        # One numeric thread per worker, for the coacd children too (they inherit it): coacd
+        # otherwise starts OpenMP's default, a thread per core, in every worker's child at once.
         with workers.one_thread_each_meanwhile():
             ctx = mp.get_context("fork")
             with ctx.Pool(n_workers, initializer=_init, initargs=(*workers.numbering(ctx), ldraw)) as pool:

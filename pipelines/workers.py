@@ -11,6 +11,7 @@ from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 
 from factory import gpus
+from factory.environ import kept
 from factory.parent_death import sigterm_on_parent_death
 
 ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -29,16 +30,9 @@ def one_thread_each() -> None:
 def one_thread_each_meanwhile():
     """`one_thread_each` for the processes started inside the block; this process's environment
     as it was after it (a sampler that prepares its parts first keeps its own threads)."""
-    saved = {k: os.environ.get(k) for k in ONE_THREAD}
-    one_thread_each()
-    try:
+    with kept(ONE_THREAD):
+        one_thread_each()
         yield
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 def numbering(ctx) -> tuple:

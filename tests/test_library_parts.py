@@ -243,15 +243,17 @@ def test_shards_of_a_library_cover_each_part_once_and_a_bad_shard_is_refused(cap
     """`--shard I/N` gives N machines disjoint parts of one library that together are all of it."""
     from pipelines.parts import main
 
-    assert main(["--ldraw", str(LDRAW), "--all", "--json", "--workers", "1", "--no-progress"]) == 0
-    whole = [json.loads(x)["part"] for x in capsys.readouterr().out.splitlines()]
-    shards = []
-    for i in (1, 2, 3):
-        assert main(["--ldraw", str(LDRAW), "--all", "--json", "--workers", "1", "--no-progress",
-                     "--shard", f"{i}/3"]) == 0
-        shards.append([json.loads(x)["part"] for x in capsys.readouterr().out.splitlines()])
-    assert sorted(sum(shards, [])) == sorted(whole) and len(whole) == 312
-    assert all(abs(len(s) - 104) <= 1 for s in shards)
+    for which in (["--all"], []):  # every part; the prior's parts, those the library lacks listed too
+        assert main(["--ldraw", str(LDRAW), *which, "--json", "--workers", "1", "--no-progress"]) == 0
+        whole = [json.loads(x)["part"] for x in capsys.readouterr().out.splitlines()]
+        shards = []
+        for i in (1, 2, 3):
+            assert main(["--ldraw", str(LDRAW), *which, "--json", "--workers", "1", "--no-progress",
+                         "--shard", f"{i}/3"]) == 0
+            shards.append([json.loads(x)["part"] for x in capsys.readouterr().out.splitlines()])
+        assert sorted(sum(shards, [])) == sorted(whole)
+        if which:
+            assert len(whole) == 312 and all(abs(len(s) - 104) <= 1 for s in shards)
     for bad in ("0/3", "4/3", "2", "a/b"):
         with pytest.raises(SystemExit):
             main(["--ldraw", str(LDRAW), "--all", "--shard", bad])
@@ -259,8 +261,8 @@ def test_shards_of_a_library_cover_each_part_once_and_a_bad_shard_is_refused(cap
 
 
 def test_preparing_over_several_workers_gives_each_one_numeric_thread(monkeypatch):
-    """coacd, run by each worker, starts a thread per core unless told otherwise: 16 workers on
-    a 16-core machine ran 256 threads. Each worker (and the coacd child it starts, which inherits
+    """coacd, run by each worker, starts a thread per core unless told otherwise (OpenMP's
+    default), in every worker at once. Each worker (and the coacd child it starts, which inherits
     its environment) gets one."""
     import pipelines.prepare
     from pipelines.prepare import PartStatus
