@@ -1,8 +1,10 @@
 """Parts a design draws where no part can be, counted once (`judged_past`).
 
-A design's part rejected for overlapping the parts before it, even seated (`physics.seat`), is drawn
-where nothing could put it: a hand-drawn CAD file sets a Technic brick 3 LDU into the plates under
-it, say. The replay keeps it where drawn, since later parts may rest on it. But the parts drawn
+A design's part rejected while it overlaps the parts before it, even seated (`physics.seat`), is
+drawn where nothing could put it: a hand-drawn CAD file sets a Technic brick 3 LDU into the plates
+under it, say. That holds whatever reason its verdict names first: a Technic pin pushed 3 LDU too
+deep into its hole, or a gear drawn 2 LDU into the brick beside its axle, is
+`unsupported-connection` (its joint is found, but it overlaps beyond the joint) and as misplaced. The replay keeps it where drawn, since later parts may rest on it. But the parts drawn
 beside it afterwards, in their right places, then overlap it too, and each would be rejected for
 the one drawing error. So a part rejected only for meeting such parts (overlapping them, or
 blocked by them on its way in) is judged again without them; accepted so, its record names them
@@ -20,7 +22,7 @@ from factory.physics.structure import Placed, Structure
 from factory.physics.unmodelled import boxes_near, world_box
 
 WRONG = "collision"
-"""The reason of a part drawn where it cannot be."""
+"""The reason of a part rejected for an overlap alone."""
 
 PAST = ("collision", "blocked", "clamped")
 """Reasons judged again without the parts drawn wrong: an overlap, or no way in."""

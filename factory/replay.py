@@ -16,7 +16,7 @@ as a person holds a Technic frame before its wheels are on (`held_in_hand` in it
 or sub-assembly rejected where the design draws it is judged again seated on the connection it was
 drawn within 2 LDU of (`physics.seat`: `seated_ldu` in its record), as hand-drawn CAD files set
 parts a little off the grid. A part rejected only for meeting an earlier part that was itself
-rejected for overlapping where drawn is judged without it (`drawn_wrong`: `judged_without`), so
+rejected while overlapping where drawn is judged without it (`drawn_wrong`: `judged_without`), so
 one drawing error counts once.
 One JSON object per placed part, and one with `"unit": true` per sub-assembly attachment.
 """
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factory.drawn_wrong import WRONG, judged_past
+from factory.drawn_wrong import judged_past
 from factory.errors import LDrawError, LDrawLimitError
 from factory.ldraw import NO_PARTS, build_steps, get_reader
 from factory.ldraw.model import count_parts
@@ -487,7 +487,9 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 # structure it was judged against (with the later parts of its step, if it hangs).
                 yield from _faults(judged_on, local, backend, config, standing, step.index, index,
                                    finished[step.assembly])
-            if v.reason == WRONG:
+            if v.collision and not v.ok:
+                # Drawn where it overlaps the parts before it, whatever its verdict names first (a
+                # Technic pin pushed 3 LDU too deep in its hole is `unsupported-connection`).
                 wrong.setdefault(step.assembly, set()).add(len(structure))
             structure.add(local, v.links(len(structure)))
     return structures.get("main")

@@ -4,6 +4,7 @@ afterwards are judged without it (`factory.drawn_wrong`)."""
 from __future__ import annotations
 
 from factory.replay import verify_model
+from ldraw_support import LDRAW, needs_ldraw
 
 I3 = "1 0 0 0 1 0 0 0 1"
 
@@ -48,3 +49,25 @@ def test_a_part_drawn_wrong_is_not_excused_by_another(tmp_path):
     sunk = f"1 14 20 -21 40 {I3} 3003.dat"  # 3 LDU down: too far to seat
     plain = [r for r in verify_model(_design(tmp_path, *BASE, WRONG, sunk)) if "fault" not in r]
     assert plain[4]["reason"] == "collision" and "judged_without" not in plain[4]
+
+
+@needs_ldraw
+def test_a_part_overlapping_beyond_its_joint_counts_as_drawn_wrong(tmp_path):
+    # A Technic pin pushed 3 LDU too deep into the hole of a Technic brick: its joint is found, but
+    # its collar overlaps the brick beyond it, so its verdict names the connection first
+    # (`unsupported-connection`) while it overlaps. A brick drawn on its studs where the pin's end
+    # reaches is judged without it.
+    z = "0 0 1 0 1 0 -1 0 0"  # the pin's axis along the hole's
+    base = (BASE[0], f"1 1 0 -24 10 {I3} 3700.dat")
+    brick = f"1 14 0 -24 40 {I3} 3003.dat"
+    deep = [r for r in verify_model(_design(tmp_path, *base, f"1 0 0 -14 17 {z} 2780.dat", brick), ldraw=LDRAW)
+            if "fault" not in r]
+    assert deep[3]["reason"] == "unsupported-connection" and deep[3]["collision"]
+    assert deep[3]["max_penetration_ldu"] > 2.0 and deep[3]["joints"] == ["technic-pin"]
+    assert deep[4]["reason"] is None and deep[4]["judged_without"] == [3]
+
+    # The pin drawn right, in its hole to the collar: the brick meets it, and is rejected.
+    right = [r for r in verify_model(_design(tmp_path, *base, f"1 0 0 -14 20 {z} 2780.dat", brick), ldraw=LDRAW)
+             if "fault" not in r]
+    assert right[3]["reason"] is None
+    assert right[4]["reason"] == "collision" and "judged_without" not in right[4]
