@@ -4,9 +4,10 @@ A design's part rejected while it overlaps the parts before it, even seated (`ph
 drawn where nothing could put it: a hand-drawn CAD file sets a Technic brick 3 LDU into the plates
 under it, say. That holds whatever reason its verdict names first: a Technic pin pushed 3 LDU too
 deep into its hole, or a gear drawn 2 LDU into the brick beside its axle, is
-`unsupported-connection` (its joint is found, but it overlaps beyond the joint) and as misplaced. The replay keeps it where drawn, since later parts may rest on it. But the parts drawn
-beside it afterwards, in their right places, then overlap it too, and each would be rejected for
-the one drawing error. So a part rejected only for meeting such parts (overlapping them, or
+`unsupported-connection` (on a connector's axis, with no joint there the checker can judge) while
+it overlaps, and as misplaced. The replay keeps it where drawn, since later parts may rest on it.
+But the parts drawn beside it afterwards, in their right places, then overlap it too, and each
+would be rejected for the one drawing error. So a part rejected only for meeting such parts (overlapping them, or
 blocked by them on its way in) is judged again without them; accepted so, its record names them
 (`judged_without`). Nothing else is given up: it must still be held, stand and get in past every
 other part, and its faults are judged against all the parts, drawn wrong or not.

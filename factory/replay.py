@@ -489,7 +489,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                                    finished[step.assembly])
             if v.collision and not v.ok:
                 # Drawn where it overlaps the parts before it, whatever its verdict names first (a
-                # Technic pin pushed 3 LDU too deep in its hole is `unsupported-connection`).
+                # Technic pin pushed 3 LDU too deep into its hole: `unsupported-connection`).
                 wrong.setdefault(step.assembly, set()).add(len(structure))
             structure.add(local, v.links(len(structure)))
     return structures.get("main")

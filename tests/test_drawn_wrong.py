@@ -53,10 +53,10 @@ def test_a_part_drawn_wrong_is_not_excused_by_another(tmp_path):
 
 @needs_ldraw
 def test_a_part_overlapping_beyond_its_joint_counts_as_drawn_wrong(tmp_path):
-    # A Technic pin pushed 3 LDU too deep into the hole of a Technic brick: its joint is found, but
-    # its collar overlaps the brick beyond it, so its verdict names the connection first
-    # (`unsupported-connection`) while it overlaps. A brick drawn on its studs where the pin's end
-    # reaches is judged without it.
+    # A Technic pin pushed 3 LDU too deep into the hole of a Technic brick: on the hole's axis but
+    # not seated, so no joint is judged and its verdict names the connection first
+    # (`unsupported-connection`) while its collar overlaps the brick. A brick drawn on its studs
+    # where the pin's end reaches is judged without it.
     z = "0 0 1 0 1 0 -1 0 0"  # the pin's axis along the hole's
     base = (BASE[0], f"1 1 0 -24 10 {I3} 3700.dat")
     brick = f"1 14 0 -24 40 {I3} 3003.dat"
