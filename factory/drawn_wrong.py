@@ -7,9 +7,9 @@ deep into its hole, or a gear drawn 2 LDU into the brick beside its axle, is
 `unsupported-connection` (on a connector's axis, with no joint there the checker can judge) while
 it overlaps, and as misplaced. The replay keeps it where drawn, since later parts may rest on it.
 But the parts drawn beside it afterwards, in their right places, then overlap it too, and each
-would be rejected for the one drawing error. So a part rejected only for meeting such parts (overlapping them, or
-blocked by them on its way in) is judged again without them; accepted so, its record names them
-(`judged_without`). Nothing else is given up: it must still be held, stand and get in past every
+would be rejected for the one drawing error. So a part rejected only for meeting such parts
+(overlapping them, or blocked by them on its way in) is judged again without them; accepted so,
+its record names them (`judged_without`). Nothing else is given up: it must still be held, stand and get in past every
 other part, and its faults are judged against all the parts, drawn wrong or not.
 """
 
@@ -18,7 +18,6 @@ from __future__ import annotations
 from dataclasses import replace
 
 from factory.physics.check import Verdict, check_units
-from factory.physics.load_model import Link
 from factory.physics.structure import Placed, Structure
 from factory.physics.unmodelled import boxes_near, world_box
 
@@ -35,7 +34,7 @@ def without(structure: Structure, drop: set[int]) -> tuple[Structure, list[int]]
     keep = [i for i in range(len(structure)) if i not in drop]
     new_of = {old: new for new, old in enumerate(keep)}
     out = Structure([structure.placed[i] for i in keep])
-    out.links.extend(Link(new_of[l.a], new_of[l.b], l.point, l.kind, l.axis) for l in structure.links
+    out.links.extend(replace(l, a=new_of[l.a], b=new_of[l.b]) for l in structure.links
                      if l.a in new_of and l.b in new_of)
     return out, keep
 
@@ -53,10 +52,11 @@ def judged_past(structure: Structure, wrong: set[int], unit: list[Placed], v: Ve
     (`wrong`), it is accepted; then that verdict, numbered as `structure`."""
     if v.reason not in PAST or not wrong:
         return v, []
-    boxes = [world_box(p.part, p.pose) for p in unit]
-    met = {i for i in wrong if any(boxes_near(b, world_box(structure.placed[i].part, structure.placed[i].pose), 0.0)
-                                   for b in boxes)}
-    drop = (met if v.reason == WRONG else set()) | (set(v.blocked_by) & wrong)
+    drop = set(v.blocked_by) & wrong
+    if v.reason == WRONG:  # the parts drawn wrong whose boxes its own touch
+        boxes = [world_box(p.part, p.pose) for p in unit]
+        drop |= {i for i in wrong if any(boxes_near(b, world_box(structure.placed[i].part, structure.placed[i].pose),
+                                                    0.0) for b in boxes)}
     if not drop:
         return v, []
     rest, keep = without(structure, drop)
