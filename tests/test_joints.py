@@ -317,6 +317,37 @@ def test_the_sampler_attaches_through_joints():
     assert sampler.sample(0).same_as(objs[0])
 
 
+@needs_ldraw
+def test_a_joint_part_with_nowhere_to_go_brings_a_part_that_offers_one():
+    """A step whose first draw is a part held by joints alone (the pin 3673), where the structure
+    offers no connector it mates, draws again among the parts that bring one (the Technic brick
+    3701's holes), and the joint draw is made again at the next step, where the pin now goes in:
+    pins come into objects whose other parts offer no hole, through a part their weights hardly
+    ever draw."""
+    from factory.sampler import Sampler, SamplerConfig
+
+    cfg = SamplerConfig(seed=5, parts=(("3001", 1.0), ("3701", 0.001), ("3673", 0.5)), min_steps=5, max_steps=5)
+    sampler = Sampler(cfg, ldraw=str(LDRAW))
+    assert sampler.provider_p.tolist() == [0.0, 1.0, 0.0]
+    objs = [sampler.sample(i) for i in range(3)]
+    parts = [[s.part for s in o.steps] for o in objs]
+    assert all(o.end_reason == "target" for o in objs), parts
+    bricks = [(o, k) for o in objs for k, s in enumerate(o.steps) if s.part == "3701.dat"]
+    assert bricks, parts
+    for o, k in bricks:
+        assert o.steps[k].draws >= 2  # drawn in place of the pin, never by its own weight
+        if k + 1 < len(o.steps):  # the owed pin goes into its hole at the next step
+            pin = o.steps[k + 1]
+            assert pin.part == "3673.dat" and not pin.verdict.connections, parts
+            assert {j.kind for j in pin.verdict.joints} == {"technic-pin"}, pin.verdict.joints
+    assert sum(p.count("3673.dat") for p in parts) >= 3, parts
+    # Without a part that brings a hole, the pin is never placed and nothing is drawn in its place.
+    alone = Sampler(SamplerConfig(seed=5, parts=(("3001", 1.0), ("3673", 0.5)), min_steps=3, max_steps=3),
+                    ldraw=str(LDRAW))
+    assert alone.provider_p is None
+    assert all(s.part == "3001.dat" for s in alone.sample(0).steps)
+
+
 # A click hinge (44302a, dual finger, at the end of a 2x4 brick; 44301a, single finger) turns in
 # steps (`joints.CLICK_STEP_DEG`): straight where the two halves' primitives are turned alike, the
 # single finger's plate then lying beyond the pivot, studs up. The pivot is 30 LDU along X from each

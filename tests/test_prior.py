@@ -13,7 +13,7 @@ import pytest
 from factory.ldraw import Library, Reader, get_reader
 from factory.prior import Prior, PriorError, family, fit_prior, load_prior, unprinted
 from factory.prior.choose import MINIFIGURE, NO_CONNECTOR, NOT_IN_LIBRARY, choose_parts, embedded_choice
-from ldraw_support import LIBRARY_ZIP
+from ldraw_support import LDRAW, LIBRARY_ZIP, needs_ldraw
 from factory.prior.prior import DEFAULT_PRIOR, OTHER, PartUse
 from factory.sampler import DEFAULT_PARTS, SamplerConfig
 from factory.sampler.from_prior import configure
@@ -216,6 +216,21 @@ def test_parts_held_by_joints_are_drawn_as_often_as_designs_place_them(real_read
     assert (weights["3673"] + weights["3707"]) / drawn == pytest.approx(0.1)
     assert weights["3673"] == pytest.approx(weights["3707"])
     assert weights["3023b"] / weights["3001"] == pytest.approx(5 / 3)
+
+
+@needs_ldraw
+def test_a_part_held_by_a_bar_or_a_rims_grip_is_a_joint_part_a_tyre_is_not():
+    """A part's connection kind is judged as the sampler attaches it: with no studs and no
+    sockets, a part whose bar (the control stick 4593) or hub (the rim 4624) the sampler finds in
+    its drawing is held by joints, as a pin drawn with connector primitives (2780) is, and is drawn
+    at the designs' share of such parts (`choose.joint_share`); a tyre (3641), held by its shape,
+    has none; a tile (2431), whose underside bar is not how it is held, connects by its sockets."""
+    from factory.prior.fit import connection_kind
+
+    reader = get_reader(str(LDRAW))
+    kinds = {n: connection_kind(reader, n)[0] for n in ("4593", "4624", "2780", "3641", "2431", "3023")}
+    assert kinds == {"4593": OTHER, "4624": OTHER, "2780": OTHER, "3641": "no connector", "2431": "studs",
+                     "3023": "studs"}
 
 
 def test_minifigure_pieces_with_a_place_are_drawn_those_held_in_a_hand_listed(tmp_path):

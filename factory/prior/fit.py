@@ -55,7 +55,10 @@ def _find(reader: Reader, name: str):
 def connection_kind(reader: Reader, name: str) -> tuple[str, str]:
     """(connection kind, description) of a library part, judged from the part alone: a
     minifigure piece; studs (any pointing sideways: `SIDE_STUDS`); else connector primitives of
-    pins, axles, clips or hinges; else sockets (a tile: `STUDS`); else `NONE`."""
+    pins, axles, clips or hinges; else sockets (a tile: `STUDS`); else a joint connector found
+    from its drawing as the sampler finds them (`joints.joint_ends`: a bar, a rim's grip, a hole
+    drawn without primitives); else `NONE`."""
+    from factory.joints import joint_ends
     from factory.parts import load_part  # trimesh and scipy: only when fitting
     from factory.physics.unmodelled import is_minifig
 
@@ -73,6 +76,8 @@ def connection_kind(reader: Reader, name: str) -> tuple[str, str]:
         return OTHER, part.description
     if part.sockets:  # a tile, a cheese slope: sockets only (found once, cached on disk)
         return STUDS, part.description
+    if joint_ends(part):  # held by joints alone, found as the sampler finds them: a bar, a rim
+        return OTHER, part.description
     return NONE, part.description
 
 

@@ -33,8 +33,9 @@ UNKNOWN = "not in the library"
 CONNECTION_KINDS = (STUDS, SIDE_STUDS, OTHER, MINIFIG, NONE, UNKNOWN)
 """How a part connects, judged from the part alone (`factory.prior.fit.connection_kind`): studs
 and sockets only; studs pointing sideways too (brackets, headlight bricks); connector primitives
-of pins, axles, clips or hinges; a minifigure piece; none of these (a tyre, a hinge top drawn
-without primitives); a part no library held."""
+of pins, axles, clips or hinges, or, on a part with no studs and no sockets, a bar, a grip or a
+hole the sampler finds in its drawing (`joints.joint_ends`); a minifigure piece; none of these (a
+tyre, held by its shape); a part no library held."""
 
 
 class PriorError(ConfigError):

@@ -23,8 +23,11 @@ Growth, per step:
    object ('stuck', with the rejections of that step). A step whose first draw is a part held by
    joints alone (a pin, an axle, a beam: no studs, no sockets) draws its redraws from those parts
    (they attach only where the structure offers a mating connector: redrawn from all parts, they
-   would be placed less often than drawn) `JOINT_REDRAWS` times, then, if none goes on,
-   `max_redraws` more from all; so does a step whose first draw is a minifigure piece, among
+   would be placed less often than drawn) `JOINT_REDRAWS` times, among those with a connector that
+   mates a kind the structure's parts bring; where none has, among the parts placed by studs that
+   bring such a kind (a Technic brick's holes, a plate's bar: `provider_p`), and the joint draw is
+   owed: the next step where a joint part can mate draws its first part among those. Then, if none
+   goes on, `max_redraws` more from all; so does a step whose first draw is a minifigure piece, among
    those that have a place on the structure (most go on only in a free slot of a figure's piece
    placed before: drawn among all of them, a hand would rarely meet a free arm). A first draw
    that is a minifigure piece is itself drawn again among the pieces with a free slot on the
@@ -53,7 +56,7 @@ from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
 from factory.sampler.assembly import Assembly, AssemblyStep
 from factory.physics.attach import attachment_arrays, lowest_y
-from factory.joints import held_by_joints_alone, joint_ends
+from factory.joints import GENDERS, held_by_joints_alone, joint_ends, mates
 from factory.minifig import role
 from factory.physics.joint_attach import joint_attachment_arrays
 from factory.physics.minifig_attach import minifig_attachment_arrays
@@ -97,11 +100,33 @@ class Sampler:
             w = [w if pg == g else 0.0 for pg, (_, w) in zip(self.group, config.parts)]
             if any(w) and not all(pg == g for pg in self.group):
                 self.group_p[g] = _probabilities(w)
+        # The joint connector kinds each part brings to a structure, and those the parts held by
+        # joints alone go onto (`joints.mates`): whether one of them can go on is known from the
+        # structure's kinds without enumerating a pose. Providers: the other parts (placed by
+        # their studs) that bring a kind a joint part goes onto (a Technic brick, a plate with
+        # holes, a bar holder), drawn in a step whose joint part has nowhere to go.
+        self.kinds = [frozenset() if r is not None else frozenset(c.kind for c in joint_ends(p))
+                      for p, r in zip(self.parts, roles)]
+        self.mating = [frozenset(k for k in GENDERS if any(mates(e, k) for e in kinds)) if g == "joints"
+                       else frozenset() for kinds, g in zip(self.kinds, self.group)]
+        wanted = frozenset().union(*self.mating)
+        w = [w if pg is None and kinds & wanted else 0.0
+             for pg, kinds, (_, w) in zip(self.group, self.kinds, config.parts)]
+        self.provider_p = _probabilities(w) if "joints" in self.group_p and any(w) else None
         self.colours = [c for c, _ in config.colours]
         _check_colours(self.reader, self.colours)
         self.colour_p = _probabilities([w for _, w in config.colours])
         for part in self.parts:  # derive each part's connectors, symmetry and hull once, up front
             part.symmetry, part.hull_points
+
+    def _can_mate(self, offered: set[str]) -> np.ndarray | None:
+        """The joint parts' draw (`group_p`) among those with a connector that mates a kind the
+        structure offers (`offered`), or None where none has."""
+        p = self.group_p["joints"].copy()
+        for i in np.flatnonzero(p):
+            if not self.mating[i] & offered:
+                p[i] = 0.0
+        return _probabilities(p) if p.any() else None
 
     def _with_a_place(self, structure: Structure, in_slots_only: bool = False) -> np.ndarray | None:
         """The minifigure pieces' draw (`group_p`) among those that have an attachment on the
@@ -150,17 +175,25 @@ class Sampler:
         floor: float | None = None
         steps: list[AssemblyStep] = []
         end, stuck = "target", {}
+        offered: set[str] = set()  # the joint connector kinds of the parts placed
+        owed = 0  # joint draws that found nowhere to go, made again where a joint part can mate
         while len(steps) < target:
             rejected: Counter = Counter()
             checked = 0
             chosen = None
             group = None  # the group of the step's first draw, if it is in one
             within_p = None  # the redraws' draw within that group (None: none has a place)
+            repaid = False  # the step's first draw is an owed joint draw
             for draw in range(cfg.max_redraws + 1 + JOINT_REDRAWS):
                 first = not steps
                 if draw > cfg.max_redraws and group is None:
                     break
                 p = self.first_p if first else self.part_p
+                if draw == 0 and owed and not first:
+                    mating_p = self._can_mate(offered)
+                    if mating_p is not None:
+                        owed -= 1
+                        p, repaid = mating_p, True
                 if group is not None and draw <= JOINT_REDRAWS:
                     if within_p is None:
                         continue  # no minifigure piece has a place on the structure: draw from all
@@ -170,6 +203,12 @@ class Sampler:
                 if draw == 0 and not first and self.group[part_i] in self.group_p:
                     group = self.group[part_i]
                     within_p = self.group_p[group]
+                    if group == "joints":
+                        # Redraws among the joint parts that mate a kind the structure offers; where
+                        # none does, among the parts that bring one (the joint draw is owed).
+                        within_p = self._can_mate(offered)
+                        if within_p is None:
+                            within_p = self.provider_p
                     if group == "minifig":
                         # A figure being built takes its next piece: of the pieces with a free slot
                         # on the structure, where any has one, into such a slot.
@@ -252,7 +291,7 @@ class Sampler:
                                                f"request unjudged (judge_first={cfg.judge_first})")
                     v = verdict_of[i]
                     if v.ok:
-                        chosen = (part, colour, v, ground, draw + 1, feasible)
+                        chosen = (part_i, part, colour, v, ground, draw + 1, feasible)
                         break
                     rejected[v.reason] += 1
                 if chosen is not None:
@@ -260,7 +299,10 @@ class Sampler:
             if chosen is None:
                 end, stuck = "stuck", dict(sorted(rejected.items()))
                 break
-            part, colour, verdict, ground, draws, feasible = chosen
+            part_i, part, colour, verdict, ground, draws, feasible = chosen
+            if group == "joints" and not repaid and not held_by_joints_alone(part):
+                owed += 1  # a joint part was drawn first but none went on: drawn again later
+            offered |= self.kinds[part_i]
             floor = ground
             # Its joints go in as links (studs are found from the parts): later parts hung on it
             # are carried to the ground through them.
