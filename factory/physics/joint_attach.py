@@ -30,8 +30,9 @@ TURNS = 4
 """Quarter turns about a joint's axis tried for each way round."""
 
 
-def _ends(part: Part) -> list[JointConnector]:
-    """`joints.joint_ends`, minifigure pieces having none (their joints are their own)."""
+def attach_ends(part: Part) -> list[JointConnector]:
+    """The connectors a part is attached through and offers to later parts: `joints.joint_ends`,
+    minifigure pieces having none (their joints are their own)."""
     return [] if is_minifig(part) else joint_ends(part)
 
 
@@ -40,7 +41,7 @@ def _targets(structure: Structure) -> tuple[np.ndarray, list[str], list]:
     primitive's Z axis in the world frame, None where it has none)."""
     segs, kinds, refs = [], [], []
     for p in structure.placed:
-        conns = _ends(p.part)
+        conns = attach_ends(p.part)
         if conns:
             segs.append(place_connectors(stretches(conns), p.pose.R, p.pose.t))
             kinds += [c.kind for c in conns]
@@ -62,7 +63,7 @@ def _turns(c: JointConnector, base: np.ndarray, u: np.ndarray, ref, stepped: boo
 def joint_attachment_arrays(structure: Structure, part: Part) -> tuple[np.ndarray, np.ndarray]:
     """Rotations (n, 3, 3) and translations (n, 3) of the part's attachments through joints
     (module docstring); empty where it or the structure has no connector that mates."""
-    mine = _ends(part)
+    mine = attach_ends(part)
     targets, kinds, refs = _targets(structure)
     poses = []
     for c in mine:

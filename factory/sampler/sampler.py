@@ -58,7 +58,7 @@ from factory.sampler.assembly import Assembly, AssemblyStep
 from factory.physics.attach import attachment_arrays, lowest_y
 from factory.joints import GENDERS, held_by_joints_alone, joint_ends, mates
 from factory.minifig import role
-from factory.physics.joint_attach import joint_attachment_arrays
+from factory.physics.joint_attach import attach_ends, joint_attachment_arrays
 from factory.physics.minifig_attach import minifig_attachment_arrays
 from factory.sampler.config import SamplerConfig, SamplerConfigError
 from factory.sampler.density import CandidateDensities, DensityTracker
@@ -105,8 +105,7 @@ class Sampler:
         # structure's kinds without enumerating a pose. Providers: the other parts (placed by
         # their studs) that bring a kind a joint part goes onto (a Technic brick, a plate with
         # holes, a bar holder), drawn in a step whose joint part has nowhere to go.
-        self.kinds = [frozenset() if r is not None else frozenset(c.kind for c in joint_ends(p))
-                      for p, r in zip(self.parts, roles)]
+        self.kinds = [frozenset(c.kind for c in attach_ends(p)) for p in self.parts]
         self.mating = [frozenset(k for k in GENDERS if any(mates(e, k) for e in kinds)) if g == "joints"
                        else frozenset() for kinds, g in zip(self.kinds, self.group)]
         wanted = frozenset().union(*self.mating)
