@@ -6,9 +6,12 @@ another machine."""
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import os
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from functools import cache
 from pathlib import Path
 from typing import Callable, TypeVar
@@ -67,3 +70,22 @@ def keep(path: Path, data: bytes) -> None:
             _UNWRITABLE.add(str(path.parent))
             print(f"warning: cannot write the cache folder {path.parent} ({exc.strerror or exc}); working "
                   "without it (set BRICK_FACTORY_CACHE to a writable folder)", file=sys.stderr)
+
+
+@contextmanager
+def made_once(path: Path) -> Iterator[None]:
+    """Hold an exclusive lock on `path` (a lock file beside an entry) while an entry is made: a
+    second process about to make the same entry waits, then finds it made (a part drawn by two
+    workers at once is decomposed once). Where the lock file cannot be made (a read-only cache)
+    the entry is made without it."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError:
+        yield
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the lock

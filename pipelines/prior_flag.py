@@ -31,13 +31,13 @@ ALL = "all"
 
 def every_part(config: SamplerConfig, ldraw: str | None, prior_file: str | None, progress: bool) -> SamplerConfig:
     """`config` drawing every usable part of the library (`pipelines.prepare.survey`, over every
-    core): a part the prior has keeps the prior's weight, any other gets the smallest of those
-    (rarely drawn, never left out)."""
+    core: whether each part can be used is known without decomposing it): a part the prior has
+    keeps the prior's weight, any other gets the smallest of those (rarely drawn, never left out)."""
     reader = get_reader(ldraw)
     names = reader.library.part_names()
     bar = tqdm(total=len(names), unit="part", desc="surveying the library", dynamic_ncols=True,
                disable=not progress, file=sys.stderr)
-    statuses = survey(ldraw, names, prepare=True, n_workers=os.cpu_count() or 1, progress=lambda s: bar.update(1),
+    statuses = survey(ldraw, names, prepare=False, n_workers=os.cpu_count() or 1, progress=lambda s: bar.update(1),
                       own_parts=True)
     bar.close()
     usable = [s.part for s in statuses if s.reason is None]
@@ -48,7 +48,14 @@ def every_part(config: SamplerConfig, ldraw: str | None, prior_file: str | None,
     floor = min((weights[n] for n in usable if n in weights), default=1.0)
     print(f"--parts all: {len(usable)} of {len(names)} parts of the {reader.library.description} usable "
           "(`python -m pipelines.parts --all` lists the rest, with why)", file=sys.stderr)
+    print(PREPARED_AS_DRAWN, file=sys.stderr)
     return replace(config, parts=tuple((n, weights.get(n, floor)) for n in usable), prior=prior.label(prior_file))
+
+
+PREPARED_AS_DRAWN = ("collision pieces are made where a part is first drawn and kept in the cache "
+                     "(`python -m pipelines.parts --prepare` makes them ahead, over every core)")
+"""Said where the sampler draws from a library: the first objects of a cold cache wait on the
+decompositions of the parts they draw, seconds to minutes each."""
 
 
 def apply_prior(args, config: SamplerConfig, ldraw: str | None, prefix: str = "", progress: bool = True
@@ -87,26 +94,5 @@ def apply_prior(args, config: SamplerConfig, ldraw: str | None, prefix: str = ""
     if choice is not None:
         print(report(choice, config, reader.library.description), file=sys.stderr)
         if not parts_given:
-            config = prepared(config, ldraw, progress)
+            print(PREPARED_AS_DRAWN, file=sys.stderr)
     return config
-
-
-def prepared(config: SamplerConfig, ldraw: str | None, progress: bool) -> SamplerConfig:
-    """`config` without the parts whose collision pieces cannot be made (a decomposition past its
-    time or memory limit), after preparing all of them over every core (cached: seconds once
-    prepared; `python -m pipelines.parts --prepare` does the same ahead of time). A part refused
-    mid-growth would stop the run; left out here, the config names exactly the parts drawn."""
-    names = [n for n, _ in config.parts]
-    bar = tqdm(total=len(names), unit="part", desc="preparing parts", dynamic_ncols=True, disable=not progress,
-               file=sys.stderr)
-    statuses = survey(ldraw, names, prepare=True, n_workers=os.cpu_count() or 1, progress=lambda s: bar.update(1))
-    bar.close()
-    refused = {s.part: s.reason for s in statuses if s.reason is not None}
-    if refused:
-        print(f"left out {len(refused)} part{'s' if len(refused) != 1 else ''} whose collision pieces cannot be made: "
-              + "; ".join(f"{n} ({r.split(': ', 1)[-1][:80]})" for n, r in list(refused.items())[:5])
-              + (" ..." if len(refused) > 5 else ""), file=sys.stderr)
-    kept = tuple((n, w) for n, w in config.parts if n not in refused)
-    if not kept:
-        raise SamplerConfigError("no part of the prior could be prepared; see `python -m pipelines.parts --prepare`")
-    return replace(config, parts=kept)

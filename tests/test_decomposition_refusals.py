@@ -141,3 +141,48 @@ def test_a_refusal_kept_before_the_coarser_try_existed_is_tried_again(monkeypatc
     geometry.collision_shape(part())
     assert len(tried) == 2  # tried again, both ways
     assert json.loads(kept.read_text())["coarse"] == decompose.COARSE
+
+
+_TWO_MAKERS = """
+import sys, time
+from pathlib import Path
+from factory.ldraw import Library, Reader
+from factory.parts import load_part
+from factory.physics import decompose, geometry
+
+decompose._faithful_pieces = lambda part, cfg: None  # the way to coacd
+real = decompose._decompose
+def counted(*args, **kwargs):
+    with open(sys.argv[1], "a") as f:
+        f.write("coacd\\n")
+    time.sleep(0.5)  # the other process asks meanwhile
+    return real(*args, **kwargs)
+decompose._decompose = counted
+part = load_part(Reader(Library.embedded()), "3001")
+while not Path(sys.argv[2]).exists():
+    time.sleep(0.01)
+print(len(geometry.collision_shape(part).body))
+"""
+
+
+def test_two_processes_needing_one_part_decompose_it_once(tmp_path):
+    """Parts are decomposed where a sampler's worker first draws them, so two workers can meet one
+    uncached part at once: the second waits for the first's pieces instead of running coacd again
+    (minutes for some parts)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    # coacd refuses at once (a tiny CPU limit, its coarse try too): the part's hull pieces.
+    env = {**os.environ, "BRICK_FACTORY_CACHE": str(tmp_path / "cache"), "PYTHONPATH": str(root),
+           "BRICK_FACTORY_COACD_SECONDS": "0.05"}
+    count, go = tmp_path / "count", tmp_path / "go"
+    procs = [subprocess.Popen([sys.executable, "-c", _TWO_MAKERS, str(count), str(go)], env=env, cwd=root,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    go.write_text("")
+    outs = [p.communicate(timeout=300) for p in procs]
+    assert all(p.returncode == 0 for p in procs), [err for _, err in outs]
+    assert outs[0][0] == outs[1][0] and int(outs[0][0]) > 0  # the same pieces
+    assert count.read_text().splitlines() == ["coacd"] * 2  # one process's two tries, not four

@@ -245,3 +245,30 @@ def test_minifigure_pieces_with_a_place_are_drawn_those_held_in_a_hand_listed(tm
     choice = choose_parts(prior, reader)
     assert [n for n, _ in choice.parts] == ["3001", "973", "3818", "4485"]
     assert {left.part: left.reason for left in choice.left_out} == {"4499": MINIFIGURE, "2530": MINIFIGURE}
+
+
+@needs_ldraw
+def test_a_library_part_is_decomposed_where_it_is_first_drawn_not_before(tmp_path, monkeypatch):
+    """Growing from a library's parts does not decompose all of them first (the prior's 1,071
+    parts of LDraw's library would take hours on a cold cache here): a part's collision pieces are
+    made where it is first drawn, so a part too rare to be drawn is never decomposed, and the
+    command says how parts are prepared."""
+    from factory.parts import load_part
+    from factory.physics.geometry import is_prepared
+
+    prior = _prior(("3001", 1.0, "studs"), ("3003", 1e-5, "studs"))
+    path = tmp_path / "p.json"
+    path.write_text(prior.dumps())
+    cache = tmp_path / "cache"
+    env = {**__import__("os").environ, "BRICK_FACTORY_CACHE": str(cache)}
+    grown = subprocess.run([sys.executable, "-m", "pipelines.sample", "--n", "1", "--min-steps", "3", "--max-steps",
+                            "3", "--ldraw", str(LDRAW), "--prior", str(path), "--out", str(tmp_path / "o"),
+                            "--workers", "1", "--no-progress"], capture_output=True, text=True, cwd=ROOT, env=env)
+    assert grown.returncode == 0, grown.stderr
+    placed = [line.split()[-1] for line in (tmp_path / "o" / "object_00000.ldr").read_text().splitlines()
+              if line.startswith("1 ")]
+    assert placed == ["3001.dat"] * 3
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(cache))
+    reader = get_reader(str(LDRAW))
+    assert is_prepared(load_part(reader, "3001")) and not is_prepared(load_part(reader, "3003"))
+    assert "collision pieces are made where a part is first drawn" in grown.stderr

@@ -181,3 +181,17 @@ def test_collision_geometry_refuses_a_part_past_its_triangle_budget(monkeypatch,
     with pytest.raises(LDrawLimitError, match=r"part 3001.dat has [\d,]+ triangles outside its studs; .* at most 10"):
         geometry.collision_shape(part, geometry.DecompositionConfig(inset_ldu=0.25 + 1e-9))  # not memoised
 
+
+
+def test_a_part_past_the_triangle_budget_is_listed_unusable_without_decomposing_it(monkeypatch):
+    """Whether a part can be used is known before its collision pieces are made (they are made where
+    it is first drawn): a part past `MAX_COLLISION_TRIANGLES` is left out with that reason, so a
+    sampler never meets it mid-growth."""
+    from factory.physics import geometry
+    from factory.prior.choose import TOO_MANY_TRIANGLES, why_unusable
+
+    reader = Reader(Library.embedded())
+    assert why_unusable(reader, "3001.dat") is None
+    monkeypatch.setattr(geometry, "MAX_COLLISION_TRIANGLES", 10)
+    reason = why_unusable(reader, "3001.dat")
+    assert reason.startswith(TOO_MANY_TRIANGLES) and "at most 10" in reason

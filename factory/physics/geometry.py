@@ -33,6 +33,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from factory.cache import made_once
 from factory.errors import LDrawLimitError
 from factory.parts import Part
 from factory.physics.decompose import (HULL_CELLS, DecompositionConfig, _body_mesh, _load, _save, cache_dir,
@@ -41,7 +42,8 @@ from factory.physics.faithful import REFINED_VERSION, _refined
 from factory.physics.hull import INSET_LDU, _hull_volume, inset_hull, stud_prism
 
 __all__ = ["INSET_LDU", "MAX_COLLISION_TRIANGLES", "MIN_PIECE_LDU3", "CollisionShape", "DecompositionConfig",
-           "cache_dir", "collision_shape", "inset_hull", "stud_prism"]
+           "cache_dir", "collision_shape", "inset_hull", "is_prepared", "stud_prism",
+           "too_many_triangles"]
 
 MIN_PIECE_LDU3 = 1e-3
 """Body pieces smaller than this (LDU^3) are dropped (MuJoCo refuses meshes of almost no volume)."""
@@ -72,6 +74,61 @@ and 1.5 GB at 48,000 triangles, more than 300 s and 7.5 GB at 240,000, and was k
 parts."""
 
 
+def too_many_triangles(part: Part) -> str | None:
+    """Why the physics checks cannot take the part (more than `MAX_COLLISION_TRIANGLES` triangles
+    outside its studs), or None: a property of the part, known without decomposing it."""
+    body = int((~part.flat.in_stud).sum())
+    if body > MAX_COLLISION_TRIANGLES:
+        return (f"part {part.name} has {body:,} triangles outside its studs; the physics checks decompose parts "
+                f"of at most {MAX_COLLISION_TRIANGLES:,}")
+    return None
+
+
+def _keys(verts: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig) -> tuple[str, str]:
+    """(the decomposition's cache key, its refined pieces' key): the body mesh and the settings
+    but `refine_cells`; then that key, `refine_cells` and `REFINED_VERSION`, which names how
+    `_refined` works (a change to it must not reuse older entries)."""
+    settings = asdict(cfg)
+    refine = settings.pop("refine_cells")
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(verts).tobytes())
+    h.update(np.ascontiguousarray(faces).tobytes())
+    h.update(json.dumps(settings, sort_keys=True).encode())
+    raw_key = h.hexdigest()[:24]
+    return raw_key, hashlib.sha256(f"{raw_key}/refined/{refine}/{REFINED_VERSION}".encode()).hexdigest()[:24]
+
+
+def is_prepared(part: Part, cfg: DecompositionConfig = DecompositionConfig()) -> bool:
+    """Whether the part's collision pieces are in the cache already (`collision_shape` then reads
+    them instead of decomposing the part)."""
+    raw_key, key = _keys(*_body_mesh(part), cfg)
+    return any((cache_dir() / f"{k}.npz").is_file() for k in (key, _hull_key(raw_key)))
+
+
+def _hull_key(raw_key: str) -> str:
+    """The cache key of the hull's pieces of a part coacd refused."""
+    return hashlib.sha256(f"{raw_key}/hull/{HULL_CELLS}/{REFINED_VERSION}".encode()).hexdigest()[:24]
+
+
+def _made(part: Part, verts: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig, raw_key: str,
+          key: str) -> tuple[tuple[list[np.ndarray], float], str]:
+    """(the part's refined pieces and inset, their cache key), made now and cached: coacd's pieces
+    made faithful, or for a part coacd refuses its hull's pieces."""
+    raw = _load(cache_dir() / f"{raw_key}.npz") or decomposed_or_refused(part, verts, faces, cfg, raw_key)
+    if raw is not None:
+        found = (_refined(part, raw[0], cfg), raw[1])
+        _save(cache_dir() / f"{key}.npz", *found)
+        return found, key
+    # Refused by coacd: its hull's pieces, already faithful, under their own key (the refusal
+    # stays, so that a wider limit tries coacd again: `decompose.hull_pieces`).
+    key = _hull_key(raw_key)
+    found = _load(cache_dir() / f"{key}.npz")
+    if found is None:
+        found = (hull_pieces(part, verts, cfg), cfg.inset_ldu)
+        _save(cache_dir() / f"{key}.npz", *found)
+    return found, key
+
+
 def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()) -> CollisionShape:
     """The part's inset collision pieces, from the disk cache or decomposed now (and cached).
 
@@ -81,34 +138,19 @@ def collision_shape(part: Part, cfg: DecompositionConfig = DecompositionConfig()
     memo = part.__dict__.setdefault("_collision_shapes", {})
     if cfg in memo:
         return memo[cfg]
-    body = int((~part.flat.in_stud).sum())
-    if body > MAX_COLLISION_TRIANGLES:
-        raise LDrawLimitError(f"part {part.name} has {body:,} triangles outside its studs; the physics checks "
-                              f"decompose parts of at most {MAX_COLLISION_TRIANGLES:,}", getattr(part, "file", None))
+    too_many = too_many_triangles(part)
+    if too_many:
+        raise LDrawLimitError(too_many, getattr(part, "file", None))
     verts, faces = _body_mesh(part)
-    settings = asdict(cfg)
-    refine = settings.pop("refine_cells")
-    h = hashlib.sha256()
-    h.update(np.ascontiguousarray(verts).tobytes())
-    h.update(np.ascontiguousarray(faces).tobytes())
-    h.update(json.dumps(settings, sort_keys=True).encode())
-    raw_key = h.hexdigest()[:24]
-    # REFINED_VERSION names how `_refined` works: a change to it must not reuse older entries.
-    key = hashlib.sha256(f"{raw_key}/refined/{refine}/{REFINED_VERSION}".encode()).hexdigest()[:24]
+    raw_key, key = _keys(verts, faces, cfg)
     found = _load(cache_dir() / f"{key}.npz")
     if found is None:
-        raw = _load(cache_dir() / f"{raw_key}.npz") or decomposed_or_refused(part, verts, faces, cfg, raw_key)
-        if raw is not None:
-            found = (_refined(part, raw[0], cfg), raw[1])
-            _save(cache_dir() / f"{key}.npz", *found)
-        else:
-            # Refused by coacd: its hull's pieces, already faithful, under their own key (the
-            # refusal stays, so that a wider limit tries coacd again: `decompose.hull_pieces`).
-            key = hashlib.sha256(f"{raw_key}/hull/{HULL_CELLS}/{REFINED_VERSION}".encode()).hexdigest()[:24]
+        # Parts are prepared where they are first needed (a sampler's worker drawing one): two
+        # processes needing one part at once make its pieces once, the second waiting.
+        with made_once(cache_dir() / f"{raw_key}.lock"):
             found = _load(cache_dir() / f"{key}.npz")
             if found is None:
-                found = (hull_pieces(part, verts, cfg), cfg.inset_ldu)
-                _save(cache_dir() / f"{key}.npz", *found)
+                found, key = _made(part, verts, faces, cfg, raw_key, key)
     body, inset = found
     studs, stud_at = [], []
     for s in part.studs:

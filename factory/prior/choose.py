@@ -26,6 +26,7 @@ from factory.prior.families import family, unprinted
 from factory.prior.prior import MINIFIG, OTHER, SIDE_STUDS, STUDS, PartUse, Prior
 
 NOT_IN_LIBRARY = "not in the library"
+TOO_MANY_TRIANGLES = "too many triangles for the physics checks"
 NO_CONNECTOR = ("no studs, no sockets and no joint connector found: held by its shape (a tyre on a rim, cloth, "
                 "a sticker), which the factory cannot tell where to put")
 MINIFIGURE = ("a minifigure piece held by a hand, a helmet or another piece where it sits differs per piece "
@@ -108,12 +109,18 @@ def not_its_own_part(reader: Reader, name: str) -> str | None:
 
 def why_unusable(reader: Reader, name: str) -> str | None:
     """None when the sampler can use the library part `name`, else the reason (a property of the
-    part, or the LDraw error that reading it raised)."""
+    part, or the LDraw error that reading it raised). Known without decomposing the part: its
+    collision pieces are made where it is first drawn, and a part that coacd refuses gets its
+    hull's pieces (`factory.physics.decompose`), so decomposing it leaves no part out."""
     from factory.parts import load_part  # trimesh and scipy: only when parts are chosen
+    from factory.physics.geometry import too_many_triangles
     from factory.physics.unmodelled import is_minifig
 
     try:
         part = load_part(reader, name)
+        too_many = too_many_triangles(part)
+        if too_many:
+            return f"{TOO_MANY_TRIANGLES}: {too_many}"
         if is_minifig(part):
             return None if role(part.description) is not None else MINIFIGURE
         if held_by_joints_alone(part):
