@@ -92,7 +92,9 @@ def apply_prior(args, config: SamplerConfig, ldraw: str | None, prefix: str = ""
     finally:
         bar.close()
     if choice is not None:
-        print(report(choice, config, reader.library.description), file=sys.stderr)
-        if not parts_given:
+        if parts_given:  # the prior's parts line would name parts that are not drawn
+            print(f"prior {config.prior}: its {len(config.colours)} colours the library holds", file=sys.stderr)
+        else:
+            print(report(choice, config, reader.library.description), file=sys.stderr)
             print(PREPARED_AS_DRAWN, file=sys.stderr)
     return config
