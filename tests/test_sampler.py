@@ -305,3 +305,26 @@ def test_target_steps_is_the_length_an_object_grows_to(objects):
     cfg = SamplerConfig(seed=11, **SMALL)
     assert [target_steps(cfg, i) for i in range(3)] == [a.target_steps for a in objects]
     assert all(3 <= target_steps(cfg, i) <= 6 for i in range(50))
+
+
+def test_an_object_stuck_before_its_fewest_parts_is_grown_again_from_a_stream_of_its_own(monkeypatch, tmp_path):
+    """An object that gets stuck before `min_steps` parts (6 of 64 library objects ended before 6
+    parts) is grown again from a stream of its own, and the longest attempt is kept; an object that
+    reaches `min_steps` at its first attempt is the object it always was."""
+    import factory.sampler.sampler as sampler_module
+
+    cfg = SamplerConfig(seed=1, min_steps=12, max_steps=12, candidates_per_step=2, max_redraws=0)
+    grown = list(Sampler(cfg).sample_many(range(6)))
+    monkeypatch.setattr(sampler_module, "RESTARTS", 0)
+    first = list(Sampler(cfg).sample_many(range(6)))
+    assert all(f.attempt == 0 for f in first)
+    for a, f in zip(grown, first):
+        if len(f) >= cfg.min_steps:
+            assert a.same_as(f) and a.attempt == 0
+        else:
+            assert len(a) >= len(f) and (a.attempt == 0) == a.same_as(f)
+    assert any(len(f) < len(a) == cfg.min_steps for a, f in zip(grown, first))  # one reached its length
+    again = next(a for a in grown if a.attempt)
+    assert Assembly.from_ldr(again.to_ldr(tmp_path / "o.ldr")).attempt == again.attempt
+    monkeypatch.undo()
+    assert Sampler(cfg).sample(again.index).same_as(again)  # reproducible

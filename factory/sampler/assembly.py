@@ -82,6 +82,9 @@ class Assembly:
     stuck_rejected: dict[str, int] = field(default_factory=dict)
     """For a stuck object: the candidates of the failed step rejected by rule (also
     'no-attachment': a drawn part had no feasible attachment at all)."""
+    attempt: int = 0
+    """Which attempt at the object this is: 0, the first, unless that one got stuck before
+    `min_steps` parts; then the longest of the attempts made (`sampler.RESTARTS`)."""
     check_seconds: float = 0.0
     """Wall time spent in the physics checks while growing it (a measurement: not written to the
     `.ldr`, not part of the object)."""
@@ -119,6 +122,8 @@ class Assembly:
         meta.append(f"density {self.density:.6f}")
         if self.end_reason is not None:
             meta.append(f"end {self.end_reason}")
+        if self.attempt:
+            meta.append(f"attempt {self.attempt}")
         lines.append(f"{_META} {' '.join(meta)}")
         lines.append("")
         for s in self.steps:
@@ -151,6 +156,7 @@ class Assembly:
             index=int(meta["index"]) if "index" in meta else None,
             target_steps=int(meta["target_steps"]) if "target_steps" in meta else None,
             end_reason=meta.get("end"),
+            attempt=int(meta.get("attempt", 0)),
         )
 
     def to_json(self, steps: bool = False) -> dict:
@@ -165,6 +171,7 @@ class Assembly:
             "rejected": self.rejected,
             "checked": sum(s.checked for s in self.steps),
             "redraws": sum(s.draws - 1 for s in self.steps),
+            **({"attempt": self.attempt} if self.attempt else {}),
         }
         if steps:
             out["step_records"] = [s.to_json() for s in self.steps]

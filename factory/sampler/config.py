@@ -85,7 +85,9 @@ class SamplerConfig:
     the library's `LDConfig.ldr` by `Sampler` (16 and 24 are not colours of their own)."""
     min_steps: int = 20
     """Fewest parts of an object: each object's target length is drawn uniformly in
-    [min_steps, max_steps]. An object that gets stuck earlier ends early (`end_reason` says why)."""
+    [min_steps, max_steps]. An object that gets stuck before `min_steps` is grown again from a
+    stream of its own (`sampler.RESTARTS` times at most, the longest kept); one stuck later ends
+    early (`end_reason` says why)."""
     max_steps: int = 90
     """Most parts of an object."""
     density_weight: float = 1.0

@@ -115,7 +115,8 @@ class SyntheticSource:
                               tuple((p.part, p.colour) for p in placed[k:]), physics, scene))
         rejections = Counter(a.rejected)
         info = {"end_reason": a.end_reason, "target_steps": a.target_steps, "density": _py(a.density),
-                "stuck_rejected": _py(dict(getattr(a, "stuck_rejected", {}) or {}))}
+                "stuck_rejected": _py(dict(getattr(a, "stuck_rejected", {}) or {})),
+                **({"attempt": a.attempt} if a.attempt else {})}
         return ObjectSpec(object_id, "synthetic", steps, info,
                           {"rejections": dict(rejections), "end_reasons": {str(a.end_reason): 1}},
                           {"sample": total - check, "check": check})
