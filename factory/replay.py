@@ -37,6 +37,7 @@ from factory.ldraw.subassembly import UnitDone, parent_of, relative_frame, to_lo
 from factory.parts import load_part
 from factory.physics.geometry import collision_shape
 from factory.physics.check import CheckConfig, Verdict, check_units
+from factory.physics.load_model import Link
 from factory.physics.structure import Placed, Structure, canonical_key, connectors, match
 from factory.physics.linked import links_by_joints
 from factory.physics.seat import seat_offset
@@ -188,13 +189,12 @@ def lands_on_a_joint(structure: Structure, part, moved: Pose, move: np.ndarray) 
 
 
 def _add_unit(structure: Structure, unit: list[Placed], inner_links, verdict: Verdict) -> None:
-    """Add a finished sub-assembly's parts to its parent, with its own links (renumbered, each of
-    its kind: a pin inside the unit still turns, as when the unit itself was judged) and the links
-    its verdict found to the parent."""
+    """Add a finished sub-assembly's parts to its parent, with its own rigid links (renumbered) and,
+    if the unit is held by an unmodelled connection, a link from its first part."""
     base = len(structure)
     for k, p in enumerate(unit):
         structure.add(p, verdict.links(base + k, k))
-    structure.links.extend(link.moved(base) for link in inner_links)
+    structure.links.extend(Link(l.a + base, l.b + base, l.point) for l in inner_links)
 
 
 def _on_table(structure: Structure, unit: list[Placed]) -> bool:
@@ -395,7 +395,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
             next_step[id(step)] = in_block(step.assembly, min(later))
 
     structures: dict[str, Structure] = {}
-    """The parts placed so far in every open assembly, in its own frame, with their links."""
+    """The parts placed so far in every open assembly, in its own frame, with their rigid links."""
     wrong: dict[str, set[int]] = {}
     """Per open assembly: its parts drawn where they cannot be (`drawn_wrong`)."""
     for event in walk(steps, frames):

@@ -591,21 +591,3 @@ def test_a_stop_bush_against_a_holes_mouth_is_part_of_the_pins_joint(lib_at):
     # Off the hole's axis it is judged on its overlap.
     v = verdict(block, moved(pin, (0, 3, 0)))
     assert not v.ok and not v.joints, v
-
-
-def test_a_sub_assembly_keeps_its_own_joints_in_the_model_it_goes_into(at):
-    """A design's sub-assembly is judged with its own joints (a pin in its hole turns), and it goes
-    into its parent with them: later parts hung on it are carried through a pin that still turns,
-    not through a rigid link."""
-    from factory.replay import _add_unit
-
-    unit = Structure([at("3701", 0, 0, 0)])
-    placed_on(unit, at("3673", -20, 10, 10, ALONG_Z))
-    assert [(l.kind, l.axis is not None) for l in unit.links] == [("technic-pin", True)]
-    parent = Structure([at("3001", 100, 0, 0)])
-    (v,) = check_units(parent, [list(unit.placed)], "cpu", standing=False, require_connection=False,
-                       unit_links=unit.links)
-    assert v.ok, v
-    _add_unit(parent, list(unit.placed), unit.links, v)
-    (pin,) = [l for l in parent.links if {l.a, l.b} == {1, 2}]
-    assert (pin.kind, pin.axis) == (unit.links[0].kind, unit.links[0].axis)
