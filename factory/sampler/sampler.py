@@ -43,9 +43,9 @@ ground) and is checked like any other (it must stand on its own).
 from __future__ import annotations
 
 import difflib
-from dataclasses import replace
 import os
 from collections import Counter
+from dataclasses import replace
 from typing import Generator, Iterable, Iterator
 
 import numpy as np
