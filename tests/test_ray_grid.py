@@ -44,6 +44,26 @@ def test_rays_cast_through_the_cells_meet_what_every_triangle_would(real_reader)
                 assert 0 < got.sum() < len(points)
 
 
+def test_points_on_a_grid_share_each_lines_crossings_and_get_every_triangles_answer(real_reader):
+    """A grid's points lie many to a line along each axis (the solid-overlap measure's grids):
+    the crossings found once per line give each point the answer of testing every triangle, on
+    the triangles' own coordinates too (points exactly on a face or an edge)."""
+    for name in ("3701", "3062b"):
+        tris = load_part(real_reader, name).flat.triangles
+        lo, hi = tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)
+        axes = [np.arange(np.floor(l) - 2, h + 2, 1.0) for l, h in zip(lo, hi)]
+        grid_points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        points = np.concatenate([grid_points + 0.25, grid_points[::7]])  # off and on whole LDU
+        for axis in range(3):
+            grid = ray_grid._RayGrid(tris, axis)
+            lines = len(np.unique(points[:, [k for k in range(3) if k != axis]], axis=0))
+            assert lines * 10 < len(points)
+            for sign in (1.0, -1.0):
+                got = grid.blocked(points, sign)
+                assert np.array_equal(got, _brute(points, tris, axis, sign)), (name, axis, sign)
+                assert 0 < got.sum() < len(points)
+
+
 def test_triangles_kilometres_across_keep_the_grid_and_the_samples_bounded():
     """Hostile input may draw a triangle 100,000 LDU across: listed under every 4 LDU cell it
     would take 6e8 entries; the cells grow instead, with the same answers. A hull that large

@@ -72,3 +72,28 @@ def test_a_wing_over_curved_slopes_is_judged_on_the_parts_not_their_pieces():
     pressed = Pose(turned, [0.0, -14.5, 0.0])
     deeper = [_pieces_depth(wing, pressed, slope, at) for at in slopes]
     assert deepest_solid([(wing, pressed)], [(slope, at) for at in slopes], deeper, 0.5) > 0.5
+
+
+def test_points_in_pieces_are_those_a_box_then_planes_test_of_every_piece_finds(real_reader):
+    """`in_pieces` takes each piece's points by the x-sorted slice its box spans: the answer is that
+    of testing every point against every piece's box and planes, for a part turned off its axes
+    too, its mated studs left out."""
+    from factory.physics.geometry import collision_shape
+    from factory.physics.solid_overlap import _free_studs, _grids, in_pieces
+
+    rng = np.random.default_rng(4)
+    for name, pose in (("3701", Pose(np.eye(3), [3.0, -8.0, 1.0])),
+                       ("3062b", Pose(np.array([[0.8, 0, 0.6], [0, 1, 0], [-0.6, 0, 0.8]]), [0.0, 0.0, 0.0]))):
+        part = load_part(real_reader, name)
+        tris = part.flat.triangles.reshape(-1, 3)
+        local = rng.uniform(tris.min(0) - 3, tris.max(0) + 3, size=(20000, 3))
+        mated = pose.apply(np.array([a for a, _ in collision_shape(part).stud_at[:1]], float).reshape(-1, 3))
+        _, body, studs = _grids(part)
+        free = [f for f, keep in zip(studs, _free_studs(part, pose, mated)) if keep]
+        want = np.zeros(len(local), bool)
+        for planes, lo, hi in body + free:
+            box = np.all((local >= lo) & (local <= hi), axis=1)
+            want |= box & ((local @ planes[:, :3].T + planes[:, 3]).max(axis=1) <= 0.0)
+        got = in_pieces(part, pose, local, mated)
+        assert np.array_equal(got, want), name
+        assert 0 < got.sum() < len(local)

@@ -27,8 +27,6 @@ the whole piece). 2: samples every point the inset piece keeps,
 halves cells down to twice the inset and drops pieces thinner than the inset (1: sampled 0.5 LDU
 in, halved down to `min_cut_ldu`, kept every piece)."""
 
-_SIDES = ((0, 1.0), (0, -1.0), (2, 1.0), (2, -1.0), (1, -1.0))
-"""The directions a sample point must be closed in, as (axis, sign): sideways and up (-Y)."""
 
 SAMPLE_CHUNK = 1 << 23
 """Entries (sample points x hull faces) one step of the faithfulness test holds: 64 MB."""
@@ -66,10 +64,13 @@ class _Faithfulness:
     _grids: dict = field(default_factory=dict, repr=False, compare=False)
     """`_RayGrid` of the occluders per axis, made when first cast along it."""
 
-    def _blocked(self, points: np.ndarray, axis: int, sign: float) -> np.ndarray:
+    def _grid(self, axis: int) -> _RayGrid:
         if axis not in self._grids:
             self._grids[axis] = _RayGrid(self.occluders, axis)
-        return self._grids[axis].blocked(points, sign)
+        return self._grids[axis]
+
+    def _blocked(self, points: np.ndarray, axis: int, sign: float) -> np.ndarray:
+        return self._grid(axis).blocked(points, sign)
 
     def escapes(self, points: np.ndarray) -> bool:
         """Whether a sample point inside the hull of `points` sees out of the part.
@@ -111,9 +112,12 @@ class _Faithfulness:
 
     def _any_escapes(self, grid: np.ndarray) -> bool:
         escaped = np.zeros(len(grid), bool)
-        for axis, sign in _SIDES:
+        # A sample point must be closed in sideways (both ways along X and Z) and up (-Y).
+        for axis in (0, 2):
             open_ = ~escaped
-            escaped[open_] = ~self._blocked(grid[open_], axis, sign)
+            escaped[open_] = ~self._grid(axis).enclosed(grid[open_])
+        open_ = ~escaped
+        escaped[open_] = ~self._blocked(grid[open_], 1, -1.0)  # up
         if self.socket_floor is not None:
             below = ~escaped & (grid[:, 1] > self.socket_floor + 0.5)
             escaped[below] = ~self._blocked(grid[below], 1, 1.0)
