@@ -69,9 +69,6 @@ class _Faithfulness:
             self._grids[axis] = _RayGrid(self.occluders, axis)
         return self._grids[axis]
 
-    def _blocked(self, points: np.ndarray, axis: int, sign: float) -> np.ndarray:
-        return self._grid(axis).blocked(points, sign)
-
     def escapes(self, points: np.ndarray) -> bool:
         """Whether a sample point inside the hull of `points` sees out of the part.
 
@@ -117,10 +114,10 @@ class _Faithfulness:
             open_ = ~escaped
             escaped[open_] = ~self._grid(axis).enclosed(grid[open_])
         open_ = ~escaped
-        escaped[open_] = ~self._blocked(grid[open_], 1, -1.0)  # up
+        escaped[open_] = ~self._grid(1).blocked(grid[open_], -1.0)  # up
         if self.socket_floor is not None:
             below = ~escaped & (grid[:, 1] > self.socket_floor + 0.5)
-            escaped[below] = ~self._blocked(grid[below], 1, 1.0)
+            escaped[below] = ~self._grid(1).blocked(grid[below], 1.0)
         return bool(escaped.any())
 
 
