@@ -11,6 +11,11 @@ would be rejected for the one drawing error. So a part rejected only for meeting
 (overlapping them, or blocked by them on its way in) is judged again without them; accepted so,
 its record names them (`judged_without`). Nothing else is given up: it must still be held, stand and get in past every
 other part, and its faults are judged against all the parts, drawn wrong or not.
+
+A flexible element's segments count the same way (`LDrawFile.flexible`: a sub-model LDCad
+generated from a path or a spring, or keyworded `flexible`): a chain, a hose or a string is drawn
+as rigid links or segments along a curve, and bends aside for the parts it hooks onto or lies over
+(Showdown Canyon's chain ends, pressed onto their studs through the chain's first links).
 """
 
 from __future__ import annotations

@@ -345,12 +345,13 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
     reader = get_reader(ldraw)
     frames: dict[str, Pose] = {}
     blocks: dict[str, int] = {}
+    flexible: set[str] = set()
     model = reader.open_model(model_path)
     placed = count_parts(reader, model)
     if placed > MAX_VERIFY_PARTS:
         raise LDrawLimitError(f"model places {placed:,} parts; verify checks at most {MAX_VERIFY_PARTS:,} "
                               "(each part is checked against all placed before it)", str(model_path))
-    steps = build_steps(reader, model, frames, blocks)
+    steps = build_steps(reader, model, frames, blocks, flexible)
     if not steps:
         raise LDrawError(NO_PARTS, str(model_path))
     # Every part of each assembly in its own frame, in build order; a finished sub-assembly also
@@ -422,6 +423,10 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                           stud_pairs=stud_pairs(judged_on, unit), **({"held_in_hand": True} if held_in_hand else {}),
                           **_seat_record(seated), **joints)
             wrong.setdefault(event.parent, set()).update(len(parent) + i for i in wrong.pop(event.tag, ()))
+            if event.tag in flexible:
+                # A chain's links or a hose's segments bend aside for the parts they hook on or
+                # lie over (`drawn_wrong`: judged without them, as parts drawn where none can be).
+                wrong[event.parent].update(range(len(parent), len(parent) + len(unit)))
             _add_unit(parent, unit, done.links, v)
             continue
         step = event.step

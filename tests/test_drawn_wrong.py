@@ -71,3 +71,28 @@ def test_a_part_overlapping_beyond_its_joint_counts_as_drawn_wrong(tmp_path):
              if "fault" not in r]
     assert right[3]["reason"] is None
     assert right[4]["reason"] == "collision" and "judged_without" not in right[4]
+
+
+def _mpd(tmp_path, main: str, sub: str, header: str):
+    model = tmp_path / "design.mpd"
+    model.write_text(f"0 FILE main.ldr\n0 Design\n{main}0 FILE segment.ldr\n0 Segment\n{header}{sub}\n")
+    return model
+
+
+def test_a_part_meeting_only_a_flexible_element_is_judged_without_it(tmp_path):
+    # A flexible element (a chain, a hose) is drawn as rigid segments along a curve; the part it
+    # bends aside for meets them where drawn. Here its one segment, a 1x2 plate, hangs 6 LDU above
+    # the studs a 2x2 brick is then pressed onto: the brick's top and studs reach 6 LDU into it.
+    main = (f"{BASE[0]}\n{BASE[1]}\n0 STEP\n1 7 0 0 0 {I3} segment.ldr\n0 STEP\n"
+            f"1 14 20 -24 40 {I3} 3003.dat\n0 STEP\n")
+    segment = f"1 2 20 -30 40 {I3} 3023.dat"
+    flexible = [r for r in verify_model(_mpd(tmp_path, main, segment, "0 !KEYWORDS flexible, chain\n"))
+                if "fault" not in r]
+    rigid = [r for r in verify_model(_mpd(tmp_path, main, segment, "")) if "fault" not in r]
+    for records in (flexible, rigid):
+        # The plate in its own frame, then the segment as one unit: held by nothing, but not
+        # overlapping the parts before it (not drawn wrong).
+        assert [r.get("unit", False) for r in records] == [False, False, False, False, True, False]
+        assert records[4]["reason"] == "no-connection" and not records[4]["collision"]
+    assert rigid[5]["reason"] == "collision" and rigid[5]["max_penetration_ldu"] > 4.0
+    assert flexible[5]["reason"] is None and flexible[5]["judged_without"] == [3]

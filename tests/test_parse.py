@@ -30,6 +30,17 @@ def test_all_line_types_parse():
     assert f.description == "A title" and f.is_part
 
 
+def test_a_flexible_element_is_marked_by_its_keyword_or_ldcad_path():
+    # LDCad writes a chain, hose or string as a path and its generated segments; authors also
+    # keyword such sub-models `flexible`.
+    assert parse("0 Chain\n0 !KEYWORDS flexible, chain\n").flexible
+    assert parse("0 Hose\n0 !LDCAD CONTENT [type=path] [addFallBack=default] [looped=false]\n").flexible
+    assert parse("0 Shock\n0 !LDCAD CONTENT [type=spring]\n").flexible
+    assert not parse("0 Brick\n0 !KEYWORDS chain, flexibles\n").flexible
+    assert not parse("0 Group\n0 !LDCAD CONTENT [type=group]\n").flexible
+    assert not parse("0 Plain\n0 !CATEGORY Brick\n").flexible
+
+
 def test_crlf_and_lf_give_the_same_items():
     body = "0 T\r\n0 BFC CERTIFY CCW\r\n3 16 0 0 0 1 0 0 0 1 0\r\n"
     a = parse_lines(decode(body.encode(), "a").splitlines(), "a", "a")

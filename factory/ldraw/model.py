@@ -84,18 +84,19 @@ def is_submodel(res: Resolved) -> bool:
 
 
 def build_steps(reader: Reader, model: Model, frames: dict[str, Pose] | None = None,
-                blocks: dict[str, int] | None = None) -> list[BuildStep]:
+                blocks: dict[str, int] | None = None, flexible: set[str] | None = None) -> list[BuildStep]:
     """The model's build steps in order; steps that place no part are dropped.
 
     `frames`, when given, receives every sub-assembly instance's frame (also those with no part
     of their own), keyed by tag; `blocks` the STEP block of its parent's file that references it
-    (as `BuildStep.block`).
+    (as `BuildStep.block`); `flexible` the tags of sub-assemblies drawn as a flexible element
+    (`LDrawFile.flexible`: a chain's links, a hose's segments).
     """
     main = Resolved(model.main, f"{model.path}#{model.main.name.lower()}", "mpd", model)
     _count_parts(reader, main, (), {})
     steps: list[BuildStep] = []
     _expand(reader, main, Pose.identity(), 16, MAIN_ASSEMBLY, steps, (), frames if frames is not None else {},
-            blocks if blocks is not None else {})
+            blocks if blocks is not None else {}, flexible if flexible is not None else set())
     return steps
 
 
@@ -134,6 +135,7 @@ def _expand(
     stack: tuple[str, ...],
     frames: dict[str, Pose],
     blocks: dict[str, int],
+    flexible: set[str],
 ) -> None:
     if len(stack) > MAX_DEPTH:
         raise LDrawLimitError(f"submodels nest more than {MAX_DEPTH} levels deep", res.file.path)
@@ -166,7 +168,9 @@ def _expand(
             instances[label.lower()] += 1
             sub = f"{assembly}/{label}#{instances[label.lower()]}"
             blocks[sub] = block
-            _expand(reader, child, child_pose, child_colour, sub, out, stack + (res.key,), frames, blocks)
+            if child.file.flexible:
+                flexible.add(sub)
+            _expand(reader, child, child_pose, child_colour, sub, out, stack + (res.key,), frames, blocks, flexible)
         else:
             current.append(
                 PlacedPart(item.name, child_colour, child_pose, f"{res.file.path}:{item.line}",

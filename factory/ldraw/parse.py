@@ -75,6 +75,10 @@ class LDrawFile:
     `part_category`)."""
     moved_to: str | None = None
     certified: bool = False
+    flexible: bool = False
+    """Drawn as a flexible element bent to a path (a chain, a hose, a string, a spring): LDCad's
+    generated content (`0 !LDCAD CONTENT [type=path]` or `[type=spring]`), or keyworded `flexible`
+    (`0 !KEYWORDS ..., flexible`). Its drawn segments stand for a part that bends."""
     items: list[Ref | Poly | Step] = field(default_factory=list)
     first_line: int = 1
 
@@ -206,6 +210,10 @@ def parse_lines(lines: list[str], path: str, name: str, first_line: int = 1) -> 
                 out.ldraw_org = " ".join(body[1:])
             elif head == "!CATEGORY":
                 out.category = " ".join(body[1:])
+            elif head == "!KEYWORDS":
+                out.flexible |= "flexible" in {w.strip().lower() for w in " ".join(body[1:]).split(",")}
+            elif head == "!LDCAD" and len(body) > 1 and body[1].upper() == "CONTENT":
+                out.flexible |= bool(_FLEXIBLE_CONTENT.search(" ".join(body[2:])))
             elif head == "BFC":
                 words = [w.upper() for w in body[1:]]
                 known = {"CERTIFY", "NOCERTIFY", "CW", "CCW", "CLIP", "NOCLIP", "INVERTNEXT"}
@@ -273,6 +281,11 @@ def parse_lines(lines: list[str], path: str, name: str, first_line: int = 1) -> 
     if winding is None:
         out.certified = False
     return out
+
+
+_FLEXIBLE_CONTENT = re.compile(r"\[type=(path|spring)\]", re.IGNORECASE)
+"""LDCad's generated content of a flexible element: a path (chains, hoses, strings, rubber bands)
+or a spring."""
 
 
 def _is_meta(body: list[str]) -> bool:
