@@ -12,7 +12,7 @@ import pytest
 from factory import Pose
 from factory.physics.collide import CollisionScene
 from factory.physics.mass import part_mass_properties
-from factory.physics.settle import OUTCOMES, SettleConfig, settle, settle_model
+from factory.physics.settle import OUTCOMES, RESTING_LDU, SettleConfig, settle, settle_model
 from factory.physics.snap import SnapRule, SnapTargets
 from factory.physics.structure import Structure
 from factory.symmetry import rotation_about
@@ -80,6 +80,20 @@ def test_a_brick_overlapping_another_a_little_is_pushed_out():
     assert got.outcome == "pushed-out"
     assert scene.penetration(got.pose, set())[0] <= 0.5
     assert got.moved_ldu > 1.0
+
+
+def test_a_brick_pushed_out_onto_the_studs_it_was_in_is_pushed_out():
+    # Predicted turned (no connection to snap to) and 2.5 LDU down into the plate's studs: pushed
+    # up, it rests on their tops. Resting there its inset pieces touch the studs', so the overlap
+    # measure reads the two insets (RESTING_LDU), not an overlap of the real surfaces.
+    s, brick = plate(), part("3001")
+    pose = Pose(rotation_about((0, 1, 0), 45), [0, -25.5, 0])
+    scene = CollisionScene(s, [(brick, Pose.identity())], s.floor_y())
+    assert 0.5 < scene.penetration(pose, set())[0] < SettleConfig().collides_ldu
+    got = settle(s, brick, pose)
+    assert got.outcome == "pushed-out" and got.at_rest and got.connections == 0
+    assert got.pose.t[1] == pytest.approx(-28.0, abs=0.6)  # on the studs' tops, as resting there
+    assert 0.5 < scene.penetration(got.pose, set())[0] <= 0.5 + RESTING_LDU
 
 
 def test_a_correct_pose_rests_connected_and_unchanged():

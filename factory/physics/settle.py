@@ -13,10 +13,11 @@ inertia (`mass.part_mass_properties`), gravity along MuJoCo's -Z (LDraw -Y is up
    the checks (`check.check`, the floor fixed); the nearest one accepted → `rests-connected` at
    exactly that pose. A candidate the checks reject is not snapped to (it would not hold).
 3. **Simulation** with `mujoco.mj_step` for at most `SettleConfig.seconds`, stopped once the part
-   has been at rest (`rest_speed_ldu_s`, `rest_spin_rad_s`) for `rest_seconds`. The end state:
+   has been at rest (moved at most `rest_ldu` and `rest_degrees` over `rest_seconds`). The end state:
    - `pushed-out`: the predicted pose overlapped beyond the checks' tolerance
      (`CheckConfig.max_penetration_ldu`, 0.5 LDU) and the end pose does not (still overlapping
-     beyond it: `collides`);
+     beyond it: `collides`), its real surfaces measured: a part resting on another reads
+     `RESTING_LDU` more (the two insets, below);
    - `fell-off`: the part ends touching no structure part (the floor or nothing), and its lowest
      point at the predicted pose was at least `fell_ldu` above the floor (it dropped to the table);
    - `rests-unconnected`: anything else (on the structure without a connection, or on the table
@@ -53,6 +54,10 @@ from factory.physics.structure import Structure
 from factory.pose import LDRAW_TO_MUJOCO, LDU_M, Pose, points_to_mujoco
 
 OUTCOMES = ("rests-connected", "rests-unconnected", "fell-off", "pushed-out", "collides")
+
+RESTING_LDU = 2 * INSET_LDU
+"""What the checks' overlap measure reads for a simulated part resting on another (their inset
+pieces touching): the part sits this much lower than its real surfaces would."""
 
 
 @dataclass(frozen=True)
@@ -241,7 +246,10 @@ class Release:
         tolerance = config.check.max_penetration_ldu
         if self.depth0 > tolerance:
             depth, _ = self.overlap.penetration(end, self._connected(end))
-            outcome = "pushed-out" if depth <= tolerance else "collides"
+            # Simulated, a part rests on another with their inset pieces touching: the overlap
+            # measure adds both insets, so resting there it reads 2 x INSET_LDU with no overlap of
+            # the real surfaces (module docstring). The tolerance applies to the real surfaces.
+            outcome = "pushed-out" if depth <= tolerance + RESTING_LDU else "collides"
             return Settled(outcome, end, self._moved(end), self._conns(end), seconds, self.at_rest)
         dropped = self.floor_y - float(self.pose.apply(self.part.hull_points)[:, 1].max())
         fell = len(self.structure) and not (touched - {-2}) and dropped >= config.fell_ldu
