@@ -74,10 +74,11 @@ def test_warp_and_mujoco_c_agree_on_the_simulated_hand_built_cases_in_one_batch(
              (p, brick, Pose(rotation_about((0, 1, 0), 45), [0, -54, 0]), None),  # turned: rests on the studs
              (p, brick, Pose(I3, [2, -40, -1]), None),  # lifted, 2.2 LDU across: snaps on the way down
              (t, brick, Pose(I3, [50, -78, 0]), None),  # half off the tower: falls
-             (one, brick, Pose(rotation_about((0, 1, 0), 30), [0, 0, 55]), None)]  # pushed out
+             (one, brick, Pose(rotation_about((0, 1, 0), 30), [0, 0, 55]), None),  # pushed out
+             (p, brick, Pose(rotation_about((0, 1, 0), 45), [0, -25.5, 0]), None)]  # pushed up onto the studs
     got, stats = _same(cases)
     assert [g.outcome for g in got] == ["rests-connected", "rests-unconnected", "rests-connected", "fell-off",
-                                        "pushed-out"]
+                                        "pushed-out", "pushed-out"]
     # Three scenes, one model: the worlds of a batch hold different structures and parts.
     assert stats.batches == 1 and stats.fallbacks == 0 and stats.simulated >= 3
     assert stats.contacts_dropped == 0
