@@ -34,11 +34,13 @@ would lift it, but MuJoCo's margin made resting parts float and jitter).
 simulation (before simulating, after every `snap_every` steps, at the end). `settle_all` runs many
 cases on MuJoCo C, a scene's model, overlap measure and snapping verdicts made once; the batched
 version (`settle_mjx.settle_many`) simulates them on MuJoCo Warp and applies the same `Release`.
-Snapping after a chunk sweeps the chunk's path (`_path`), not only its end pose.
+Snapping after a chunk follows the part's path through the chunk step by step (`_path` between the
+poses after each step), not only its end pose.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import mujoco
@@ -82,7 +84,8 @@ class SettleConfig:
     reaches the table well within 0.5 s)."""
     timestep: float = 0.001
     snap_every: int = 10
-    """Steps between snapping tests while settling (10 ms: a falling brick moves at most a few LDU)."""
+    """Steps per chunk: the rules run after each (the snapping test on the pose after every step of
+    the chunk, the at-rest window on the chunks' ends; 10 ms)."""
     rest_ldu: float = 0.1
     rest_degrees: float = 0.5
     rest_seconds: float = 0.1
@@ -225,15 +228,21 @@ class Release:
     def _connected(self, p: Pose) -> set[int]:
         return {i for i, _ in self.structure.connections_with(self.part, p)}
 
-    def after_chunk(self, now: Pose, done: int) -> bool:
-        """The part at `now` after `done` steps: True when settling stops here (snapped: `result`
-        set; or at rest: `at_rest`)."""
-        for pose in _path(self.history[-1], now, self.config.snap.plane_ldu):
-            hit = self.judge.snap(pose)
-            if hit is not None:
-                self.result = Settled("rests-connected", hit[0], self._moved(hit[0]), hit[1],
-                                      done * self.config.timestep)
-                return True
+    def after_chunk(self, now: Pose, done: int, between: Sequence[Pose] = ()) -> bool:
+        """The part at `now` after `done` steps, through `between` (its poses after each earlier
+        step of the chunk, in order): True when settling stops here (snapped: `result` set; or at
+        rest: `at_rest`). The snapping test follows the path step by step: a part landing on studs
+        may bounce back out of the snapping window within a chunk, and whether it was found in it
+        would otherwise hang on where the chunk ended."""
+        last = self.history[-1]
+        for step in (*between, now):
+            for pose in _path(last, step, self.config.snap.plane_ldu):
+                hit = self.judge.snap(pose)
+                if hit is not None:
+                    self.result = Settled("rests-connected", hit[0], self._moved(hit[0]), hit[1],
+                                          done * self.config.timestep)
+                    return True
+            last = step
         self.history.append(now)
         if len(self.history) > self.window and _still(self.history[-self.window - 1:], self.com, self.config):
             self.at_rest = True
@@ -317,9 +326,12 @@ def _simulate(release: Release, scene: SettleScene, config: SettleConfig) -> Set
     done = 0
     while done < steps:
         n = min(config.snap_every, steps - done)
-        mujoco.mj_step(model, data, nstep=n)
+        between = []
+        for _ in range(n):
+            mujoco.mj_step(model, data)
+            between.append(_pose_of(data, scene.part_body))
         done += n
-        if release.after_chunk(_pose_of(data, scene.part_body), done):
+        if release.after_chunk(between[-1], done, between[:-1]):
             break
     if release.result is not None:
         return release.result
@@ -329,10 +341,8 @@ def _simulate(release: Release, scene: SettleScene, config: SettleConfig) -> Set
 
 def _path(a: Pose, b: Pose, spacing: float) -> list[Pose]:
     """Poses from `a` (excluded) to `b` (included), at most `spacing` LDU apart: the snapping test
-    sweeps the path of a chunk. A part falling onto studs moves up to about 14 LDU in a chunk of
-    10 ms, more than the snapping window along a stud's axis; tested only at the chunk's end it
-    could pass the window and bounce off the studs, and whether it did would hang on where the
-    chunk boundaries fell."""
+    sweeps the path between the poses after two steps (a part falling fast may move more than the
+    snapping window in one)."""
     steps = max(1, int(np.ceil(np.linalg.norm(b.t - a.t) / spacing)))
     if steps == 1:
         return [b]

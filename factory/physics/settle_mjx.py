@@ -3,8 +3,9 @@ MuJoCo Warp (the GPU implementation of MuJoCo that MJX ships, `mujoco.mjx.third_
 
 `settle_many(cases)` gives, per case (structure, part, pose, floor_y), what `settle.settle` gives.
 Everything but the simulation is the reference's own code (`settle.Release`): the overlap check
-and snapping before simulating, then after every `snap_every` steps, on the host, snapping (the
-checks judge each candidate once per scene: the judge is shared) and the at-rest window, and at the
+and snapping before simulating, then after every `snap_every` steps, on the host, snapping along
+the part's path (its pose after each step, kept on the device by a small kernel; the checks judge
+each candidate once per scene: the judge is shared) and the at-rest window, and at the
 end the outcome from the end pose and the contacts MuJoCo C finds there (`mj_forward` on the scene's
 own `MjModel`, `settle.settle_model`).
 
@@ -93,6 +94,22 @@ def _warp():
     wp.config.quiet = True
     wp.init()
     return wp, mjw
+
+
+@cache
+def _keep_kernel():
+    """A Warp kernel that copies each world's pose of one body after a step into row `k` of a
+    history (the snapping test follows the path step by step: `settle.Release.after_chunk`)."""
+    wp, _ = _warp()
+
+    @wp.kernel
+    def keep(xpos: wp.array2d(dtype=wp.vec3), xmat: wp.array2d(dtype=wp.mat33), body: int, k: int,
+             pos: wp.array2d(dtype=wp.vec3), mat: wp.array2d(dtype=wp.mat33)):
+        w = wp.tid()
+        pos[k, w] = xpos[w, body]
+        mat[k, w] = xmat[w, body]
+
+    return keep
 
 
 def default_device() -> str:
@@ -254,6 +271,14 @@ def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleC
         stats.batches += 1
         stats.simulated += n
         graph = None
+        keep = _keep_kernel()
+        hist_pos = wp.zeros((config.snap_every, n), dtype=wp.vec3)
+        hist_mat = wp.zeros((config.snap_every, n), dtype=wp.mat33)
+
+        def step(j: int) -> None:
+            mjw.step(mw, dw)
+            wp.launch(keep, dim=n, inputs=[dw.xpos, dw.xmat, body_part, j, hist_pos, hist_mat])
+
         steps = int(round(config.seconds / config.timestep))
         active = list(range(n))
         end_qpos = np.zeros((n, 7))
@@ -264,23 +289,24 @@ def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleC
             t1 = time.perf_counter()
             if graph is None and k == config.snap_every and wp.get_device(device).is_cuda and not first:
                 with wp.ScopedCapture() as capture:
-                    for _ in range(k):
-                        mjw.step(mw, dw)
+                    for j in range(k):
+                        step(j)
                 graph = capture.graph
             if graph is not None and k == config.snap_every:
                 wp.capture_launch(graph)
             else:
-                for _ in range(k):
-                    mjw.step(mw, dw)
-            pos_b, mat_b, q = dw.xpos.numpy()[:, body_part], dw.xmat.numpy()[:, body_part], dw.qpos.numpy()
+                for j in range(k):
+                    step(j)
+            path_pos, path_mat, q = hist_pos.numpy()[:k], hist_mat.numpy()[:k], dw.qpos.numpy()
             if int(dw.nacon.numpy()[0]) >= naconmax:
                 stats.contacts_dropped += 1
             done += k
             still = []
             for w in active:
                 end_qpos[w], stopped[w] = q[w], done
-                now = Pose.from_mujoco(pos_b[w] + shift[w], mat_b[w].astype(np.float64))
-                if not releases[w].after_chunk(now, done):
+                path = [Pose.from_mujoco(path_pos[j, w] + shift[w], path_mat[j, w].astype(np.float64))
+                        for j in range(k)]
+                if not releases[w].after_chunk(path[-1], done, path[:-1]):
                     still.append(w)
             active = still
             dt = time.perf_counter() - t1
