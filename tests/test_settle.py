@@ -119,6 +119,17 @@ def test_settling_is_deterministic():
     assert (a.moved_ldu, a.seconds, a.connections) == (b.moved_ldu, b.seconds, b.connections)
 
 
+def test_a_path_passing_no_candidate_is_skipped_whole():
+    # `along` bounds `near` over a path straight between points: True wherever a pose on it may
+    # snap, so False lets the poses go untested.
+    targets, rule = SnapTargets.of(plate(), part("3001")), SnapRule()
+    above = np.array([[0.0, -200.0, 0.0], [0.0, -150.0, 0.0]])  # far above the plate
+    through = np.array([[0.0, -60.0, 0.0], [0.0, -12.0, 0.0]])  # both ends out of reach, the seat between
+    assert not targets.along(above, rule) and targets.along(through, rule)
+    assert not targets.near(Pose(I3, through[0]), rule) and not targets.near(Pose(I3, through[1]), rule)
+    assert targets.near(Pose(I3, [0.0, -24.0, 0.0]), rule)
+
+
 def test_the_snapping_rule_bounds():
     targets = SnapTargets.of(plate(), part("3001"))
     rule = SnapRule()

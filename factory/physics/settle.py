@@ -235,14 +235,17 @@ class Release:
         may bounce back out of the snapping window within a chunk, and whether it was found in it
         would otherwise hang on where the chunk ended."""
         last = self.history[-1]
-        for step in (*between, now):
-            for pose in _path(last, step, self.config.snap.plane_ldu):
-                hit = self.judge.snap(pose)
-                if hit is not None:
-                    self.result = Settled("rests-connected", hit[0], self._moved(hit[0]), hit[1],
-                                          done * self.config.timestep)
-                    return True
-            last = step
+        path = (*between, now)
+        # Most chunks pass no candidate connection: their poses are not swept one by one.
+        if self.judge.targets.along(np.array([last.t, *(p.t for p in path)]), self.config.snap):
+            for step in path:
+                for pose in _path(last, step, self.config.snap.plane_ldu):
+                    hit = self.judge.snap(pose)
+                    if hit is not None:
+                        self.result = Settled("rests-connected", hit[0], self._moved(hit[0]), hit[1],
+                                              done * self.config.timestep)
+                        return True
+                last = step
         self.history.append(now)
         if len(self.history) > self.window and _still(self.history[-self.window - 1:], self.com, self.config):
             self.at_rest = True

@@ -92,32 +92,53 @@ class SnapTargets:
         """The farthest connection point from the part's origin (LDU)."""
         return float(np.linalg.norm(self.local, axis=-1).max()) if len(self.local) else 0.0
 
+    def _reach(self, rule: SnapRule) -> float:
+        """How far a candidate within tolerance can have its translation from the pose's: its
+        connection points lie within the tolerance box of theirs, turned by at most `degrees`
+        about the part's origin."""
+        return self._radius * 2.0 * np.sin(np.radians(rule.degrees) / 2.0) + np.hypot(rule.axis_ldu, rule.plane_ldu)
+
+    def along(self, points: np.ndarray, rule: SnapRule) -> bool:
+        """Whether any candidate may be within tolerance somewhere on the path through the part
+        origin's `points` (k, 3), straight between them: its translation within `_reach` of the
+        path. False lets a caller skip the poses of that path."""
+        if not len(self.owner) or not len(points):
+            return False
+        a, b = points[:-1], points[1:]
+        if not len(a):
+            a = b = points
+        ab = b - a
+        length2 = np.maximum(np.einsum("kd,kd->k", ab, ab), 1e-12)
+        f = np.clip(np.einsum("nkd,kd->nk", self.t[:, None, :] - a[None], ab) / length2, 0.0, 1.0)
+        gap = np.linalg.norm(self.t[:, None, :] - (a[None] + f[..., None] * ab[None]), axis=2)
+        return bool((gap <= self._reach(rule) + 1e-6).any())
+
     def near(self, pose: Pose, rule: SnapRule) -> list[tuple[int, Pose, float]]:
         """(candidate, its pose turned by the symmetry nearest `pose`, largest connection point
         distance) of every candidate within the rule's tolerance of `pose`, nearest first."""
         if not len(self.owner):
             return []
-        # A candidate within tolerance has its translation within `reach` of the pose's (its
-        # connection points lie within the tolerance box of theirs, turned by at most `degrees`
-        # about the part's origin): the others are dropped before the full test.
-        reach = self._radius * 2.0 * np.sin(np.radians(rule.degrees) / 2.0) + np.hypot(rule.axis_ldu, rule.plane_ldu)
-        close = np.linalg.norm(self.t - pose.t, axis=1) <= reach + 1e-6
-        if not close.any():
+        # The candidates whose translation is beyond `_reach` of the pose's are dropped before
+        # the full test.
+        cand = np.flatnonzero(np.linalg.norm(self.t - pose.t, axis=1) <= self._reach(rule) + 1e-6)
+        if not len(cand):
             return []
-        trace = np.einsum("ij,nsij->ns", pose.R, self.rotations)
+        # The full test on those candidates alone (j: a candidate's place in `cand`).
+        trace = np.einsum("ij,nsij->ns", pose.R, self.rotations[cand])
         best = trace.argmax(axis=1)
-        cos = np.clip((trace[np.arange(len(self.t)), best] - 1.0) / 2.0, -1.0, 1.0)
+        cos = np.clip((trace[np.arange(len(cand)), best] - 1.0) / 2.0, -1.0, 1.0)
         turned_ok = np.degrees(np.arccos(cos)) <= rule.degrees + 1e-9
-        s = best[self.owner]
-        local = self.local[np.arange(len(self.owner)), s]
-        off = local @ pose.R.T + pose.t - self.world
-        along = np.einsum("kd,kd->k", off, self.axis)
-        across = np.linalg.norm(off - along[:, None] * self.axis, axis=1)
+        points = np.flatnonzero(np.isin(self.owner, cand))
+        j = np.searchsorted(cand, self.owner[points])
+        local = self.local[points, best[j]]
+        off = local @ pose.R.T + pose.t - self.world[points]
+        along = np.einsum("kd,kd->k", off, self.axis[points])
+        across = np.linalg.norm(off - along[:, None] * self.axis[points], axis=1)
         fails = (np.abs(along) > rule.axis_ldu + 1e-9) | (across > rule.plane_ldu + 1e-9)
-        bad = np.bincount(self.owner, weights=fails, minlength=len(self.t)) > 0
-        has = np.bincount(self.owner, minlength=len(self.t)) > 0
-        dist = np.zeros(len(self.t))
-        np.maximum.at(dist, self.owner, np.linalg.norm(off, axis=1))
+        bad = np.bincount(j, weights=fails, minlength=len(cand)) > 0
+        has = np.bincount(j, minlength=len(cand)) > 0
+        dist = np.zeros(len(cand))
+        np.maximum.at(dist, j, np.linalg.norm(off, axis=1))
         ok = np.flatnonzero(turned_ok & has & ~bad)
-        ok = ok[np.lexsort((ok, dist[ok]))]
-        return [(int(c), Pose(self.rotations[c, best[c]], self.t[c]), float(dist[c])) for c in ok]
+        ok = ok[np.lexsort((cand[ok], dist[ok]))]
+        return [(int(cand[k]), Pose(self.rotations[cand[k], best[k]], self.t[cand[k]]), float(dist[k])) for k in ok]
