@@ -82,3 +82,18 @@ def test_warp_and_mujoco_c_agree_on_the_simulated_hand_built_cases_in_one_batch(
     # Three scenes, one model: the worlds of a batch hold different structures and parts.
     assert stats.batches == 1 and stats.fallbacks == 0 and stats.simulated >= 3
     assert stats.contacts_dropped == 0
+
+
+@pytest.mark.slow
+def test_a_part_whose_centre_of_mass_is_off_its_origin_falls_without_turning():
+    # A 45-degree slope's centre of mass lies 13 LDU below and 6 LDU behind its origin. Dropped
+    # 40 LDU onto the table beside the plate, it falls straight and lands as it was released, on
+    # both engines (Warp once turned such a part in the air: its template's inertia sat at the
+    # body's origin, and Warp took that for every world).
+    slope = part("3040b")
+    pose = Pose(I3, [200, -40, 0])
+    (got,), _ = _same([(plate(), slope, pose, None)])
+    assert got.outcome == "fell-off"
+    assert np.allclose(got.pose.R, pose.R, atol=1e-3), got.pose.R
+    assert np.allclose(got.pose.t[[0, 2]], pose.t[[0, 2]], atol=0.1)
+    assert got.pose.t[1] == pytest.approx(-16.0, abs=0.6)  # on the table (y 8), the slope 24 LDU tall
