@@ -143,7 +143,7 @@ def run(n: int, per_scene: int, seed: int, config: SettleConfig = SettleConfig()
         throughput=dict(cpu_per_s=len(cs) / cpu_s, mjx_per_s=len(cs) / mjx_s, cpu_s=cpu_s, mjx_s=mjx_s,
                         mjx_first_chunk_s=stats.first_chunk_s, mjx_run_s=stats.run_s, mjx_prepare_s=stats.prepare_s,
                         device=stats.device),
-        mjx=dict(batches=stats.batches, simulated=stats.simulated, fallbacks=stats.fallbacks,
+        mjx=dict(batches=stats.batches, simulated=stats.simulated, fallbacks=stats.fallbacks, diverged=stats.diverged,
                  contacts_dropped=stats.contacts_dropped, refused=stats.refused),
     )
 

@@ -97,3 +97,24 @@ def test_a_part_whose_centre_of_mass_is_off_its_origin_falls_without_turning():
     assert np.allclose(got.pose.R, pose.R, atol=1e-3), got.pose.R
     assert np.allclose(got.pose.t[[0, 2]], pose.t[[0, 2]], atol=0.1)
     assert got.pose.t[1] == pytest.approx(-16.0, abs=0.6)  # on the table (y 8), the slope 24 LDU tall
+
+
+def test_a_world_whose_state_diverges_is_settled_on_mujoco_c(monkeypatch):
+    # A Warp world can blow up (its solver out of constraint rows): its state turns NaN. That case
+    # is run again on the reference instead of failing the batch, and counted.
+    wp, mjw = settle_mjx._warp()
+    real = mjw.step
+
+    def blows_up(m, d):
+        real(m, d)
+        q = d.qpos.numpy()
+        q[0, 0] = np.nan
+        d.qpos.assign(wp.array(q, dtype=d.qpos.dtype))
+
+    monkeypatch.setattr(mjw, "step", blows_up)
+    case = (plate(), part("3001"), Pose(rotation_about((0, 1, 0), 45), [0, -54, 0]), None)
+    stats = MjxStats()
+    (got,) = settle_many([case], stats=stats, device="cpu")
+    assert stats.diverged == 1 and stats.fallbacks == 1
+    ref = settle(*case[:3])
+    assert got.outcome == ref.outcome == "rests-unconnected" and got.pose.allclose(ref.pose)

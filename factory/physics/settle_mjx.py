@@ -76,7 +76,9 @@ class MjxStats:
     simulated: int = 0
     """Cases simulated (the others were decided before simulating or fell back)."""
     fallbacks: int = 0
-    """Cases run on MuJoCo C because MuJoCo Warp refused their scene."""
+    """Cases run on MuJoCo C because MuJoCo Warp refused their scene or diverged on it."""
+    diverged: int = 0
+    """Of those, cases whose Warp state stopped being finite (run again on MuJoCo C)."""
     first_chunk_s: float = 0.0
     """Seconds of each batch's first chunk (compiling Warp's kernels, the first time in a process)."""
     run_s: float = 0.0
@@ -287,6 +289,7 @@ def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleC
 
         steps = int(round(config.seconds / config.timestep))
         active = list(range(n))
+        diverged: set[int] = set()
         end_qpos = np.zeros((n, 7))
         stopped = np.zeros(n, np.int64)
         done, first = 0, True
@@ -310,6 +313,9 @@ def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleC
             still = []
             for w in active:
                 end_qpos[w], stopped[w] = q[w], done
+                if not np.isfinite(q[w]).all():
+                    diverged.add(w)  # left to the reference below
+                    continue
                 path = [Pose.from_mujoco(path_pos[j, w] + shift[w], path_mat[j, w].astype(np.float64))
                         for j in range(k)]
                 if not releases[w].after_chunk(path[-1], done, path[:-1]):
@@ -325,6 +331,13 @@ def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleC
     for w, (s, r) in enumerate(zip(slots, releases)):
         if r.result is not None:
             out.append(r.result)
+            continue
+        if w in diverged:
+            # A world whose state stopped being finite (its solver out of constraint rows, say)
+            # is simulated again on MuJoCo C, and counted as a fallback.
+            stats.fallbacks += 1
+            stats.diverged += 1
+            out.extend(settle_all([(r.structure, r.part, r.pose, r.floor_y)], config))
             continue
         model = s.scene.model
         host = mujoco.MjData(model)
