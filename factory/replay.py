@@ -398,7 +398,8 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
     structures: dict[str, Structure] = {}
     """The parts placed so far in every open assembly, in its own frame, with their rigid links."""
     wrong: dict[str, set[int]] = {}
-    """Per open assembly: its parts drawn where they cannot be (`drawn_wrong`)."""
+    """Per open assembly: its parts drawn where they cannot be, and the segments of its flexible
+    elements (`drawn_wrong`): later parts are judged past them."""
     for event in walk(steps, frames):
         if isinstance(event, UnitDone):
             done = structures.pop(event.tag)

@@ -42,6 +42,7 @@ from factory import gpus
 from factory.physics.collide import _fmt, _template
 from factory.physics.settle import (Release, Scenes, SettleConfig, SettleScene, Settled, _pose_of, _touched,
                                     settle_all)
+from factory.physics.settle import _simulate as _simulate_c
 from factory.pose import Pose
 
 PART_SLOTS = (4, 8, 16, 32, 64, 128)
@@ -337,7 +338,8 @@ def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleC
             # is simulated again on MuJoCo C, and counted as a fallback.
             stats.fallbacks += 1
             stats.diverged += 1
-            out.extend(settle_all([(r.structure, r.part, r.pose, r.floor_y)], config))
+            # From the predicted pose again, with the scene's judge and model already made.
+            out.append(_simulate_c(Release(r.structure, r.part, r.pose, r.floor_y, config, r.judge), s.scene, config))
             continue
         model = s.scene.model
         host = mujoco.MjData(model)
