@@ -104,6 +104,13 @@ class Pose:
         return f"Pose(R={self.R.round(6).tolist()}, t={self.t.round(6).tolist()})"
 
 
+def poses_from_mujoco(pos_m, rot) -> tuple[np.ndarray, np.ndarray]:
+    """`Pose.from_mujoco` of many at once, as arrays: (R (..., 3, 3), t (..., 3)) in LDraw from
+    MuJoCo positions (..., 3) in metres and rotation matrices (..., 3, 3)."""
+    c = LDRAW_TO_MUJOCO
+    return c.T @ np.asarray(rot, np.float64) @ c, np.asarray(pos_m, np.float64) @ c / LDU_M
+
+
 def nearest_rotation_matrix(m) -> np.ndarray:
     """The proper rotation nearest to a finite 3x3 matrix in the Frobenius norm: with the SVD
     `m = U S V^T`, `U diag(1, 1, det(U V^T)) V^T` (a reflection's nearest rotation keeps det +1)."""

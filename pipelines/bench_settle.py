@@ -13,15 +13,26 @@ and lifted; the heuristic baseline's pose (24 LDU above the last part, unturned)
 baseline's (a 20 LDU grid translation within 200 LDU, one of the 24 axis rotations). Writes the
 share of equal outcomes (all, and those both simulated), the pose differences of equal outcomes,
 per-outcome counts, every disagreement with its case, and both throughputs.
+
+    python -m pipelines.bench_settle --n 2000 --seed 2 --throughput cpu,warp --workers 1,16 --out tp.json
+
+`--throughput ENGINES` measures each engine alone over worker processes instead ('cpu': MuJoCo C,
+`settle_all`; 'warp': MuJoCo Warp, `settle_many`, every worker on the same device): the scenes
+dealt out round robin, each worker's kernels loaded and first cases settled before a common start,
+the wall time from that start until the last worker is done. Same seed, same predictions: the
+outcomes' digest says so.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
+import multiprocessing
 import sys
 import time
 from collections import Counter
+from queue import Empty
 
 import numpy as np
 
@@ -148,14 +159,92 @@ def run(n: int, per_scene: int, seed: int, config: SettleConfig = SettleConfig()
     )
 
 
+def _share(engine: str, batch: list, device: str | None, barrier, queue, index: int) -> None:
+    """One worker of `throughput`: warm up, wait for the others, settle its share, report."""
+    warm = batch[:8]
+    if engine == "warp":
+        settle_many(warm, device=device)  # Warp's kernels loaded (compiled the first time on a machine)
+    else:
+        settle_all(warm)
+    barrier.wait()
+    stats = MjxStats()
+    t0 = time.perf_counter()  # CLOCK_MONOTONIC: one clock for every process of the machine
+    got = settle_many(batch, device=device, stats=stats) if engine == "warp" else settle_all(batch)
+    t1 = time.perf_counter()
+    queue.put((index, t0, t1, [r.outcome for r in got], stats.__dict__))
+
+
+def throughput(cs: list[dict], engine: str, workers: int, device: str | None = None) -> dict:
+    """Predictions settled per second by `engine` ('cpu' or 'warp') over `workers` processes."""
+    ctx = multiprocessing.get_context("spawn")  # not fork: CUDA and JAX hold state a fork breaks
+    barrier, queue = ctx.Barrier(workers), ctx.Queue()
+    shares = [[i for i, c in enumerate(cs) if c["scene"] % workers == k] for k in range(workers)]
+    procs = [ctx.Process(target=_share, args=(engine, [(cs[i]["structure"], cs[i]["part"], cs[i]["pose"],
+                                                          cs[i]["floor_y"]) for i in share],
+                                              device, barrier, queue, k))
+             for k, share in enumerate(shares)]
+    for p in procs:
+        p.start()
+    reports: list = []
+    while len(reports) < len(procs):
+        try:
+            reports.append(queue.get(timeout=5))
+        except Empty:
+            failed = [p.exitcode for p in procs if p.exitcode not in (None, 0)]
+            if failed:
+                for p in procs:
+                    p.terminate()
+                raise RuntimeError(f"a worker of the {engine} throughput run failed (exit code {failed[0]})") from None
+    for p in procs:
+        p.join()
+    outcomes: list[str | None] = [None] * len(cs)
+    for k, _, _, got, _ in reports:
+        for i, o in zip(shares[k], got):
+            outcomes[i] = o
+    wall = max(r[2] for r in reports) - min(r[1] for r in reports)
+    stats = {key: round(sum(r[4][key] for r in reports), 3) for key in
+             ("prepare_s", "first_chunk_s", "run_s", "step_s", "rules_s", "simulated", "fallbacks", "diverged",
+              "contacts_dropped", "batches")} if engine == "warp" else None
+    return dict(engine=engine, workers=workers, predictions=len(cs), wall_s=round(wall, 3),
+                per_s=round(len(cs) / wall, 1), outcomes=dict(Counter(outcomes)),
+                outcomes_sha256=hashlib.sha256("\n".join(map(str, outcomes)).encode()).hexdigest()[:16],
+                busiest_s=round(max(r[2] - r[1] for r in reports), 3), warp=stats,
+                device=device)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, default=500, help="predictions")
     ap.add_argument("--per-scene", type=int, default=50, help="predictions per (structure, part) scene")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--device", default=None, help="Warp device ('cpu', 'cuda:0'; default: the GPU if any)")
+    ap.add_argument("--throughput", default=None,
+                    help="measure these engines ('cpu', 'warp' or 'cpu,warp') alone over --workers processes, no parity")
+    ap.add_argument("--workers", default="1", help="processes of --throughput (a list: '1,16' runs each)")
     ap.add_argument("--out", required=True, help="JSON file to write")
     args = ap.parse_args(argv)
+    if args.throughput:
+        engines = args.throughput.split(",")
+        for engine in engines:
+            if engine not in ("cpu", "warp"):
+                ap.error(f"--throughput: unknown engine {engine!r}; choose from cpu, warp")
+        try:
+            counts = [int(w) for w in args.workers.split(",")]
+        except ValueError:
+            ap.error(f"--workers: expected whole numbers separated by commas, got {args.workers!r}")
+        t0 = time.perf_counter()
+        cs = cases(args.n, args.per_scene, args.seed)
+        print(f"{len(cs)} predictions made in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+        results = []
+        for engine in engines:
+            for workers in counts:
+                result = throughput(cs, engine, workers, args.device if engine == "warp" else None)
+                result.update(seed=args.seed, per_scene=args.per_scene)
+                results.append(result)
+                print(json.dumps(result), flush=True)
+        with open(args.out, "w", encoding="utf-8") as f:
+            json.dump(results, f, indent=1)
+        return
     result = run(args.n, args.per_scene, args.seed, device=args.device)
     with open(args.out, "w", encoding="utf-8") as f:
         json.dump(result, f, indent=1)

@@ -12,7 +12,7 @@ import pytest
 from factory import Pose
 from factory.physics.collide import CollisionScene
 from factory.physics.mass import part_mass_properties
-from factory.physics.settle import OUTCOMES, RESTING_LDU, SettleConfig, settle, settle_model
+from factory.physics.settle import OUTCOMES, RESTING_LDU, SettleConfig, settle, settle_model, still
 from factory.physics.snap import SnapRule, SnapTargets
 from factory.physics.structure import Structure
 from factory.symmetry import rotation_about
@@ -128,6 +128,34 @@ def test_a_path_passing_no_candidate_is_skipped_whole():
     assert not targets.along(above, rule) and targets.along(through, rule)
     assert not targets.near(Pose(I3, through[0]), rule) and not targets.near(Pose(I3, through[1]), rule)
     assert targets.near(Pose(I3, [0.0, -24.0, 0.0]), rule)
+
+
+def test_the_rest_rule_bounds_each_window_by_its_last_pose():
+    # Windows of 11 poses, many at once: the centre of mass within 0.1 LDU and the turn within 0.5
+    # degrees of the last pose, whatever the earlier ones' order.
+    config = SettleConfig()
+    com = np.array([20.0, -12.0, 0.0])  # off the origin: a turn about the origin moves it
+
+    def window(dt=0.0, degrees=0.0, first_only=False):
+        R = np.repeat(I3[None], 11, 0)
+        t = np.zeros((11, 3))
+        k = slice(0, 1) if first_only else slice(0, 10)
+        R[k] = rotation_about((0, 1, 0), degrees)
+        t[k] = (dt, 0.0, 0.0)
+        return R, t
+
+    cases = [window(), window(0.09), window(0.11), window(0.11, first_only=True),
+             window(degrees=0.4), window(degrees=0.6, first_only=True)]
+    R = np.array([c[0] for c in cases])
+    t = np.array([c[1] for c in cases])
+    assert still(R, t, com, config).tolist() == [True, True, False, False, False, False]
+    # 0.4 degrees about the origin moves the centre of mass 20 * 0.007 = 0.14 LDU; about the
+    # centre of mass itself (each pose's translation making up for the turn) it moves nothing.
+    about_com = R.copy(), t.copy()
+    turned = rotation_about((0, 1, 0), 0.4)
+    about_com[0][4, :10], about_com[1][4, :10] = turned, com - turned @ com
+    assert still(*about_com, com, config)[4]
+    assert still(R[:1], t[:1], np.array([com]), config).tolist() == [True]
 
 
 def test_the_snapping_rule_bounds():

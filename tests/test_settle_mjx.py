@@ -10,9 +10,11 @@ import numpy as np
 import pytest
 
 from factory import Pose
+from factory.pose import LDU_M, points_to_mujoco
 from factory.physics import settle_mjx
 from factory.physics.settle import settle
 from factory.physics.settle_mjx import MjxStats, settle_many
+from factory.physics.snap import SnapRule, SnapTargets
 from factory.physics.structure import Structure
 from factory.symmetry import rotation_about
 from ldraw_support import at, part
@@ -118,3 +120,27 @@ def test_a_world_whose_state_diverges_is_settled_on_mujoco_c(monkeypatch):
     assert stats.diverged == 1 and stats.fallbacks == 1
     ref = settle(*case[:3])
     assert got.outcome == ref.outcome == "rests-unconnected" and got.pose.allclose(ref.pose)
+
+
+def test_the_device_prefilter_passes_the_paths_the_reference_one_passes():
+    # The batch tests every world's chunk path against its candidates at once on the device
+    # (`near`); the host sweeps only the worlds it flags, so it must flag every path that
+    # `SnapTargets.along` passes (by its float32 margin of 1e-3 LDU it may pass a few more).
+    wp, _ = settle_mjx._warp()
+    _, _, near = settle_mjx._kernels()
+    targets, rule = SnapTargets.of(plate(), part("3001")), SnapRule()
+    rng = np.random.default_rng(3)
+    n, k = 96, 10
+    start = rng.uniform([-60, -70, -40], [60, -5, 40], size=(n, 3))
+    path = np.concatenate([start[None], start[None] + np.cumsum(rng.normal(scale=4.0, size=(k, n, 3)), axis=0)])
+    want = [targets.along(path[:, w], rule) for w in range(n)]
+    world = np.repeat(np.arange(n, dtype=np.int32), len(targets.t))
+    target = np.tile(points_to_mujoco(targets.t), (n, 1)).astype(np.float32)
+    reach = np.full(n, (targets.reach(rule) + 1e-3) * LDU_M, np.float32)
+    flag = wp.zeros(n, dtype=wp.int32, device="cpu")
+    wp.launch(near, dim=len(world), device="cpu",
+              inputs=[wp.array(points_to_mujoco(path).astype(np.float32), dtype=wp.vec3, device="cpu"), k,
+                      wp.array(world, dtype=wp.int32, device="cpu"), wp.array(target, dtype=wp.vec3, device="cpu"),
+                      wp.array(reach, dtype=wp.float32, device="cpu"), flag])
+    assert 10 < sum(want) < n - 10  # paths of both kinds
+    assert flag.numpy().astype(bool).tolist() == want

@@ -237,19 +237,30 @@ class Release:
         last = self.history[-1]
         path = (*between, now)
         # Most chunks pass no candidate connection: their poses are not swept one by one.
-        if self.judge.targets.along(np.array([last.t, *(p.t for p in path)]), self.config.snap):
-            for step in path:
-                for pose in _path(last, step, self.config.snap.plane_ldu):
-                    hit = self.judge.snap(pose)
-                    if hit is not None:
-                        self.result = Settled("rests-connected", hit[0], self._moved(hit[0]), hit[1],
-                                              done * self.config.timestep)
-                        return True
-                last = step
+        if (self.judge.targets.along(np.array([last.t, *(p.t for p in path)]), self.config.snap)
+                and self.sweep(last, path, done)):
+            return True
         self.history.append(now)
-        if len(self.history) > self.window and _still(self.history[-self.window - 1:], self.com, self.config):
-            self.at_rest = True
+        if len(self.history) > self.window:
+            window = self.history[-self.window - 1:]
+            R = np.array([p.R for p in window])[None]
+            t = np.array([p.t for p in window])[None]
+            self.at_rest = bool(still(R, t, self.com, self.config)[0])
         return self.at_rest
+
+    def sweep(self, last: Pose, path: Sequence[Pose], done: int) -> bool:
+        """The snapping test along the part's path from `last` through the poses of `path` (after
+        each step of the chunk that ended after `done` steps), `_path` filling in between: True,
+        with `result` set, at the first pose near a connection the checks accept."""
+        for step in path:
+            for pose in _path(last, step, self.config.snap.plane_ldu):
+                hit = self.judge.snap(pose)
+                if hit is not None:
+                    self.result = Settled("rests-connected", hit[0], self._moved(hit[0]), hit[1],
+                                          done * self.config.timestep)
+                    return True
+            last = step
+        return False
 
     def finish(self, end: Pose, touched: set[int], done: int) -> Settled:
         """The outcome of a simulation that ended at `end` after `done` steps, touching `touched`
@@ -367,16 +378,17 @@ def _path(a: Pose, b: Pose, spacing: float) -> list[Pose]:
     return out
 
 
-def _still(poses: list[Pose], com: np.ndarray, config: SettleConfig) -> bool:
-    """Whether every pose of the window lies within the rest bounds of the last one."""
-    last = poses[-1]
-    for p in poses[:-1]:
-        if np.linalg.norm(p.apply(com) - last.apply(com)) > config.rest_ldu:
-            return False
-        cos = np.clip((np.trace(p.R.T @ last.R) - 1.0) / 2.0, -1.0, 1.0)
-        if np.degrees(np.arccos(cos)) > config.rest_degrees:
-            return False
-    return True
+def still(R: np.ndarray, t: np.ndarray, com: np.ndarray, config: SettleConfig) -> np.ndarray:
+    """The at-rest rule over windows of poses: `R` (m, W, 3, 3) and `t` (m, W, 3) are m parts'
+    poses (LDraw) after the last W chunks, oldest first, `com` (3,) or (m, 3) their centres of mass
+    in the part's frame. True where every pose of the window lies within the rest bounds of the
+    last one (`SettleConfig.rest_ldu`, `rest_degrees`). One rule for both engines: `Release` asks it
+    of one part, `settle_mjx` of a whole batch at once."""
+    com = np.broadcast_to(np.asarray(com, np.float64), (len(t), 3))
+    at = np.einsum("mwij,mj->mwi", R, com) + t
+    moved = np.linalg.norm(at[:, :-1] - at[:, -1:], axis=-1)
+    cos = np.clip((np.einsum("mwij,mij->mw", R[:, :-1], R[:, -1]) - 1.0) / 2.0, -1.0, 1.0)
+    return (moved <= config.rest_ldu).all(axis=1) & (np.degrees(np.arccos(cos)) <= config.rest_degrees).all(axis=1)
 
 
 def _touched(data: mujoco.MjData, scene: SettleScene) -> set[int]:

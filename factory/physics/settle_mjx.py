@@ -41,9 +41,9 @@ import numpy as np
 from factory import gpus
 from factory.physics.collide import _fmt, _template
 from factory.physics.settle import (Release, Scenes, SettleConfig, SettleScene, Settled, _pose_of, _touched,
-                                    settle_all)
+                                    settle_all, still)
 from factory.physics.settle import _simulate as _simulate_c
-from factory.pose import Pose
+from factory.pose import LDU_M, Pose, points_to_mujoco, poses_from_mujoco
 
 PART_SLOTS = (4, 8, 16, 32, 64, 128)
 """Mesh geoms of the free part per batch: the least of these that holds the batch's largest part."""
@@ -51,6 +51,11 @@ STRUCTURE_SLOTS = tuple(2 ** k for k in range(4, 15))
 """Mesh geoms of the structure per batch: the least of these that holds its largest structure."""
 CONTACTS_PER_WORLD = 160
 """Contacts kept per world (MuJoCo Warp allocates them up front); more are dropped and counted."""
+CONSTRAINTS_PER_WORLD = 6 * CONTACTS_PER_WORLD
+"""Constraint rows kept per world (three per contact of an elliptic cone with condim 3). The
+contacts are pooled over the batch, so one world may take more than `CONTACTS_PER_WORLD`; at 3 per
+contact (480 rows) one world of 500 predictions ran out of rows and its state stopped being
+finite (settled again on MuJoCo C: `MjxStats.diverged`)."""
 BATCH = 4096
 """Worlds per batch at most."""
 
@@ -84,6 +89,10 @@ class MjxStats:
     """Seconds of each batch's first chunk (compiling Warp's kernels, the first time in a process)."""
     run_s: float = 0.0
     """Seconds of the other chunks, the host's rules included."""
+    step_s: float = 0.0
+    """Of all chunks' seconds, those of the device: launching the steps and waiting for them."""
+    rules_s: float = 0.0
+    """Of all chunks' seconds, those of the host's rules (snapping sweeps, the at-rest window)."""
     prepare_s: float = 0.0
     """Seconds building batches: the scenes' models, the template, putting them on the device."""
     contacts_dropped: int = 0
@@ -106,9 +115,18 @@ def _warp():
 
 
 @cache
-def _keep_kernel():
-    """A Warp kernel that copies each world's pose of one body after a step into row `k` of a
-    history (the snapping test follows the path step by step: `settle.Release.after_chunk`)."""
+def _kernels():
+    """The batch's own Warp kernels, beside MuJoCo Warp's step (`_simulate`):
+
+    - `keep`: each world's pose of one body after a step, into row `k` of a path history (the
+      snapping test follows the path step by step: `settle.Release.sweep`);
+    - `roll`: row `src` of the history (the pose after the last chunk) into row 0, where the next
+      chunk's path starts, and each world's `flag` cleared;
+    - `near`: per (world, candidate connection) pair, whether the candidate's translation lies
+      within the world's `reach` of the path through rows 0..k (straight between them): the
+      test of `SnapTargets.along`, for every world at once. It only spares the host the worlds
+      that cannot snap in this chunk (`flag` 0); the host sweeps each flagged world's path with
+      the reference's own test. `reach` carries a margin for float32."""
     wp, _ = _warp()
 
     @wp.kernel
@@ -118,7 +136,27 @@ def _keep_kernel():
         pos[k, w] = xpos[w, body]
         mat[k, w] = xmat[w, body]
 
-    return keep
+    @wp.kernel
+    def roll(pos: wp.array2d(dtype=wp.vec3), mat: wp.array2d(dtype=wp.mat33), src: int, flag: wp.array(dtype=wp.int32)):
+        w = wp.tid()
+        pos[0, w] = pos[src, w]
+        mat[0, w] = mat[src, w]
+        flag[w] = 0
+
+    @wp.kernel
+    def near(pos: wp.array2d(dtype=wp.vec3), k: int, world: wp.array(dtype=wp.int32),
+             target: wp.array(dtype=wp.vec3), reach: wp.array(dtype=wp.float32), flag: wp.array(dtype=wp.int32)):
+        p = wp.tid()
+        w = world[p]
+        c = target[p]
+        for j in range(k):
+            a = pos[j, w]
+            ab = pos[j + 1, w] - a
+            f = wp.clamp(wp.dot(c - a, ab) / wp.max(wp.dot(ab, ab), 1.0e-20), 0.0, 1.0)
+            if wp.length(c - (a + f * ab)) <= reach[w]:
+                flag[w] = 1
+
+    return keep, roll, near
 
 
 def default_device() -> str:
@@ -273,61 +311,105 @@ def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleC
             a = getattr(mw, k)
             a.assign(wp.array(v.astype(np.int32 if a.dtype == wp.int32 else np.float32), dtype=a.dtype))
         naconmax = n * CONTACTS_PER_WORLD
-        dw = mjw.make_data(tm, nworld=n, naconmax=naconmax, njmax=CONTACTS_PER_WORLD * 3)
+        dw = mjw.make_data(tm, nworld=n, naconmax=naconmax, njmax=CONSTRAINTS_PER_WORLD)
         for a, v in ((dw.geom_xpos, xpos), (dw.geom_xmat, xmat), (dw.qpos, qpos)):
             a.assign(wp.array(v.astype(np.float32), dtype=a.dtype))
+        keep, roll, near = _kernels()
+        # Row `snap_every` of the path history holds the pose a chunk starts from (rolled into row
+        # 0 as the chunk begins; rows 1..k: after each of its k steps): at first, the released pose.
+        rows = config.snap_every + 1
+        start_pos = np.zeros((rows, n, 3), np.float32)
+        start_mat = np.repeat(np.eye(3, dtype=np.float32)[None, None], rows, 0).repeat(n, 1)
+        for w, r in enumerate(releases):
+            start_pos[-1, w] = qpos[w, :3]
+            start_mat[-1, w] = r.pose.to_mujoco()[1]
+        hist_pos = wp.array(start_pos, dtype=wp.vec3)
+        hist_mat = wp.array(start_mat, dtype=wp.mat33)
+        # The snapping candidates of every world, as (world, translation) pairs in the world's own
+        # frame (metres, floor at z = 0), and each world's reach (`SnapTargets.reach`).
+        pair_world, pair_target = [], []
+        reach = np.zeros(n, np.float32)
+        for w, (s, r) in enumerate(zip(slots, releases)):
+            targets = r.judge.targets
+            if len(targets.owner):
+                pair_target.append(points_to_mujoco(targets.t) - s.floor)
+                pair_world.append(np.full(len(targets.t), w, np.int32))
+            reach[w] = (targets.reach(config.snap) + 1e-3) * LDU_M  # 1e-3 LDU: float32's error, and more
+        n_pairs = int(sum(len(x) for x in pair_world))
+        if n_pairs:
+            pair_world_d = wp.array(np.concatenate(pair_world), dtype=wp.int32)
+            pair_target_d = wp.array(np.concatenate(pair_target).astype(np.float32), dtype=wp.vec3)
+        reach_d = wp.array(reach, dtype=wp.float32)
+        flag = wp.zeros(n, dtype=wp.int32)
         stats.prepare_s += time.perf_counter() - t0
         stats.batches += 1
         stats.simulated += n
-        graph = None
-        keep = _keep_kernel()
-        hist_pos = wp.zeros((config.snap_every, n), dtype=wp.vec3)
-        hist_mat = wp.zeros((config.snap_every, n), dtype=wp.mat33)
 
-        def step(j: int) -> None:
-            mjw.step(mw, dw)
-            wp.launch(keep, dim=n, inputs=[dw.xpos, dw.xmat, body_part, j, hist_pos, hist_mat])
+        def chunk(k: int) -> None:
+            wp.launch(roll, dim=n, inputs=[hist_pos, hist_mat, config.snap_every, flag])
+            for j in range(k):
+                mjw.step(mw, dw)
+                wp.launch(keep, dim=n, inputs=[dw.xpos, dw.xmat, body_part, j + 1, hist_pos, hist_mat])
+            if n_pairs:
+                wp.launch(near, dim=n_pairs, inputs=[hist_pos, k, pair_world_d, pair_target_d, reach_d, flag])
 
         steps = int(round(config.seconds / config.timestep))
-        active = list(range(n))
+        window = releases[0].window
+        chunks = -(-steps // config.snap_every)
+        # Each world's pose after every chunk (LDraw), the released pose first: the at-rest window.
+        R_after = np.zeros((n, chunks + 1, 3, 3))
+        t_after = np.zeros((n, chunks + 1, 3))
+        for w, r in enumerate(releases):
+            R_after[w, 0], t_after[w, 0] = r.pose.R, r.pose.t
+        com = np.array([r.com for r in releases])
+        active = np.arange(n)
         diverged: set[int] = set()
         end_qpos = np.zeros((n, 7))
         stopped = np.zeros(n, np.int64)
-        done, first = 0, True
-        while done < steps and active:
+        done, c, graph = 0, 0, None
+        while done < steps and len(active):
             k = min(config.snap_every, steps - done)
             t1 = time.perf_counter()
-            if graph is None and k == config.snap_every and wp.get_device(device).is_cuda and not first:
+            if graph is None and k == config.snap_every and wp.get_device(device).is_cuda and c > 0:
                 with wp.ScopedCapture() as capture:
-                    for j in range(k):
-                        step(j)
+                    chunk(k)
                 graph = capture.graph
             if graph is not None and k == config.snap_every:
                 wp.capture_launch(graph)
             else:
-                for j in range(k):
-                    step(j)
-            path_pos, path_mat, q = hist_pos.numpy()[:k], hist_mat.numpy()[:k], dw.qpos.numpy()
+                chunk(k)
+            q, flagged = dw.qpos.numpy(), flag.numpy()
+            path_pos, path_mat = hist_pos.numpy()[:k + 1], hist_mat.numpy()[:k + 1]
             if int(dw.nacon.numpy()[0]) >= naconmax:
                 stats.contacts_dropped += 1
+            t2 = time.perf_counter()
             done += k
-            still = []
-            for w in active:
-                end_qpos[w], stopped[w] = q[w], done
-                if not np.isfinite(q[w]).all():
-                    diverged.add(w)  # left to the reference below
-                    continue
+            c += 1
+            end_qpos[active], stopped[active] = q[active], done
+            finite = np.isfinite(q[active]).all(axis=1)
+            diverged.update(int(w) for w in active[~finite])  # left to the reference below
+            active = active[finite]
+            R_after[active, c], t_after[active, c] = poses_from_mujoco(path_pos[k, active] + shift[active],
+                                                                       path_mat[k, active])
+            snapped = np.zeros(len(active), bool)
+            for i in np.flatnonzero(flagged[active]):
+                w = active[i]
                 path = [Pose.from_mujoco(path_pos[j, w] + shift[w], path_mat[j, w].astype(np.float64))
-                        for j in range(k)]
-                if not releases[w].after_chunk(path[-1], done, path[:-1]):
-                    still.append(w)
-            active = still
-            dt = time.perf_counter() - t1
-            if first:
-                stats.first_chunk_s += dt
-                first = False
+                        for j in range(1, k + 1)]
+                snapped[i] = releases[w].sweep(Pose(R_after[w, c - 1], t_after[w, c - 1]), path, done)
+            active = active[~snapped]
+            if c >= window:  # the window: the poses after the last `window` chunks and the one before
+                rest = still(R_after[active, c - window:c + 1], t_after[active, c - window:c + 1], com[active], config)
+                for w in active[rest]:
+                    releases[w].at_rest = True
+                active = active[~rest]
+            t3 = time.perf_counter()
+            stats.step_s += t2 - t1
+            stats.rules_s += t3 - t2
+            if c == 1:
+                stats.first_chunk_s += t3 - t1
             else:
-                stats.run_s += dt
+                stats.run_s += t3 - t1
     out = []
     for w, (s, r) in enumerate(zip(slots, releases)):
         if r.result is not None:
@@ -350,5 +432,5 @@ def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleC
     return out
 
 
-__all__ = ["BATCH", "CONTACTS_PER_WORLD", "MjxStats", "PART_SLOTS", "STRUCTURE_SLOTS", "default_device",
+__all__ = ["BATCH", "CONSTRAINTS_PER_WORLD", "CONTACTS_PER_WORLD", "MjxStats", "PART_SLOTS", "STRUCTURE_SLOTS", "default_device",
            "settle_many"]

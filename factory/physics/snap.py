@@ -92,7 +92,7 @@ class SnapTargets:
         """The farthest connection point from the part's origin (LDU)."""
         return float(np.linalg.norm(self.local, axis=-1).max()) if len(self.local) else 0.0
 
-    def _reach(self, rule: SnapRule) -> float:
+    def reach(self, rule: SnapRule) -> float:
         """How far a candidate within tolerance can have its translation from the pose's: its
         connection points lie within the tolerance box of theirs, turned by at most `degrees`
         about the part's origin."""
@@ -100,7 +100,7 @@ class SnapTargets:
 
     def along(self, points: np.ndarray, rule: SnapRule) -> bool:
         """Whether any candidate may be within tolerance somewhere on the path through the part
-        origin's `points` (k, 3), straight between them: its translation within `_reach` of the
+        origin's `points` (k, 3), straight between them: its translation within `reach` of the
         path. False lets a caller skip the poses of that path."""
         if not len(self.owner) or not len(points):
             return False
@@ -111,16 +111,16 @@ class SnapTargets:
         length2 = np.maximum(np.einsum("kd,kd->k", ab, ab), 1e-12)
         f = np.clip(np.einsum("nkd,kd->nk", self.t[:, None, :] - a[None], ab) / length2, 0.0, 1.0)
         gap = np.linalg.norm(self.t[:, None, :] - (a[None] + f[..., None] * ab[None]), axis=2)
-        return bool((gap <= self._reach(rule) + 1e-6).any())
+        return bool((gap <= self.reach(rule) + 1e-6).any())
 
     def near(self, pose: Pose, rule: SnapRule) -> list[tuple[int, Pose, float]]:
         """(candidate, its pose turned by the symmetry nearest `pose`, largest connection point
         distance) of every candidate within the rule's tolerance of `pose`, nearest first."""
         if not len(self.owner):
             return []
-        # The candidates whose translation is beyond `_reach` of the pose's are dropped before
+        # The candidates whose translation is beyond `reach` of the pose's are dropped before
         # the full test.
-        cand = np.flatnonzero(np.linalg.norm(self.t - pose.t, axis=1) <= self._reach(rule) + 1e-6)
+        cand = np.flatnonzero(np.linalg.norm(self.t - pose.t, axis=1) <= self.reach(rule) + 1e-6)
         if not len(cand):
             return []
         # The full test on those candidates alone (j: a candidate's place in `cand`).
