@@ -43,6 +43,7 @@ from factory.physics.settle_mjx import MjxStats, settle_many
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
 from factory.symmetry import axis_rotations, rotation_about
+from pipelines.workers import one_thread_each_meanwhile
 
 KINDS = ("true", "shift", "lift", "between", "edge", "turn", "heuristic", "random")
 
@@ -183,8 +184,9 @@ def throughput(cs: list[dict], engine: str, workers: int, device: str | None = N
                                                           cs[i]["floor_y"]) for i in share],
                                               device, barrier, queue, k))
              for k, share in enumerate(shares)]
-    for p in procs:
-        p.start()
+    with one_thread_each_meanwhile():  # as the factory's own workers: the processes fill the cores
+        for p in procs:
+            p.start()
     reports: list = []
     while len(reports) < len(procs):
         try:
