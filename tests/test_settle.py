@@ -158,6 +158,22 @@ def test_the_rest_rule_bounds_each_window_by_its_last_pose():
     assert still(R[:1], t[:1], np.array([com]), config).tolist() == [True]
 
 
+def test_poses_tested_together_get_what_each_gets_alone():
+    # A path is tested pose by pose in one pass (`near_many`): each pose's pairs and connection
+    # points must stay its own, in a 2x4 brick's many candidates on a plate.
+    targets, rule = SnapTargets.of(plate(), part("3001")), SnapRule()
+    rng = np.random.default_rng(5)
+    poses = [Pose(rotation_about((0, 1, 0), float(rng.uniform(-12, 12)) + 90.0 * int(rng.integers(4))),
+                  np.array([20.0 * rng.integers(-2, 3), -24.0, 20.0 * rng.integers(-1, 2)]) + rng.normal(scale=2.0, size=3))
+             for _ in range(40)]
+    together = targets.near_many(np.array([p.R for p in poses]), np.array([p.t for p in poses]), rule)
+    alone = [targets.near(p, rule) for p in poses]
+    assert sum(map(bool, alone)) > 5 and sum(not a for a in alone) > 5  # poses that snap and poses that do not
+    for a, b in zip(together, alone):
+        assert [(c, d) for c, _, d in a] == [(c, d) for c, _, d in b]
+        assert all(p.allclose(q, atol=0.0) for (_, p, _), (_, q, _) in zip(a, b))
+
+
 def test_the_snapping_rule_bounds():
     targets = SnapTargets.of(plate(), part("3001"))
     rule = SnapRule()

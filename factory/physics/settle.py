@@ -181,12 +181,23 @@ class _Judge:
         self.judged: dict[int, int | None] = {}  # candidate -> connections when accepted, else None
 
     def snap(self, pose: Pose) -> tuple[Pose, int] | None:
-        for c, snapped, _ in self.targets.near(pose, self.config.snap):
-            if c not in self.judged:
-                (v,) = check(self.structure, self.part, [snapped], config=self.config.check, floor_y=self.floor_y)
-                self.judged[c] = v.connections if v.ok else None
-            if self.judged[c] is not None:
-                return snapped, self.judged[c]
+        """(the snapped pose, its connections) where `pose` is near a connection the checks accept."""
+        hit = self.first([pose])
+        return None if hit is None else hit[1:]
+
+    def first(self, poses: Sequence[Pose]) -> tuple[int, Pose, int] | None:
+        """The first of `poses`, in order, near a connection the checks accept: (its index, the
+        snapped pose, its connections). Each pose's candidates nearest first, as `snap`; the
+        nearness test runs on all the poses at once."""
+        R = np.array([p.R for p in poses])
+        t = np.array([p.t for p in poses])
+        for k, hits in enumerate(self.targets.near_many(R, t, self.config.snap)):
+            for c, snapped, _ in hits:
+                if c not in self.judged:
+                    (v,) = check(self.structure, self.part, [snapped], config=self.config.check, floor_y=self.floor_y)
+                    self.judged[c] = v.connections if v.ok else None
+                if self.judged[c] is not None:
+                    return k, snapped, self.judged[c]
         return None
 
 
@@ -252,15 +263,16 @@ class Release:
         """The snapping test along the part's path from `last` through the poses of `path` (after
         each step of the chunk that ended after `done` steps), `_path` filling in between: True,
         with `result` set, at the first pose near a connection the checks accept."""
+        poses = []
         for step in path:
-            for pose in _path(last, step, self.config.snap.plane_ldu):
-                hit = self.judge.snap(pose)
-                if hit is not None:
-                    self.result = Settled("rests-connected", hit[0], self._moved(hit[0]), hit[1],
-                                          done * self.config.timestep)
-                    return True
+            poses.extend(_path(last, step, self.config.snap.plane_ldu))
             last = step
-        return False
+        hit = self.judge.first(poses)
+        if hit is None:
+            return False
+        _, snapped, connections = hit
+        self.result = Settled("rests-connected", snapped, self._moved(snapped), connections, done * self.config.timestep)
+        return True
 
     def finish(self, end: Pose, touched: set[int], done: int) -> Settled:
         """The outcome of a simulation that ended at `end` after `done` steps, touching `touched`

@@ -116,29 +116,47 @@ class SnapTargets:
     def near(self, pose: Pose, rule: SnapRule) -> list[tuple[int, Pose, float]]:
         """(candidate, its pose turned by the symmetry nearest `pose`, largest connection point
         distance) of every candidate within the rule's tolerance of `pose`, nearest first."""
-        if not len(self.owner):
-            return []
-        # The candidates whose translation is beyond `reach` of the pose's are dropped before
-        # the full test.
-        cand = np.flatnonzero(np.linalg.norm(self.t - pose.t, axis=1) <= self.reach(rule) + 1e-6)
-        if not len(cand):
-            return []
-        # The full test on those candidates alone (j: a candidate's place in `cand`).
-        trace = np.einsum("ij,nsij->ns", pose.R, self.rotations[cand])
+        return self.near_many(pose.R[None], pose.t[None], rule)[0]
+
+    @cached_property
+    def _points_of(self) -> tuple[np.ndarray, np.ndarray]:
+        """(first connection point, number of them) of each candidate: `owner` runs in candidate
+        order (`of`), so a candidate's points are one stretch of the arrays."""
+        count = np.bincount(self.owner, minlength=len(self.t))
+        return np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64), count
+
+    def near_many(self, R: np.ndarray, t: np.ndarray, rule: SnapRule) -> list[list[tuple[int, Pose, float]]]:
+        """`near` of m poses at once (`R` (m, 3, 3), `t` (m, 3)): one list per pose, the same
+        test on every (pose, candidate) pair in a few array operations (a part's path is swept
+        pose by pose, tens of poses a chunk)."""
+        out: list[list[tuple[int, Pose, float]]] = [[] for _ in range(len(t))]
+        if not len(self.owner) or not len(t):
+            return out
+        # The pairs whose candidate translation is beyond `reach` of the pose's are dropped before
+        # the full test (i: the pose, c: the candidate of each pair left).
+        gap = np.linalg.norm(self.t[None] - t[:, None], axis=2)
+        i, c = np.nonzero(gap <= self.reach(rule) + 1e-6)
+        if not len(i):
+            return out
+        trace = np.einsum("pij,psij->ps", R[i], self.rotations[c])
         best = trace.argmax(axis=1)
-        cos = np.clip((trace[np.arange(len(cand)), best] - 1.0) / 2.0, -1.0, 1.0)
+        cos = np.clip((trace[np.arange(len(c)), best] - 1.0) / 2.0, -1.0, 1.0)
         turned_ok = np.degrees(np.arccos(cos)) <= rule.degrees + 1e-9
-        points = np.flatnonzero(np.isin(self.owner, cand))
-        j = np.searchsorted(cand, self.owner[points])
+        # Each pair's connection points (j: the pair of each point row).
+        first, count = self._points_of
+        n = count[c]
+        j = np.repeat(np.arange(len(c)), n)
+        points = first[c][j] + (np.arange(len(j)) - np.repeat(np.cumsum(n) - n, n))
         local = self.local[points, best[j]]
-        off = local @ pose.R.T + pose.t - self.world[points]
+        off = np.einsum("kij,kj->ki", R[i][j], local) + t[i][j] - self.world[points]
         along = np.einsum("kd,kd->k", off, self.axis[points])
         across = np.linalg.norm(off - along[:, None] * self.axis[points], axis=1)
         fails = (np.abs(along) > rule.axis_ldu + 1e-9) | (across > rule.plane_ldu + 1e-9)
-        bad = np.bincount(j, weights=fails, minlength=len(cand)) > 0
-        has = np.bincount(j, minlength=len(cand)) > 0
-        dist = np.zeros(len(cand))
+        bad = np.bincount(j, weights=fails, minlength=len(c)) > 0
+        dist = np.zeros(len(c))
         np.maximum.at(dist, j, np.linalg.norm(off, axis=1))
-        ok = np.flatnonzero(turned_ok & has & ~bad)
-        ok = ok[np.lexsort((cand[ok], dist[ok]))]
-        return [(int(cand[k]), Pose(self.rotations[cand[k], best[k]], self.t[cand[k]]), float(dist[k])) for k in ok]
+        ok = np.flatnonzero(turned_ok & (n > 0) & ~bad)
+        ok = ok[np.lexsort((c[ok], dist[ok], i[ok]))]  # by pose, then nearest, then the sampler's order
+        for k in ok:
+            out[i[k]].append((int(c[k]), Pose(self.rotations[c[k], best[k]], self.t[c[k]]), float(dist[k])))
+        return out
