@@ -53,7 +53,7 @@ from factory.physics.geometry import INSET_LDU, collision_shape
 from factory.physics.mass import part_mass_properties
 from factory.physics.snap import SnapRule, SnapTargets
 from factory.physics.structure import Structure
-from factory.pose import LDRAW_TO_MUJOCO, LDU_M, Pose, points_to_mujoco
+from factory.pose import LDRAW_TO_MUJOCO, LDU_M, Pose, points_to_mujoco, poses_from_mujoco
 
 OUTCOMES = ("rests-connected", "rests-unconnected", "fell-off", "pushed-out", "collides")
 
@@ -208,8 +208,9 @@ def _pose_of(data: mujoco.MjData, body: int) -> Pose:
 class Release:
     """One predicted placement as `settle` judges it, the simulation left to the caller (MuJoCo C in
     `settle_all`, MuJoCo Warp in `settle_mjx`): the checks before simulating (`result` set when they decide),
-    `after_chunk` with the part's pose after every `snap_every` steps (snapping, the at-rest
-    window), and `finish` with the end pose and the geoms' owners it touches. `judge` may be shared
+    `after_chunk` with the part's poses after each step of a chunk of `snap_every` steps (snapping
+    along them, the at-rest window; a batch asks `sweep` and `still` itself), and `finish` with the
+    end pose and the geoms' owners it touches. `judge` may be shared
     by the releases of one (structure, part): a candidate's verdict does not depend on the pose."""
 
     def __init__(self, structure: Structure, part: Part, pose: Pose, floor_y: float, config: SettleConfig,
@@ -239,24 +240,22 @@ class Release:
     def _connected(self, p: Pose) -> set[int]:
         return {i for i, _ in self.structure.connections_with(self.part, p)}
 
-    def after_chunk(self, now: Pose, done: int, between: Sequence[Pose] = ()) -> bool:
-        """The part at `now` after `done` steps, through `between` (its poses after each earlier
-        step of the chunk, in order): True when settling stops here (snapped: `result` set; or at
-        rest: `at_rest`). The snapping test follows the path step by step: a part landing on studs
-        may bounce back out of the snapping window within a chunk, and whether it was found in it
-        would otherwise hang on where the chunk ended."""
+    def after_chunk(self, R: np.ndarray, t: np.ndarray, done: int) -> bool:
+        """The part's poses after each step of the chunk that ended after `done` steps (`R` (k, 3,
+        3), `t` (k, 3), LDraw, in order): True when settling stops here (snapped: `result` set; or
+        at rest: `at_rest`). The snapping test follows the path step by step: a part landing on
+        studs may bounce back out of the snapping window within a chunk, and whether it was found
+        in it would otherwise hang on where the chunk ended."""
         last = self.history[-1]
-        path = (*between, now)
         # Most chunks pass no candidate connection: their poses are not swept one by one.
-        if (self.judge.targets.along(np.array([last.t, *(p.t for p in path)]), self.config.snap)
-                and self.sweep(last, path, done)):
+        if (self.judge.targets.along(np.concatenate([last.t[None], t]), self.config.snap)
+                and self.sweep(last, [Pose(r, x) for r, x in zip(R, t)], done)):
             return True
-        self.history.append(now)
+        self.history.append(Pose(R[-1], t[-1]))
         if len(self.history) > self.window:
             window = self.history[-self.window - 1:]
-            R = np.array([p.R for p in window])[None]
-            t = np.array([p.t for p in window])[None]
-            self.at_rest = bool(still(R, t, self.com, self.config)[0])
+            self.at_rest = bool(still(np.array([p.R for p in window])[None], np.array([p.t for p in window])[None],
+                                      self.com, self.config)[0])
         return self.at_rest
 
     def sweep(self, last: Pose, path: Sequence[Pose], done: int) -> bool:
@@ -349,15 +348,17 @@ def _simulate(release: Release, scene: SettleScene, config: SettleConfig) -> Set
     data.qpos[:3], data.qpos[3:7] = pos, quat
     mujoco.mj_forward(model, data)
     steps = int(round(config.seconds / config.timestep))
+    pos, mat = np.zeros((config.snap_every, 3)), np.zeros((config.snap_every, 9))
+    body = scene.part_body
     done = 0
     while done < steps:
         n = min(config.snap_every, steps - done)
-        between = []
-        for _ in range(n):
+        for j in range(n):
             mujoco.mj_step(model, data)
-            between.append(_pose_of(data, scene.part_body))
+            pos[j], mat[j] = data.xpos[body], data.xmat[body]
         done += n
-        if release.after_chunk(between[-1], done, between[:-1]):
+        R, t = poses_from_mujoco(pos[:n], mat[:n].reshape(n, 3, 3))
+        if release.after_chunk(R, t, done):
             break
     if release.result is not None:
         return release.result
