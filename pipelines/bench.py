@@ -18,7 +18,8 @@ Sections, each timed and written as soon as it ends (a later failure loses nothi
   the designs' placements, one distance per table), against ../shared/designs read with
   ../shared/ldraw_library.zip where present (`--quick`: the human designs given, if any);
 - feedback: world-feedback simulations per second (`pipelines.bench_settle`'s predictions):
-  MuJoCo C, and MuJoCo Warp on the same predictions where a GPU is;
+  MuJoCo C in one process and over every core, and MuJoCo Warp on the same predictions where a
+  GPU is;
 - evaluation: the baselines (`oracle`, `heuristic`, `random`, and `random` revised under world
   feedback) scored on that build's test split and on the human designs, in the three modes
   (strict, paper, and bc: BC-Bench's released scorer, `eval.bc`).
@@ -36,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import importlib.util
 import json
 import os
 import platform
@@ -52,14 +54,12 @@ from factory.atomic import write_atomic, write_figure
 from factory.cli import ArgumentParser, run_guarded
 from factory.ldraw import get_reader
 from factory.physics.check import BACKENDS, OLD_BACKEND_NAMES, backend_arg
-from factory.physics.settle import settle_all
-from factory.physics.settle_mjx import MjxStats, settle_many
 from factory.sampler import SamplerConfig, SamplerConfigError
 from pipelines.bench_checks import measure, measure_lp, measure_sweep, measure_whole
 from pipelines.bench_growth import measure_growth
 from pipelines.bench_processes import in_own_process
 from pipelines.bench_scale import markdown as scale_markdown, scale_section
-from pipelines.bench_settle import cases
+from pipelines.bench_settle import cases, throughput
 from pipelines.dataset import ConfigMismatchError, DatasetConfig, build, usage
 from pipelines.designs import design_config
 from pipelines.realism import Collection, compare, read_collection
@@ -256,30 +256,25 @@ def synth_section(work: Path, quick: bool) -> dict:
 
 
 def feedback_section(gpu: bool, quick: bool) -> dict:
-    """World-feedback simulations per second (`pipelines.bench_settle`'s predictions): MuJoCo C one
-    after another (`settle_all`), and where a GPU is, MuJoCo Warp batched (`settle_mjx.settle_many`)
-    on the same predictions with the share of equal outcomes. Warp on a CPU is left out (it runs,
-    slowly: `bench_settle --device cpu`)."""
+    """World-feedback simulations per second (`pipelines.bench_settle`'s predictions): MuJoCo C in
+    one process and over every core of this machine (`bench_settle.throughput`), and where a GPU
+    is, MuJoCo Warp batched in one process (`settle_mjx.settle_many`) on the same predictions with
+    the share of outcomes equal to MuJoCo C's. Warp on a CPU is left out (it runs, slowly:
+    `bench_settle --device cpu`)."""
     n, seed = (48, 1) if quick else (500, 1)
     cs = cases(n, 8, seed)
-    batch = [(c["structure"], c["part"], c["pose"], c["floor_y"]) for c in cs]
-    t = time.perf_counter()
-    ref = settle_all(batch)
-    cpu_s = time.perf_counter() - t
+    cores = os.cpu_count() or 1
+    one = throughput(cs, "cpu", 1)
+    every = throughput(cs, "cpu", cores)
     out = {"predictions": len(cs), "scenes": len({c["scene"] for c in cs}), "seed": seed,
-           "simulated": sum(r.seconds > 0 for r in ref), "cpu_s": round(cpu_s, 2),
-           "cpu_per_s": round(len(cs) / cpu_s, 1), "warp": None}
-    if gpu:
-        try:
-            settle_many(batch[:8])  # the kernels compiled (or loaded) outside the timing
-            stats = MjxStats()
-            t = time.perf_counter()
-            got = settle_many(batch, stats=stats)
-            warp_s = time.perf_counter() - t
-            out["warp"] = {"device": stats.device, "warp_s": round(warp_s, 2), "warp_per_s": round(len(cs) / warp_s, 1),
-                           "agreement": round(sum(a.outcome == b.outcome for a, b in zip(ref, got)) / len(cs), 4)}
-        except ImportError as e:  # the [warp] extra is not installed
-            out["warp"] = {"error": f"MuJoCo Warp not available: {e}"}
+           "simulated": one["simulated"], "cpu_s": one["wall_s"], "cpu_per_s": one["per_s"],
+           "cpu_workers": cores, "cpu_all_s": every["wall_s"], "cpu_all_per_s": every["per_s"], "warp": None}
+    if gpu and importlib.util.find_spec("warp") is None:
+        out["warp"] = {"error": "MuJoCo Warp not available: the [warp] extra is not installed"}
+    elif gpu:
+        got = throughput(cs, "warp", 1)
+        out["warp"] = {"device": got["device"] or "default", "warp_s": got["wall_s"], "warp_per_s": got["per_s"],
+                       "agreement": round(sum(a == b for a, b in zip(one["per_case"], got["per_case"])) / len(cs), 4)}
     return out
 
 
@@ -522,7 +517,8 @@ def markdown(report: dict) -> str:
         lines += ["## World feedback (`factory.physics.settle`)", "",
                   f"{f['predictions']} predicted placements in {f['scenes']} scenes (`pipelines.bench_settle`, seed "
                   f"{f['seed']}; {f['simulated']} simulated, the others decided before simulating): MuJoCo C "
-                  f"{f['cpu_per_s']} per s in one process ({f['cpu_s']} s). {warp}.", ""]
+                  f"{f['cpu_per_s']} per s in one process ({f['cpu_s']} s), {f['cpu_all_per_s']} per s over "
+                  f"{f['cpu_workers']} processes ({f['cpu_all_s']} s). {warp}.", ""]
     lines += ["Sections and their seconds: " + ", ".join(f"{k} {v:.0f}" for k, v in report["section_s"].items()), ""]
     return "\n".join(lines)
 

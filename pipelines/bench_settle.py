@@ -172,11 +172,12 @@ def _share(engine: str, batch: list, device: str | None, barrier, queue, index: 
     t0 = time.perf_counter()  # CLOCK_MONOTONIC: one clock for every process of the machine
     got = settle_many(batch, device=device, stats=stats) if engine == "warp" else settle_all(batch)
     t1 = time.perf_counter()
-    queue.put((index, t0, t1, [r.outcome for r in got], stats.__dict__))
+    queue.put((index, t0, t1, [(r.outcome, r.seconds > 0) for r in got], stats.__dict__))
 
 
 def throughput(cs: list[dict], engine: str, workers: int, device: str | None = None) -> dict:
-    """Predictions settled per second by `engine` ('cpu' or 'warp') over `workers` processes."""
+    """Predictions settled per second by `engine` ('cpu' or 'warp') over `workers` processes
+    (`per_case`: each case's outcome, in order)."""
     ctx = multiprocessing.get_context("spawn")  # not fork: CUDA and JAX hold state a fork breaks
     barrier, queue = ctx.Barrier(workers), ctx.Queue()
     shares = [[i for i, c in enumerate(cs) if c["scene"] % workers == k] for k in range(workers)]
@@ -200,9 +201,11 @@ def throughput(cs: list[dict], engine: str, workers: int, device: str | None = N
     for p in procs:
         p.join()
     outcomes: list[str | None] = [None] * len(cs)
+    simulated = 0
     for k, _, _, got, _ in reports:
-        for i, o in zip(shares[k], got):
+        for i, (o, ran) in zip(shares[k], got):
             outcomes[i] = o
+            simulated += ran
     wall = max(r[2] for r in reports) - min(r[1] for r in reports)
     stats = {key: round(sum(r[4][key] for r in reports), 3) for key in
              ("prepare_s", "first_chunk_s", "run_s", "step_s", "rules_s", "simulated", "fallbacks", "diverged",
@@ -210,8 +213,8 @@ def throughput(cs: list[dict], engine: str, workers: int, device: str | None = N
     return dict(engine=engine, workers=workers, predictions=len(cs), wall_s=round(wall, 3),
                 per_s=round(len(cs) / wall, 1), outcomes=dict(Counter(outcomes)),
                 outcomes_sha256=hashlib.sha256("\n".join(map(str, outcomes)).encode()).hexdigest()[:16],
-                busiest_s=round(max(r[2] - r[1] for r in reports), 3), warp=stats,
-                device=device)
+                busiest_s=round(max(r[2] - r[1] for r in reports), 3), simulated=simulated, warp=stats,
+                device=device, per_case=outcomes)
 
 
 def main(argv=None) -> None:
@@ -242,6 +245,7 @@ def main(argv=None) -> None:
             for workers in counts:
                 result = throughput(cs, engine, workers, args.device if engine == "warp" else None)
                 result.update(seed=args.seed, per_scene=args.per_scene)
+                del result["per_case"]
                 results.append(result)
                 print(json.dumps(result), flush=True)
         with open(args.out, "w", encoding="utf-8") as f:

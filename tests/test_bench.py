@@ -4,6 +4,7 @@ writes a report whose numbers come from real runs (the oracle scores 1, chance s
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 
@@ -33,6 +34,7 @@ def test_quick_bench_writes_report_and_plots(tmp_path, monkeypatch):
     assert "## Scale: steps/s against workers" in (out / "report.md").read_text()
     fb = report["feedback"]  # world-feedback simulations: MuJoCo C here, no GPU so no Warp figure
     assert fb["predictions"] == 48 and fb["cpu_per_s"] > 0 and 0 < fb["simulated"] < 48 and fb["warp"] is None
+    assert fb["cpu_workers"] == (os.cpu_count() or 1) and fb["cpu_all_per_s"] > 0  # and over every core
     assert "## World feedback" in (out / "report.md").read_text()
     (phys,) = report["physics"]["rows"]
     assert phys["backend"] == "cpu" and phys["checks_per_s"] > 0 and 0 < phys["accepted"] <= phys["batch"]
