@@ -39,7 +39,7 @@ import numpy as np
 from factory import SamplerConfig, get_reader, grow, load_part
 from factory.physics.linked import linked
 from factory.physics.settle import SettleConfig, settle_all
-from factory.physics.settle_mjx import MjxStats, settle_many
+from factory.physics.settle_mjx import BATCH, MjxStats, settle_many
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
 from factory.symmetry import axis_rotations, rotation_about
@@ -117,7 +117,8 @@ def _pose_diff(a: Pose, b: Pose) -> tuple[float, float]:
     return float(np.linalg.norm(a.t - b.t)), float(np.degrees(np.arccos(cos)))
 
 
-def run(n: int, per_scene: int, seed: int, config: SettleConfig = SettleConfig(), device: str | None = None) -> dict:
+def run(n: int, per_scene: int, seed: int, config: SettleConfig = SettleConfig(), device: str | None = None,
+        worlds: int = BATCH) -> dict:
     t0 = time.perf_counter()
     cs = cases(n, per_scene, seed)
     print(f"{len(cs)} predictions in {len({c['scene'] for c in cs})} scenes made in {time.perf_counter() - t0:.1f} s",
@@ -128,7 +129,7 @@ def run(n: int, per_scene: int, seed: int, config: SettleConfig = SettleConfig()
     print(f"MuJoCo C: {cpu_s:.1f} s", file=sys.stderr, flush=True)
     stats = MjxStats()
     t0 = time.perf_counter()
-    got = settle_many([(c["structure"], c["part"], c["pose"], c["floor_y"]) for c in cs], config, device=device,
+    got = settle_many([(c["structure"], c["part"], c["pose"], c["floor_y"]) for c in cs], config, device=device, batch=worlds,
                       stats=stats)
     mjx_s = time.perf_counter() - t0
     simulated = [i for i, r in enumerate(ref) if r.seconds > 0 or got[i].seconds > 0]
@@ -160,7 +161,7 @@ def run(n: int, per_scene: int, seed: int, config: SettleConfig = SettleConfig()
     )
 
 
-def _share(engine: str, batch: list, device: str | None, barrier, queue, index: int) -> None:
+def _share(engine: str, batch: list, device: str | None, barrier, queue, index: int, worlds: int = BATCH) -> None:
     """One worker of `throughput`: warm up, wait for the others, settle its share, report."""
     warm = batch[:8]
     if engine == "warp":
@@ -170,12 +171,12 @@ def _share(engine: str, batch: list, device: str | None, barrier, queue, index: 
     barrier.wait()
     stats = MjxStats()
     t0 = time.perf_counter()  # CLOCK_MONOTONIC: one clock for every process of the machine
-    got = settle_many(batch, device=device, stats=stats) if engine == "warp" else settle_all(batch)
+    got = settle_many(batch, device=device, stats=stats, batch=worlds) if engine == "warp" else settle_all(batch)
     t1 = time.perf_counter()
     queue.put((index, t0, t1, [(r.outcome, r.seconds > 0) for r in got], stats.__dict__))
 
 
-def throughput(cs: list[dict], engine: str, workers: int, device: str | None = None) -> dict:
+def throughput(cs: list[dict], engine: str, workers: int, device: str | None = None, worlds: int = BATCH) -> dict:
     """Predictions settled per second by `engine` ('cpu' or 'warp') over `workers` processes
     (`per_case`: each case's outcome, in order)."""
     ctx = multiprocessing.get_context("spawn")  # not fork: CUDA and JAX hold state a fork breaks
@@ -183,7 +184,7 @@ def throughput(cs: list[dict], engine: str, workers: int, device: str | None = N
     shares = [[i for i, c in enumerate(cs) if c["scene"] % workers == k] for k in range(workers)]
     procs = [ctx.Process(target=_share, args=(engine, [(cs[i]["structure"], cs[i]["part"], cs[i]["pose"],
                                                           cs[i]["floor_y"]) for i in share],
-                                              device, barrier, queue, k))
+                                              device, barrier, queue, k, worlds))
              for k, share in enumerate(shares)]
     with one_thread_each_meanwhile():  # as the factory's own workers: the processes fill the cores
         for p in procs:
@@ -223,6 +224,8 @@ def main(argv=None) -> None:
     ap.add_argument("--per-scene", type=int, default=50, help="predictions per (structure, part) scene")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--device", default=None, help="Warp device ('cpu', 'cuda:0'; default: the GPU if any)")
+    ap.add_argument("--worlds", type=int, default=BATCH,
+                    help="Warp's worlds at once (a world whose part stops takes the next prediction)")
     ap.add_argument("--throughput", default=None,
                     help="measure these engines ('cpu', 'warp' or 'cpu,warp') alone over --workers processes, no parity")
     ap.add_argument("--workers", default="1", help="processes of --throughput (a list: '1,16' runs each)")
@@ -243,7 +246,7 @@ def main(argv=None) -> None:
         results = []
         for engine in engines:
             for workers in counts:
-                result = throughput(cs, engine, workers, args.device if engine == "warp" else None)
+                result = throughput(cs, engine, workers, args.device if engine == "warp" else None, args.worlds)
                 result.update(seed=args.seed, per_scene=args.per_scene)
                 del result["per_case"]
                 results.append(result)
@@ -251,7 +254,7 @@ def main(argv=None) -> None:
         with open(args.out, "w", encoding="utf-8") as f:
             json.dump(results, f, indent=1)
         return
-    result = run(args.n, args.per_scene, args.seed, device=args.device)
+    result = run(args.n, args.per_scene, args.seed, device=args.device, worlds=args.worlds)
     with open(args.out, "w", encoding="utf-8") as f:
         json.dump(result, f, indent=1)
     brief = {k: result[k] for k in ("n", "scenes", "agreement", "simulated", "agreement_simulated", "outcomes",

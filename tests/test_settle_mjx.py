@@ -86,6 +86,25 @@ def test_warp_and_mujoco_c_agree_on_the_simulated_hand_built_cases_in_one_batch(
     assert stats.contacts_dropped == 0
 
 
+def test_a_world_whose_part_stops_takes_the_next_case():
+    # Two worlds for five simulated cases: each world is cleared and takes the next case when its
+    # part stops (snapped, at rest or out of time); every case ends as it does with a world each.
+    brick = part("3001")
+    p, t, one = plate(), tower(), Structure([at("3001", 0, 0, 0)])
+    cases = [(p, brick, Pose(I3, [0, -54, 0]), None),
+             (t, brick, Pose(I3, [50, -78, 0]), None),
+             (p, brick, Pose(rotation_about((0, 1, 0), 45), [0, -54, 0]), None),
+             (one, brick, Pose(rotation_about((0, 1, 0), 30), [0, 0, 55]), None),
+             (p, brick, Pose(I3, [2, -40, -1]), None)]
+    alone, refilled = MjxStats(), MjxStats()
+    each = settle_many(cases, stats=alone)
+    two = settle_many(cases, stats=refilled, batch=2)
+    assert alone.simulated == refilled.simulated == 5 and refilled.fallbacks == 0
+    assert [g.outcome for g in two] == [g.outcome for g in each]
+    for a, b in zip(two, each):
+        assert abs(a.seconds - b.seconds) < 1e-9 and np.allclose(a.pose.t, b.pose.t, atol=0.5), (a, b)
+
+
 @pytest.mark.slow
 def test_a_part_whose_centre_of_mass_is_off_its_origin_falls_without_turning():
     # A 45-degree slope's centre of mass lies 13 LDU below and 6 LDU behind its origin. Dropped
@@ -134,13 +153,15 @@ def test_the_device_prefilter_passes_the_paths_the_reference_one_passes():
     start = rng.uniform([-60, -70, -40], [60, -5, 40], size=(n, 3))
     path = np.concatenate([start[None], start[None] + np.cumsum(rng.normal(scale=4.0, size=(k, n, 3)), axis=0)])
     want = [targets.along(path[:, w], rule) for w in range(n)]
-    world = np.repeat(np.arange(n, dtype=np.int32), len(targets.t))
-    target = np.tile(points_to_mujoco(targets.t), (n, 1)).astype(np.float32)
+    # Every world its own case, all of them with the same candidates (one stretch of `target`).
+    case, first, count = np.arange(n, dtype=np.int32), np.zeros(n, np.int32), np.full(n, len(targets.t), np.int32)
+    target = points_to_mujoco(targets.t).astype(np.float32)
     reach = np.full(n, (targets.reach(rule) + 1e-3) * LDU_M, np.float32)
     flag = wp.zeros(n, dtype=wp.int32, device="cpu")
-    wp.launch(near, dim=len(world), device="cpu",
-              inputs=[wp.array(points_to_mujoco(path).astype(np.float32), dtype=wp.vec3, device="cpu"), k,
-                      wp.array(world, dtype=wp.int32, device="cpu"), wp.array(target, dtype=wp.vec3, device="cpu"),
-                      wp.array(reach, dtype=wp.float32, device="cpu"), flag])
+    arrays = [wp.array(x, dtype=wp.int32, device="cpu") for x in (case, first, count)]
+    wp.launch(near, dim=n, device="cpu",
+              inputs=[wp.array(points_to_mujoco(path).astype(np.float32), dtype=wp.vec3, device="cpu"), k, *arrays,
+                      wp.array(target, dtype=wp.vec3, device="cpu"), wp.array(reach, dtype=wp.float32, device="cpu"),
+                      flag])
     assert 10 < sum(want) < n - 10  # paths of both kinds
     assert flag.numpy().astype(bool).tolist() == want

@@ -9,9 +9,14 @@ each candidate once per scene: the judge is shared) and the at-rest window, and 
 end the outcome from the end pose and the contacts MuJoCo C finds there (`mj_forward` on the scene's
 own `MjModel`, `settle.settle_model`).
 
-One world per case, one model per batch. Feedback data is one wrong prediction per scene (a
-structure at some step and the part predicted next), so worlds cannot share a model as robot
-simulations do. A batch's model is a template of slots: the floor, `S` mesh geoms of a static body
+One world per case at a time, one model per batch. Feedback data is one wrong prediction per
+scene (a structure at some step and the part predicted next), so worlds cannot share a model as
+robot simulations do. A world whose part has stopped (snapped, at rest, out of time) takes the
+next case of the batch: its state is cleared (`reset_data` of that world alone) and the case's
+rows are copied into the world's rows of the batched fields, so each world runs about as many
+steps as its cases need, not as many as the batch's slowest case (MuJoCo C stops each part once
+it is at rest: 189 steps on average on `pipelines.bench_settle --seed 1`, against 1,000 for a
+part still moving at the end). A batch's model is a template of slots: the floor, `S` mesh geoms of a static body
 (the structure's collision pieces) and `P` mesh geoms of the free part, every geom pointing at a
 pool holding the meshes of all the batch's scenes. Per world (MuJoCo Warp's batched model fields)
 each slot gets its scene's mesh (`geom_dataid`), placement, bounds, and the part its mass and
@@ -58,6 +63,8 @@ contact (480 rows) one world of 500 predictions ran out of rows and its state st
 finite (settled again on MuJoCo C: `MjxStats.diverged`)."""
 BATCH = 4096
 """Worlds per batch at most."""
+REFILLS = 4
+"""Cases per batch, at most, per world: a world whose part has stopped takes the next case."""
 
 _PARK = "-1e-4 -1e-4 -1e-4 1e-4 -1e-4 -1e-4 0 1e-4 -1e-4 0 0 1e-4"  # a 0.2 mm tetrahedron
 _PART_INERTIAL = '<inertial pos="1e-3 2e-3 3e-3" quat="0.9 0.1 0.2 0.3" mass="0.001" diaginertia="1e-9 2e-9 3e-9"/>'
@@ -122,9 +129,9 @@ def _kernels():
       snapping test follows the path step by step: `settle.Release.sweep`);
     - `roll`: row `src` of the history (the pose after the last chunk) into row 0, where the next
       chunk's path starts, and each world's `flag` cleared;
-    - `near`: per (world, candidate connection) pair, whether the candidate's translation lies
-      within the world's `reach` of the path through rows 0..k (straight between them): the
-      test of `SnapTargets.along`, for every world at once. It only spares the host the worlds
+    - `near`: per world, whether a snapping candidate of its case (`first`, `count`: its stretch
+      of `target`) lies within the case's `reach` of the path through rows 0..k (straight between
+      them): the test of `SnapTargets.along`, for every world at once. It only spares the host the worlds
       that cannot snap in this chunk (`flag` 0); the host sweeps each flagged world's path with
       the reference's own test. `reach` carries a margin for float32."""
     wp, _ = _warp()
@@ -144,17 +151,21 @@ def _kernels():
         flag[w] = 0
 
     @wp.kernel
-    def near(pos: wp.array2d(dtype=wp.vec3), k: int, world: wp.array(dtype=wp.int32),
-             target: wp.array(dtype=wp.vec3), reach: wp.array(dtype=wp.float32), flag: wp.array(dtype=wp.int32)):
-        p = wp.tid()
-        w = world[p]
-        c = target[p]
-        for j in range(k):
-            a = pos[j, w]
-            ab = pos[j + 1, w] - a
-            f = wp.clamp(wp.dot(c - a, ab) / wp.max(wp.dot(ab, ab), 1.0e-20), 0.0, 1.0)
-            if wp.length(c - (a + f * ab)) <= reach[w]:
-                flag[w] = 1
+    def near(pos: wp.array2d(dtype=wp.vec3), k: int, world_case: wp.array(dtype=wp.int32), first: wp.array(dtype=wp.int32),
+             count: wp.array(dtype=wp.int32), target: wp.array(dtype=wp.vec3), reach: wp.array(dtype=wp.float32),
+             flag: wp.array(dtype=wp.int32)):
+        w = wp.tid()
+        i = world_case[w]
+        if i < 0:
+            return
+        for p in range(first[i], first[i] + count[i]):
+            c = target[p]
+            for j in range(k):
+                a = pos[j, w]
+                ab = pos[j + 1, w] - a
+                f = wp.clamp(wp.dot(c - a, ab) / wp.max(wp.dot(ab, ab), 1.0e-20), 0.0, 1.0)
+                if wp.length(c - (a + f * ab)) <= reach[i]:
+                    flag[w] = 1
 
     return keep, roll, near
 
@@ -227,7 +238,8 @@ def settle_many(cases, config: SettleConfig = SettleConfig(), device: str | None
                 stats: MjxStats | None = None, batch: int = BATCH) -> list[Settled]:
     """`settle` of every case (structure, part, pose, floor_y; floor_y None for the structure's
     lowest point), the simulations batched in MuJoCo Warp on `device` ('cpu', 'cuda:0'; the GPU
-    when there is one). Results in the cases' order."""
+    when there is one) over at most `batch` worlds at once, a world taking the next case when its
+    part stops. Results in the cases' order."""
     stats = stats if stats is not None else MjxStats()
     out: list[Settled | None] = [None] * len(cases)
     scenes = Scenes(config)
@@ -248,10 +260,13 @@ def settle_many(cases, config: SettleConfig = SettleConfig(), device: str | None
         return out  # type: ignore[return-value]
     device = device or default_device()
     stats.device = device
-    for start in range(0, len(pending), batch):
-        chunk = pending[start:start + batch]
+    # A run of `REFILLS * batch` cases shares one model and its worlds (the cases' rows are kept on
+    # the device: memory grows with the run, so a longer list is cut into runs).
+    group = REFILLS * batch
+    for start in range(0, len(pending), group):
+        chunk = pending[start:start + group]
         try:
-            ends = _simulate([slots[k] for _, k, _ in chunk], [r for _, _, r in chunk], config, device, stats)
+            ends = _simulate([slots[k] for _, k, _ in chunk], [r for _, _, r in chunk], config, device, stats, batch)
         except NotImplementedError as e:  # a model MuJoCo Warp cannot run: the reference runs it
             stats.refused.append(str(e))
             stats.fallbacks += len(chunk)
@@ -262,9 +277,10 @@ def settle_many(cases, config: SettleConfig = SettleConfig(), device: str | None
 
 
 def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleConfig, device: str,
-              stats: MjxStats) -> list[Settled]:
-    """One batch of undecided releases (world w: `slots[w]`, `releases[w]`) simulated in MuJoCo
-    Warp with the host's rules after every chunk."""
+              stats: MjxStats, worlds: int) -> list[Settled]:
+    """Undecided releases (case i: `slots[i]`, `releases[i]`) simulated in MuJoCo Warp on at most
+    `worlds` worlds, a world taking the next case when its part stops, the host's rules after
+    every chunk."""
     wp, mjw = _warp()
     t0 = time.perf_counter()
     n = len(releases)
@@ -305,72 +321,95 @@ def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleC
         pos, quat = r.pose.to_mujoco_quat()
         qpos[w, :3], qpos[w, 3:] = pos - s.floor, quat
     shift = np.array([s.floor for s in slots])
+    steps = int(round(config.seconds / config.timestep))
+    # Worlds are refilled: one whose part has stopped takes the next case, so that each runs about
+    # its own settling time, not the slowest case's. That needs every chunk to be whole (a case
+    # then ends on a chunk's end whenever it starts); otherwise every case gets a world at once.
+    refill = steps % config.snap_every == 0
+    W = min(n, worlds) if refill else n
     with wp.ScopedDevice(device):
-        mw = mjw.put_model(tm, batch_sizes={k: n for k in _BATCHED})
-        for k, v in arr.items():
-            a = getattr(mw, k)
-            a.assign(wp.array(v.astype(np.int32 if a.dtype == wp.int32 else np.float32), dtype=a.dtype))
-        naconmax = n * CONTACTS_PER_WORLD
-        dw = mjw.make_data(tm, nworld=n, naconmax=naconmax, njmax=CONSTRAINTS_PER_WORLD)
-        for a, v in ((dw.geom_xpos, xpos), (dw.geom_xmat, xmat), (dw.qpos, qpos)):
-            a.assign(wp.array(v.astype(np.float32), dtype=a.dtype))
+        mw = mjw.put_model(tm, batch_sizes={k: W for k in _BATCHED})
+        naconmax = W * CONTACTS_PER_WORLD
+        dw = mjw.make_data(tm, nworld=W, naconmax=naconmax, njmax=CONSTRAINTS_PER_WORLD)
+        # Every case's rows on the device, copied into a world's rows when it takes the case.
+        stage, rows_of = {}, {}
+        for k, v in [*arr.items(), ("geom_xpos", xpos), ("geom_xmat", xmat), ("qpos", qpos)]:
+            a = getattr(mw, k) if k in arr else getattr(dw, k)
+            stage[k] = wp.array(v.astype(np.int32 if a.dtype == wp.int32 else np.float32), dtype=a.dtype)
+            rows_of[k] = a
         keep, roll, near = _kernels()
         # Row `snap_every` of the path history holds the pose a chunk starts from (rolled into row
         # 0 as the chunk begins; rows 1..k: after each of its k steps): at first, the released pose.
-        rows = config.snap_every + 1
-        start_pos = np.zeros((rows, n, 3), np.float32)
-        start_mat = np.repeat(np.eye(3, dtype=np.float32)[None, None], rows, 0).repeat(n, 1)
-        for w, r in enumerate(releases):
-            start_pos[-1, w] = qpos[w, :3]
-            start_mat[-1, w] = r.pose.to_mujoco()[1]
-        hist_pos = wp.array(start_pos, dtype=wp.vec3)
-        hist_mat = wp.array(start_mat, dtype=wp.mat33)
-        # The snapping candidates of every world, as (world, translation) pairs in the world's own
-        # frame (metres, floor at z = 0), and each world's reach (`SnapTargets.reach`).
-        pair_world, pair_target = [], []
+        hist_pos = wp.zeros((config.snap_every + 1, W), dtype=wp.vec3)
+        hist_mat = wp.zeros((config.snap_every + 1, W), dtype=wp.mat33)
+        start_pos = wp.array(qpos[:, :3].astype(np.float32), dtype=wp.vec3)
+        start_mat = wp.array(np.array([r.pose.to_mujoco()[1] for r in releases], np.float32), dtype=wp.mat33)
+        # Each case's snapping candidates (translations in its world's frame: metres, floor at
+        # z = 0) as one stretch of `target`, and its reach (`SnapTargets.reach`).
+        first, count, targets = np.zeros(n, np.int32), np.zeros(n, np.int32), [np.zeros((0, 3))]
         reach = np.zeros(n, np.float32)
-        for w, (s, r) in enumerate(zip(slots, releases)):
-            targets = r.judge.targets
-            if len(targets.owner):
-                pair_target.append(points_to_mujoco(targets.t) - s.floor)
-                pair_world.append(np.full(len(targets.t), w, np.int32))
-            reach[w] = (targets.reach(config.snap) + 1e-3) * LDU_M  # 1e-3 LDU: float32's error, and more
-        n_pairs = int(sum(len(x) for x in pair_world))
-        if n_pairs:
-            pair_world_d = wp.array(np.concatenate(pair_world), dtype=wp.int32)
-            pair_target_d = wp.array(np.concatenate(pair_target).astype(np.float32), dtype=wp.vec3)
+        for i, (s, r) in enumerate(zip(slots, releases)):
+            found = r.judge.targets
+            first[i] = sum(len(x) for x in targets)
+            if len(found.owner):
+                targets.append(points_to_mujoco(found.t) - s.floor)
+                count[i] = len(found.t)
+            reach[i] = (found.reach(config.snap) + 1e-3) * LDU_M  # 1e-3 LDU: float32's error, and more
+        first_d, count_d = wp.array(first, dtype=wp.int32), wp.array(count, dtype=wp.int32)
+        target_d = wp.array(np.concatenate(targets).astype(np.float32).reshape(-1, 3), dtype=wp.vec3)
         reach_d = wp.array(reach, dtype=wp.float32)
-        flag = wp.zeros(n, dtype=wp.int32)
+        case_d = wp.zeros(W, dtype=wp.int32)
+        flag = wp.zeros(W, dtype=wp.int32)
+        mask = wp.zeros(W, dtype=wp.bool)
+        case_of = np.full(W, -1, np.int64)  # each world's case, -1 when none is left for it
+
+        def take(ws: np.ndarray, cases: np.ndarray) -> None:
+            """Worlds `ws` take cases `cases`: their state cleared, the cases' rows copied in."""
+            m = np.zeros(W, bool)
+            m[ws] = True
+            mask.assign(m)
+            mjw.reset_data(mw, dw, reset=mask)
+            for w, i in zip(ws.tolist(), cases.tolist()):
+                for k, a in rows_of.items():
+                    row = a.size // a.shape[0]
+                    wp.copy(a, stage[k], dest_offset=w * row, src_offset=i * row, count=row)
+                wp.copy(hist_pos, start_pos, dest_offset=config.snap_every * W + w, src_offset=i, count=1)
+                wp.copy(hist_mat, start_mat, dest_offset=config.snap_every * W + w, src_offset=i, count=1)
+            case_of[ws] = cases
+            case_d.assign(case_of.astype(np.int32))
+
+        take(np.arange(W), np.arange(W))
         stats.prepare_s += time.perf_counter() - t0
         stats.batches += 1
         stats.simulated += n
 
         def chunk(k: int) -> None:
-            wp.launch(roll, dim=n, inputs=[hist_pos, hist_mat, config.snap_every, flag])
+            wp.launch(roll, dim=W, inputs=[hist_pos, hist_mat, config.snap_every, flag])
             for j in range(k):
                 mjw.step(mw, dw)
-                wp.launch(keep, dim=n, inputs=[dw.xpos, dw.xmat, body_part, j + 1, hist_pos, hist_mat])
-            if n_pairs:
-                wp.launch(near, dim=n_pairs, inputs=[hist_pos, k, pair_world_d, pair_target_d, reach_d, flag])
+                wp.launch(keep, dim=W, inputs=[dw.xpos, dw.xmat, body_part, j + 1, hist_pos, hist_mat])
+            wp.launch(near, dim=W, inputs=[hist_pos, k, case_d, first_d, count_d, target_d, reach_d, flag])
 
-        steps = int(round(config.seconds / config.timestep))
         window = releases[0].window
         chunks = -(-steps // config.snap_every)
-        # Each world's pose after every chunk (LDraw), the released pose first: the at-rest window.
-        R_after = np.zeros((n, chunks + 1, 3, 3))
-        t_after = np.zeros((n, chunks + 1, 3))
-        for w, r in enumerate(releases):
-            R_after[w, 0], t_after[w, 0] = r.pose.R, r.pose.t
+        # Each world's pose after every chunk of its case (LDraw), the released pose first: the
+        # at-rest window.
+        R_after = np.zeros((W, chunks + 1, 3, 3))
+        t_after = np.zeros((W, chunks + 1, 3))
+        R_after[:, 0] = [r.pose.R for r in releases[:W]]
+        t_after[:, 0] = [r.pose.t for r in releases[:W]]
         com = np.array([r.com for r in releases])
-        active = np.arange(n)
+        c_of = np.zeros(W, np.int64)  # chunks its case has run
+        queue = W  # the next case to take a world
+        active = np.arange(W)
         diverged: set[int] = set()
         end_qpos = np.zeros((n, 7))
         stopped = np.zeros(n, np.int64)
-        done, c, graph = 0, 0, None
-        while done < steps and len(active):
-            k = min(config.snap_every, steps - done)
+        graph, launched = None, 0
+        while len(active):
+            k = min(config.snap_every, steps - int(c_of[active].min()) * config.snap_every)
             t1 = time.perf_counter()
-            if graph is None and k == config.snap_every and wp.get_device(device).is_cuda and c > 0:
+            if graph is None and k == config.snap_every and wp.get_device(device).is_cuda and launched:
                 with wp.ScopedCapture() as capture:
                     chunk(k)
                 graph = capture.graph
@@ -378,44 +417,65 @@ def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleC
                 wp.capture_launch(graph)
             else:
                 chunk(k)
+            launched += 1
             q, flagged = dw.qpos.numpy(), flag.numpy()
             path_pos, path_mat = hist_pos.numpy()[:k + 1], hist_mat.numpy()[:k + 1]
             if int(dw.nacon.numpy()[0]) >= naconmax:
                 stats.contacts_dropped += 1
             t2 = time.perf_counter()
-            done += k
-            c += 1
-            end_qpos[active], stopped[active] = q[active], done
+            c_of[active] += 1
+            done = np.minimum(c_of * config.snap_every, steps)
+            cases = case_of[active]
+            end_qpos[cases], stopped[cases] = q[active], done[active]
             finite = np.isfinite(q[active]).all(axis=1)
-            diverged.update(int(w) for w in active[~finite])  # left to the reference below
+            diverged.update(int(i) for i in cases[~finite])  # left to the reference below
+            ended = list(active[~finite])
             active = active[finite]
-            R_after[active, c], t_after[active, c] = poses_from_mujoco(path_pos[k, active] + shift[active],
+            c = c_of[active]
+            R_after[active, c], t_after[active, c] = poses_from_mujoco(path_pos[k, active] + shift[case_of[active]],
                                                                        path_mat[k, active])
             snapped = np.zeros(len(active), bool)
-            for i in np.flatnonzero(flagged[active]):
-                w = active[i]
-                path = [Pose.from_mujoco(path_pos[j, w] + shift[w], path_mat[j, w].astype(np.float64))
-                        for j in range(1, k + 1)]
-                snapped[i] = releases[w].sweep(Pose(R_after[w, c - 1], t_after[w, c - 1]), path, done)
+            for j in np.flatnonzero(flagged[active]):
+                w, i = active[j], case_of[active[j]]
+                path = [Pose.from_mujoco(path_pos[h, w] + shift[i], path_mat[h, w].astype(np.float64))
+                        for h in range(1, k + 1)]
+                snapped[j] = releases[i].sweep(Pose(R_after[w, c[j] - 1], t_after[w, c[j] - 1]), path, int(done[w]))
+            ended += list(active[snapped])
             active = active[~snapped]
-            if c >= window:  # the window: the poses after the last `window` chunks and the one before
-                rest = still(R_after[active, c - window:c + 1], t_after[active, c - window:c + 1], com[active], config)
-                for w in active[rest]:
-                    releases[w].at_rest = True
-                active = active[~rest]
+            # The window: the poses after the last `window` chunks of the case and the one before.
+            full = active[c_of[active] >= window]
+            if len(full):
+                span = c_of[full][:, None] - window + np.arange(window + 1)
+                rest = still(R_after[full[:, None], span], t_after[full[:, None], span], com[case_of[full]], config)
+                for i in case_of[full[rest]]:
+                    releases[i].at_rest = True
+                ended += list(full[rest])
+                active = np.setdiff1d(active, full[rest])
+            out_of_time = active[done[active] >= steps]
+            ended += list(out_of_time)
+            active = np.setdiff1d(active, out_of_time)
+            if ended and queue < n:
+                ws = np.array(sorted(ended))[:n - queue]
+                cases = np.arange(queue, queue + len(ws))
+                queue += len(ws)
+                take(ws, cases)
+                c_of[ws] = 0
+                R_after[ws, 0] = [releases[i].pose.R for i in cases]
+                t_after[ws, 0] = [releases[i].pose.t for i in cases]
+                active = np.union1d(active, ws)
             t3 = time.perf_counter()
             stats.step_s += t2 - t1
             stats.rules_s += t3 - t2
-            if c == 1:
+            if launched == 1:
                 stats.first_chunk_s += t3 - t1
             else:
                 stats.run_s += t3 - t1
     out = []
-    for w, (s, r) in enumerate(zip(slots, releases)):
+    for i, (s, r) in enumerate(zip(slots, releases)):
         if r.result is not None:
             out.append(r.result)
             continue
-        if w in diverged:
+        if i in diverged:
             # A world whose state stopped being finite (its solver out of constraint rows, say)
             # is simulated again on MuJoCo C, and counted as a fallback.
             stats.fallbacks += 1
@@ -425,12 +485,12 @@ def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleC
             continue
         model = s.scene.model
         host = mujoco.MjData(model)
-        host.qpos[:] = end_qpos[w]
+        host.qpos[:] = end_qpos[i]
         host.qpos[:3] += s.floor
         mujoco.mj_forward(model, host)
-        out.append(r.finish(_pose_of(host, s.scene.part_body), _touched(host, s.scene), int(stopped[w])))
+        out.append(r.finish(_pose_of(host, s.scene.part_body), _touched(host, s.scene), int(stopped[i])))
     return out
 
 
-__all__ = ["BATCH", "CONSTRAINTS_PER_WORLD", "CONTACTS_PER_WORLD", "MjxStats", "PART_SLOTS", "STRUCTURE_SLOTS", "default_device",
+__all__ = ["BATCH", "CONSTRAINTS_PER_WORLD", "CONTACTS_PER_WORLD", "MjxStats", "PART_SLOTS", "REFILLS", "STRUCTURE_SLOTS", "default_device",
            "settle_many"]
