@@ -224,8 +224,9 @@ def main(argv=None) -> None:
     ap.add_argument("--per-scene", type=int, default=50, help="predictions per (structure, part) scene")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--device", default=None, help="Warp device ('cpu', 'cuda:0'; default: the GPU if any)")
-    ap.add_argument("--worlds", type=int, default=BATCH,
-                    help="Warp's worlds at once (a world whose part stops takes the next prediction)")
+    ap.add_argument("--worlds", default=str(BATCH),
+                    help="Warp's worlds at once, a world whose part stops taking the next prediction "
+                         "(with --throughput, a list: '256,4096' runs each)")
     ap.add_argument("--throughput", default=None,
                     help="measure these engines ('cpu', 'warp' or 'cpu,warp') alone over --workers processes, no parity")
     ap.add_argument("--workers", default="1", help="processes of --throughput (a list: '1,16' runs each)")
@@ -238,23 +239,29 @@ def main(argv=None) -> None:
                 ap.error(f"--throughput: unknown engine {engine!r}; choose from cpu, warp")
         try:
             counts = [int(w) for w in args.workers.split(",")]
+            worlds = [int(w) for w in args.worlds.split(",")]
         except ValueError:
-            ap.error(f"--workers: expected whole numbers separated by commas, got {args.workers!r}")
+            ap.error(f"--workers, --worlds: expected whole numbers separated by commas, got {args.workers!r}, "
+                     f"{args.worlds!r}")
         t0 = time.perf_counter()
         cs = cases(args.n, args.per_scene, args.seed)
         print(f"{len(cs)} predictions made in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
         results = []
         for engine in engines:
-            for workers in counts:
-                result = throughput(cs, engine, workers, args.device if engine == "warp" else None, args.worlds)
-                result.update(seed=args.seed, per_scene=args.per_scene)
+            for workers, w in ((k, w) for k in counts for w in (worlds if engine == "warp" else worlds[:1])):
+                result = throughput(cs, engine, workers, args.device if engine == "warp" else None, w)
+                result.update(seed=args.seed, per_scene=args.per_scene, worlds=w if engine == "warp" else None)
                 del result["per_case"]
                 results.append(result)
                 print(json.dumps(result), flush=True)
         with open(args.out, "w", encoding="utf-8") as f:
             json.dump(results, f, indent=1)
         return
-    result = run(args.n, args.per_scene, args.seed, device=args.device, worlds=args.worlds)
+    try:
+        worlds = int(args.worlds)
+    except ValueError:
+        ap.error(f"--worlds: expected a whole number without --throughput, got {args.worlds!r}")
+    result = run(args.n, args.per_scene, args.seed, device=args.device, worlds=worlds)
     with open(args.out, "w", encoding="utf-8") as f:
         json.dump(result, f, indent=1)
     brief = {k: result[k] for k in ("n", "scenes", "agreement", "simulated", "agreement_simulated", "outcomes",
