@@ -100,6 +100,7 @@ def test_a_world_whose_part_stops_takes_the_next_case():
     each = settle_many(cases, stats=alone)
     two = settle_many(cases, stats=refilled, batch=2)
     assert alone.simulated == refilled.simulated == 5 and refilled.fallbacks == 0
+    assert refilled.batches == 1  # the five cases ran on the one model's two worlds
     assert [g.outcome for g in two] == [g.outcome for g in each]
     for a, b in zip(two, each):
         assert abs(a.seconds - b.seconds) < 1e-9 and np.allclose(a.pose.t, b.pose.t, atol=0.5), (a, b)

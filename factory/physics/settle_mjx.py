@@ -369,12 +369,16 @@ def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleC
             m[ws] = True
             mask.assign(m)
             mjw.reset_data(mw, dw, reset=mask)
-            for w, i in zip(ws.tolist(), cases.tolist()):
+            # One copy per field for each run of worlds taking consecutive cases (at the start,
+            # all of them), not one per world.
+            cut = np.flatnonzero((np.diff(ws) != 1) | (np.diff(cases) != 1)) + 1
+            for run_w, run_i in zip(np.split(ws, cut), np.split(cases, cut)):
+                w, i, m = int(run_w[0]), int(run_i[0]), len(run_w)
                 for k, a in rows_of.items():
                     row = a.size // a.shape[0]
-                    wp.copy(a, stage[k], dest_offset=w * row, src_offset=i * row, count=row)
-                wp.copy(hist_pos, start_pos, dest_offset=config.snap_every * W + w, src_offset=i, count=1)
-                wp.copy(hist_mat, start_mat, dest_offset=config.snap_every * W + w, src_offset=i, count=1)
+                    wp.copy(a, stage[k], dest_offset=w * row, src_offset=i * row, count=m * row)
+                wp.copy(hist_pos, start_pos, dest_offset=config.snap_every * W + w, src_offset=i, count=m)
+                wp.copy(hist_mat, start_mat, dest_offset=config.snap_every * W + w, src_offset=i, count=m)
             case_of[ws] = cases
             case_d.assign(case_of.astype(np.int32))
 
@@ -437,8 +441,8 @@ def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleC
             snapped = np.zeros(len(active), bool)
             for j in np.flatnonzero(flagged[active]):
                 w, i = active[j], case_of[active[j]]
-                path = [Pose.from_mujoco(path_pos[h, w] + shift[i], path_mat[h, w].astype(np.float64))
-                        for h in range(1, k + 1)]
+                R_path, t_path = poses_from_mujoco(path_pos[1:, w] + shift[i], path_mat[1:, w])
+                path = [Pose(r, x) for r, x in zip(R_path, t_path)]
                 snapped[j] = releases[i].sweep(Pose(R_after[w, c[j] - 1], t_after[w, c[j] - 1]), path, int(done[w]))
             ended += list(active[snapped])
             active = active[~snapped]
@@ -454,10 +458,15 @@ def _simulate(slots: list[_SceneSlots], releases: list[Release], config: SettleC
             out_of_time = active[done[active] >= steps]
             ended += list(out_of_time)
             active = np.setdiff1d(active, out_of_time)
-            if ended and queue < n:
+            if ended and queue >= n:  # no case left for them: the device's prefilter skips them
+                case_of[ended] = -1
+                case_d.assign(case_of.astype(np.int32))
+            elif ended:
                 ws = np.array(sorted(ended))[:n - queue]
                 cases = np.arange(queue, queue + len(ws))
                 queue += len(ws)
+                if len(ws) < len(ended):
+                    case_of[sorted(ended)[len(ws):]] = -1
                 take(ws, cases)
                 c_of[ws] = 0
                 R_after[ws, 0] = [releases[i].pose.R for i in cases]
