@@ -20,7 +20,8 @@ per-outcome counts, every disagreement with its case, and both throughputs.
 `settle_all`; 'warp': MuJoCo Warp, `settle_many`, every worker on the same device): the scenes
 dealt out round robin, each worker's kernels loaded and first cases settled before a common start,
 the wall time from that start until the last worker is done. Same seed, same predictions: the
-outcomes' digest says so.
+outcomes' digest says so. For MuJoCo C it also gives the seconds inside `mj_step` against the
+whole (`cpu.step_share`): only that share is simulation; the rest is host work both engines do.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ import numpy as np
 
 from factory import SamplerConfig, get_reader, grow, load_part
 from factory.physics.linked import linked
-from factory.physics.settle import SettleConfig, settle_all
+from factory.physics.settle import SettleConfig, SettleStats, settle_all
 from factory.physics.settle_mjx import BATCH, MjxStats, settle_many
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
@@ -169,9 +170,10 @@ def _share(engine: str, batch: list, device: str | None, barrier, queue, index: 
     else:
         settle_all(warm)
     barrier.wait()
-    stats = MjxStats()
+    stats = MjxStats() if engine == "warp" else SettleStats()
     t0 = time.perf_counter()  # CLOCK_MONOTONIC: one clock for every process of the machine
-    got = settle_many(batch, device=device, stats=stats, batch=worlds) if engine == "warp" else settle_all(batch)
+    got = (settle_many(batch, device=device, stats=stats, batch=worlds) if engine == "warp"
+           else settle_all(batch, stats=stats))
     t1 = time.perf_counter()
     queue.put((index, t0, t1, [(r.outcome, r.seconds > 0) for r in got], stats.__dict__))
 
@@ -211,10 +213,16 @@ def throughput(cs: list[dict], engine: str, workers: int, device: str | None = N
     stats = {key: round(sum(r[4][key] for r in reports), 3) for key in
              ("prepare_s", "first_chunk_s", "run_s", "step_s", "rules_s", "simulated", "fallbacks", "diverged",
               "contacts_dropped", "batches")} if engine == "warp" else None
+    # MuJoCo C's own stepping against its whole time: the share a faster simulator could save (the
+    # checks, snapping verdicts, scene models and rules are the same host work for both engines).
+    cpu = None if engine == "warp" else {
+        "total_s": round(sum(r[4]["total_s"] for r in reports), 3),
+        "step_s": round(sum(r[4]["step_s"] for r in reports), 3),
+        "step_share": round(sum(r[4]["step_s"] for r in reports) / max(sum(r[4]["total_s"] for r in reports), 1e-9), 3)}
     return dict(engine=engine, workers=workers, predictions=len(cs), wall_s=round(wall, 3),
                 per_s=round(len(cs) / wall, 1), outcomes=dict(Counter(outcomes)),
                 outcomes_sha256=hashlib.sha256("\n".join(map(str, outcomes)).encode()).hexdigest()[:16],
-                busiest_s=round(max(r[2] - r[1] for r in reports), 3), simulated=simulated, warp=stats,
+                busiest_s=round(max(r[2] - r[1] for r in reports), 3), simulated=simulated, warp=stats, cpu=cpu,
                 device=device, per_case=outcomes)
 
 

@@ -40,6 +40,7 @@ poses after each step), not only its end pose.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -329,19 +330,39 @@ class Scenes:
         return self._models[key]
 
 
-def settle_all(cases, config: SettleConfig = SettleConfig()) -> list[Settled]:
+@dataclass
+class SettleStats:
+    """Where `settle_all`'s time went (filled in when passed): what a faster simulator can save is
+    `step_s` alone; the rest (the checks before simulating, snapping verdicts, the scenes' models,
+    the rules after every chunk) is the same host work for MuJoCo C and MuJoCo Warp."""
+
+    total_s: float = 0.0
+    """Seconds of the whole call."""
+    step_s: float = 0.0
+    """Of those, seconds inside `mujoco.mj_step` (and reading the part's pose after each step)."""
+    simulated: int = 0
+    """Cases simulated (the others were decided before simulating)."""
+
+
+def settle_all(cases, config: SettleConfig = SettleConfig(), stats: SettleStats | None = None) -> list[Settled]:
     """`settle` of every case (structure, part, pose, floor_y) on MuJoCo C, one after another, a
     scene's judge and model made once for all its cases (`Scenes`)."""
+    stats = stats if stats is not None else SettleStats()
+    t0 = time.perf_counter()
     scenes = Scenes(config)
     out = []
     for case in cases:
         key, release = scenes.release(*case)
-        out.append(release.result if release.result is not None
-                   else _simulate(release, scenes.model(key, release), config))
+        if release.result is not None:
+            out.append(release.result)
+        else:
+            stats.simulated += 1
+            out.append(_simulate(release, scenes.model(key, release), config, stats))
+    stats.total_s += time.perf_counter() - t0
     return out
 
 
-def _simulate(release: Release, scene: SettleScene, config: SettleConfig) -> Settled:
+def _simulate(release: Release, scene: SettleScene, config: SettleConfig, stats: SettleStats | None = None) -> Settled:
     """One undecided release simulated with `mujoco.mj_step`, the rules after every chunk."""
     model, data = scene.model, mujoco.MjData(scene.model)
     pos, quat = release.pose.to_mujoco_quat()
@@ -353,9 +374,12 @@ def _simulate(release: Release, scene: SettleScene, config: SettleConfig) -> Set
     done = 0
     while done < steps:
         n = min(config.snap_every, steps - done)
+        t0 = time.perf_counter()
         for j in range(n):
             mujoco.mj_step(model, data)
             pos[j], mat[j] = data.xpos[body], data.xmat[body]
+        if stats is not None:
+            stats.step_s += time.perf_counter() - t0
         done += n
         R, t = poses_from_mujoco(pos[:n], mat[:n].reshape(n, 3, 3))
         if release.after_chunk(R, t, done):
