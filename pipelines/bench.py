@@ -257,7 +257,8 @@ def synth_section(work: Path, quick: bool) -> dict:
 
 def feedback_section(gpu: bool, quick: bool) -> dict:
     """World-feedback simulations per second (`pipelines.bench_settle`'s predictions): MuJoCo C in
-    one process and over every core of this machine (`bench_settle.throughput`), and where a GPU
+    one process and over every core of this machine (`bench_settle.throughput`), with the share of
+    its time inside `mj_step` (what a faster simulator can save), and where a GPU
     is, MuJoCo Warp batched in one process (`settle_mjx.settle_many`) on the same predictions with
     the share of outcomes equal to MuJoCo C's. Warp on a CPU is left out (it runs, slowly:
     `bench_settle --device cpu`)."""
@@ -268,7 +269,8 @@ def feedback_section(gpu: bool, quick: bool) -> dict:
     every = throughput(cs, "cpu", cores)
     out = {"predictions": len(cs), "scenes": len({c["scene"] for c in cs}), "seed": seed,
            "simulated": one["simulated"], "cpu_s": one["wall_s"], "cpu_per_s": one["per_s"],
-           "cpu_workers": cores, "cpu_all_s": every["wall_s"], "cpu_all_per_s": every["per_s"], "warp": None}
+           "cpu_workers": cores, "cpu_all_s": every["wall_s"], "cpu_all_per_s": every["per_s"],
+           "cpu_step_share": one["cpu"]["step_share"], "warp": None}
     if gpu and importlib.util.find_spec("warp") is None:
         out["warp"] = {"error": "MuJoCo Warp not available: the [warp] extra is not installed"}
     elif gpu:
@@ -518,7 +520,9 @@ def markdown(report: dict) -> str:
                   f"{f['predictions']} predicted placements in {f['scenes']} scenes (`pipelines.bench_settle`, seed "
                   f"{f['seed']}; {f['simulated']} simulated, the others decided before simulating): MuJoCo C "
                   f"{f['cpu_per_s']} per s in one process ({f['cpu_s']} s), {f['cpu_all_per_s']} per s over "
-                  f"{f['cpu_workers']} processes ({f['cpu_all_s']} s). {warp}.", ""]
+                  f"{f['cpu_workers']} processes ({f['cpu_all_s']} s)"
+                  + (f", {f['cpu_step_share']:.0%} of its time in `mj_step` (the rest is host work both engines do)"
+                     if f.get("cpu_step_share") is not None else "") + f". {warp}.", ""]
     lines += ["Sections and their seconds: " + ", ".join(f"{k} {v:.0f}" for k, v in report["section_s"].items()), ""]
     return "\n".join(lines)
 
