@@ -210,15 +210,13 @@ def throughput(cs: list[dict], engine: str, workers: int, device: str | None = N
             outcomes[i] = o
             simulated += ran
     wall = max(r[2] for r in reports) - min(r[1] for r in reports)
-    stats = {key: round(sum(r[4][key] for r in reports), 3) for key in
-             ("prepare_s", "first_chunk_s", "run_s", "step_s", "rules_s", "simulated", "fallbacks", "diverged",
-              "contacts_dropped", "batches")} if engine == "warp" else None
+    keys = (("prepare_s", "first_chunk_s", "run_s", "step_s", "rules_s", "simulated", "fallbacks", "diverged",
+             "contacts_dropped", "batches") if engine == "warp" else ("total_s", "step_s"))
+    summed = {key: round(sum(r[4][key] for r in reports), 3) for key in keys}
+    stats = summed if engine == "warp" else None
     # MuJoCo C's own stepping against its whole time: the share a faster simulator could save (the
     # checks, snapping verdicts, scene models and rules are the same host work for both engines).
-    cpu = None if engine == "warp" else {
-        "total_s": round(sum(r[4]["total_s"] for r in reports), 3),
-        "step_s": round(sum(r[4]["step_s"] for r in reports), 3),
-        "step_share": round(sum(r[4]["step_s"] for r in reports) / max(sum(r[4]["total_s"] for r in reports), 1e-9), 3)}
+    cpu = None if engine == "warp" else {**summed, "step_share": round(summed["step_s"] / max(summed["total_s"], 1e-9), 3)}
     return dict(engine=engine, workers=workers, predictions=len(cs), wall_s=round(wall, 3),
                 per_s=round(len(cs) / wall, 1), outcomes=dict(Counter(outcomes)),
                 outcomes_sha256=hashlib.sha256("\n".join(map(str, outcomes)).encode()).hexdigest()[:16],

@@ -36,7 +36,8 @@ def test_quick_bench_writes_report_and_plots(tmp_path, monkeypatch):
     assert fb["predictions"] == 48 and fb["cpu_per_s"] > 0 and 0 < fb["simulated"] < 48 and fb["warp"] is None
     assert fb["cpu_workers"] == (os.cpu_count() or 1) and fb["cpu_all_per_s"] > 0  # and over every core
     assert 0 < fb["cpu_step_share"] < 1  # what a faster simulator could save
-    assert "## World feedback" in (out / "report.md").read_text() and "of its time in `mj_step`" in (out / "report.md").read_text()
+    report_md = (out / "report.md").read_text()
+    assert "## World feedback" in report_md and "of its time in `mj_step`" in report_md
     (phys,) = report["physics"]["rows"]
     assert phys["backend"] == "cpu" and phys["checks_per_s"] > 0 and 0 < phys["accepted"] <= phys["batch"]
     (loads,), (sweeps,) = report["physics"]["loads"], report["physics"]["sweeps"]
