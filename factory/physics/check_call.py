@@ -16,6 +16,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from factory.gears import meshes
 from factory.parts import Part
 from factory.physics.clutch import holds_alone_many
 from factory.physics.collide import CollisionScene, Penetration
@@ -178,11 +179,15 @@ class _Call:
                         max_penetration_ldu=round(depth, 4), touching=bool(near))
             # Joints matter only to a candidate that collides or has no stud connection.
             joints = self._joints(unit, near) if collision or not outer else {}
+            # Gears that mesh with it: their teeth's overlap is the mesh's (`gears.meshes`), where
+            # it stands and on its way in along its joints' axis.
+            geared = self._meshing(unit, near) if collision or joints else set()
             mated = [c[2] for c in conns]
-            if joints and collision:
+            if (joints or geared) and collision:
                 # Overlap round a joint's axis (a pin in its hole, a bar in a clip, fingers between
-                # fingers), or anywhere with a part held by its shape, is the joint's.
-                zones = _zones(joints)
+                # fingers), or anywhere with a part held by its shape or a gear it meshes with, is
+                # the joint's or the mesh's.
+                zones = {**_zones(joints), **{i: None for i in geared}}
                 depth = self._depth_round_joints(pen, pose, touched, zones)
                 if config.max_penetration_ldu < depth <= REFINE_LDU:
                     # Shallow beyond the joints (a liftarm on the pins of a motor's curved housing):
@@ -190,7 +195,7 @@ class _Call:
                     cleared = self._cleared(pen, unit, pose, touched, mated, zones)
                     depth = depth if cleared is None else cleared
                 if depth > config.max_penetration_ldu:
-                    joints = {}  # it overlaps beyond the joints too: judged on that overlap
+                    joints, geared = {}, set()  # it overlaps beyond them too: judged on that overlap
                 else:
                     collision = False
                     base.update(collision=False, max_penetration_ldu=round(depth, 4))
@@ -214,7 +219,7 @@ class _Call:
                 continue
             if joints:
                 self.joint_links[k] = joint_links(joints, base_n)
-                self.joint_zones[k] = _zones(joints)
+                self.joint_zones[k] = {**_zones(joints), **{i: None for i in geared}}
                 base.update(connected=True, joints=tuple(joint_links(joints, 0)))
                 swing = swings(unit, joints) if not outer else None
                 if swing is not None:
@@ -231,6 +236,11 @@ class _Call:
         current().stage_seconds["rules"] += time.perf_counter() - t0
         if self.backend != "jax":
             self.clutched(holds_alone_many(self.clutch_cases(), config.loads))
+
+    def _meshing(self, unit: Sequence[Placed], near) -> set[int]:
+        """The structure parts among `near` that are gears meshing with a gear of the unit."""
+        placed = self.structure.placed
+        return {i for i in near if any(meshes(p.part, p.pose, placed[i].part, placed[i].pose) for p in unit)}
 
     def _joints(self, unit: Sequence[Placed], near) -> dict[int, list[tuple[int, Joint]]]:
         """The structure parts among `near` that hold a part of the unit by a joint, with the

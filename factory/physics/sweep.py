@@ -328,14 +328,16 @@ def sweep_joint(scene: CollisionScene, structure: Structure, unit: Sequence[tupl
     axis, from either end (a pin goes into its hole, a wheel onto its axle, from the side that is
     open), over the joint's length and `PRESS_MIN_LDU` past it, its overlap with each holder
     round the joint's axis left out
-    (`joints`: holder -> (stretches (k, 3, 3), radii), as `CollisionScene.penetration` takes them).
+    (`joints`: holder -> (stretches (k, 3, 3), radii), as `CollisionScene.penetration` takes them;
+    None: all its overlap left out, a gear it meshes with, whose teeth it slides along).
     Not judged (None, 'two-axes') where the joints' axes are not parallel: a part on two joints
     at an angle cannot slide onto both."""
-    axes = np.concatenate([z[:, 2] for z, _ in joints.values()])
+    held = {h: z for h, z in joints.items() if z is not None}
+    axes = np.concatenate([z[:, 2] for z, _ in held.values()]) if held else np.zeros((0, 3))
     if not len(axes) or (np.abs(axes @ axes[0]) < SAME_AXIS).any():
         return SweepResult(None, "two-axes", (), 0.0, 0.0, 0)
-    lines = {}
-    for holder, (zones, radii) in joints.items():
+    lines = {h: None for h, z in joints.items() if z is None}
+    for holder, (zones, radii) in held.items():
         u = zones[:, 2]
         length = ((zones[:, 1] - zones[:, 0]) * u).sum(axis=1)[:, None]
         lo, hi = np.minimum(length, 0.0) - JOINT_LINE_LDU, np.maximum(length, 0.0) + JOINT_LINE_LDU
@@ -343,7 +345,7 @@ def sweep_joint(scene: CollisionScene, structure: Structure, unit: Sequence[tupl
     # Only the joint's own length and a fingertip's room past it are swept: further out a hand
     # brings the part in along any line (as `PRESS_MIN_LDU` for studs), and a long axle slid
     # through a large model would ask hundreds of poses.
-    reach = max(float(np.linalg.norm(z[:, 1] - z[:, 0], axis=1).max()) for z, _ in joints.values()) + PRESS_MIN_LDU
+    reach = max(float(np.linalg.norm(z[:, 1] - z[:, 0], axis=1).max()) for z, _ in held.values()) + PRESS_MIN_LDU
     found = []
     for d in (axes[0], -axes[0]):
         way = _along(scene, structure, unit, set(), d, max_penetration_ldu, step_ldu, reach=reach, joints=lines)

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from factory.gears import part_teeth
 from factory.ldraw.other_connectors import CONNECTOR_KINDS, place_connectors
 from factory.joints import (HOME_TOL_LDU, JointConnector, click_angle, mates, on_a_click, on_one_axis, part_connectors, part_stretches,
                             stretch_overlap, together)
@@ -106,6 +107,8 @@ def may_hold(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool
         # the head's stud, which sits inside it), none of them a stud connection: the LDraw
         # files place a head and a helmet, or a neck and a head, overlapping by design.
         return _minifig_pair(new, new_pose, placed, placed_pose)
+    if part_teeth(new) and part_teeth(placed):
+        return False  # gears mesh or collide (`factory.gears.meshes`): neither holds the other
     a, b = _connectors(new), _connectors(placed)
     if len(a) and len(b):
         return connectors_meet(place_connectors(a, new_pose.R, new_pose.t),
@@ -389,7 +392,10 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
         if not any(on_one_axis(stretch, z, PARALLEL_DEG, BAR_AXIS_LDU) and stretch_overlap(stretch, z) > 0 for z in taken):
             out.append(_joint(kind, stretch))
     if not out and not new.sockets and not (len(_connectors(new)) and len(_connectors(placed))) \
-            and offers_other(placed) and _box_share(new, new_pose, placed, placed_pose) >= SHAPE_SHARE:
+            and offers_other(placed) and _box_share(new, new_pose, placed, placed_pose) >= SHAPE_SHARE \
+            and not (part_teeth(new) and part_teeth(placed)):
+        # (Two gears share their boxes where their teeth meet: they mesh or collide, and neither
+        # holds the other.)
         out.append(Joint("by-shape", _box_meeting(new, new_pose, placed, placed_pose), None, None))
     return out
 
