@@ -6,7 +6,8 @@ and the physics records of the design dataset source (`pipelines.dataset.sources
 Each placed part is checked against the parts placed before it in the same sub-assembly (the first
 part of a sub-assembly, or one laid on the table beside it, needs no connection; a part may hang
 from another part of its own step, or be held in hand until what the next step of its assembly
-places holds it; the parts of one step go in in any order, so a part that cannot be pressed in
+places holds it, or, failing that, until the first later part that holds it is on (gears set between
+beams before the axle is pushed through them: `held_for_parts` in its record); the parts of one step go in in any order, so a part that cannot be pressed in
 under or between parts of its own step listed before it is judged going in first); a completed sub-assembly is checked as one rigid unit against
 the parts of its parent placed before it. Each sub-assembly is checked in its own frame (as its
 author built it) and is held in hand while built: only the main model must stand on the ground,
@@ -242,6 +243,16 @@ def _held_by(structure: Structure, later: list[Placed]) -> Structure | None:
     return _joined(structure, later)
 
 
+def _held_until(structure: Structure, local: Placed, later: list[Placed]) -> tuple[Structure, int] | None:
+    """(`structure` with the `later` parts up to the first that holds `local` by studs or a joint
+    added (`_joined`), how many parts that is); None where none of them holds it."""
+    alone = Structure([local])
+    for n, q in enumerate(later, 1):
+        if stud_pairs(alone, [q]) or links_by_joints([local], q):
+            return _joined(structure, later[:n]), n
+    return None
+
+
 def _joined(structure: Structure, later: list[Placed]) -> Structure:
     """`structure` with the `later` parts (of the same step, or of the next) added, each linked by
     the joints it makes with the parts before it (`unmodelled.joints_between`; studs join by
@@ -389,11 +400,14 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
 
     next_step: dict[int, list[Placed]] = {}
     """Per step: what the next STEP block of its assembly's file places (`in_block`)."""
+    later_steps: dict[int, list[Placed]] = {}
+    """Per step: what every later STEP block of its assembly's file places, in order."""
     for step in steps:
         later = [t.block for t in steps if t.assembly == step.assembly and t.block > step.block]
         later += [b for t, b in blocks.items() if t in finished and parent_of(t) == step.assembly and b > step.block]
         if later:
             next_step[id(step)] = in_block(step.assembly, min(later))
+            later_steps[id(step)] = [q for b in sorted(set(later)) for q in in_block(step.assembly, b)]
 
     structures: dict[str, Structure] = {}
     """The parts placed so far in every open assembly, in its own frame, with their rigid links."""
@@ -416,7 +430,8 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
             if along:
                 # As the parts of one step: it may rest on what goes in with it.
                 judged_on = _joined(parent, along)
-                (v,) = check_units(judged_on, [unit], backend, config, standing=standing, unit_links=done.links)
+                (v,) = check_units(judged_on, [unit], backend, config, require_connection=not _on_table(judged_on, unit),
+                                   standing=standing, unit_links=done.links)
             v, held_in_hand = _in_hand(judged_on, unit, v, backend, config, standing, done.links)
             joints = _joint_record(judged_on, unit, v)
             yield _record(v, step=event.last_step, index=0, part=event.tag.rsplit("/", 1)[-1],
@@ -456,7 +471,8 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 # beam on the pins pushed through it next), and the step is judged standing once
                 # all its parts are in.
                 judged_on = _joined(structure, later)
-                (v,) = check_units(judged_on, [[local]], backend, config, standing=standing)
+                (v,) = check_units(judged_on, [[local]], backend, config,
+                                   require_connection=not _on_table(judged_on, [local]), standing=standing)
                 # Pushed onto the later parts it hangs from, it may not get in; held in hand with
                 # them pressed onto it (a plate under a tile that bridges it to the model), it does.
                 v = _in_hand_with(v, structure, local, later, backend, config, standing)
@@ -470,6 +486,16 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                 if w.ok:
                     v, judged_on = w, held
             v, held_in_hand = _in_hand(judged_on, [local], v, backend, config, standing)
+            waited = 0
+            if v.reason in WAITS_FOR_LATER:
+                # Held in hand until a later step puts on the part that holds it (gears set between
+                # beams, then the axle pushed through them), with what comes on before it.
+                until = _held_until(judged_on, local, later_steps.get(id(step), []))
+                if until is not None:
+                    # Its way in is its holder's: the holder, pushed in later, is swept through it.
+                    (w,) = check_units(until[0], [[local]], backend, config, standing=standing, sweep=False)
+                    if w.ok:
+                        v, judged_on, waited = w, until[0], until[1]
             first = None
             if v.reason in NO_WAY_IN and step_start < len(structure):
                 # The parts of one step go in in any order: a part that cannot be pressed in under
@@ -487,7 +513,8 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
             yield _record(v, step=step.index, index=index, part=placed.part, color=placed.colour,
                           stud_pairs=stud_pairs(judged_on, [local]), **({"first_in_step": True} if first else {}),
                           **({"held_in_hand": True} if held_in_hand else {}), **_seat_record(seated),
-                          **({"judged_without": past} if past else {}), **joints)
+                          **({"judged_without": past} if past else {}),
+                          **({"held_for_parts": waited} if waited else {}), **joints)
             if faults and v.ok and v.connections:
                 # Faults move the part off the connections it was accepted on: those of the
                 # structure it was judged against (with the later parts of its step, if it hangs).
@@ -588,6 +615,8 @@ def summarize(records: list[dict]) -> dict:
         "duplicates": sum(r["reason"] == DUPLICATE for r in plain),
         # Accepted held in hand: the model tipped on the table while built (`verify_model`).
         "held_in_hand": sum(bool(r.get("held_in_hand")) for r in plain),
+        # Accepted held in hand until a part of a later step held them (`held_for_parts`).
+        "held_until_later": sum("held_for_parts" in r for r in plain),
         # Judged seated on the connection they were drawn beside (`seat.SEAT_LDU`), and of those accepted.
         "seated": sum("seated_ldu" in r for r in plain),
         "seated_accepted": sum("seated_ldu" in r and r["reason"] is None for r in plain),

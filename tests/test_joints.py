@@ -591,3 +591,45 @@ def test_a_stop_bush_against_a_holes_mouth_is_part_of_the_pins_joint(lib_at):
     # Off the hole's axis it is judged on its overlap.
     v = verdict(block, moved(pin, (0, 3, 0)))
     assert not v.ok and not v.joints, v
+
+
+def test_a_tyre_on_a_wheel_drawn_into_a_plate_is_held_by_its_hub(lib_at):
+    """A tyre (3641: round, no studs, sockets or connectors) on a wheel drawn into a plate that has
+    studs and sockets too (122c01, a 2x2 plate with its wheels), centred on the wheel's axis as
+    set 889 places it, is held by its shape (`unmodelled.on_a_hub`); slid off along the axis or
+    lifted off it, nothing holds it. (Held in hand: a plate alone with one tyre tips.)"""
+    plate = Structure([lib_at("122c01", 0, 0, 0)])
+    turned = [[0, 0, 1], [0, 1, 0], [-1, 0, 0]]  # the tyre's axis (its Z) along the plate's X
+    for x in (-30.0, 30.0):
+        (v,) = check_units(plate, [[lib_at("3641", x, 6, 0, turned)]], "cpu", standing=False)
+        assert v.ok and [(l.kind, l.b) for l in v.joints] == [("by-shape", 0)], v
+    for dx, dy in ((-20.0, 0.0), (0.0, -8.0)):
+        (v,) = check_units(plate, [[lib_at("3641", -30 + dx, 6 + dy, 0, turned)]], "cpu", standing=False)
+        assert not v.ok and not v.joints, v
+
+
+def held_on(structure, placed):
+    """Place a part held in hand: checked, then added with the links of its joints."""
+    (v,) = check_units(structure, [[placed]], "cpu", standing=False)
+    assert v.ok, v
+    structure.add(placed, v.links(len(structure)))
+    return v
+
+
+def test_a_bush_is_threaded_onto_an_axle_between_the_bricks_it_goes_through(at):
+    """A bush (3713) on an axle between two Technic bricks 1x4 (3701) that the axle goes through
+    cannot slide on from either end, but a builder threads it on as the axle goes in (the
+    Gearbox's bushes and gears between its Technic bricks): accepted, its approach 'threaded'.
+    With a plain brick (3010) at the axle's end instead, which the axle does not go through,
+    nothing threads it: blocked."""
+    bush = at("3713", 0, -14, 0)
+    through = Structure([at("3031", 0, 0, 0)])
+    for brick in (at("3701", 0, -24, -30), at("3701", 0, -24, 30), at("3707", 0, -14, 0, ALONG_Z)):
+        held_on(through, brick)
+    (v,) = check_units(through, [[bush]], "cpu", standing=False)
+    assert v.ok and v.approach == "threaded" and [(l.kind, l.b) for l in v.joints] == [("technic-axle", 3)], v
+    ends = Structure([at("3031", 0, 0, 0)])
+    for brick in (at("3701", 0, -24, -30), at("3010", 0, -24, 30), at("4519", 0, -14, -10, ALONG_Z)):
+        held_on(ends, brick)
+    (v,) = check_units(ends, [[bush]], "cpu", standing=False)
+    assert v.reason == "blocked" and set(v.blocked_by) == {1, 2}, v

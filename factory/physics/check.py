@@ -59,6 +59,7 @@ def check_units(
     standing: bool = True,
     unit_links: Sequence[Link] = (),
     explain: bool = True,
+    sweep: bool = True,
 ) -> list[Verdict]:
     """Check rigid units (each a list of placed parts, in world poses) against the structure.
 
@@ -72,12 +73,15 @@ def check_units(
     among a unit's own parts (numbered within the unit) that the checker does not model.
     `explain=False` leaves `failing` empty on overloads (it costs a second program each; the
     sampler only counts the reason of a candidate it rejects).
+    `sweep=False` leaves the way in unjudged (`approach` 'held'): a part put in place before what
+    holds it (a gear set between beams, then the axle pushed through it), whose holder's own
+    sweep finds the way.
     """
     backend = backend_name(backend)
     if not units:
         return []
     (verdicts,) = _run_calls([_Call(structure, units, backend, config, require_connection, floor_y, standing,
-                                    unit_links, explain)], backend)
+                                    unit_links, explain, sweep=sweep)], backend)
     return verdicts
 
 
@@ -194,6 +198,7 @@ def check(
     colour: int = 16,
     floor_y: float | None = None,
     explain: bool = True,
+    sweep: bool = True,
 ) -> list[Verdict]:
     """Check one part type at many candidate poses against the structure (a batch); see
     `check_units` for the ground (`floor_y`) and `explain`."""

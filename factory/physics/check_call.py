@@ -27,8 +27,8 @@ from factory.physics.mass import GRAVITY, part_mass_properties
 from factory.physics.solid_overlap import REFINE_LDU, deepest_solid
 from factory.physics.statics import Failure
 from factory.physics.structure import Placed, Structure, connections_at, lowest_point
-from factory.physics.sweep import seating_from_connections, sweep, sweep_joint
-from factory.physics.unmodelled import Joint, joints_between, may_hold, zone_moved
+from factory.physics.sweep import SAME_AXIS, seating_from_connections, sweep, sweep_joint
+from factory.physics.unmodelled import NEAR_LDU, Joint, joints_between, may_hold, zone_moved
 from factory.physics.verdict import CheckConfig, Verdict
 from factory.pose import Pose
 
@@ -62,14 +62,14 @@ class _Call:
     def __init__(self, structure: Structure, units: Sequence[Sequence[Placed]], backend: str, config: CheckConfig,
                  require_connection: bool = True, floor_y: float | None = None, standing: bool = True,
                  unit_links: Sequence[Link] = (), explain: bool = True, judge_first: int | None = None,
-                 order: Callable[[list[int]], list[int]] | None = None):
+                 order: Callable[[list[int]], list[int]] | None = None, sweep: bool = True):
         t0 = time.perf_counter()
         if judge_first is not None and judge_first < 1:
             raise ValueError(f"judge_first must be None or >= 1, got {judge_first}")
         self.judge_first, self.order = judge_first, order
         self.structure, self.config, self.floor_y, self.backend = structure, config, floor_y, backend
         self.standing, self.unit_links, self.explain = standing, unit_links, explain
-        self.require_connection = require_connection
+        self.require_connection, self.sweep = require_connection, sweep
         first = units[0]
         anchor = first[0].pose
         self.rel = [(p.part, anchor.inverse() @ p.pose) for p in first]
@@ -237,6 +237,26 @@ class _Call:
         if self.backend != "jax":
             self.clutched(holds_alone_many(self.clutch_cases(), config.loads))
 
+    def _threaded(self, k: int, blockers: Sequence[int]) -> bool:
+        """Whether candidate `k`, held on an axle and blocked both ways along it, is blocked only
+        by parts that axle itself goes through: a builder threads a bush or a gear onto the axle
+        as the axle goes in, between the beams it passes (the Gearbox's bushes between its Technic
+        bricks), so the axle's own way in, judged when it was placed, is the candidate's too."""
+        axles = [l for l in self.joint_links[k] if l.kind == "technic-axle" and l.axis is not None]
+        if not axles or not blockers:
+            return False
+        held = {l.b for l in axles}
+        through = set()
+        for l in self.structure.links:
+            if l.kind not in AXIAL or l.axis is None or not ({l.a, l.b} & held):
+                continue
+            for x in axles:
+                u = np.asarray(x.axis, float)
+                d = np.asarray(l.point, float) - np.asarray(x.point, float)
+                if abs(float(np.asarray(l.axis, float) @ u)) > SAME_AXIS and np.linalg.norm(d - (d @ u) * u) < AXLE_LINE_LDU:
+                    through |= {l.a, l.b} - held
+        return set(blockers) <= through
+
     def _meshing(self, unit: Sequence[Placed], near) -> set[int]:
         """The structure parts among `near` that are gears meshing with a gear of the unit."""
         placed = self.structure.placed
@@ -296,12 +316,21 @@ class _Call:
                 # on across its bar, a minifigure joint or a part held by its shape has no axis,
                 # and a part on studs too goes on along two ways: not swept yet.
                 zones = self.joint_zones[k]
-                if outer or any(l.kind not in AXIAL for l in self.joint_links[k]):
+                if not self.sweep:
+                    base.update(approach="held")
+                    self._after_sweep(k, base, None, unit, conns, outer)
+                elif outer or any(l.kind not in AXIAL for l in self.joint_links[k]):
                     base.update(approach="joint")
                     self._after_sweep(k, base, None, unit, conns, outer)
                 else:
-                    self._after_sweep(k, base, sweep_joint(self.scene, structure, world, zones,
-                                                           config.max_penetration_ldu), unit, conns, outer)
+                    built = sweep_joint(self.scene, structure, world, zones, config.max_penetration_ldu)
+                    if built.buildable is False and self._threaded(k, built.blocked_by):
+                        built = replace(built, buildable=True, reason="threaded")
+                    self._after_sweep(k, base, built, unit, conns, outer)
+                continue
+            if outer and not self.sweep:
+                base.update(approach="held")
+                self._after_sweep(k, base, None, unit, conns, outer)
                 continue
             if outer and self.backend == "jax":
                 # Swept later, with every call's candidates at once on the device (`sweep_jax`).
@@ -351,6 +380,11 @@ class _Call:
             self.verdicts[k] = None
         self.pending = []
 
+
+AXLE_LINE_LDU = 2 * NEAR_LDU
+"""How far apart two joints on one axle may lie across it (`_Call._threaded`): each lies within
+`unmodelled.NEAR_LDU` of the axle's line (the Gearbox draws its axles 2 LDU above the holes they go
+through); the holes of a beam are 20 LDU apart."""
 
 AXIAL = ("technic-pin", "technic-axle", "wheel-pin")
 """Joint kinds a part goes onto along the joint's axis (`sweep.sweep_joint`)."""

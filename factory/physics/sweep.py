@@ -352,7 +352,10 @@ def sweep_joint(scene: CollisionScene, structure: Structure, unit: Sequence[tupl
         if way.buildable:
             return way
         found.append(way)
-    return min(found, key=lambda w: w.at_ldu)
+    # Blocked both ways: the nearer blocking, with what blocks each way (`check_call._Call._threaded`
+    # asks whether an axle goes through all of them).
+    near = min(found, key=lambda w: w.at_ldu)
+    return replace(near, blocked_by=tuple(sorted({b for w in found for b in w.blocked_by})))
 
 
 def _along(scene, structure, unit, connected, d, tol, step_ldu, reach: float | None = None,
