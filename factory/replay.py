@@ -6,10 +6,11 @@ and the physics records of the design dataset source (`pipelines.dataset.sources
 Each placed part is checked against the parts placed before it in the same sub-assembly (the first
 part of a sub-assembly, or one laid on the table beside it, needs no connection; a part may hang
 from another part of its own step, or be held in hand until what the next step of its assembly
-places holds it, or, failing that, until the first later part that holds it is on (gears set between
-beams before the axle is pushed through them: `held_for_parts` in its record); the parts of one step go in in any order, so a part that cannot be pressed in
-under or between parts of its own step listed before it is judged going in first); a completed sub-assembly is checked as one rigid unit against
-the parts of its parent placed before it. Each sub-assembly is checked in its own frame (as its
+places holds it, or, failing that, until the first later part that holds it is on (gears set
+between beams before the axle is pushed through them: `held_for_parts` in its record); the parts
+of one step go in in any order, so a part that cannot be pressed in under or between parts of its
+own step listed before it is judged going in first); a completed sub-assembly is checked as one
+rigid unit against the parts of its parent placed before it. Each sub-assembly is checked in its own frame (as its
 author built it) and is held in hand while built: only the main model must stand on the ground,
 sub-assemblies are judged on their connections. A step that makes the main model tip on the table
 (not a part swinging on a free joint, whose verdict names the joint) is judged as held in hand too,
@@ -430,8 +431,9 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
             if along:
                 # As the parts of one step: it may rest on what goes in with it.
                 judged_on = _joined(parent, along)
-                (v,) = check_units(judged_on, [unit], backend, config, require_connection=not _on_table(judged_on, unit),
-                                   standing=standing, unit_links=done.links)
+                (v,) = check_units(judged_on, [unit], backend, config,
+                                   require_connection=not _on_table(judged_on, unit), standing=standing,
+                                   unit_links=done.links)
             v, held_in_hand = _in_hand(judged_on, unit, v, backend, config, standing, done.links)
             joints = _joint_record(judged_on, unit, v)
             yield _record(v, step=event.last_step, index=0, part=event.tag.rsplit("/", 1)[-1],

@@ -253,7 +253,8 @@ class _Call:
             for x in axles:
                 u = np.asarray(x.axis, float)
                 d = np.asarray(l.point, float) - np.asarray(x.point, float)
-                if abs(float(np.asarray(l.axis, float) @ u)) > SAME_AXIS and np.linalg.norm(d - (d @ u) * u) < AXLE_LINE_LDU:
+                parallel = abs(float(np.asarray(l.axis, float) @ u)) > SAME_AXIS
+                if parallel and np.linalg.norm(d - (d @ u) * u) < AXLE_LINE_LDU:
                     through |= {l.a, l.b} - held
         return set(blockers) <= through
 
