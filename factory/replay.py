@@ -207,6 +207,11 @@ def _on_table(structure: Structure, unit: list[Placed]) -> bool:
     return Structure(list(unit)).floor_y() >= structure.floor_y() - 4.0
 
 
+REPLAY_CONFIG = CheckConfig(threaded=True)
+"""The checks' thresholds for a replay: the defaults, with parts threaded onto axles
+(`CheckConfig.threaded`): people's designs put an axle through beams before the bushes and gears
+between them."""
+
 MAX_VERIFY_PARTS = 400
 """Most parts a model may place for `verify_model`, refused up front (counted before its steps are
 expanded): each part is checked against all placed before it, so the time grows about as the square
@@ -346,7 +351,7 @@ def _seat_record(seated: float | None) -> dict:
     return {} if seated is None else {"seated_ldu": round(seated, 3)}
 
 
-def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConfig = CheckConfig(),
+def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConfig = REPLAY_CONFIG,
                  faults: bool = False):
     """Yield one record per placed part and per sub-assembly attachment, in build order; return
     the finished main model's structure (None where the main model places nothing).
@@ -570,7 +575,7 @@ class Verification:
         return {"model": self.model, "summary": self.summary, "records": list(self.records)}
 
 
-def verify(model_path, ldraw=None, backend: str = "cpu", faults: bool = False, config: CheckConfig = CheckConfig(),
+def verify(model_path, ldraw=None, backend: str = "cpu", faults: bool = False, config: CheckConfig = REPLAY_CONFIG,
            on_record: Callable[[dict], None] | None = None) -> Verification:
     """Replay a design through the physics checks (`verify_model`): its `Verification`.
     `on_record` sees each record as it is made (a long replay's progress)."""
@@ -588,7 +593,7 @@ def verify(model_path, ldraw=None, backend: str = "cpu", faults: bool = False, c
     return Verification(str(model_path), tuple(records), stands(finished, backend, config))
 
 
-def stands(structure: Structure | None, backend: str = "cpu", config: CheckConfig = CheckConfig()) -> bool | None:
+def stands(structure: Structure | None, backend: str = "cpu", config: CheckConfig = REPLAY_CONFIG) -> bool | None:
     """Whether a finished model stands on the table: its last part judged again on the rest, by
     the loads alone (it neither tips nor overloads a connection); None for no parts."""
     if structure is None or not len(structure):

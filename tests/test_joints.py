@@ -619,17 +619,22 @@ def held_on(structure, placed):
 def test_a_bush_is_threaded_onto_an_axle_between_the_bricks_it_goes_through(at):
     """A bush (3713) on an axle between two Technic bricks 1x4 (3701) that the axle goes through
     cannot slide on from either end, but a builder threads it on as the axle goes in (the
-    Gearbox's bushes and gears between its Technic bricks): accepted, its approach 'threaded'.
-    With a plain brick (3010) at the axle's end instead, which the axle does not go through,
-    nothing threads it: blocked."""
+    Gearbox's bushes and gears between its Technic bricks): a replay (`CheckConfig.threaded`)
+    accepts it, its approach 'threaded'; the sampler's checks, whose steps must go straight in,
+    do not. With a plain brick (3010) at the axle's end instead, which the axle does not go
+    through, nothing threads it: blocked."""
+    from factory.replay import REPLAY_CONFIG
+
     bush = at("3713", 0, -14, 0)
     through = Structure([at("3031", 0, 0, 0)])
     for brick in (at("3701", 0, -24, -30), at("3701", 0, -24, 30), at("3707", 0, -14, 0, ALONG_Z)):
         held_on(through, brick)
-    (v,) = check_units(through, [[bush]], "cpu", standing=False)
+    (v,) = check_units(through, [[bush]], "cpu", REPLAY_CONFIG, standing=False)
     assert v.ok and v.approach == "threaded" and [(l.kind, l.b) for l in v.joints] == [("technic-axle", 3)], v
+    (v,) = check_units(through, [[bush]], "cpu", standing=False)
+    assert v.reason == "blocked" and set(v.blocked_by) == {1, 2}, v
     ends = Structure([at("3031", 0, 0, 0)])
     for brick in (at("3701", 0, -24, -30), at("3010", 0, -24, 30), at("4519", 0, -14, -10, ALONG_Z)):
         held_on(ends, brick)
-    (v,) = check_units(ends, [[bush]], "cpu", standing=False)
+    (v,) = check_units(ends, [[bush]], "cpu", REPLAY_CONFIG, standing=False)
     assert v.reason == "blocked" and set(v.blocked_by) == {1, 2}, v

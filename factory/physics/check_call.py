@@ -325,7 +325,7 @@ class _Call:
                     self._after_sweep(k, base, None, unit, conns, outer)
                 else:
                     built = sweep_joint(self.scene, structure, world, zones, config.max_penetration_ldu)
-                    if built.buildable is False and self._threaded(k, built.blocked_by):
+                    if built.buildable is False and config.threaded and self._threaded(k, built.blocked_by):
                         built = replace(built, buildable=True, reason="threaded")
                     self._after_sweep(k, base, built, unit, conns, outer)
                 continue

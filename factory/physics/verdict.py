@@ -18,6 +18,12 @@ class CheckConfig:
     """Deepest overlap accepted (LDU); the collision pieces are inset by half of it each."""
     loads: LoadConfig = field(default_factory=LoadConfig)
     """The whole-structure load model's constants (clutch per stud, shear, ground friction)."""
+    threaded: bool = False
+    """Whether a part on an axle that is blocked both ways along it only by parts that axle goes
+    through is accepted as threaded on (`approach` 'threaded'): a builder pulls the axle back,
+    threads the bush or gear on and pushes the axle in again. Replays of people's designs
+    (`factory.replay.REPLAY_CONFIG`) turn it on; the sampler leaves it off, so that every
+    synthetic step goes straight in."""
 
 
 @dataclass(frozen=True)
