@@ -406,14 +406,19 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
 
     next_step: dict[int, list[Placed]] = {}
     """Per step: what the next STEP block of its assembly's file places (`in_block`)."""
-    later_steps: dict[int, list[Placed]] = {}
-    """Per step: what every later STEP block of its assembly's file places, in order."""
+    later_blocks: dict[int, list[int]] = {}
+    """Per step: the later STEP blocks of its assembly's file, in order (`later_parts`)."""
     for step in steps:
         later = [t.block for t in steps if t.assembly == step.assembly and t.block > step.block]
         later += [b for t, b in blocks.items() if t in finished and parent_of(t) == step.assembly and b > step.block]
         if later:
             next_step[id(step)] = in_block(step.assembly, min(later))
-            later_steps[id(step)] = [q for b in sorted(set(later)) for q in in_block(step.assembly, b)]
+            later_blocks[id(step)] = sorted(set(later))
+
+    def later_parts(step) -> list[Placed]:
+        """What every later STEP block of `step`'s assembly places, in order: asked only for a
+        part that nothing holds yet (`_held_until`)."""
+        return [q for b in later_blocks.get(id(step), []) for q in in_block(step.assembly, b)]
 
     structures: dict[str, Structure] = {}
     """The parts placed so far in every open assembly, in its own frame, with their rigid links."""
@@ -497,7 +502,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
             if v.reason in WAITS_FOR_LATER:
                 # Held in hand until a later step puts on the part that holds it (gears set between
                 # beams, then the axle pushed through them), with what comes on before it.
-                until = _held_until(judged_on, local, later_steps.get(id(step), []))
+                until = _held_until(judged_on, local, later_parts(step))
                 if until is not None:
                     # Its way in is its holder's: the holder, pushed in later, is swept through it.
                     (w,) = check_units(until[0], [[local]], backend, config, standing=standing, sweep=False)

@@ -198,7 +198,6 @@ def check(
     colour: int = 16,
     floor_y: float | None = None,
     explain: bool = True,
-    sweep: bool = True,
 ) -> list[Verdict]:
     """Check one part type at many candidate poses against the structure (a batch); see
     `check_units` for the ground (`floor_y`) and `explain`."""

@@ -182,12 +182,12 @@ class _Call:
             # Gears that mesh with it: their teeth's overlap is the mesh's (`gears.meshes`), where
             # it stands and on its way in along its joints' axis.
             geared = self._meshing(unit, near) if collision or joints else set()
+            # Overlap round a joint's axis (a pin in its hole, a bar in a clip, fingers between
+            # fingers), or anywhere with a part held by its shape or a gear it meshes with, is the
+            # joint's or the mesh's.
+            zones = {**_zones(joints), **dict.fromkeys(geared)}
             mated = [c[2] for c in conns]
-            if (joints or geared) and collision:
-                # Overlap round a joint's axis (a pin in its hole, a bar in a clip, fingers between
-                # fingers), or anywhere with a part held by its shape or a gear it meshes with, is
-                # the joint's or the mesh's.
-                zones = {**_zones(joints), **{i: None for i in geared}}
+            if zones and collision:
                 depth = self._depth_round_joints(pen, pose, touched, zones)
                 if config.max_penetration_ldu < depth <= REFINE_LDU:
                     # Shallow beyond the joints (a liftarm on the pins of a motor's curved housing):
@@ -219,7 +219,7 @@ class _Call:
                 continue
             if joints:
                 self.joint_links[k] = joint_links(joints, base_n)
-                self.joint_zones[k] = {**_zones(joints), **{i: None for i in geared}}
+                self.joint_zones[k] = zones
                 base.update(connected=True, joints=tuple(joint_links(joints, 0)))
                 swing = swings(unit, joints) if not outer else None
                 if swing is not None:
@@ -311,16 +311,19 @@ class _Call:
                 continue  # not judged: its verdict stays None (`check.CheckRequest.judge_first`)
             judged += 1
             dirs = seating_from_connections(outer, self.base_n)
+            if not self.sweep:
+                # Put in place before what holds it: its holder's sweep finds the way in.
+                if outer or k in self.joint_links:
+                    base.update(approach="held")
+                self._after_sweep(k, base, None, unit, conns, outer)
+                continue
             if k in self.joint_links:
                 # Held by joints: swept in along their axis (`sweep.sweep_joint`) when held by
                 # pins, axles or wheel pins alone, which go in along it. A clip or a hinge snaps
                 # on across its bar, a minifigure joint or a part held by its shape has no axis,
                 # and a part on studs too goes on along two ways: not swept yet.
                 zones = self.joint_zones[k]
-                if not self.sweep:
-                    base.update(approach="held")
-                    self._after_sweep(k, base, None, unit, conns, outer)
-                elif outer or any(l.kind not in AXIAL for l in self.joint_links[k]):
+                if outer or any(l.kind not in AXIAL for l in self.joint_links[k]):
                     base.update(approach="joint")
                     self._after_sweep(k, base, None, unit, conns, outer)
                 else:
@@ -328,10 +331,6 @@ class _Call:
                     if built.buildable is False and config.threaded and self._threaded(k, built.blocked_by):
                         built = replace(built, buildable=True, reason="threaded")
                     self._after_sweep(k, base, built, unit, conns, outer)
-                continue
-            if outer and not self.sweep:
-                base.update(approach="held")
-                self._after_sweep(k, base, None, unit, conns, outer)
                 continue
             if outer and self.backend == "jax":
                 # Swept later, with every call's candidates at once on the device (`sweep_jax`).

@@ -392,8 +392,8 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
         if not any(on_one_axis(stretch, z, PARALLEL_DEG, BAR_AXIS_LDU) and stretch_overlap(stretch, z) > 0 for z in taken):
             out.append(_joint(kind, stretch))
     if not out and not new.sockets and not (len(_connectors(new)) and len(_connectors(placed))) \
-            and (offers_other(placed) or on_a_hub(new, new_pose, placed, placed_pose)) \
             and _box_share(new, new_pose, placed, placed_pose) >= SHAPE_SHARE \
+            and (offers_other(placed) or on_a_hub(new, new_pose, placed, placed_pose)) \
             and not (part_teeth(new) and part_teeth(placed)):
         # (Two gears share their boxes where their teeth meet: they mesh or collide, and neither
         # holds the other.)
@@ -413,12 +413,12 @@ def on_a_hub(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool
     """Whether `new` is a round part with no connectors of its own (a tyre) centred on the axis
     of one of `placed`'s connectors: a tyre on the wheel hub of a part that has studs and
     sockets too (122c01, a plate with its wheels drawn in), which `offers_other` does not see."""
-    axis = new.symmetry.continuous_axis
-    if axis is None or new.studs or new.sockets or len(part_connectors(new)):
+    if new.symmetry.continuous_axis is None or new.studs or new.sockets or len(part_connectors(new)):
         return False
-    lo, hi = new.bbox[0] @ np.asarray(axis), new.bbox[1] @ np.asarray(axis)
-    u = new_pose.R @ np.asarray(axis, float)
-    line = np.stack([new_pose.t + min(lo, hi) * u, new_pose.t + max(lo, hi) * u, u])
+    axis = np.asarray(new.symmetry.continuous_axis, float)  # through the part's origin
+    lo, hi = sorted(new.bbox @ axis)
+    u = new_pose.R @ axis
+    line = np.stack([new_pose.t + lo * u, new_pose.t + hi * u, u])
     return any(on_one_axis(s, line, PARALLEL_DEG, BAR_AXIS_LDU)
                for s in place_connectors(part_stretches(placed), placed_pose.R, placed_pose.t))
 
