@@ -16,7 +16,7 @@ sub-assemblies are judged on their connections. A step that makes the main model
 (not a part swinging on a free joint, whose verdict names the joint) is judged as held in hand too,
 as a person holds a Technic frame before its wheels are on (`held_in_hand` in its record). A part
 or sub-assembly rejected where the design draws it is judged again seated on the connection it was
-drawn within 2 LDU of (`physics.seat`: `seated_ldu` in its record), as hand-drawn CAD files set
+drawn within 3.5 LDU of (`physics.seat`: `seated_ldu` in its record), as hand-drawn CAD files set
 parts a little off the grid. A part rejected only for meeting an earlier part that was itself
 rejected while overlapping where drawn is judged without it (`drawn_wrong`: `judged_without`), so
 one drawing error counts once.
@@ -173,11 +173,15 @@ still on it."""
 
 def lands_on_a_joint(structure: Structure, part, moved: Pose, move: np.ndarray) -> bool:
     """Whether a fault's move puts the part on another real connection, so that it is no fault:
-    its pin into a hollow stud's bore (a plate or Technic brick half a stud over, its underside pin
-    in an open stud: builders offset parts so), or along the axis of a joint it slides on (an
-    antenna's bar lifted up its clip). Told by the parts' connectors
-    (`unmodelled.joints_between`), not by the checks' verdict."""
+    a socket of it on a stud or a stud of it in a socket (a Technic brick 1x2's middle socket,
+    where its long walls hold a stud, on the stud half a stud over: the Gearbox's 32064), its pin
+    into a hollow stud's bore (a plate or Technic brick half a stud over, its underside pin in an
+    open stud: builders offset parts so), or along the axis of a joint it slides on (an antenna's
+    bar lifted up its clip). Told by the parts' connectors (`stud_pairs`,
+    `unmodelled.joints_between`), not by the checks' verdict."""
     u = np.asarray(move, float) / np.linalg.norm(move)
+    if stud_pairs(structure, [Placed(part, 0, moved)]):
+        return True  # on studs there: a 1-wide Technic brick's middle socket on a stud half a stud over
     box = world_box(part, moved)
     for q in structure.placed:
         if not boxes_near(box, world_box(q.part, q.pose)):

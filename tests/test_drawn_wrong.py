@@ -37,8 +37,8 @@ def test_a_part_drawn_right_beside_one_drawn_wrong_is_accepted_once(tmp_path):
 
 
 def test_a_part_that_also_meets_a_part_drawn_right_is_still_rejected(tmp_path):
-    # It reaches 3 LDU into the brick drawn wrong and into the one drawn right before it.
-    both = f"1 14 -20 -24 37 {I3} 3003.dat"
+    # It reaches 4 LDU into the one drawn right before it (too far to seat) and into the one drawn wrong.
+    both = f"1 14 -20 -24 36 {I3} 3003.dat"
     plain = [r for r in verify_model(_design(tmp_path, *BASE, WRONG, both)) if "fault" not in r]
     assert plain[3]["reason"] == "collision" and plain[4]["reason"] == "collision"
     assert "judged_without" not in plain[4]
@@ -46,7 +46,7 @@ def test_a_part_that_also_meets_a_part_drawn_right_is_still_rejected(tmp_path):
 
 def test_a_part_drawn_wrong_is_not_excused_by_another(tmp_path):
     # A second brick drawn into the first one drawn wrong, and into the base beneath it, is rejected.
-    sunk = f"1 14 20 -21 40 {I3} 3003.dat"  # 3 LDU down: too far to seat
+    sunk = f"1 14 20 -20 40 {I3} 3003.dat"  # 4 LDU down: too far to seat
     plain = [r for r in verify_model(_design(tmp_path, *BASE, WRONG, sunk)) if "fault" not in r]
     assert plain[4]["reason"] == "collision" and "judged_without" not in plain[4]
 

@@ -12,7 +12,7 @@ import pytest
 from factory.embedded import generate_library
 from factory.ldraw.library import Library
 from factory.ldraw.reader import Reader
-from factory.parts import load_part
+from factory.parts import box_corners, load_part
 from factory.physics.check import check_units
 from factory.physics.structure import Placed, Structure
 from factory.pose import Pose
@@ -508,6 +508,13 @@ def test_a_fault_that_lands_on_another_connection_is_not_injected(at):
     square = at("3022", 10, -8, 10)
     assert not lands_on_a_joint(structure, square.part, moved(square, (-10, 0, 0)).pose, np.array([-10.0, 0, 0]))
     assert not lands_on_a_joint(structure, plate.part, moved(plate, (0, -8, 0)).pose, np.array([0, -8.0, 0]))
+    # A Technic brick 1x2 (32064a: a socket between its two, where its long walls hold a stud) on
+    # two studs of a plate, shifted half a stud, sits on one of them: no fault. A brick 1x2
+    # (3004) shifted so sits on none.
+    base = Structure([at("3020", 0, 0, 0)])
+    for name, lands in (("32064a", True), ("3004", False)):
+        brick = at(name, 20, -24, -10)
+        assert lands_on_a_joint(base, brick.part, moved(brick, (-10, 0, 0)).pose, np.array([-10.0, 0, 0])) is lands
 
 
 @needs_ldraw
@@ -622,7 +629,9 @@ def test_a_bush_is_threaded_onto_an_axle_between_the_bricks_it_goes_through(at):
     Gearbox's bushes and gears between its Technic bricks): a replay (`CheckConfig.threaded`)
     accepts it, its approach 'threaded'; the sampler's checks, whose steps must go straight in,
     do not. With a plain brick (3010) at the axle's end instead, which the axle does not go
-    through, nothing threads it: blocked."""
+    through, a builder holds the bush in the gap and pushes the axle through the Technic brick
+    into it (`sweep.held_in_place`: it reaches the gap from above, the axle left out): threaded;
+    with the gap walled in and roofed over, nothing puts it there: blocked."""
     from factory.replay import REPLAY_CONFIG
 
     bush = at("3713", 0, -14, 0)
@@ -637,4 +646,31 @@ def test_a_bush_is_threaded_onto_an_axle_between_the_bricks_it_goes_through(at):
     for brick in (at("3701", 0, -24, -30), at("3010", 0, -24, 30), at("4519", 0, -14, -10, ALONG_Z)):
         held_on(ends, brick)
     (v,) = check_units(ends, [[bush]], "cpu", REPLAY_CONFIG, standing=False)
+    assert v.ok and v.approach == "threaded", v
+    (v,) = check_units(ends, [[bush]], "cpu", standing=False)
     assert v.reason == "blocked" and set(v.blocked_by) == {1, 2}, v
+    for wall in (at("3004", -30, -24, 0, ALONG_Z), at("3004", 30, -24, 0, ALONG_Z), at("3031", 0, -32, 0)):
+        held_on(ends, wall)
+    (v,) = check_units(ends, [[bush]], "cpu", REPLAY_CONFIG, standing=False)
+    assert v.reason == "blocked" and {1, 2} <= set(v.blocked_by), v
+
+
+def test_a_bush_slides_off_the_nearer_end_of_its_axle_past_nothing_beyond_it(lib_at):
+    """A bush (3713) on an axle 6 (3706) that goes through a Technic brick 1x4 (3701) at its one
+    end cannot come on from there; from the other end it slides on, however long the axle: only
+    its way off the axle's end and a fingertip's room past it are swept
+    (`sweep._off_the_joint`), so a brick (3010) 60 LDU past that end does not block it, while one
+    20 LDU past it does."""
+    base = lib_at("3030", 0, 0, 0, ALONG_Z)
+    lo, hi = base.pose.apply(box_corners(base.part.bbox)).min(0), base.pose.apply(box_corners(base.part.bbox)).max(0)
+    assert hi[2] - lo[2] >= 200 - 1e-6, (lo, hi)  # its length along Z
+    bush = lib_at("3713", 0, -14, -50)
+    for brick_z, blocked in ((90.0, False), (50.0, True)):
+        s = Structure([base])
+        for brick in (lib_at("3701", 0, -24, -90), lib_at("3706", 0, -14, -40, ALONG_Z), lib_at("3010", 0, -24, brick_z)):
+            held_on(s, brick)
+        (v,) = check_units(s, [[bush]], "cpu", standing=False)
+        if blocked:
+            assert v.reason == "blocked" and set(v.blocked_by) == {1, 3}, v
+        else:
+            assert v.ok and [(l.kind, l.b) for l in v.joints] == [("technic-axle", 2)], v

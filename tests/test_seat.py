@@ -19,7 +19,8 @@ def _plain(records):
     return [r for r in records if "fault" not in r]
 
 
-@pytest.mark.parametrize("at, moved", [("0 -25 10", 1.0), ("1 -24 10", 1.0), ("1.2 -25.2 10", float(np.hypot(1.2, 1.2)))])
+@pytest.mark.parametrize("at, moved", [("0 -25 10", 1.0), ("1 -24 10", 1.0), ("1.2 -25.2 10", float(np.hypot(1.2, 1.2))),
+                                       ("0 -27 10", 3.0), ("2 -24 12", float(np.hypot(2.0, 2.0)))])
 def test_a_brick_drawn_off_the_studs_is_judged_on_them(tmp_path, at, moved):
     model = tmp_path / "off.ldr"
     model.write_text(f"0 Off\n1 4 0 0 0 {I3} 3001.dat\n0 STEP\n1 1 {at} {I3} 3004.dat\n0 STEP\n")

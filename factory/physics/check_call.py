@@ -17,6 +17,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 from factory.gears import meshes
+from factory.joints import part_connectors, part_stretches
+from factory.ldraw.other_connectors import place_connectors
 from factory.parts import Part
 from factory.physics.clutch import holds_alone_many
 from factory.physics.collide import CollisionScene, Penetration
@@ -27,7 +29,7 @@ from factory.physics.mass import GRAVITY, part_mass_properties
 from factory.physics.solid_overlap import REFINE_LDU, deepest_solid
 from factory.physics.statics import Failure
 from factory.physics.structure import Placed, Structure, connections_at, lowest_point
-from factory.physics.sweep import SAME_AXIS, seating_from_connections, sweep, sweep_joint
+from factory.physics.sweep import SAME_AXIS, held_in_place, seating_from_connections, sweep, sweep_joint
 from factory.physics.unmodelled import NEAR_LDU, Joint, joints_between, may_hold, zone_moved
 from factory.physics.verdict import CheckConfig, Verdict
 from factory.pose import Pose
@@ -237,14 +239,19 @@ class _Call:
         if self.backend != "jax":
             self.clutched(holds_alone_many(self.clutch_cases(), config.loads))
 
-    def _threaded(self, k: int, blockers: Sequence[int]) -> bool:
-        """Whether candidate `k`, held on an axle and blocked both ways along it, is blocked only
-        by parts that axle itself goes through: a builder threads a bush or a gear onto the axle
-        as the axle goes in, between the beams it passes (the Gearbox's bushes between its Technic
-        bricks), so the axle's own way in, judged when it was placed, is the candidate's too."""
-        axles = [l for l in self.joint_links[k] if l.kind == "technic-axle" and l.axis is not None]
-        if not axles or not blockers:
+    def _threaded(self, k: int, blockers: Sequence[int], world) -> bool:
+        """Whether candidate `k`, held on pins or an axle and blocked both ways along them, is
+        put in place before they go through it. Either the parts blocking it are all ones its
+        axle goes through (a builder threads a bush or a gear onto the axle as the axle goes in,
+        between the beams it passes: the Gearbox's bushes between its Technic bricks), or it goes
+        on them by its own holes and reaches its place from the side with those pins and axles
+        left out (`sweep.held_in_place`: a knob wheel held in mesh with another while its axle is
+        pushed through it and the beam behind). Either way the axle's or pin's own way in, judged
+        when it was placed, is the candidate's too."""
+        links = [l for l in self.joint_links[k] if l.kind in AXIAL and l.axis is not None]
+        if not links or not blockers:
             return False
+        axles = [l for l in links if l.kind == "technic-axle"]
         held = {l.b for l in axles}
         through = set()
         for l in self.structure.links:
@@ -256,7 +263,12 @@ class _Call:
                 parallel = abs(float(np.asarray(l.axis, float) @ u)) > SAME_AXIS
                 if parallel and np.linalg.norm(d - (d @ u) * u) < AXLE_LINE_LDU:
                     through |= {l.a, l.b} - held
-        return set(blockers) <= through
+        if axles and set(blockers) <= through:
+            return True
+        if not all(_on_its_hole(world[l.a - self.base_n], l) for l in links):
+            return False  # a pin or an axle of its own goes in along the axis, whatever holds it
+        return held_in_place(self.scene, self.structure, world, {l.b for l in links}, links[0].axis,
+                             self.config.max_penetration_ldu)
 
     def _meshing(self, unit: Sequence[Placed], near) -> set[int]:
         """The structure parts among `near` that are gears meshing with a gear of the unit."""
@@ -328,7 +340,7 @@ class _Call:
                     self._after_sweep(k, base, None, unit, conns, outer)
                 else:
                     built = sweep_joint(self.scene, structure, world, zones, config.max_penetration_ldu)
-                    if built.buildable is False and config.threaded and self._threaded(k, built.blocked_by):
+                    if built.buildable is False and config.threaded and self._threaded(k, built.blocked_by, world):
                         built = replace(built, buildable=True, reason="threaded")
                     self._after_sweep(k, base, built, unit, conns, outer)
                 continue
@@ -412,6 +424,19 @@ def swings(unit: Sequence[Placed], joints: dict[int, list[tuple[int, Joint]]]) -
         weight = np.array([0.0, mass_kg * GRAVITY, 0.0])  # LDraw's +y is down
         twist += float(np.cross(placed.pose.apply(com) - p, weight) @ u)
     return abs(twist) if abs(twist) > FREE_TWIST_NLDU else None
+
+
+def _on_its_hole(placed: tuple[Part, Pose], link: Link) -> bool:
+    """Whether a unit's part (world pose) meets `link`'s pin or axle with a hole of its own: a
+    female connector on the link's axis, within `AXLE_LINE_LDU` of its line."""
+    part, pose = placed
+    u = np.asarray(link.axis, float)
+    at = np.asarray(link.point, float)
+    for c, st in zip(part_connectors(part), place_connectors(part_stretches(part), pose.R, pose.t)):
+        d = st[:2].mean(0) - at
+        if c.gender == "female" and abs(float(st[2] @ u)) > SAME_AXIS and np.linalg.norm(d - (d @ u) * u) < AXLE_LINE_LDU:
+            return True
+    return False
 
 
 def _zones(joints: dict[int, list[tuple[int, Joint]]]) -> dict[int, np.ndarray | None]:

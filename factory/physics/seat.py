@@ -20,11 +20,13 @@ from factory.ldraw.other_connectors import place_connectors
 from factory.physics.structure import MATCH_LDU, Placed, Structure, connectors
 from factory.physics.unmodelled import boxes_near, world_box
 
-SEAT_LDU = 2.0
+SEAT_LDU = 3.5
 """How far off a connection a design's part may be drawn and still be judged seated on it. It is
 below the moves of the replay's faults (lift 8 LDU, shift 10 LDU: `replay._faults`), so a fault is
 never seated back, and below a plate's height less its studs (4 LDU), so a part is never seated
-onto a layer it was not drawn at."""
+onto a layer it was not drawn at. Drawn that near, a stud still reaches into its socket's mouth (a
+stud is 4 LDU high and 6 LDU in radius), so a press seats the part: the X-wing Mini's 1x1 plate
+drawn 3 LDU off its bracket's side stud."""
 
 PARALLEL_COS = float(np.cos(np.radians(1.0)))
 """Two joint connectors this close to parallel can be seated by a move alone (no turn)."""

@@ -66,7 +66,7 @@ from typing import Sequence
 import mujoco
 import numpy as np
 
-from factory.parts import Part
+from factory.parts import Part, box_corners
 from factory.physics.collide import NEAR_LDU, CollisionScene
 from factory.physics.geometry import INSET_LDU
 from factory.physics.solid_overlap import REFINE_LDU, deepest_solid
@@ -326,8 +326,8 @@ def sweep_joint(scene: CollisionScene, structure: Structure, unit: Sequence[tupl
                 joints: dict, max_penetration_ldu: float = 0.5, step_ldu: float = 2.0) -> SweepResult:
     """Buildability of a unit held by joints alone: it reaches its pose along the joints' shared
     axis, from either end (a pin goes into its hole, a wheel onto its axle, from the side that is
-    open), over the joint's length and `PRESS_MIN_LDU` past it, its overlap with each holder
-    round the joint's axis left out
+    open), from where it is off the joint's stretch that way and `PRESS_MIN_LDU` past it
+    (`_off_the_joint`), its overlap with each holder round the joint's axis left out
     (`joints`: holder -> (stretches (k, 3, 3), radii), as `CollisionScene.penetration` takes them;
     None: all its overlap left out, a gear it meshes with, whose teeth it slides along).
     Not judged (None, 'two-axes') where the joints' axes are not parallel: a part on two joints
@@ -342,12 +342,9 @@ def sweep_joint(scene: CollisionScene, structure: Structure, unit: Sequence[tupl
         length = ((zones[:, 1] - zones[:, 0]) * u).sum(axis=1)[:, None]
         lo, hi = np.minimum(length, 0.0) - JOINT_LINE_LDU, np.maximum(length, 0.0) + JOINT_LINE_LDU
         lines[holder] = (np.stack([zones[:, 0] + lo * u, zones[:, 0] + hi * u, u], axis=1), radii)
-    # Only the joint's own length and a fingertip's room past it are swept: further out a hand
-    # brings the part in along any line (as `PRESS_MIN_LDU` for studs), and a long axle slid
-    # through a large model would ask hundreds of poses.
-    reach = max(float(np.linalg.norm(z[:, 1] - z[:, 0], axis=1).max()) for z, _ in held.values()) + PRESS_MIN_LDU
     found = []
     for d in (axes[0], -axes[0]):
+        reach = _off_the_joint(unit, held, d)
         way = _along(scene, structure, unit, set(), d, max_penetration_ldu, step_ldu, reach=reach, joints=lines)
         if way.buildable:
             return way
@@ -356,6 +353,31 @@ def sweep_joint(scene: CollisionScene, structure: Structure, unit: Sequence[tupl
     # asks whether an axle goes through all of them).
     near = min(found, key=lambda w: w.at_ldu)
     return replace(near, blocked_by=tuple(sorted({b for w in found for b in w.blocked_by})))
+
+
+def held_in_place(scene: CollisionScene, structure: Structure, unit: Sequence[tuple[Part, Pose]],
+                  through: set[int], axis, max_penetration_ldu: float = 0.5, step_ldu: float = 2.0) -> bool:
+    """Whether the unit reaches its place from clear space along one of the directions `across`
+    `axis`, with the structure parts `through` (the pins or axles that go through its holes)
+    left out: a builder holds it there and pushes them through it after (a replay's rule,
+    `CheckConfig.threaded`)."""
+    lines = {h: None for h in through}
+    for side in across(np.asarray(axis, float)):
+        if _along(scene, structure, unit, set(), side, max_penetration_ldu, step_ldu, joints=lines).buildable:
+            return True
+    return False
+
+
+def _off_the_joint(unit: Sequence[tuple[Part, Pose]], held: dict, d: np.ndarray) -> float:
+    """How far the unit backs out against `d` until it is off every joint's stretch (the part's
+    and its holder's connectors together), and `PRESS_MIN_LDU` more: only that much is swept.
+    Off the axle's end a hand brings the part in along any line (as `PRESS_MIN_LDU` for studs): a
+    bush at the middle of a long axle slides off the nearer end, past nothing beyond it. The
+    unit's extent along the axis is its boxes' (an upper bound of its connectors')."""
+    back = -np.asarray(d, float)
+    trailing = min(float((pose.apply(box_corners(part.bbox)) @ back).min()) for part, pose in unit)
+    far = max(float((z[:, :2] @ back).max()) for z, _ in held.values())
+    return max(far - trailing, 0.0) + PRESS_MIN_LDU
 
 
 def _along(scene, structure, unit, connected, d, tol, step_ldu, reach: float | None = None,

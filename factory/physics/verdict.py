@@ -19,9 +19,11 @@ class CheckConfig:
     loads: LoadConfig = field(default_factory=LoadConfig)
     """The whole-structure load model's constants (clutch per stud, shear, ground friction)."""
     threaded: bool = False
-    """Whether a part on an axle that is blocked both ways along it only by parts that axle goes
-    through is accepted as threaded on (`approach` 'threaded'): a builder pulls the axle back,
-    threads the bush or gear on and pushes the axle in again. Replays of people's designs
+    """Whether a part on an axle or pins that is blocked both ways along them is accepted as
+    threaded on (`approach` 'threaded') where only parts its axle goes through block it, or where
+    it goes on by its own holes and reaches its place from the side with those pins and axles left
+    out: a builder pulls the axle back, threads the bush or gear on (or holds the part in place)
+    and pushes the axle or pin in again. Replays of people's designs
     (`factory.replay.REPLAY_CONFIG`) turn it on; the sampler leaves it off, so that every
     synthetic step goes straight in."""
 
