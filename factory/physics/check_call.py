@@ -17,7 +17,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from factory.gears import meshes
-from factory.joints import part_connectors, part_stretches
+from factory.joints import on_one_axis, part_connectors, part_stretches
 from factory.ldraw.other_connectors import place_connectors
 from factory.parts import Part
 from factory.physics.clutch import holds_alone_many
@@ -428,15 +428,15 @@ def swings(unit: Sequence[Placed], joints: dict[int, list[tuple[int, Joint]]]) -
 
 def _on_its_hole(placed: tuple[Part, Pose], link: Link) -> bool:
     """Whether a unit's part (world pose) meets `link`'s pin or axle with a hole of its own: a
-    female connector on the link's axis, within `AXLE_LINE_LDU` of its line."""
+    female connector on the link's axis (`joints.on_one_axis`), within `AXLE_LINE_LDU` of its line."""
     part, pose = placed
-    u = np.asarray(link.axis, float)
-    at = np.asarray(link.point, float)
-    for c, st in zip(part_connectors(part), place_connectors(part_stretches(part), pose.R, pose.t)):
-        d = st[:2].mean(0) - at
-        if c.gender == "female" and abs(float(st[2] @ u)) > SAME_AXIS and np.linalg.norm(d - (d @ u) * u) < AXLE_LINE_LDU:
-            return True
-    return False
+    line = np.array([link.point, np.add(link.point, link.axis), link.axis], float)
+    return any(c.gender == "female" and on_one_axis(st, line, SAME_AXIS_DEG, AXLE_LINE_LDU)
+               for c, st in zip(part_connectors(part), place_connectors(part_stretches(part), pose.R, pose.t)))
+
+
+SAME_AXIS_DEG = float(np.degrees(np.arccos(SAME_AXIS)))
+"""`SAME_AXIS` as an angle, for `joints.on_one_axis`."""
 
 
 def _zones(joints: dict[int, list[tuple[int, Joint]]]) -> dict[int, np.ndarray | None]:
