@@ -22,8 +22,10 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
+
 from factory.physics.check import Verdict, check_units
-from factory.physics.structure import Placed, Structure
+from factory.physics.structure import Placed, Structure, connectors
 from factory.physics.unmodelled import boxes_near, world_box
 
 WRONG = "collision"
@@ -69,3 +71,53 @@ def judged_past(structure: Structure, wrong: set[int], unit: list[Placed], v: Ve
     if not w.ok:
         return v, []
     return _renumbered(w, keep), sorted(drop)
+
+
+OFF_GRID_ACROSS_LDU = (1.0, 10.5)
+"""Offsets across a stud's axis (LDU) `off_grid_ldu` counts: more than a fit's play, and up to
+half a stud pitch (a stud that far from every socket stands under the part's walls or tubes)."""
+
+OFF_GRID_ALONG_LDU = 3.5
+"""How far along its axis a stud may be from a socket's plane and still be pushed into the part
+(`seat.SEAT_LDU`: a stud is 4 LDU high)."""
+
+
+def off_grid_ldu(structure: Structure, unit: list[Placed]) -> float | None:
+    """How far off the stud grid a design draws a unit: of the studs of `structure` that reach
+    into a socket plane of the unit (and of the unit's studs into the structure's), the largest
+    distance across the axis to the nearest socket of that plane, where it lies between a fit's
+    play and half a stud pitch (`OFF_GRID_ACROSS_LDU`); None where no stud is so placed. A wedge
+    plate drawn 5 LDU along from the studs under it, or a plate half a stud across from a Technic
+    brick's studs, is a drawing no real part can take: a diagnosis for a rejected part, not a
+    verdict (`replay` records it as `off_grid_ldu`)."""
+    lo, hi = OFF_GRID_ACROSS_LDU
+    worst = None
+    for which, theirs in (("sockets", "studs"), ("studs", "sockets")):
+        pos, axis, _ = getattr(structure, theirs)
+        if not len(pos):
+            continue
+        tree = structure.tree(theirs)
+        for placed in unit:
+            cp, ca = connectors(placed.part, placed.pose, which)
+            if not len(cp):
+                continue
+            if which == "sockets":  # the structure's studs against the unit's sockets
+                near = sorted({j for js in tree.query_ball_point(cp, hi + OFF_GRID_ALONG_LDU) for j in js})
+                studs_p, studs_a, socks_p, socks_a = pos[near], axis[near], cp, ca
+            else:  # the unit's studs against the structure's sockets
+                near = sorted({j for js in tree.query_ball_point(cp, hi + OFF_GRID_ALONG_LDU) for j in js})
+                studs_p, studs_a, socks_p, socks_a = cp, ca, pos[near], axis[near]
+            for p, a in zip(studs_p, studs_a):
+                same = socks_a @ a > 0.999
+                if not same.any():
+                    continue
+                d = p - socks_p[same]
+                along = d @ a
+                across = np.linalg.norm(d - along[:, None] * a, axis=1)
+                plane = np.abs(along) <= OFF_GRID_ALONG_LDU
+                if not plane.any():
+                    continue
+                nearest = float(across[plane].min())
+                if lo < nearest <= hi and (worst is None or nearest > worst):
+                    worst = nearest
+    return None if worst is None else round(worst, 3)

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factory.drawn_wrong import judged_past
+from factory.drawn_wrong import judged_past, off_grid_ldu
 from factory.errors import LDrawError, LDrawLimitError
 from factory.ldraw import NO_PARTS, build_steps, get_reader
 from factory.ldraw.model import count_parts
@@ -355,6 +355,15 @@ def _seat_record(seated: float | None) -> dict:
     return {} if seated is None else {"seated_ldu": round(seated, 3)}
 
 
+def _off_grid_record(structure: Structure, unit: list[Placed], v: Verdict) -> dict:
+    """A rejected record's `off_grid_ldu` (`drawn_wrong.off_grid_ldu`): the design draws the part
+    that far off the stud grid of the parts it meets, so no real part goes there."""
+    if v.ok or v.reason == "unsupported-connection":
+        return {}
+    off = off_grid_ldu(structure, unit)
+    return {} if off is None else {"off_grid_ldu": off}
+
+
 def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConfig = REPLAY_CONFIG,
                  faults: bool = False):
     """Yield one record per placed part and per sub-assembly attachment, in build order; return
@@ -453,7 +462,7 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
             yield _record(v, step=event.last_step, index=0, part=event.tag.rsplit("/", 1)[-1],
                           color=unit[0].colour, unit=True, assembly=event.tag,
                           stud_pairs=stud_pairs(judged_on, unit), **({"held_in_hand": True} if held_in_hand else {}),
-                          **_seat_record(seated), **joints)
+                          **_seat_record(seated), **_off_grid_record(judged_on, unit, v), **joints)
             wrong.setdefault(event.parent, set()).update(len(parent) + i for i in wrong.pop(event.tag, ()))
             if event.tag in flexible:
                 # A chain's links or a hose's segments bend aside for the parts they hook on or
@@ -530,7 +539,8 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                           stud_pairs=stud_pairs(judged_on, [local]), **({"first_in_step": True} if first else {}),
                           **({"held_in_hand": True} if held_in_hand else {}), **_seat_record(seated),
                           **({"judged_without": past} if past else {}),
-                          **({"held_for_parts": waited} if waited else {}), **joints)
+                          **({"held_for_parts": waited} if waited else {}), **_off_grid_record(judged_on, [local], v),
+                          **joints)
             if faults and v.ok and v.connections:
                 # Faults move the part off the connections it was accepted on: those of the
                 # structure it was judged against (with the later parts of its step, if it hangs).
@@ -646,6 +656,9 @@ def summarize(records: list[dict]) -> dict:
         "stud_accepted": sum(r["reason"] is None for r in studded),
         "stud_fidelity": (sum(r["reason"] is None for r in studded) / len(studded)) if studded else None,
         "rejections": dict(Counter(r["reason"] for r in judged if r["reason"])),
+        # Of those, the ones the design draws off the stud grid of the parts they meet
+        # (`drawn_wrong.off_grid_ldu`): no real part goes where they are drawn.
+        "off_grid": sum(r["reason"] is not None and "off_grid_ldu" in r for r in judged),
         # Steps a person built in this order that the sweep finds unbuildable, and those whose
         # approach was not judged (connections on two axes).
         "not_buildable": sum(r.get("buildable") is False for r in judged),

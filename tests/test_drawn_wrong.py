@@ -96,3 +96,21 @@ def test_a_part_meeting_only_a_flexible_element_is_judged_without_it(tmp_path):
         assert records[4]["reason"] == "no-connection" and not records[4]["collision"]
     assert rigid[5]["reason"] == "collision" and rigid[5]["max_penetration_ldu"] > 4.0
     assert flexible[5]["reason"] is None and flexible[5]["judged_without"] == [3]
+
+
+def test_a_part_drawn_off_the_stud_grid_is_named_so(tmp_path):
+    # The WRONG brick stands 3 LDU along and 3 across off the studs under it (4.2 LDU): too far to
+    # seat, and no real brick goes there. A 1x2 plate half a stud across from the studs under it
+    # (its long walls on them) is off by 10 LDU; one on the grid but sunk 5 LDU into the bricks is
+    # drawn wrong, not off the grid.
+    plain = [r for r in verify_model(_design(tmp_path, *BASE, WRONG)) if "fault" not in r]
+    assert plain[3]["reason"] == "collision" and abs(plain[3]["off_grid_ldu"] - 18 ** 0.5) < 0.01
+    assert all("off_grid_ldu" not in r for r in plain[:3])  # accepted: never named
+
+    across = f"1 2 0 -8 0 {I3} 3023.dat"  # 1x2 plate along x, its long walls on the rows of studs at z = -10 and 10
+    plain = [r for r in verify_model(_design(tmp_path, BASE[0], across)) if "fault" not in r]
+    assert plain[-1]["reason"] == "collision" and plain[-1]["off_grid_ldu"] == 10.0
+
+    sunk = f"1 2 0 -3 10 {I3} 3023.dat"  # on the grid, 5 LDU into the bricks: drawn wrong, not off the grid
+    plain = [r for r in verify_model(_design(tmp_path, BASE[0], sunk)) if "fault" not in r]
+    assert plain[-1]["reason"] == "collision" and "off_grid_ldu" not in plain[-1]
