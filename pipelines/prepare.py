@@ -34,7 +34,7 @@ from pipelines import workers
 PACKED = ("coacd", "sockets", "symmetry", "hulls", "outlines")
 """Cache folders of per-part entries (`factory.cache`); the JAX kernels are not packed (they run
 code, and they are compiled for one machine)."""
-_ENTRY = re.compile(r"^(coacd|sockets|symmetry|hulls|outlines)/[0-9a-f]{16,64}\.(npz|npy|json)$")
+_ENTRY = re.compile(r"^(coacd|sockets|symmetry|hulls|outlines)/[0-9a-f]{16,64}(\.npz|\.npy|\.json|\.slow\.json)$")
 MAX_ENTRY_BYTES = 64 << 20
 """An entry larger than this is refused when unpacking (the largest decomposition is under 1 MB)."""
 
@@ -147,7 +147,7 @@ def unpack(path: str | Path) -> int:
         for info in infos:
             if not _ENTRY.match(info.filename) or info.file_size > MAX_ENTRY_BYTES:
                 raise ValueError(f"{path}: member {info.filename!r} is not a cache entry written by `pack` "
-                                 f"(expected {'/, '.join(PACKED)}/ and a hex name ending .npz, .npy or .json, "
+                                 f"(expected {'/, '.join(PACKED)}/ and a hex name ending .npz, .npy, .json or .slow.json, "
                                  f"at most {MAX_ENTRY_BYTES >> 20} MB); nothing was unpacked")
         added = 0
         for info in infos:

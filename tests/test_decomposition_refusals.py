@@ -25,7 +25,7 @@ def test_a_refused_decomposition_is_kept_and_not_tried_again_under_the_same_limi
     monkeypatch.setattr(decompose, "_faithful_pieces", lambda part, cfg: None)  # the way to coacd
     part = lambda: load_part(Reader(Library.embedded()), "3001")  # noqa: E731 (a fresh part: nothing in memory)
     first = geometry.collision_shape(part())
-    (kept,) = (tmp_path / "coacd").glob("*.json")
+    (kept,) = (p for p in (tmp_path / "coacd").glob("*.json") if not p.name.endswith(".slow.json"))
     assert "more than 0.05 s" in json.loads(kept.read_text())["message"]
     # The hull's pieces: inside the brick's box, filling it but for its open underside.
     lo, hi = np.array([-40.0, -0.01, -20.0]), np.array([40.0, 24.01, 20.0])
@@ -130,11 +130,13 @@ def test_a_refusal_kept_before_the_coarser_try_existed_is_tried_again(monkeypatc
     monkeypatch.setattr(decompose, "_faithful_pieces", lambda part, cfg: None)  # the way to coacd
     part = lambda: load_part(Reader(Library.embedded()), "3001")  # noqa: E731
     geometry.collision_shape(part())
-    (kept,) = (tmp_path / "coacd").glob("*.json")
+    (kept,) = (p for p in (tmp_path / "coacd").glob("*.json") if not p.name.endswith(".slow.json"))
     record = json.loads(kept.read_text())
     assert record["coarse"] == decompose.COARSE and record["message"].startswith("decomposing")  # no file before
     del record["coarse"]  # as a refusal was kept before the second try existed
     kept.write_text(json.dumps(record))
+    for marker in (tmp_path / "coacd").glob("*.slow.json"):  # nor was a first try's end kept then
+        marker.unlink()
     tried = []
     real = decompose._decompose
     monkeypatch.setattr(decompose, "_decompose", lambda *a, **k: tried.append(1) or real(*a, **k))
@@ -186,3 +188,51 @@ def test_two_processes_needing_one_part_decompose_it_once(tmp_path):
     assert all(p.returncode == 0 for p in procs), [err for _, err in outs]
     assert outs[0][0] == outs[1][0] and int(outs[0][0]) > 0  # the same pieces
     assert count.read_text().splitlines() == ["coacd"] * 2  # one process's two tries, not four
+
+
+def test_a_run_cut_during_the_coarser_try_resumes_at_it(monkeypatch, tmp_path):
+    """A part whose first try runs past its limit and whose coarser try is then cut (a lent
+    machine's run ends; LDraw's 23421, 18976 and 44292 were cut so at every call of a library's
+    preparation, each starting again at the first try) resumes at the coarser try, with the pieces
+    an uncut run gives. A wider limit tries the first again."""
+    import numpy as np
+
+    from factory.ldraw import Library, Reader
+    from factory.parts import load_part
+    from factory.physics import decompose, geometry
+
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path / "cut"))
+    monkeypatch.setattr(decompose, "_faithful_pieces", lambda part, cfg: None)  # the way to coacd
+    real, tried = decompose._decompose, []
+
+    def slow_at_defaults(vertices, faces, cfg, name="", cut=False):
+        coarse = cfg.preprocess_resolution == decompose.COARSE["preprocess_resolution"]
+        tried.append("coarse" if coarse else "first")
+        if not coarse:
+            raise decompose.DecompositionTooSlow(f"decomposing {name} took more than 300 s", name)
+        if cut:
+            raise KeyboardInterrupt  # the run is stopped here
+        return real(vertices, faces, cfg, name)
+
+    part = lambda: load_part(Reader(Library.embedded()), "3001")  # noqa: E731 (a fresh part: nothing in memory)
+    monkeypatch.setattr(decompose, "_decompose", lambda *a: slow_at_defaults(*a, cut=True))
+    with pytest.raises(KeyboardInterrupt):
+        geometry.collision_shape(part())
+    assert tried == ["first", "coarse"]
+    monkeypatch.setattr(decompose, "_decompose", slow_at_defaults)
+    resumed = geometry.collision_shape(part())
+    assert tried == ["first", "coarse", "coarse"] and resumed.body
+
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path / "whole"))  # the same part, never cut
+    whole = geometry.collision_shape(part())
+    assert tried[3:] == ["first", "coarse"]
+    assert len(whole.body) == len(resumed.body) and all(np.array_equal(a, b) for a, b in zip(whole.body, resumed.body))
+
+    monkeypatch.setenv("BRICK_FACTORY_CACHE", str(tmp_path / "wider"))
+    monkeypatch.setattr(decompose, "_decompose", lambda *a: slow_at_defaults(*a, cut=True))
+    with pytest.raises(KeyboardInterrupt):
+        geometry.collision_shape(part())
+    monkeypatch.setenv("BRICK_FACTORY_COACD_SECONDS", "600")  # wider than the first try ran under
+    monkeypatch.setattr(decompose, "_decompose", slow_at_defaults)
+    geometry.collision_shape(part())
+    assert tried[5:] == ["first", "coarse", "first", "coarse"]

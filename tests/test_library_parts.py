@@ -70,14 +70,18 @@ def test_a_prepared_cache_travels_as_one_file_and_a_foreign_member_is_refused(tm
     library = write_library(tmp_path / "lib")
     statuses = survey(str(library), ["3001", "3023", "6141"], prepare=True)
     assert [s.reason for s in statuses] == [None, None, None]
+    # a first try's end kept for a run cut during the second (`decompose._remember_slow`) travels too
+    (src / "coacd" / "0123456789abcdef.slow.json").write_text("{}")
     n = pack(tmp_path / "cache.zip")
     names = zipfile.ZipFile(tmp_path / "cache.zip").namelist()
     assert n == len(names) and {m.split("/")[0] for m in names} >= {"coacd", "sockets", "symmetry", "hulls"}
+    assert "coacd/0123456789abcdef.slow.json" in names
     monkeypatch.setenv("BRICK_FACTORY_CACHE", str(dst))
     assert unpack(tmp_path / "cache.zip") == n and unpack(tmp_path / "cache.zip") == 0  # kept, not rewritten
     for m in names:
         assert (dst / m).read_bytes() == (src / m).read_bytes()
-    for bad in ("../evil.json", "jax/0123456789abcdef.bin", "coacd/not-hex.npz", "/abs/0123456789abcdef.npz"):
+    for bad in ("../evil.json", "jax/0123456789abcdef.bin", "coacd/not-hex.npz", "/abs/0123456789abcdef.npz",
+                "coacd/0123456789abcdef.evil.json"):
         with zipfile.ZipFile(tmp_path / "bad.zip", "w") as z:
             z.writestr("coacd/0123456789abcdef.npz", b"x")
             z.writestr(bad, b"x")

@@ -260,8 +260,11 @@ def _save(path: Path, body: list[np.ndarray], inset: float) -> None:
     keep(path, buf.getvalue())
 
 
-def _decomposed(part: Part, verts: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig) -> list[np.ndarray]:
-    """The body's inset pieces (faithful hull, faces-cut pieces, else snapped coacd pieces)."""
+def _decomposed(part: Part, verts: np.ndarray, faces: np.ndarray, cfg: DecompositionConfig,
+                raw_key: str | None = None) -> list[np.ndarray]:
+    """The body's inset pieces (faithful hull, faces-cut pieces, else snapped coacd pieces). With
+    `raw_key`, a first try that ran past its time limit is kept (`_remember_slow`), so a run cut
+    during the coarser second try resumes at that try, not at the first."""
     faithful = _faithful_pieces(part, cfg) if len(faces) else []
     if faithful is not None:
         return [p for p in (inset_hull(r, cfg.inset_ldu) for r in faithful) if p is not None]
@@ -269,13 +272,20 @@ def _decomposed(part: Part, verts: np.ndarray, faces: np.ndarray, cfg: Decomposi
     # Rebuild each piece as the hull of the part's own vertices it holds (within a snap
     # distance): pieces then follow the real surface.
     name = getattr(part, "file", None) or part.name
-    try:
-        raw = _decompose(verts, faces, cfg, name)
-    except DecompositionTooSlow as slow:
+    slow = _slow_before(raw_key) if raw_key else None
+    raw = None
+    if slow is None:
+        try:
+            raw = _decompose(verts, faces, cfg, name)
+        except DecompositionTooSlow as exc:
+            slow = exc.message
+            if raw_key:
+                _remember_slow(raw_key, exc)
+    if raw is None:
         try:
             raw = _decompose(verts, faces, replace(cfg, **COARSE), name)
         except LDrawLimitError as again:
-            raise DecompositionRefused(f"{slow.message}; again at coarser settings: {again.message}", slow.file) from None
+            raise DecompositionRefused(f"{slow}; again at coarser settings: {again.message}", name) from None
     pieces = (_snap(r, verts, cfg.snap_ldu) for r in raw)
     return [p for p in (inset_hull(r, cfg.inset_ldu) for r in pieces if r is not None) if p is not None]
 
@@ -289,7 +299,7 @@ def decomposed_or_refused(part: Part, verts: np.ndarray, faces: np.ndarray, cfg:
     except DecompositionRefused:
         return None
     try:
-        raw = (_decomposed(part, verts, faces, cfg), cfg.inset_ldu)
+        raw = (_decomposed(part, verts, faces, cfg, raw_key), cfg.inset_ldu)
     except DecompositionRefused as exc:
         _remember_refusal(raw_key, exc)
         return None
@@ -306,6 +316,31 @@ def _remember_refusal(raw_key: str, exc: LDrawLimitError) -> None:
     up at once instead of spending them again (a part that took more than 300 s, every run)."""
     keep(_refusal_path(raw_key), json.dumps({"seconds": coacd_seconds(), "clock": "cpu", "memory": COACD_MEMORY_BYTES,
                                              "coarse": COARSE, "message": exc.message}).encode())
+
+
+def _slow_path(raw_key: str) -> Path:
+    return cache_dir() / f"{raw_key}.slow.json"
+
+
+def _remember_slow(raw_key: str, exc: LDrawLimitError) -> None:
+    """Keep that a decomposition's first try ran past its time limit, with the limits it ran
+    under: preparing a library is cut at any moment (a lent machine's time runs out), and a part
+    whose two tries together take longer than a run would otherwise start again from the first."""
+    keep(_slow_path(raw_key), json.dumps({"seconds": coacd_seconds(), "clock": "cpu", "memory": COACD_MEMORY_BYTES,
+                                          "message": exc.message}).encode())
+
+
+def _slow_before(raw_key: str) -> str | None:
+    """The kept message of a first try that ran past limits at least as wide as today's (as
+    `_refused_before`), else None: a larger `BRICK_FACTORY_COACD_SECONDS` tries it again."""
+    try:
+        kept_ = json.loads(_slow_path(raw_key).read_bytes())
+        if float(kept_["seconds"]) >= coacd_seconds() and int(kept_["memory"]) >= COACD_MEMORY_BYTES \
+                and kept_.get("clock") == "cpu":
+            return str(kept_["message"])
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return None
 
 
 def _refused_before(raw_key: str, file) -> None:
