@@ -120,9 +120,12 @@ def _flat_record(reason: str = NO_VOLUME, **extra) -> dict:
                            max_penetration_ldu=0.0, reason=reason), **extra)
 
 
-def _faults(structure, local: Placed, backend, config, standing, step, index, finished=None):
+def _faults(structure, local: Placed, backend, config, standing, step, index, finished=None, joint_axes=()):
     # Faults follow the part's connection: 'up' is away from the studs it sits on (or hangs from),
-    # 'sideways' is across that axis, 'turn' is about it through the part's origin.
+    # 'sideways' is across that axis, 'turn' is about it through the part's origin. A part held by
+    # joints alone (`joint_axes`: a beam on its pins, a wheel on its axle) gets the shift only,
+    # across the first joint's axis: along it pins and axles slide part way in and out, and about
+    # it pins and wheels turn, so neither moves it off its connection.
     axes = []
     sp, sa, _ = structure.studs
     kp, ka, _ = structure.sockets
@@ -133,11 +136,16 @@ def _faults(structure, local: Placed, backend, config, standing, step, index, fi
     cp, ca = connectors(local.part, local.pose, "studs")
     for _, j in match(cp, ca, kp, ka):
         axes.append(-ka[j])  # our stud in a structure socket above: away = against its axis
+    by_joints = not axes
+    if by_joints:
+        if not len(joint_axes):
+            return
+        axes = [np.asarray(joint_axes[0], float)]
     up = np.mean(axes, axis=0)
     up = up / np.linalg.norm(up)
     side = np.cross(up, [0.0, 0.0, 1.0]) if abs(up[2]) < 0.9 else np.cross(up, [1.0, 0.0, 0.0])
     side = side / np.linalg.norm(side)
-    for name in FAULTS:
+    for name in ("shift",) if by_joints else FAULTS:
         if name == "turn":
             moved = Pose(rotation_about(up, 90.0) @ local.pose.R, local.pose.t)
             if canonical_key(local.part, moved) == canonical_key(local.part, local.pose) or np.allclose(
@@ -149,7 +157,8 @@ def _faults(structure, local: Placed, backend, config, standing, step, index, fi
         else:
             move = 8.0 * up if name == "lift" else 10.0 * side
             moved = Pose(local.pose.R, local.pose.t + move)
-            if lands_on_a_joint(structure, local.part, moved, move):
+            if lands_on_a_joint(structure, local.part, moved, move) or (by_joints and _on_another_joint(
+                    structure, local.part, moved, up)):
                 continue  # not a fault: builders put parts there
         (v,) = check_units(structure, [[Placed(local.part, local.colour, moved)]], backend, config,
                            standing=standing)
@@ -194,6 +203,18 @@ def lands_on_a_joint(structure: Structure, part, moved: Pose, move: np.ndarray) 
     return False
 
 
+def _on_another_joint(structure: Structure, part, moved: Pose, axis: np.ndarray) -> bool:
+    """Whether a part held by joints, shifted across their axis, is on another joint of that
+    axis there (a Technic brick with holes half a stud apart, moved onto its next hole)."""
+    box = world_box(part, moved)
+    for q in structure.placed:
+        if boxes_near(box, world_box(q.part, q.pose)):
+            for j in joints_between(part, moved, q.part, q.pose):
+                if j.axis is not None and abs(float(np.asarray(j.axis) @ axis)) > 0.98:
+                    return True
+    return False
+
+
 def _add_unit(structure: Structure, unit: list[Placed], inner_links, verdict: Verdict) -> None:
     """Add a finished sub-assembly's parts to its parent, with its own rigid links (renumbered) and,
     if the unit is held by an unmodelled connection, a link from its first part."""
@@ -229,7 +250,8 @@ FAULTS = ("shift", "lift", "turn")
 """Injected faults: 10 LDU sideways, 8 LDU up (off its studs), a quarter turn about the stud axis
 through the part's origin (only where that changes the geometry; a shift or lift only where it
 does not land the part on another real connection: `lands_on_a_joint`). Each is checked against the
-parts placed before it; the turn also against the finished design (`TURN_FINISHED`)."""
+parts placed before it; the turn also against the finished design (`TURN_FINISHED`). A part held
+by joints alone gets the shift only, across its joint's axis (`_faults`)."""
 TURN_FINISHED = "turn-in-finished-design"
 
 
@@ -541,11 +563,12 @@ def verify_model(model_path, ldraw=None, backend: str = "cpu", config: CheckConf
                           **({"judged_without": past} if past else {}),
                           **({"held_for_parts": waited} if waited else {}), **_off_grid_record(judged_on, [local], v),
                           **joints)
-            if faults and v.ok and v.connections:
+            joint_axes = [l.axis for l in v.joints if l.axis is not None]
+            if faults and v.ok and (v.connections or joint_axes):
                 # Faults move the part off the connections it was accepted on: those of the
                 # structure it was judged against (with the later parts of its step, if it hangs).
                 yield from _faults(judged_on, local, backend, config, standing, step.index, index,
-                                   finished[step.assembly])
+                                   finished[step.assembly], joint_axes)
             if v.collision and not v.ok:
                 # Drawn where it overlaps the parts before it, whatever its verdict names first (a
                 # Technic pin pushed 3 LDU too deep into its hole: `unsupported-connection`).

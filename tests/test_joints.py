@@ -674,3 +674,27 @@ def test_a_bush_slides_off_the_nearer_end_of_its_axle_past_nothing_beyond_it(lib
             assert v.reason == "blocked" and set(v.blocked_by) == {1, 3}, v
         else:
             assert v.ok and [(l.kind, l.b) for l in v.joints] == [("technic-axle", 2)], v
+
+
+@needs_ldraw
+def test_parts_held_by_joints_alone_get_a_shift_fault_across_their_axis(tmp_path):
+    """`verify --faults` moved only parts on studs (a Technic model such as fll.mpd got no fault at
+    all). A pin in a Technic brick's hole and a beam on two pins, each held by joints alone, get a
+    shift of 10 LDU across the pins' axis: off their holes, each is rejected; neither gets a lift
+    or a turn (along and about a pin it slides and turns on its joint)."""
+    from factory.replay import summarize, verify_model
+
+    along_z, beam = "0 0 -1 0 1 0 1 0 0", "0 0 1 1 0 0 0 1 0"
+    model = tmp_path / "pinned.ldr"
+    model.write_text("0 Pinned\n"
+                     "1 15 0 0 0 1 0 0 0 1 0 0 0 1 3701.dat\n0 STEP\n"
+                     f"1 0 -20 10 10 {along_z} 3673.dat\n1 0 0 10 10 {along_z} 3673.dat\n0 STEP\n"
+                     f"1 4 0 10 20 {beam} 32523.dat\n0 STEP\n")
+    records = list(verify_model(model, str(LDRAW), faults=True))
+    plain = [r for r in records if "fault" not in r]
+    assert [r["reason"] for r in plain] == [None, None, None, None]
+    assert [r["joints"] for r in plain[1:]] == [["technic-pin"]] * 3
+    faults = [r for r in records if "fault" in r]
+    assert [(r["step"], r["index"], r["fault"]) for r in faults] == [(1, 0, "shift"), (1, 1, "shift"), (2, 0, "shift")]
+    assert all(r["reason"] is not None for r in faults), faults
+    assert summarize(records)["faults"]["shift"]["rejected"] == 1.0
