@@ -121,11 +121,19 @@ def part_teeth(part) -> tuple[Teeth, ...]:
     holes = [c for c in part_connectors(part) if c.kind in HOLE_KINDS]
     if not holes:
         return ()
-    points = _edge_points(np.asarray(part.flat.triangles, float))
+    centre = np.asarray(part.bbox, float).mean(0)
+    points = None
     out: list[Teeth] = []
     lines: list[tuple[np.ndarray, np.ndarray]] = []
     for c in holes:
         u, o = np.asarray(c.axis, float), np.asarray(c.start, float)
+        off = centre - o
+        if np.linalg.norm(off - (off @ u) * u) > TOOTH_DEPTH_LDU[1]:
+            # A gear's teeth ring its part: a hole far off the middle of the part's box is not a
+            # gear's (a Technic panel's hundreds of holes would each cost a pass over its outline).
+            continue
+        if points is None:
+            points = _edge_points(np.asarray(part.flat.triangles, float))
         d = [o - w for _, w in lines]
         if any(abs(u @ v) > PARALLEL_COS and np.linalg.norm(x - (x @ v) * v) < MESH_TOL_LDU
                for (v, _), x in zip(lines, d)):

@@ -47,6 +47,23 @@ def test_teeth_are_counted_from_the_drawing(lib):
         assert part_teeth(lib.part(name)) == (), name
 
 
+def test_only_holes_through_the_middle_of_a_part_are_searched_for_teeth(lib, monkeypatch):
+    """`--parts all` spent most of 24 minutes of one object in teeth searches (a pass over a part's outline for
+    each of its hole axes); a gear's teeth ring its part, so only holes through the middle of the
+    part's box are searched: a beam 7 has 7 holes and one through its middle, a 40 tooth gear
+    still has its ring."""
+    from factory import gears
+
+    searched = []
+    real = gears._ring
+    monkeypatch.setattr(gears, "_ring", lambda points, centre, u: searched.append(tuple(centre)) or real(points, centre, u))
+    for name, rings, teeth in (("32524", 1, []), ("3649", 1, [40])):
+        searched.clear()
+        part = lib.part(name)
+        gears.part_teeth.cache_clear()
+        assert [t.count for t in gears.part_teeth(part)] == teeth and len(searched) == rings, (name, searched)
+
+
 def test_gears_mesh_on_parallel_axes_at_their_pitch(lib):
     small, large = lib("3647", -20, 10, 25), lib("3648b", 20, 10, 25)
     assert meshes(small.part, small.pose, large.part, large.pose)
