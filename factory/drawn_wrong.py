@@ -25,7 +25,8 @@ from dataclasses import replace
 import numpy as np
 
 from factory.physics.check import Verdict, check_units
-from factory.physics.structure import Placed, Structure, connectors
+from factory.physics.seat import SEAT_LDU, facing
+from factory.physics.structure import Placed, Structure
 from factory.physics.unmodelled import boxes_near, world_box
 
 WRONG = "collision"
@@ -77,7 +78,7 @@ OFF_GRID_ACROSS_LDU = (1.0, 10.5)
 """Offsets across a stud's axis (LDU) `off_grid_ldu` counts: more than a fit's play, and up to
 half a stud pitch (a stud that far from every socket stands under the part's walls or tubes)."""
 
-OFF_GRID_ALONG_LDU = 3.5
+OFF_GRID_ALONG_LDU = SEAT_LDU
 """How far along its axis a stud may be from a socket's plane and still be pushed into the part
 (`seat.SEAT_LDU`: a stud is 4 LDU high)."""
 
@@ -92,32 +93,23 @@ def off_grid_ldu(structure: Structure, unit: list[Placed]) -> float | None:
     verdict (`replay` records it as `off_grid_ldu`)."""
     lo, hi = OFF_GRID_ACROSS_LDU
     worst = None
-    for which, theirs in (("sockets", "studs"), ("studs", "sockets")):
-        pos, axis, _ = getattr(structure, theirs)
-        if not len(pos):
-            continue
-        tree = structure.tree(theirs)
-        for placed in unit:
-            cp, ca = connectors(placed.part, placed.pose, which)
-            if not len(cp):
+    for which, cp, ca, pos, axis, tree in facing(structure, unit):
+        near = sorted({j for js in tree.query_ball_point(cp, hi + OFF_GRID_ALONG_LDU) for j in js})
+        if which == "sockets":  # the structure's studs against the unit's sockets
+            studs_p, studs_a, socks_p, socks_a = pos[near], axis[near], cp, ca
+        else:  # the unit's studs against the structure's sockets
+            studs_p, studs_a, socks_p, socks_a = cp, ca, pos[near], axis[near]
+        for p, a in zip(studs_p, studs_a):
+            same = socks_a @ a > 0.999
+            if not same.any():
                 continue
-            if which == "sockets":  # the structure's studs against the unit's sockets
-                near = sorted({j for js in tree.query_ball_point(cp, hi + OFF_GRID_ALONG_LDU) for j in js})
-                studs_p, studs_a, socks_p, socks_a = pos[near], axis[near], cp, ca
-            else:  # the unit's studs against the structure's sockets
-                near = sorted({j for js in tree.query_ball_point(cp, hi + OFF_GRID_ALONG_LDU) for j in js})
-                studs_p, studs_a, socks_p, socks_a = cp, ca, pos[near], axis[near]
-            for p, a in zip(studs_p, studs_a):
-                same = socks_a @ a > 0.999
-                if not same.any():
-                    continue
-                d = p - socks_p[same]
-                along = d @ a
-                across = np.linalg.norm(d - along[:, None] * a, axis=1)
-                plane = np.abs(along) <= OFF_GRID_ALONG_LDU
-                if not plane.any():
-                    continue
-                nearest = float(across[plane].min())
-                if lo < nearest <= hi and (worst is None or nearest > worst):
-                    worst = nearest
+            d = p - socks_p[same]
+            along = d @ a
+            across = np.linalg.norm(d - along[:, None] * a, axis=1)
+            plane = np.abs(along) <= OFF_GRID_ALONG_LDU
+            if not plane.any():
+                continue
+            nearest = float(across[plane].min())
+            if lo < nearest <= hi and (worst is None or nearest > worst):
+                worst = nearest
     return None if worst is None else round(worst, 3)

@@ -157,8 +157,7 @@ def _faults(structure, local: Placed, backend, config, standing, step, index, fi
         else:
             move = 8.0 * up if name == "lift" else 10.0 * side
             moved = Pose(local.pose.R, local.pose.t + move)
-            if lands_on_a_joint(structure, local.part, moved, move) or (by_joints and _on_another_joint(
-                    structure, local.part, moved, up)):
+            if lands_on_a_joint(structure, local.part, moved, move, up if by_joints else None):
                 continue  # not a fault: builders put parts there
         (v,) = check_units(structure, [[Placed(local.part, local.colour, moved)]], backend, config,
                            standing=standing)
@@ -180,14 +179,16 @@ SLIDING_JOINTS = ("clip-bar", "bar", "bar-in-stud", "technic-axle")
 still on it."""
 
 
-def lands_on_a_joint(structure: Structure, part, moved: Pose, move: np.ndarray) -> bool:
+def lands_on_a_joint(structure: Structure, part, moved: Pose, move: np.ndarray,
+                     held_axis: np.ndarray | None = None) -> bool:
     """Whether a fault's move puts the part on another real connection, so that it is no fault:
     a socket of it on a stud or a stud of it in a socket (a Technic brick 1x2's middle socket,
     where its long walls hold a stud, on the stud half a stud over: the Gearbox's 32064), its pin
     into a hollow stud's bore (a plate or Technic brick half a stud over, its underside pin in an
     open stud: builders offset parts so), or along the axis of a joint it slides on (an antenna's
-    bar lifted up its clip). Told by the parts' connectors (`stud_pairs`,
-    `unmodelled.joints_between`), not by the checks' verdict."""
+    bar lifted up its clip); for a part held by joints on `held_axis`, any joint of that axis (a
+    Technic brick with holes half a stud apart, moved onto its next hole). Told by the parts'
+    connectors (`stud_pairs`, `unmodelled.joints_between`), not by the checks' verdict."""
     u = np.asarray(move, float) / np.linalg.norm(move)
     if stud_pairs(structure, [Placed(part, 0, moved)]):
         return True  # on studs there: a 1-wide Technic brick's middle socket on a stud half a stud over
@@ -198,20 +199,12 @@ def lands_on_a_joint(structure: Structure, part, moved: Pose, move: np.ndarray) 
         for j in joints_between(part, moved, q.part, q.pose):
             if j.kind == "bar-in-stud":
                 return True
-            if j.kind in SLIDING_JOINTS and j.axis is not None and abs(float(np.asarray(j.axis) @ u)) > 0.98:
+            if j.axis is None:
+                continue
+            along = abs(float(np.asarray(j.axis) @ u)) > 0.98
+            if (j.kind in SLIDING_JOINTS and along) or (
+                    held_axis is not None and abs(float(np.asarray(j.axis) @ held_axis)) > 0.98):
                 return True
-    return False
-
-
-def _on_another_joint(structure: Structure, part, moved: Pose, axis: np.ndarray) -> bool:
-    """Whether a part held by joints, shifted across their axis, is on another joint of that
-    axis there (a Technic brick with holes half a stud apart, moved onto its next hole)."""
-    box = world_box(part, moved)
-    for q in structure.placed:
-        if boxes_near(box, world_box(q.part, q.pose)):
-            for j in joints_between(part, moved, q.part, q.pose):
-                if j.axis is not None and abs(float(np.asarray(j.axis) @ axis)) > 0.98:
-                    return True
     return False
 
 

@@ -318,6 +318,14 @@ def _remember_refusal(raw_key: str, exc: LDrawLimitError) -> None:
                                              "coarse": COARSE, "message": exc.message}).encode())
 
 
+def _as_wide(kept_: dict) -> bool:
+    """Whether a kept record ran under limits at least as wide as today's: CPU seconds and memory
+    (a refusal kept under the older wall-time limit is tried again). Raises KeyError, ValueError or
+    TypeError on a record that is not one."""
+    return float(kept_["seconds"]) >= coacd_seconds() and int(kept_["memory"]) >= COACD_MEMORY_BYTES \
+        and kept_.get("clock") == "cpu"
+
+
 def _slow_path(raw_key: str) -> Path:
     return cache_dir() / f"{raw_key}.slow.json"
 
@@ -335,8 +343,7 @@ def _slow_before(raw_key: str) -> str | None:
     `_refused_before`), else None: a larger `BRICK_FACTORY_COACD_SECONDS` tries it again."""
     try:
         kept_ = json.loads(_slow_path(raw_key).read_bytes())
-        if float(kept_["seconds"]) >= coacd_seconds() and int(kept_["memory"]) >= COACD_MEMORY_BYTES \
-                and kept_.get("clock") == "cpu":
+        if _as_wide(kept_):
             return str(kept_["message"])
     except (OSError, ValueError, KeyError, TypeError):
         pass
@@ -350,8 +357,7 @@ def _refused_before(raw_key: str, file) -> None:
     file, which may be another machine's path (a packed cache)."""
     try:
         kept_ = json.loads(_refusal_path(raw_key).read_bytes())
-        wide = float(kept_["seconds"]) >= coacd_seconds() and int(kept_["memory"]) >= COACD_MEMORY_BYTES \
-            and kept_.get("coarse") == COARSE and kept_.get("clock") == "cpu"  # (a wall-time refusal: tried again)
+        wide = _as_wide(kept_) and kept_.get("coarse") == COARSE
         message = str(kept_["message"])
     except (OSError, ValueError, KeyError, TypeError):
         return

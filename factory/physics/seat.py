@@ -32,10 +32,10 @@ PARALLEL_COS = float(np.cos(np.radians(1.0)))
 """Two joint connectors this close to parallel can be seated by a move alone (no turn)."""
 
 
-def _stud_offsets(structure: Structure, unit: list[Placed]) -> list[np.ndarray]:
-    """Moves (3,) that would mate a stud or socket of the unit with one of the structure within
-    `SEAT_LDU` (including ones already mated: a zero move)."""
-    out = []
+def facing(structure: Structure, unit: list[Placed]):
+    """For each part of the unit and each way round (its sockets against the structure's studs,
+    its studs against the structure's sockets): (which of the unit's, their positions, their axes,
+    the structure's positions, axes and k-d tree of the other kind). Nothing for an empty kind."""
     for which, theirs in (("sockets", "studs"), ("studs", "sockets")):
         pos, axis, _ = getattr(structure, theirs)
         if not len(pos):
@@ -43,10 +43,19 @@ def _stud_offsets(structure: Structure, unit: list[Placed]) -> list[np.ndarray]:
         tree = structure.tree(theirs)
         for placed in unit:
             cp, ca = connectors(placed.part, placed.pose, which)
-            for i, js in enumerate(tree.query_ball_point(cp, SEAT_LDU) if len(cp) else []):
-                for j in js:
-                    if ca[i] @ axis[j] > 0.999:
-                        out.append(pos[j] - cp[i])
+            if len(cp):
+                yield which, cp, ca, pos, axis, tree
+
+
+def _stud_offsets(structure: Structure, unit: list[Placed]) -> list[np.ndarray]:
+    """Moves (3,) that would mate a stud or socket of the unit with one of the structure within
+    `SEAT_LDU` (including ones already mated: a zero move)."""
+    out = []
+    for _, cp, ca, pos, axis, tree in facing(structure, unit):
+        for i, js in enumerate(tree.query_ball_point(cp, SEAT_LDU)):
+            for j in js:
+                if ca[i] @ axis[j] > 0.999:
+                    out.append(pos[j] - cp[i])
     return out
 
 
