@@ -698,3 +698,23 @@ def test_parts_held_by_joints_alone_get_a_shift_fault_across_their_axis(tmp_path
     assert [(r["step"], r["index"], r["fault"]) for r in faults] == [(1, 0, "shift"), (1, 1, "shift"), (2, 0, "shift")]
     assert all(r["reason"] is not None for r in faults), faults
     assert summarize(records)["faults"]["shift"]["rejected"] == 1.0
+
+
+def test_a_wheel_is_held_by_its_shape_only_on_its_pin(at):
+    """A rim (4624, drawn with a hollow centre and no connector primitives) on a wheel pin of the
+    plate 4600, as car.ldr places it, is held on the pin (its hole's bar-size cylinder). Shifted 10 LDU across the pin's axis
+    its box still shares a tenth with the plate's, and `verify --faults` accepted it (as it did
+    a sword beside a hand and half pins beside their holes): where both parts have joint
+    connectors, drawn ones too (`joints.part_connectors`), and none lies on another's axis,
+    nothing holds it by its shape."""
+    plate = [at("4600", 0, 0, 0)]
+    rim = at("4624", 30, 6, 0, [[0, 0, -1], [0, 1, 0], [1, 0, 0]])
+    v = verdict(plate, rim)
+    assert v.ok and {(l.kind, l.b) for l in v.joints} == {("bar", 0)}, v  # its hole's grip on the pin
+    for by in ((0, 0, 10), (0, -10, 0), (0, 0, -10)):
+        v = verdict(plate, moved(rim, by))
+        assert not v.ok and not v.joints, (by, v)
+    # A tyre (no connectors at all) on that rim is still held by its shape.
+    tyre = at("3641", 30, 6, 0, [[0, 0, -1], [0, 1, 0], [1, 0, 0]])
+    v = verdict(plate + [rim], tyre)
+    assert v.ok and ("by-shape", 1) in [(l.kind, l.b) for l in v.joints], v
