@@ -702,11 +702,13 @@ def test_parts_held_by_joints_alone_get_a_shift_fault_across_their_axis(tmp_path
 
 def test_a_wheel_is_held_by_its_shape_only_on_its_pin(at):
     """A rim (4624, drawn with a hollow centre and no connector primitives) on a wheel pin of the
-    plate 4600, as car.ldr places it, is held on the pin (its hole's bar-size cylinder). Shifted 10 LDU across the pin's axis
-    its box still shares a tenth with the plate's, and `verify --faults` accepted it (as it did
-    a sword beside a hand and half pins beside their holes): where both parts have joint
-    connectors, drawn ones too (`joints.part_connectors`), and none lies on another's axis,
-    nothing holds it by its shape."""
+    plate 4600, as car.ldr places it, is held on the pin (its hole's bar-size cylinder). Shifted
+    10 LDU across the pin's axis its box still shares a tenth with the plate's, and `verify
+    --faults` accepted it, held by its shape: a part round about its own hole
+    (`unmodelled._round_on_its_hole`: a wheel, a rim, a half pin) is held by shape only on the
+    axis of one of the other part's connectors. A part whose drawn connectors are not where it
+    holds is held by shape as before: the horse 74323 on its hitch 4587 as Covered Wagon's horse
+    places them, its bores 10 LDU from the hitch's bars."""
     plate = [at("4600", 0, 0, 0)]
     rim = at("4624", 30, 6, 0, [[0, 0, -1], [0, 1, 0], [1, 0, 0]])
     v = verdict(plate, rim)
@@ -718,3 +720,6 @@ def test_a_wheel_is_held_by_its_shape_only_on_its_pin(at):
     tyre = at("3641", 30, 6, 0, [[0, 0, -1], [0, 1, 0], [1, 0, 0]])
     v = verdict(plate + [rim], tyre)
     assert v.ok and ("by-shape", 1) in [(l.kind, l.b) for l in v.joints], v
+    hitch = at("4587", 0, 4, -40, [[0, 0, -1], [0, 1, 0], [1, 0, 0]])
+    v = verdict([hitch], at("74323", 0, -7, -138))
+    assert ("by-shape", 0) in [(l.kind, l.b) for l in v.joints], v

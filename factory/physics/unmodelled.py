@@ -343,8 +343,8 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
     a pin in a pin hole, an axle in an axle hole, a clip on a bar or handle, a wheel on its pin,
     click hinge halves) on one axis (`NEAR_LDU`); bar-size cylinders or bores that meet
     (`bars_meet`: a bar in a clip or a hollow stud, hinge fingers between fingers); and where
-    one side has no connector primitive, and two joint connectors lie on one axis if both parts
-    have any (`part_connectors`, drawn ones too), a part without sockets held by its shape
+    one side has no connector primitive, a part without sockets held by its shape (a wheel or
+    half pin, `_round_on_its_hole`, only on the axis of one of the other's connectors)
     (a tyre on a rim; a part with sockets sits on studs, and one slid off them beside a part
     without any is not held). Empty where none holds it."""
     if is_minifig(new) and is_minifig(placed):
@@ -393,17 +393,34 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
         if not any(on_one_axis(stretch, z, PARALLEL_DEG, BAR_AXIS_LDU) and stretch_overlap(stretch, z) > 0 for z in taken):
             out.append(_joint(kind, stretch))
     if not out and not new.sockets and not (len(_connectors(new)) and len(_connectors(placed))) \
-            and not (len(ca) and len(cb) and not connectors_meet(pa, pb)) \
+            and not (len(cb) and _round_on_its_hole(new) and not connectors_meet(pa, pb)) \
             and _box_share(new, new_pose, placed, placed_pose) >= SHAPE_SHARE \
             and (offers_other(placed) or on_a_hub(new, new_pose, placed, placed_pose)) \
             and not (part_teeth(new) and part_teeth(placed)):
-        # Where both have joint connectors, drawn holes and bars too (`part_connectors`), a hold
-        # by shape needs two of them on one axis: a rim 10 LDU off its wheel pin, a half pin
-        # beside its hole or a sword beside a hand still share a tenth of their boxes. (Two gears
-        # share their boxes where their teeth meet: they mesh or collide, and neither holds the
-        # other.)
+        # A wheel or a half pin goes on by its hole or pin: off the axis of every connector of
+        # the part it meets (10 LDU off its wheel pin), it still shares a tenth of their boxes,
+        # but nothing holds it. Parts whose drawn connectors are not where they hold (a horse's
+        # bores 10 LDU from its hitch's bars, air tanks round a neck) are held by shape as before.
+        # (Two gears share their boxes where their teeth meet: they mesh or collide, and neither
+        # holds the other.)
         out.append(Joint("by-shape", _box_meeting(new, new_pose, placed, placed_pose), None, None))
     return out
+
+
+def _round_on_its_hole(part: Part) -> bool:
+    """Whether one of the part's symmetries turns it about the axis line of one of its own joint
+    connectors (`part_connectors`): a wheel or rim about its hole, a half pin about its pin."""
+    conns = part_connectors(part)
+    for S in part.symmetry.rotations[1:]:
+        w, v = np.linalg.eig(S)
+        axis = np.real(v[:, np.argmin(np.abs(w - 1.0))])  # a proper rotation keeps its axis
+        for c in conns:
+            u = np.asarray(c.axis, float)
+            start = np.asarray(c.start, float)
+            if abs(float(u @ axis)) >= np.cos(np.radians(PARALLEL_DEG)) \
+                    and np.linalg.norm(start - (start @ u) * u) <= NEAR_LDU:  # its line through the origin
+                return True
+    return False
 
 
 def _clicked(a: JointConnector, a_pose: Pose, b: JointConnector, b_pose: Pose) -> bool:
