@@ -723,3 +723,17 @@ def test_a_wheel_is_held_by_its_shape_only_on_its_pin(at):
     hitch = at("4587", 0, 4, -40, [[0, 0, -1], [0, 1, 0], [1, 0, 0]])
     v = verdict([hitch], at("74323", 0, -7, -138))
     assert ("by-shape", 0) in [(l.kind, l.b) for l in v.joints], v
+
+
+def test_a_bar_slid_out_of_its_clip_is_not_held_by_shape(at):
+    """The hinge top 3938 on its base 3937 as car.ldr places them (one pose) is held by its
+    fingers. Lifted 10 LDU its fingers' bars lie beside the base's grips, parallel and against
+    their outsides, and its box still shares a tenth with the base's: `verify --faults` accepted
+    it, held by its shape. A bar or handle beside a clip or grip it goes in, off its axis by no
+    more than `unmodelled.BESIDE_CLIP_LDU`, is out of it: nothing holds it there."""
+    base = [at("3937", 0, 0, 0)]
+    top = at("3938", 0, 0, 0)
+    v = verdict(base, top)
+    assert v.ok and v.joints and "by-shape" not in [l.kind for l in v.joints], v
+    v = verdict(base, moved(top, (0, -10, 0)))
+    assert not v.ok and not v.joints, v

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factory.gears import part_teeth
-from factory.ldraw.other_connectors import CONNECTOR_KINDS, place_connectors
+from factory.ldraw.other_connectors import BAR_RADIUS, CONNECTOR_KINDS, place_connectors
 from factory.joints import (HOME_TOL_LDU, JointConnector, click_angle, mates, on_a_click, on_one_axis, part_connectors, part_stretches,
                             stretch_overlap, together)
 from factory.minifig import FEET, FOOT_AXIS, in_a_slot, related, role
@@ -394,17 +394,34 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
             out.append(_joint(kind, stretch))
     if not out and not new.sockets and not (len(_connectors(new)) and len(_connectors(placed))) \
             and not (len(cb) and _round_on_its_hole(new) and not connectors_meet(pa, pb)) \
+            and not _bar_beside_its_clip(ca, pa, cb, pb) \
             and _box_share(new, new_pose, placed, placed_pose) >= SHAPE_SHARE \
             and (offers_other(placed) or on_a_hub(new, new_pose, placed, placed_pose)) \
             and not (part_teeth(new) and part_teeth(placed)):
         # A wheel or a half pin goes on by its hole or pin: off the axis of every connector of
         # the part it meets (10 LDU off its wheel pin), it still shares a tenth of their boxes,
-        # but nothing holds it. Parts whose drawn connectors are not where they hold (a horse's
+        # but nothing holds it; nor does anything hold a bar slid out of its clip, beside it. Parts whose drawn connectors are not where they hold (a horse's
         # bores 10 LDU from its hitch's bars, air tanks round a neck) are held by shape as before.
         # (Two gears share their boxes where their teeth meet: they mesh or collide, and neither
         # holds the other.)
         out.append(Joint("by-shape", _box_meeting(new, new_pose, placed, placed_pose), None, None))
     return out
+
+
+_BARS, _CLIPS = {"bar", "handle"}, {"clip", "grip"}
+
+
+def _bar_beside_its_clip(ca, pa, cb, pb) -> bool:
+    """Whether a bar or handle of one part lies against the outside of a clip or grip of the other
+    (`part_connectors` `ca`, `cb` placed as `pa`, `pb`): parallel, side by side along the axis,
+    off it by more than a joint's `NEAR_LDU` but no more than `BESIDE_CLIP_LDU`."""
+    for c, s in zip(ca, pa):
+        for d, t in zip(cb, pb):
+            if (c.kind in _BARS and d.kind in _CLIPS) or (c.kind in _CLIPS and d.kind in _BARS):
+                angle, radial, gap = separation(s, t)
+                if angle <= PARALLEL_DEG and gap <= NEAR_LDU and NEAR_LDU < radial <= BESIDE_CLIP_LDU:
+                    return True
+    return False
 
 
 def _round_on_its_hole(part: Part) -> bool:
@@ -445,6 +462,12 @@ def on_a_hub(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -> bool
                for s in place_connectors(part_stretches(placed), placed_pose.R, placed_pose.t))
 
 
+BESIDE_CLIP_LDU = 3 * BAR_RADIUS
+"""How far off a clip's (or a grip's) axis a bar or handle parallel to it, beside it along the
+axis, lies against the clip's outside rather than anywhere else: the clip's jaws, about a bar's
+radius thick round a bar's radius, and the bar's own radius. Such a bar is out of the clip it
+goes in, and the two parts' shapes do not hold it there (`joints_between`). Parts held by their
+shapes on the 19 designs of ../shared/designs have no bar and clip closer than 16 LDU."""
 SHAPE_SHARE = 0.1
 """How much of the smaller of two parts' boxes the boxes must share for one to hold the other by
 its shape (a rim's box lies inside its tyre's; hinge halves drawn without connectors share the
