@@ -393,17 +393,17 @@ def joints_between(new: Part, new_pose: Pose, placed: Part, placed_pose: Pose) -
         if not any(on_one_axis(stretch, z, PARALLEL_DEG, BAR_AXIS_LDU) and stretch_overlap(stretch, z) > 0 for z in taken):
             out.append(_joint(kind, stretch))
     if not out and not new.sockets and not (len(_connectors(new)) and len(_connectors(placed))) \
-            and not (len(cb) and _round_on_its_hole(new) and not connectors_meet(pa, pb)) \
-            and not _bar_beside_its_clip(ca, pa, cb, pb) \
             and _box_share(new, new_pose, placed, placed_pose) >= SHAPE_SHARE \
             and (offers_other(placed) or on_a_hub(new, new_pose, placed, placed_pose)) \
-            and not (part_teeth(new) and part_teeth(placed)):
-        # A wheel or a half pin goes on by its hole or pin: off the axis of every connector of
-        # the part it meets (10 LDU off its wheel pin), it still shares a tenth of their boxes,
-        # but nothing holds it; nor does anything hold a bar slid out of its clip, beside it. Parts whose drawn connectors are not where they hold (a horse's
-        # bores 10 LDU from its hitch's bars, air tanks round a neck) are held by shape as before.
+            and not (part_teeth(new) and part_teeth(placed)) \
+            and not (len(cb) and _round_on_its_hole(new) and not connectors_meet(pa, pb)) \
+            and not _bar_beside_its_clip(ca, pa, cb, pb):
         # (Two gears share their boxes where their teeth meet: they mesh or collide, and neither
-        # holds the other.)
+        # holds the other.) A wheel or a half pin goes on by its hole or pin: off the axis of
+        # every connector of the part it meets (10 LDU off its wheel pin) it still shares a tenth
+        # of their boxes, but nothing holds it; nor does anything hold a bar slid out of its clip,
+        # beside it. Parts whose drawn connectors are not where they hold (a horse's bores 10 LDU
+        # from its hitch's bars, air tanks round a neck) are held by their shapes.
         out.append(Joint("by-shape", _box_meeting(new, new_pose, placed, placed_pose), None, None))
     return out
 
